@@ -1,0 +1,48 @@
+"""Command-line entry point: ``python -m host_tools COMMAND ...``.
+
+Each command lives in its own module, which provides ``add_arguments(parser)``
+and ``main(args) -> int``.  Exit codes: 0 done, 1 a check failed, 2 bad input.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# command name -> (module, one-line help).  Modules are imported lazily so that
+# one command's optional dependency never breaks another command.
+COMMANDS = {
+    "log": ("host_tools.logger", "record a run from the XBee serial port"),
+    "timing": ("host_tools.timing", "check the firmware's timing budgets"),
+    "analyze": ("host_tools.analyzer.cli", "find, name and model sim/real mismatch"),
+    "demo": ("host_tools.demo", "the main job: thesis reproduction and analyzer demo"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m host_tools", description=__doc__)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module)
+        try:
+            importlib.import_module(module).add_arguments(p)
+        except ImportError as exc:  # command not available in this checkout
+            p.set_defaults(_import_error=str(exc))
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return 2
+    if getattr(args, "_import_error", None):
+        print(f"error: command '{args.command}' is unavailable: {args._import_error}", file=sys.stderr)
+        return 2
+    return int(importlib.import_module(args._module).main(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
