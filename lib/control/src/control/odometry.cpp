@@ -1,0 +1,162 @@
+#include <control/odometry.h>
+
+#include <math.h>
+
+namespace ctl {
+
+namespace {
+const float kPi = 3.14159265358979f;
+const float kTwoPi = 6.28318530717959f;
+
+int32_t count_step(int32_t now, int32_t last, bool* jumped) {
+  // Modulo-2^32 difference: correct across int32 wrap-around.
+  int32_t d = static_cast<int32_t>(static_cast<uint32_t>(now) - static_cast<uint32_t>(last));
+  if (d > kMaxStepCounts || d < -kMaxStepCounts) {
+    *jumped = true;
+    d = d > 0 ? kMaxStepCounts : -kMaxStepCounts;
+  }
+  return d;
+}
+}  // namespace
+
+float wrap_pi(float a) {
+  if (!(a == a)) return 0.0f;  // NaN guard
+  if (a >= -kPi && a < kPi) return a;
+  a = fmodf(a + kPi, kTwoPi);
+  if (a < 0.0f) a += kTwoPi;
+  return a - kPi;
+}
+
+// ---------------------------------------------------------------- float
+Odometry::Odometry(const OdometryConfig& cfg)
+    : cfg_(cfg),
+      rad_per_count_(cfg.counts_per_rev > 0 ? kTwoPi / static_cast<float>(cfg.counts_per_rev) : 0.0f) {
+  reset(0, 0, Pose{0.0f, 0.0f, 0.0f});
+}
+
+void Odometry::reset(int32_t enc_r, int32_t enc_l, const Pose& p) {
+  last_r_ = enc_r;
+  last_l_ = enc_l;
+  pose_ = p;
+  pose_.phi_rad = wrap_pi(p.phi_rad);
+  w_r_ = w_l_ = v_ = w_ = 0.0f;
+}
+
+OdoStatus Odometry::update(int32_t enc_r, int32_t enc_l, float dt_s) {
+  if (!cfg_.valid()) return OdoStatus::kBadConfig;
+  bool jumped = false;
+  const int32_t dn_r = count_step(enc_r, last_r_, &jumped);
+  const int32_t dn_l = count_step(enc_l, last_l_, &jumped);
+  last_r_ = enc_r;
+  last_l_ = enc_l;
+
+  const float dth_r = static_cast<float>(dn_r) * rad_per_count_;
+  const float dth_l = static_cast<float>(dn_l) * rad_per_count_;
+  const float r = cfg_.wheel_radius_m;
+  const float ds = 0.5f * r * (dth_r + dth_l);
+  const float dphi = r * (dth_r - dth_l) / (2.0f * cfg_.half_track_m);
+  const float half = 0.5f * dphi;
+  // sinc by series near 0 (error < half^6/5040 < 2e-22 there), sin/x elsewhere.
+  const float h2 = half * half;
+  const float sinc = (h2 < 1.0e-4f) ? 1.0f - h2 * (1.0f / 6.0f) * (1.0f - h2 * 0.05f) : sinf(half) / half;
+  const float chord = ds * sinc;
+  const float mid = pose_.phi_rad + half;
+  pose_.x_m += chord * cosf(mid);
+  pose_.y_m += chord * sinf(mid);
+  pose_.phi_rad = wrap_pi(pose_.phi_rad + dphi);
+
+  OdoStatus st = jumped ? OdoStatus::kCountJump : OdoStatus::kOk;
+  if (dt_s > 0.0f && dt_s < 1.0e30f) {
+    w_r_ = dth_r / dt_s;
+    w_l_ = dth_l / dt_s;
+  } else {
+    w_r_ = w_l_ = 0.0f;
+    st = OdoStatus::kBadDt;
+  }
+  v_ = 0.5f * r * (w_r_ + w_l_);
+  w_ = r * (w_r_ - w_l_) / (2.0f * cfg_.half_track_m);
+  return st;
+}
+
+// ---------------------------------------------------------------- fixed point
+OdometryQ::OdometryQ(const OdometryConfigQ& cfg) : cfg_(cfg) { reset(0, 0, PoseQ{0, 0, 0}); }
+
+void OdometryQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
+  last_r_ = enc_r;
+  last_l_ = enc_l;
+  pose_ = p;
+  phi_frac_ = 0;
+  x_frac_ = y_frac_ = 0;
+  last_dt_us_ = 0;
+  rate_per_count_q11_ = 0;
+  w_r_q8_ = w_l_q8_ = v_q12_ = w_q11_ = 0;
+}
+
+OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
+  if (!cfg_.ok) return OdoStatus::kBadConfig;
+  bool jumped = false;
+  const int32_t dn_r = count_step(enc_r, last_r_, &jumped);
+  const int32_t dn_l = count_step(enc_l, last_l_, &jumped);
+  last_r_ = enc_r;
+  last_l_ = enc_l;
+
+  // Heading: dphi = (dn_r - dn_l) * K, K = r/(2b) 2pi/ppr as binary angle + 16-bit fraction.
+  // |nd| <= 32766 so nd * frac < 2^31, and the binary-angle part wraps modulo 2pi exactly.
+  const int32_t nd = dn_r - dn_l;
+  const int32_t acc = static_cast<int32_t>(phi_frac_) + nd * static_cast<int32_t>(cfg_.dphi_per_count_frac);
+  phi_frac_ = static_cast<uint16_t>(acc & 0xFFFF);
+  const uint32_t dphi = static_cast<uint32_t>(nd) * cfg_.dphi_per_count_b32 +
+                        static_cast<uint32_t>(acc >> 16);
+
+  // Arc length of o, Q28 metres (|ds| <= 2.03 m for the clamped increments).
+  const int16_t n_sum = static_cast<int16_t>(dn_r + dn_l);
+  const int32_t ds_q28 = fx::mul32x16(cfg_.ds_per_count_q35, n_sum, 7);
+
+  // sinc(dphi/2) = 1 - a^2/6 + a^4/120, a = dphi/2 in rad (Q15), |a| clamped to 1 rad
+  // (truncation error a^6/5040 <= 2e-4 at the clamp, < 3e-9 for |a| < 0.16 = full-speed spin).
+  int16_t t = static_cast<int16_t>(static_cast<int32_t>(dphi) >> 16);  // 2pi/65536 units of dphi
+  if (t > 20860) t = 20860;
+  if (t < -20860) t = -20860;
+  const int16_t a_q15 = static_cast<int16_t>(fx::mul16(t, 25736, 14));  // t * pi/2 -> Q15 rad
+  const int16_t a2 = static_cast<int16_t>(fx::mul16(a_q15, a_q15, 15));
+  const int16_t a4 = static_cast<int16_t>(fx::mul16(a2, a2, 15));
+  const int16_t one_minus_sinc_q15 =
+      static_cast<int16_t>(fx::mul16(a2, 5461, 15) - fx::mul16(a4, 273, 15));
+  const int32_t chord_q28 = ds_q28 - fx::mul32x16(ds_q28, one_minus_sinc_q15, 15);
+
+  // Position increments in Q28; the 8 bits below Q20 are carried in x_frac_/y_frac_ so that
+  // rounding does not accumulate (a constant increment would otherwise bias the position by
+  // up to 0.5 LSB of Q20 per step: 2 mm over 4,000 steps).
+  const uint32_t mid = pose_.phi_b32 + static_cast<uint32_t>(static_cast<int32_t>(dphi) >> 1);
+  const int32_t dx_q28 = fx::mul_trig(chord_q28, fx::cos_q15(mid), 15);
+  const int32_t dy_q28 = fx::mul_trig(chord_q28, fx::sin_q15(mid), 15);
+  const int16_t sx = static_cast<int16_t>(x_frac_ + (dx_q28 & 0xFF));
+  const int16_t sy = static_cast<int16_t>(y_frac_ + (dy_q28 & 0xFF));
+  x_frac_ = static_cast<uint8_t>(sx & 0xFF);
+  y_frac_ = static_cast<uint8_t>(sy & 0xFF);
+  pose_.x_q20 = fx::add_sat32(pose_.x_q20, (dx_q28 >> 8) + (sx >> 8));
+  pose_.y_q20 = fx::add_sat32(pose_.y_q20, (dy_q28 >> 8) + (sy >> 8));
+  pose_.phi_b32 += dphi;
+
+  // Wheel speeds, rad/s Q8: dn * (2pi/ppr 2^8 1e6 / dt_us). The reciprocal is cached: the
+  // division (about 650 cycles on the AVR) only runs when dt changes.
+  OdoStatus st = jumped ? OdoStatus::kCountJump : OdoStatus::kOk;
+  if (dt_us == 0) {
+    w_r_q8_ = w_l_q8_ = 0;
+    st = OdoStatus::kBadDt;
+  } else {
+    if (dt_us != last_dt_us_) {
+      last_dt_us_ = dt_us;
+      rate_per_count_q11_ = static_cast<int32_t>(static_cast<uint32_t>(cfg_.wheel_rate_q11) / dt_us);
+    }
+    w_r_q8_ = fx::sat16(fx::mul32x16(rate_per_count_q11_, static_cast<int16_t>(dn_r), 11));
+    w_l_q8_ = fx::sat16(fx::mul32x16(rate_per_count_q11_, static_cast<int16_t>(dn_l), 11));
+  }
+  const int32_t sum_q8 = static_cast<int32_t>(w_r_q8_) + w_l_q8_;
+  const int32_t diff_q8 = static_cast<int32_t>(w_r_q8_) - w_l_q8_;
+  v_q12_ = fx::sat16(fx::mul32x16(sum_q8, cfg_.half_r_q16, 12));     // Q8*Q16>>12
+  w_q11_ = fx::sat16(fx::mul32x16(diff_q8, cfg_.r_over_2b_q15, 12));  // Q8*Q15>>12
+  return st;
+}
+
+}  // namespace ctl

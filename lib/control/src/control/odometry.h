@@ -1,0 +1,144 @@
+// Encoder odometry of the axle centre o (thesis III.1-III.4), float and fixed point.
+//
+// Derivation. Over one sample the wheel angles change by dth_r = 2 pi dn_r / ppr and
+// dth_l = 2 pi dn_l / ppr. Assuming constant wheel speeds within the sample, o moves on a
+// circular arc of length ds = r (dth_r + dth_l) / 2 while the heading turns by
+// dphi = r (dth_r - dth_l) / (2 b)  (III.2; a faster right wheel turns left).
+// Integrating xdot = v cos(phi), ydot = v sin(phi) exactly along the arc gives
+//     x += ds * sinc(dphi/2) * cos(phi + dphi/2)
+//     y += ds * sinc(dphi/2) * sin(phi + dphi/2)          sinc(a) = sin(a)/a.
+// This is III.3 and III.4 rewritten: b(v_r+v_l)/(v_r-v_l) (sin phi1 - sin phi0) =
+// ds/dphi * 2 cos(phi_mid) sin(dphi/2) = ds sinc(dphi/2) cos(phi_mid), and for y
+// ds/dphi (cos phi0 - cos phi1) -- III.4 has cos phi1 - cos phi0, i.e. the wrong sign.
+// The sinc form has no division by (v_r - v_l): the straight-line limit is sinc(0) = 1 with
+// no loss of precision.
+//
+// Encoder counts are cumulative int32 that may wrap; the increment is taken modulo 2^32.
+#ifndef CONTROL_ODOMETRY_H
+#define CONTROL_ODOMETRY_H
+
+#include <stdint.h>
+
+#include <control/fixmath.h>
+
+namespace ctl {
+
+/// Result of an update. Non-zero values are errors; the state is still kept finite.
+enum class OdoStatus : uint8_t {
+  kOk = 0,
+  kBadConfig = 1,   ///< radius, half track or counts per revolution not positive
+  kBadDt = 2,       ///< dt not positive (or not finite): pose updated, speeds set to 0
+  kCountJump = 3,   ///< a count increment exceeded kMaxStepCounts: increment clamped
+};
+
+/// Largest accepted count increment per wheel and update (8.8 wheel turns; the motor's
+/// no-load speed gives about 270 counts per 25 ms).
+static const int32_t kMaxStepCounts = 16383;
+
+/// Constant configuration.
+struct OdometryConfig {
+  float wheel_radius_m;
+  float half_track_m;      ///< b, half the wheel separation
+  int32_t counts_per_rev;  ///< encoder counts per wheel revolution (1856)
+  constexpr bool valid() const { return wheel_radius_m > 0.0f && half_track_m > 0.0f && counts_per_rev > 0; }
+};
+
+struct Pose {
+  float x_m;
+  float y_m;
+  float phi_rad;  ///< wrapped to [-pi, pi)
+};
+
+/// Float odometry (host and AVR).
+class Odometry {
+ public:
+  explicit Odometry(const OdometryConfig& cfg);
+  /// Start from pose p with the encoders reading (enc_r, enc_l).
+  void reset(int32_t enc_r, int32_t enc_l, const Pose& p);
+  /// New cumulative counts after dt_s seconds.
+  OdoStatus update(int32_t enc_r, int32_t enc_l, float dt_s);
+
+  const Pose& pose() const { return pose_; }
+  float omega_r_rad_s() const { return w_r_; }  ///< wheel speeds, III.1
+  float omega_l_rad_s() const { return w_l_; }
+  float v_m_s() const { return v_; }            ///< v = r (w_r + w_l) / 2
+  float omega_rad_s() const { return w_; }      ///< omega = r (w_r - w_l) / (2b)
+
+ private:
+  OdometryConfig cfg_;
+  float rad_per_count_;
+  int32_t last_r_, last_l_;
+  Pose pose_;
+  float w_r_, w_l_, v_, w_;
+};
+
+/// Fixed-point configuration, derived from OdometryConfig at compile time (constexpr).
+struct OdometryConfigQ {
+  int32_t ds_per_count_q35;    ///< r pi / ppr (metres per count of n_r + n_l), Q35
+  uint32_t dphi_per_count_b32; ///< r / (2b) * 2pi / ppr per count of n_r - n_l, binary angle
+  uint16_t dphi_per_count_frac;///< ...its fraction below one binary-angle unit, Q16
+  int32_t wheel_rate_q11;      ///< 2pi / ppr * 2^8 * 1e6, Q11 (to get rad/s Q8 from counts/us)
+  int16_t half_r_q16;          ///< r / 2, Q16
+  int16_t r_over_2b_q15;       ///< r / (2b), Q15
+  bool ok;                     ///< the float configuration was valid and representable
+
+  constexpr explicit OdometryConfigQ(const OdometryConfig& c)
+      : ds_per_count_q35(c.valid() ? fx::q_const(c.wheel_radius_m * 3.14159265358979 / c.counts_per_rev, 35) : 0),
+        dphi_per_count_b32(static_cast<uint32_t>(dphi_b32(c))),
+        dphi_per_count_frac(static_cast<uint16_t>((dphi_b32(c) - static_cast<double>(
+                                                       static_cast<uint32_t>(dphi_b32(c)))) * 65536.0)),
+        wheel_rate_q11(c.valid() ? fx::q_const(6.283185307179586 / c.counts_per_rev * 256.0 * 1.0e6, 11) : 0),
+        half_r_q16(c.valid() && c.wheel_radius_m < 0.5f
+                       ? static_cast<int16_t>(fx::q_const(c.wheel_radius_m / 2.0, 16)) : 0),
+        r_over_2b_q15(ok_range(c) ? static_cast<int16_t>(fx::q_const(c.wheel_radius_m / (2.0 * c.half_track_m), 15)) : 0),
+        ok(ok_range(c)) {}
+
+  /// r/(2b) 2pi/ppr in binary-angle units (0 for an invalid configuration).
+  static constexpr double dphi_b32(const OdometryConfig& c) {
+    return ok_range(c) ? c.wheel_radius_m / (2.0 * c.half_track_m) / c.counts_per_rev * 4294967296.0 : 0.0;
+  }
+  /// Valid and representable: r < 0.5 m, r/(2b) < 0.99, ppr >= 1600 (wheel_rate_q11 fits).
+  static constexpr bool ok_range(const OdometryConfig& c) {
+    return c.valid() && c.wheel_radius_m < 0.5f && c.wheel_radius_m / (2.0 * c.half_track_m) < 0.99 &&
+           c.counts_per_rev >= 1600;
+  }
+};
+
+/// Fixed-point pose: position Q20 metres (range +-2048 m, 0.95 um), heading binary angle.
+struct PoseQ {
+  int32_t x_q20;
+  int32_t y_q20;
+  uint32_t phi_b32;
+};
+
+/// Fixed-point odometry (no float anywhere; AVR inner loop).
+class OdometryQ {
+ public:
+  explicit OdometryQ(const OdometryConfigQ& cfg);
+  void reset(int32_t enc_r, int32_t enc_l, const PoseQ& p);
+  /// New cumulative counts after dt_us microseconds.
+  OdoStatus update(int32_t enc_r, int32_t enc_l, uint32_t dt_us);
+
+  const PoseQ& pose() const { return pose_; }
+  int16_t omega_r_q8() const { return w_r_q8_; }   ///< rad/s, Q8 (saturated at +-128)
+  int16_t omega_l_q8() const { return w_l_q8_; }
+  int16_t v_q12() const { return v_q12_; }         ///< m/s, Q12
+  int16_t omega_q11() const { return w_q11_; }     ///< rad/s, Q11
+
+ private:
+  OdometryConfigQ cfg_;
+  int32_t last_r_, last_l_;
+  PoseQ pose_;
+  uint16_t phi_frac_;
+  uint8_t x_frac_, y_frac_;  // position below Q20 (Q28 residue)
+  uint32_t last_dt_us_;
+  int32_t rate_per_count_q11_;  // cached wheel_rate_q11 / dt_us
+  int16_t w_r_q8_, w_l_q8_, v_q12_, w_q11_;
+};
+
+/// Wrap an angle to [-pi, pi).
+float wrap_pi(float a_rad);
+
+}  // namespace ctl
+
+#endif  // CONTROL_ODOMETRY_H
