@@ -1,0 +1,275 @@
+// C ABI over lib/slipmodel for Python (ctypes): the plant, its parameters, the effect vocabulary,
+// normal forces and tau_max. Built into .build/host/libddrobot.so by host_tools/_native.py.
+// Never crashes on bad input: unknown keys, NaN values and bad arrays give a negative return
+// code and a message from sm_last_error(plant).
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <slipmodel/effects.h>
+#include <slipmodel/params.h>
+#include <slipmodel/plant.h>
+#include <slipmodel/traction.h>
+
+namespace {
+
+enum {
+  SM_OK = 0,
+  SM_ERR_KEY = -1,    // unknown key / effect / index
+  SM_ERR_VALUE = -2,  // NaN, infinite or out-of-range value
+  SM_ERR_ARG = -3,    // null pointer, bad n, bad mode
+  SM_ERR_TIME = -4,   // time stamps not strictly increasing
+};
+
+struct Handle {
+  slip::Plant plant;
+  char err[256];
+  Handle() : plant() { err[0] = '\0'; }
+};
+
+enum Rule { kAny, kPositive, kNonNegative };
+
+struct ParamKey {
+  const char* key;
+  double* (*get)(Handle*);
+  Rule rule;
+};
+
+#define ROBOT_KEY(name, rule) \
+  {"robot." #name, [](Handle* h) -> double* { return &h->plant.robot().name; }, rule}
+#define MOTOR_KEY(name) \
+  {"motor." #name, [](Handle* h) -> double* { return &h->plant.motor().name; }, kPositive}
+
+const ParamKey kKeys[] = {
+    ROBOT_KEY(mu_s, kNonNegative), ROBOT_KEY(mu_k, kNonNegative), ROBOT_KEY(b, kPositive),
+    ROBOT_KEY(e, kNonNegative),    ROBOT_KEY(d, kAny),            ROBOT_KEY(g, kPositive),
+    ROBOT_KEY(h, kNonNegative),    ROBOT_KEY(m_r, kPositive),     ROBOT_KEY(I_rz, kPositive),
+    ROBOT_KEY(I_wz, kNonNegative), ROBOT_KEY(I_wy, kPositive),    ROBOT_KEY(r, kPositive),
+    ROBOT_KEY(m_w, kNonNegative),  MOTOR_KEY(supply_v),           MOTOR_KEY(no_load_rad_s),
+    MOTOR_KEY(stall_nm),
+};
+const int kKeyCount = sizeof(kKeys) / sizeof(kKeys[0]);
+
+const char* const kCols[] = {"t_s",         "x_m",         "y_m",            "phi_rad",
+                             "v_m_s",       "omega_rad_s", "theta_r_rad",    "theta_l_rad",
+                             "dtheta_r_rad_s", "dtheta_l_rad_s", "tau_r_nm", "tau_l_nm",
+                             "slip_r",      "slip_l",      "N_r",            "N_l",
+                             "N_c",         "w_m_s",       "F_r_n",          "F_l_n",
+                             "L_r_n",       "L_l_n"};
+const int kColCount = sizeof(kCols) / sizeof(kCols[0]);
+
+Handle* H(void* p) { return static_cast<Handle*>(p); }
+
+void set_err(Handle* h, const char* fmt, const char* a, double x = 0.0, int i = 0) {
+  if (h) snprintf(h->err, sizeof(h->err), fmt, a, x, i);
+}
+
+// Splits "effect.param" into an effect id and a parameter index (-2 for "enabled").
+bool parse_effect_key(const char* key, int* id, int* k) {
+  const char* dot = strrchr(key, '.');
+  if (dot == nullptr || dot == key) return false;
+  char name[64];
+  const size_t len = static_cast<size_t>(dot - key);
+  if (len >= sizeof(name)) return false;
+  memcpy(name, key, len);
+  name[len] = '\0';
+  *id = slip::effect_id(name);
+  if (*id < 0) return false;
+  if (strcmp(dot + 1, "enabled") == 0) { *k = -2; return true; }
+  *k = slip::effect_param_index(*id, dot + 1);
+  return *k >= 0;
+}
+
+void fill_dynamic(const slip::PlantState& s, double* row) {
+  row[10] = s.tau_r_nm;
+  row[11] = s.tau_l_nm;
+  row[14] = s.N_r;
+  row[15] = s.N_l;
+  row[16] = s.N_c;
+  row[18] = s.F_r_n;
+  row[19] = s.F_l_n;
+  row[20] = s.L_r_n;
+  row[21] = s.L_l_n;
+}
+
+void fill_kinematic(const slip::PlantState& s, double* row) {
+  row[0] = s.t_s;
+  row[1] = s.x_m;
+  row[2] = s.y_m;
+  row[3] = s.phi_rad;
+  row[4] = s.v_m_s;
+  row[5] = s.omega_rad_s;
+  row[6] = s.theta_r_rad;
+  row[7] = s.theta_l_rad;
+  row[8] = s.dtheta_r_rad_s;
+  row[9] = s.dtheta_l_rad_s;
+  row[12] = s.slipping_r ? 1.0 : 0.0;
+  row[13] = s.slipping_l ? 1.0 : 0.0;
+  row[17] = s.w_m_s;
+}
+
+}  // namespace
+
+extern "C" {
+
+int sm_effect_count(void) { return slip::kEffectCount; }
+
+const char* sm_effect_name(int i) {
+  return (i >= 0 && i < slip::kEffectCount) ? slip::effect_info(i).name : nullptr;
+}
+
+int sm_effect_param_count(int i) {
+  return (i >= 0 && i < slip::kEffectCount) ? slip::effect_info(i).param_count : SM_ERR_KEY;
+}
+
+const char* sm_effect_param_name(int i, int k) {
+  if (i < 0 || i >= slip::kEffectCount || k < 0 || k >= slip::effect_info(i).param_count)
+    return nullptr;
+  return slip::effect_info(i).param_names[k];
+}
+
+double sm_effect_param_default(int i, int k) {
+  if (i < 0 || i >= slip::kEffectCount || k < 0 || k >= slip::effect_info(i).param_count)
+    return NAN;
+  return slip::effect_info(i).defaults[k];
+}
+
+int sm_param_count(void) { return kKeyCount; }
+const char* sm_param_name(int i) { return (i >= 0 && i < kKeyCount) ? kKeys[i].key : nullptr; }
+
+void* sm_plant_new(void) { return new Handle(); }
+
+void sm_plant_free(void* p) { delete H(p); }
+
+const char* sm_last_error(void* p) { return p ? H(p)->err : "null plant"; }
+
+int sm_plant_set(void* p, const char* key, double v) {
+  Handle* h = H(p);
+  if (h == nullptr || key == nullptr) return SM_ERR_ARG;
+  for (int i = 0; i < kKeyCount; ++i) {
+    if (strcmp(kKeys[i].key, key) != 0) continue;
+    const Rule rule = kKeys[i].rule;
+    if (!isfinite(v) || (rule == kPositive && !(v > 0.0)) || (rule == kNonNegative && v < 0.0)) {
+      set_err(h, "%s: bad value %g", key, v);
+      return SM_ERR_VALUE;
+    }
+    *kKeys[i].get(h) = v;
+    return SM_OK;
+  }
+  int id = -1, k = -1;
+  if (!parse_effect_key(key, &id, &k)) {
+    set_err(h, "unknown key '%s'", key);
+    return SM_ERR_KEY;
+  }
+  if (!isfinite(v)) {
+    set_err(h, "%s: bad value %g", key, v);
+    return SM_ERR_VALUE;
+  }
+  if (k == -2)
+    h->plant.effects().enabled[id] = (v != 0.0);
+  else
+    h->plant.effects().p[id][k] = v;
+  return SM_OK;
+}
+
+int sm_plant_get(void* p, const char* key, double* out) {
+  Handle* h = H(p);
+  if (h == nullptr || key == nullptr || out == nullptr) return SM_ERR_ARG;
+  for (int i = 0; i < kKeyCount; ++i) {
+    if (strcmp(kKeys[i].key, key) == 0) {
+      *out = *kKeys[i].get(h);
+      return SM_OK;
+    }
+  }
+  int id = -1, k = -1;
+  if (!parse_effect_key(key, &id, &k)) {
+    set_err(h, "unknown key '%s'", key);
+    return SM_ERR_KEY;
+  }
+  *out = (k == -2) ? (h->plant.effects().enabled[id] ? 1.0 : 0.0) : h->plant.effects().p[id][k];
+  return SM_OK;
+}
+
+int sm_plant_clear_effects(void* p) {
+  if (p == nullptr) return SM_ERR_ARG;
+  H(p)->plant.effects().clear();
+  return SM_OK;
+}
+
+int sm_plant_reset(void* p, double x, double y, double phi) {
+  Handle* h = H(p);
+  if (h == nullptr) return SM_ERR_ARG;
+  if (!isfinite(x) || !isfinite(y) || !isfinite(phi)) {
+    set_err(h, "reset: start pose must be finite%s", "");
+    return SM_ERR_VALUE;
+  }
+  h->plant.reset(x, y, phi);
+  return SM_OK;
+}
+
+int sm_out_cols(void) { return kColCount; }
+
+const char* sm_out_col_name(int i) { return (i >= 0 && i < kColCount) ? kCols[i] : nullptr; }
+
+int sm_simulate(void* p, int mode, int n, const double* t_s, const double* in_r,
+                const double* in_l, double dt_s, double* out) {
+  Handle* h = H(p);
+  if (h == nullptr) return SM_ERR_ARG;
+  if (mode != 0 && mode != 1) { set_err(h, "simulate: mode must be 0 (torque) or 1 (duty)%s", ""); return SM_ERR_ARG; }
+  if (n < 1 || t_s == nullptr || in_r == nullptr || in_l == nullptr || out == nullptr) {
+    set_err(h, "simulate: need n >= 1 and non-null arrays%s", "");
+    return SM_ERR_ARG;
+  }
+  if (!isfinite(dt_s) || !(dt_s > 0.0)) { set_err(h, "simulate: dt_s must be > 0, got %s%g", "", dt_s); return SM_ERR_VALUE; }
+  // Validate everything before touching the plant: bad input loses nothing.
+  for (int k = 0; k < n; ++k) {
+    if (!isfinite(t_s[k])) { set_err(h, "simulate: t_s[%3$d] is %2$g%1$s", "", t_s[k], k); return SM_ERR_VALUE; }
+    if (!isfinite(in_r[k])) { set_err(h, "simulate: in_r[%3$d] is %2$g%1$s", "", in_r[k], k); return SM_ERR_VALUE; }
+    if (!isfinite(in_l[k])) { set_err(h, "simulate: in_l[%3$d] is %2$g%1$s", "", in_l[k], k); return SM_ERR_VALUE; }
+    if (k > 0 && !(t_s[k] > t_s[k - 1])) {
+      set_err(h, "simulate: t_s[%3$d] = %2$g is not greater than the previous time%1$s", "", t_s[k], k);
+      return SM_ERR_TIME;
+    }
+  }
+  slip::Plant& pl = h->plant;
+  pl.set_time(t_s[0]);
+  const int nc = kColCount;
+  for (int k = 0; k < n; ++k) {
+    double* row = out + static_cast<long>(k) * nc;
+    fill_kinematic(pl.state(), row);
+    row[0] = t_s[k];
+    if (k == n - 1) {
+      fill_dynamic(pl.state(), row);
+      break;
+    }
+    const double span = t_s[k + 1] - t_s[k];
+    long steps = static_cast<long>(ceil(span / dt_s - 1e-9));
+    if (steps < 1) steps = 1;
+    const double hstep = span / static_cast<double>(steps);
+    for (long j = 0; j < steps; ++j) {
+      if (mode == 0)
+        pl.step_torque(in_r[k], in_l[k], hstep);
+      else
+        pl.step_duty(in_r[k], in_l[k], hstep);
+      if (j == 0) fill_dynamic(pl.state(), row);
+    }
+    pl.set_time(t_s[k + 1]);  // no drift of the clock from summing steps
+  }
+  return SM_OK;
+}
+
+double sm_tau_max(void* p, int wheel) {
+  if (p == nullptr || (wheel != 0 && wheel != 1)) return NAN;
+  return H(p)->plant.tau_max_nm(wheel);
+}
+
+int sm_normal_forces(void* p, double* N_r, double* N_l, double* N_c) {
+  if (p == nullptr || N_r == nullptr || N_l == nullptr || N_c == nullptr) return SM_ERR_ARG;
+  const slip::NormalForces n = H(p)->plant.static_normal_forces();
+  *N_r = n.N_r;
+  *N_l = n.N_l;
+  *N_c = n.N_c;
+  return SM_OK;
+}
+
+}  // extern "C"

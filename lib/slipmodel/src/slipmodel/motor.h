@@ -1,0 +1,43 @@
+// The DC motor and H-bridge model the firmware assumes (datasheet figures, per wheel).
+//
+//   tau = k_t (u V - k_e theta_dot) / R
+// With k_t/R = stall_nm / supply_v and k_e = supply_v / no_load_rad_s this is
+//   tau = stall_nm * (u - theta_dot / no_load_rad_s).
+//
+// Saturation, exactly:
+//   1. u is clamped to [-1, 1]; a NaN u is treated as 0 (coast at zero volts).
+//   2. the resulting torque is clamped to [-stall_nm, +stall_nm] (the driver cannot deliver more
+//      than the stall current, e.g. when the wheel is back-driven against the command).
+// Usable on the AVR (double is float there); no heap, no state.
+#ifndef SLIPMODEL_MOTOR_H
+#define SLIPMODEL_MOTOR_H
+
+#include <slipmodel/params.h>
+
+namespace slip {
+
+/// Motor-side imperfections (the effects motor_back_emf, driver_voltage_drop, deadband).
+/// The defaults are neutral (the datasheet model).
+struct MotorImperfections {
+  double ke_ratio = 1.0;    ///< true back-EMF constant / datasheet one
+  double drop_v = 0.0;      ///< volts lost in the H-bridge and battery: V_eff = supply_v - drop_v
+  double deadband_v = 0.0;  ///< |drive voltage| below this gives none; above it, it is reduced by it
+};
+
+/// Datasheet model: torque (N m) for duty u at wheel speed dtheta_rad_s.
+double motor_torque_nm(const MotorParams& m, double u, double dtheta_rad_s);
+
+/// The same model with imperfections:
+///   V = clamp(u,-1,1) (supply_v - drop_v);  V' = sign(V) max(|V| - deadband_v, 0)
+///   tau = clamp(stall_nm (V' / supply_v - ke_ratio dtheta / no_load_rad_s), -stall_nm, stall_nm)
+double motor_torque_nm(const MotorParams& m, double u, double dtheta_rad_s,
+                       const MotorImperfections& x);
+
+/// Inverse of the datasheet model: the duty that gives tau_nm at dtheta_rad_s,
+/// u = tau_nm / stall_nm + dtheta_rad_s / no_load_rad_s, clamped to [-1, 1] (NaN gives 0).
+/// Exact inverse wherever the result is inside (-1, 1) and |tau_nm| <= stall_nm.
+double motor_duty_for_torque(const MotorParams& m, double tau_nm, double dtheta_rad_s);
+
+}  // namespace slip
+
+#endif  // SLIPMODEL_MOTOR_H
