@@ -1,0 +1,20 @@
+"""Unity test runner of this project (PlatformIO `test_framework = custom`).
+
+It is PlatformIO's own Unity runner with one change: the Unity library comes from
+.deps/unity, which scripts/setup.sh extracts from Debian's ntpsec source package (Unity 2.5.1,
+MIT), so the tests run offline. Where that folder is absent (an online user who skipped the
+setup), the runner falls back to the registry's throwtheswitch/Unity.
+"""
+import os
+
+from platformio.test.runners.unity import UnityTestRunner
+
+_PROJECT_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+_LOCAL_UNITY = os.path.join(_PROJECT_DIR, ".deps", "unity")
+
+
+class CustomTestRunner(UnityTestRunner):
+    if os.path.isfile(os.path.join(_LOCAL_UNITY, "library.json")):
+        EXTRA_LIB_DEPS = ["symlink://" + _LOCAL_UNITY]
+    else:
+        EXTRA_LIB_DEPS = ["throwtheswitch/Unity@^2.5.1"]
