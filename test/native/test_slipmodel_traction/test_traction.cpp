@@ -1,0 +1,200 @@
+// Normal forces (II.27-II.29), tau_max (II.51) in float and fixed point, and the motor model.
+#include <math.h>
+#include <stdio.h>
+#include <unity.h>
+
+#include <slipmodel/motor.h>
+#include <slipmodel/params.h>
+#include <slipmodel/rolling.h>
+#include <slipmodel/traction.h>
+
+using namespace slip;
+
+// Unity's double assertions compile to "ignored" unless UNITY_INCLUDE_DOUBLE is set for the
+// whole build, so these tests use their own comparison (fails on NaN too).
+#define EXPECT_NEAR(tol, expected, actual)                                                \
+  do {                                                                                    \
+    const double e_ = (expected), a_ = (actual), t_ = (tol);                              \
+    char m_[128];                                                                         \
+    snprintf(m_, sizeof(m_), "expected %.12g +- %.3g, got %.12g", e_, t_, a_);            \
+    TEST_ASSERT_MESSAGE(fabs(a_ - e_) <= t_, m_);                                         \
+  } while (0)
+
+void setUp(void) {}
+void tearDown(void) {}
+
+// The fixed-point coefficients fold at compile time (no float at run time on the AVR).
+static constexpr TractionQ kTableQ = traction_q(table_ii2());
+static_assert(kTableQ.k_tau_q24 > 0 && kTableQ.n_wheel0_q16 > 0, "constexpr traction_q");
+
+static void test_table_ii2_defaults(void) {
+  const RobotParams p = table_ii2();
+  EXPECT_NEAR(0.0, 0.105, p.b);  // half of 2b = 0.21
+  EXPECT_NEAR(1e-12, 1.628, p.m_t());
+  EXPECT_NEAR(1e-12, 0.009753 + 2 * (0.000584 + 0.064 * 0.105 * 0.105), p.I_t());
+  const MotorParams m = datasheet_motor();
+  EXPECT_NEAR(0.0, 12.0, m.supply_v);
+  EXPECT_NEAR(0.0, 36.65, m.no_load_rad_s);
+  EXPECT_NEAR(0.0, 0.77, m.stall_nm);
+  TEST_ASSERT_EQUAL_INT32(1856, kEncoderPpr);
+}
+
+static void test_normal_forces_static(void) {
+  const RobotParams p = table_ii2();
+  const NormalForces n = normal_forces(p);
+  // By hand: N_c = 1.628 * 9.81 * 0.055 / 0.15 = 5.855916; N_r = N_l = (15.97068 - 5.855916) / 2.
+  EXPECT_NEAR(1e-9, 5.855916, n.N_c);
+  EXPECT_NEAR(1e-9, 5.057382, n.N_r);
+  EXPECT_NEAR(1e-9, 5.057382, n.N_l);
+  EXPECT_NEAR(1e-9, p.m_t() * p.g, n.N_r + n.N_l + n.N_c);  // II.27
+}
+
+static void test_lateral_transfer_sign_and_balance(void) {
+  const RobotParams p = table_ii2();
+  const double L = 2.0;  // lateral ground force to the left, as in a left turn
+  const NormalForces n = normal_forces(p, L);
+  TEST_ASSERT_TRUE(n.N_r > n.N_l);                                  // the outer wheel is loaded
+  EXPECT_NEAR(1e-12, L * p.h, (n.N_r - n.N_l) * p.b);  // II.28 as printed
+  EXPECT_NEAR(1e-9, p.m_t() * p.g, n.N_r + n.N_l + n.N_c);
+  // Past lift-off the whole wheel load sits on one wheel, never a negative force.
+  const NormalForces big = normal_forces(p, -1000.0);
+  EXPECT_NEAR(0.0, 0.0, big.N_r);
+  EXPECT_NEAR(1e-9, p.m_t() * p.g - big.N_c, big.N_l);
+}
+
+static void test_tau_max_table_ii2(void) {
+  const RobotParams p = table_ii2();
+  const NormalForces n = normal_forces(p);
+  const double t = tau_max(p, n.N_r);
+  char msg[80];
+  snprintf(msg, sizeof(msg), "tau_max(Table II.2) = %.6f N m", t);
+  TEST_MESSAGE(msg);
+  EXPECT_NEAR(1e-4, 0.0924, t);
+  EXPECT_NEAR(0.0, 0.0, tau_max(p, -1.0));
+  EXPECT_NEAR(0.0, 0.0, tau_max(p, NAN));
+}
+
+static void test_tau_max_is_ii50_force_limit(void) {
+  // II.50 at tau_max gives exactly mu_s N; the pure-rolling straight-line contact force agrees.
+  const RobotParams p = table_ii2();
+  const double N = normal_forces(p).N_r;
+  const double tmax = tau_max(p, N);
+  const double f50 = tmax * p.m_t() * p.r / (2.0 * p.I_wy + p.m_t() * p.r * p.r);
+  EXPECT_NEAR(1e-12, p.mu_s * N, f50);
+  const RollingAccel a = pure_rolling_accel(p, 0.0, 0.0, tmax, tmax);
+  const double f_roll = (tmax - p.I_wy * a.dv_m_s2 / p.r) / p.r;  // II.31 solved for F_long
+  EXPECT_NEAR(1e-12, p.mu_s * N, f_roll);
+}
+
+static double q16(int32_t x) { return x / 65536.0; }
+
+static void test_fixed_point_error_bound(void) {
+  const double bound_n = 3.0 / 131072.0, bound_tau = 1.0 / 65536.0;
+  double worst_n = 0.0, worst_tau = 0.0;
+  RobotParams variants[4];
+  variants[1].mu_s = 0.8;
+  variants[1].m_r = 3.0;
+  variants[2].h = 0.05;
+  variants[2].b = 0.08;
+  variants[3].d = 0.01;
+  variants[3].r = 0.05;
+  for (const RobotParams& p : variants) {
+    const TractionQ q = traction_q(p);
+    for (int k = -2560; k <= 2560; ++k) {
+      const double L = k * 0.1 + 0.0123;  // -256 .. 256 N, off the grid
+      const int32_t Lq = static_cast<int32_t>(lround(L * 65536.0));
+      const NormalForces n = normal_forces(p, Lq / 65536.0);
+      const NormalForcesQ nq = normal_forces_q16(q, Lq);
+      worst_n = fmax(worst_n, fabs(q16(nq.N_r_q16) - n.N_r));
+      worst_n = fmax(worst_n, fabs(q16(nq.N_l_q16) - n.N_l));
+      worst_n = fmax(worst_n, fabs(q16(nq.N_c_q16) - n.N_c));
+      worst_tau = fmax(worst_tau, fabs(q16(tau_max_q16(q, nq.N_r_q16)) - tau_max(p, n.N_r)));
+      worst_tau = fmax(worst_tau, fabs(q16(tau_max_q16(q, nq.N_l_q16)) - tau_max(p, n.N_l)));
+    }
+  }
+  char msg[120];
+  snprintf(msg, sizeof(msg), "fixed point: max |dN| = %.3g N (bound %.3g), max |dtau| = %.3g N m (bound %.3g)",
+           worst_n, bound_n, worst_tau, bound_tau);
+  TEST_MESSAGE(msg);
+  TEST_ASSERT_TRUE(worst_n <= bound_n);
+  TEST_ASSERT_TRUE(worst_tau <= bound_tau);
+  // Table II.2 in fixed point: 0.0924 N m.
+  EXPECT_NEAR(1e-4, 0.0924, q16(tau_max_q16(kTableQ, kTableQ.n_wheel0_q16)));
+}
+
+static void test_fixed_point_saturates(void) {
+  const TractionQ q = traction_q(table_ii2());
+  const NormalForcesQ n = normal_forces_q16(q, INT32_MAX);
+  TEST_ASSERT_EQUAL_INT32(0, n.N_l_q16);
+  TEST_ASSERT_EQUAL_INT32(q.n_wheels_q16, n.N_r_q16);
+  TEST_ASSERT_EQUAL_INT32(0, tau_max_q16(q, -5));
+  TractionQ huge = q;
+  huge.k_tau_q24 = INT32_MAX;  // 128 m per N: overflows Q16.16 for large N
+  TEST_ASSERT_EQUAL_INT32(INT32_MAX, tau_max_q16(huge, INT32_MAX));
+}
+
+static void test_motor_model_datasheet_points(void) {
+  const MotorParams m;
+  EXPECT_NEAR(1e-12, 0.77, motor_torque_nm(m, 1.0, 0.0));       // stall
+  EXPECT_NEAR(1e-12, 0.0, motor_torque_nm(m, 1.0, 36.65));      // no load
+  EXPECT_NEAR(1e-12, 0.0, motor_torque_nm(m, 0.5, 0.5 * 36.65));
+  EXPECT_NEAR(1e-12, -0.77 * 0.5, motor_torque_nm(m, -0.5, 0.0));
+  // k_t (u V - k_e w) / R with k_t/R = stall/V, k_e = V/no_load:
+  const double kt_R = 0.77 / 12.0, ke = 12.0 / 36.65;
+  EXPECT_NEAR(1e-12, kt_R * (0.3 * 12.0 - ke * 5.0), motor_torque_nm(m, 0.3, 5.0));
+}
+
+static void test_motor_model_saturation(void) {
+  const MotorParams m;
+  EXPECT_NEAR(0.0, motor_torque_nm(m, 1.0, 3.0), motor_torque_nm(m, 7.0, 3.0));
+  EXPECT_NEAR(0.0, motor_torque_nm(m, -1.0, 3.0), motor_torque_nm(m, -7.0, 3.0));
+  EXPECT_NEAR(1e-12, 0.77, motor_torque_nm(m, 1.0, -36.65));  // would be 2 stall
+  EXPECT_NEAR(1e-12, -0.77, motor_torque_nm(m, -1.0, 80.0));
+  EXPECT_NEAR(1e-12, -0.77 * 10.0 / 36.65, motor_torque_nm(m, NAN, 10.0));
+  EXPECT_NEAR(0.0, 0.0, motor_torque_nm(m, 0.2, NAN) - 0.2 * 0.77);
+}
+
+static void test_motor_inverse_round_trip(void) {
+  const MotorParams m;
+  for (int i = -20; i <= 20; ++i) {
+    for (int j = -10; j <= 10; ++j) {
+      const double tau = 0.03 * i, w = 3.0 * j;
+      const double u = motor_duty_for_torque(m, tau, w);
+      if (fabs(u) < 1.0)
+        EXPECT_NEAR(1e-12, tau, motor_torque_nm(m, u, w));
+      else  // saturated: the best the motor can do, towards the requested torque
+        TEST_ASSERT_TRUE(fabs(motor_torque_nm(m, u, w) - tau) <= fabs(motor_torque_nm(m, -u, w) - tau));
+    }
+  }
+  EXPECT_NEAR(0.0, 0.0, motor_duty_for_torque(m, NAN, 1.0));
+}
+
+static void test_motor_imperfections(void) {
+  const MotorParams m;
+  MotorImperfections x;
+  x.ke_ratio = 1.2;
+  EXPECT_NEAR(1e-12, 0.77 * (0.5 - 1.2 * 10.0 / 36.65), motor_torque_nm(m, 0.5, 10.0, x));
+  x = MotorImperfections();
+  x.drop_v = 1.2;
+  EXPECT_NEAR(1e-12, 0.77 * (0.5 * 10.8 / 12.0), motor_torque_nm(m, 0.5, 0.0, x));
+  x = MotorImperfections();
+  x.deadband_v = 0.6;
+  EXPECT_NEAR(0.0, 0.0, motor_torque_nm(m, 0.04, 0.0, x));  // 0.48 V < 0.6 V
+  EXPECT_NEAR(1e-12, -0.77 * (6.0 - 0.6) / 12.0, motor_torque_nm(m, -0.5, 0.0, x));
+}
+
+int main(void) {
+  UNITY_BEGIN();
+  RUN_TEST(test_table_ii2_defaults);
+  RUN_TEST(test_normal_forces_static);
+  RUN_TEST(test_lateral_transfer_sign_and_balance);
+  RUN_TEST(test_tau_max_table_ii2);
+  RUN_TEST(test_tau_max_is_ii50_force_limit);
+  RUN_TEST(test_fixed_point_error_bound);
+  RUN_TEST(test_fixed_point_saturates);
+  RUN_TEST(test_motor_model_datasheet_points);
+  RUN_TEST(test_motor_model_saturation);
+  RUN_TEST(test_motor_inverse_round_trip);
+  RUN_TEST(test_motor_imperfections);
+  return UNITY_END();
+}
