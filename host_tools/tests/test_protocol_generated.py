@@ -1,0 +1,79 @@
+"""The committed generated files must match protocol/protocol.json (one source of truth)."""
+from __future__ import annotations
+
+import copy
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _generator():
+    spec = importlib.util.spec_from_file_location("protocol_generate", ROOT / "protocol" / "generate.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_committed_header_matches_definition():
+    gen = _generator()
+    defn = gen.load()
+    assert gen.HEADER.read_text(encoding="utf-8") == gen.render_header(defn), (
+        "lib/protocol/src/protocol/messages.h drifted from protocol/protocol.json; "
+        "run python3 protocol/generate.py")
+    assert gen.TABLES.read_text(encoding="utf-8") == gen.render_tables(defn)
+
+
+def test_check_mode_exit_code():
+    r = subprocess.run([sys.executable, str(ROOT / "protocol" / "generate.py"), "--check"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+
+
+def test_drift_is_detected():
+    """A change of the definition changes the rendered header, so the check above can fail."""
+    gen = _generator()
+    defn = gen.load()
+    base = gen.render_header(defn)
+    for mutate in (
+        lambda d: d["messages"][0]["fields"][3].__setitem__("scale", 0.02),
+        lambda d: d["messages"][3]["fields"][1].__setitem__("max", 150.0),
+        lambda d: d["messages"][0]["fields"].pop(),
+        lambda d: d["timing"]["tasks"][0].__setitem__("budget_cycles", 1),
+        lambda d: d.__setitem__("version", 2),
+    ):
+        d = copy.deepcopy(defn)
+        mutate(d)
+        assert gen.render_header(d) != base
+
+
+def test_definition_errors_are_refused():
+    gen = _generator()
+    d = copy.deepcopy(gen.load())
+    d["messages"][1]["type"] = d["messages"][0]["type"]
+    with pytest.raises(gen.DefinitionError, match="reused"):
+        gen.check(d)
+    d = copy.deepcopy(gen.load())
+    d["messages"][3]["fields"][1]["max"] = 1000.0  # 100000 raw > u16
+    with pytest.raises(gen.DefinitionError, match="does not fit"):
+        gen.check(d)
+    d = copy.deepcopy(gen.load())
+    d["messages"][3]["fields"][1]["min"] = 0.015  # not a multiple of the 0.01 scale
+    with pytest.raises(gen.DefinitionError, match="multiple of scale"):
+        gen.check(d)
+
+
+def test_python_codec_uses_the_same_layout():
+    """host_tools.protocol and the generator agree on every payload size."""
+    from host_tools import protocol
+
+    gen = _generator()
+    defn = gen.load()
+    pd = protocol.Definition()
+    for m in defn["messages"]:
+        assert pd.by_name[m["name"]].size == gen.payload_size(m)
+        assert pd.by_name[m["name"]].type == m["type"]
