@@ -314,6 +314,7 @@ void Plant::step(int mode, double in_r, double in_l, double dt) {
       if (fx_.on(kStribeck) && stribeck_vs > 0.0) {
         const double x = (released[i] ? 0.0 : smag) / stribeck_vs;
         mu = mu_k + (stribeck_k0 - mu_k) * exp(-x * x);
+        if (mu > mu_s) mu = mu_s;  // kinetic never above static: no stick/slip chatter
       }
       f[i][0] = mu * N[i] * dir0;
       f[i][1] = mu * N[i] * dir1;

@@ -1,0 +1,288 @@
+// Each optional effect changes the motion the way its equation says (README, "Effects"), and an
+// effect switched on with its default (neutral) parameters changes nothing.
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+#include <unity.h>
+
+#include <slipmodel/effects.h>
+#include <slipmodel/plant.h>
+#include <slipmodel/rolling.h>
+#include <slipmodel/traction.h>
+
+using namespace slip;
+
+#define EXPECT_NEAR(tol, expected, actual)                                                \
+  do {                                                                                    \
+    const double e_ = (expected), a_ = (actual), t_ = (tol);                              \
+    char m_[128];                                                                         \
+    snprintf(m_, sizeof(m_), "expected %.12g +- %.3g, got %.12g", e_, t_, a_);            \
+    TEST_ASSERT_MESSAGE(fabs(a_ - e_) <= t_, m_);                                         \
+  } while (0)
+
+static const double kDt = 5e-4;
+
+void setUp(void) {}
+void tearDown(void) {}
+
+static int run(Plant& pl, int mode, double in_r, double in_l, double T) {
+  int slip_steps = 0;
+  const long n = lround(T / kDt);
+  for (long k = 0; k < n; ++k) {
+    if (mode == 0) pl.step_torque(in_r, in_l, kDt);
+    else pl.step_duty(in_r, in_l, kDt);
+    slip_steps += pl.state().slipping_r + pl.state().slipping_l;
+  }
+  return slip_steps;
+}
+
+static void test_vocabulary_matches_run_format(void) {
+  // Names and parameter names exactly as shared/spec/run-format.md lists them.
+  const char* expected[] = {"friction_coefficient mu_s mu_k", "wheel_radius r_eff",
+                            "track_width b_eff", "motor_back_emf ke_ratio",
+                            "driver_voltage_drop volts", "actuation_delay delay_s",
+                            "motor_lag tau_s", "axle_viscous c", "axle_coulomb torque",
+                            "caster_drag mu", "load_transfer h", "stribeck mu_k0 v_s",
+                            "deadband volts", "motor_gain_asymmetry ratio", "floor_slope rad"};
+  TEST_ASSERT_EQUAL_INT(15, kEffectCount);
+  for (int i = 0; i < kEffectCount; ++i) {
+    const EffectInfo& e = effect_info(i);
+    char buf[96];
+    snprintf(buf, sizeof(buf), "%s %s%s%s", e.name, e.param_names[0], e.param_count > 1 ? " " : "",
+             e.param_count > 1 ? e.param_names[1] : "");
+    TEST_ASSERT_EQUAL_STRING(expected[i], buf);
+    TEST_ASSERT_EQUAL_INT(i, effect_id(e.name));
+  }
+  TEST_ASSERT_EQUAL_INT(-1, effect_id("no_such_effect"));
+  TEST_ASSERT_EQUAL_INT(-1, effect_param_index(kStribeck, "v"));
+  Plant pl;
+  for (int i = 0; i < kEffectCount; ++i) TEST_ASSERT_FALSE(pl.effects().enabled[i]);
+}
+
+static void test_defaults_are_neutral(void) {
+  for (int id = 0; id < kEffectCount; ++id) {
+    if (id == kLoadTransfer) continue;  // its default is Table II.2's h, not neutral
+    for (int mode = 0; mode < 2; ++mode) {
+      Plant ref, fx;
+      const EffectInfo& e = effect_info(id);
+      fx.set_effect(static_cast<EffectId>(id), true, e.defaults[0], e.defaults[1]);
+      const double a = mode == 0 ? 0.2 : 0.6, b = mode == 0 ? 0.05 : 0.3;
+      run(ref, mode, a, b, 1.0);
+      run(fx, mode, a, b, 1.0);
+      TEST_ASSERT_EQUAL_MESSAGE(0, memcmp(&ref.state().x_m, &fx.state().x_m, sizeof(double)), e.name);
+      TEST_ASSERT_EQUAL_MESSAGE(0, memcmp(&ref.state().phi_rad, &fx.state().phi_rad, sizeof(double)), e.name);
+      TEST_ASSERT_EQUAL_MESSAGE(0, memcmp(&ref.state().dtheta_l_rad_s, &fx.state().dtheta_l_rad_s, sizeof(double)), e.name);
+    }
+  }
+}
+
+static void test_friction_coefficient(void) {
+  Plant pl;
+  pl.set_effect(kFrictionCoefficient, true, 0.5, 0.45);
+  RobotParams hi;
+  hi.mu_s = 0.5;
+  EXPECT_NEAR(1e-12, tau_max(hi, normal_forces(hi).N_r), pl.tau_max_nm(0));
+  TEST_ASSERT_EQUAL_INT(0, run(pl, 0, 0.1, 0.1, 1.0));  // 0.1 N m no longer slips
+  Plant s;
+  s.set_effect(kFrictionCoefficient, true, 0.5, 0.45);
+  run(s, 0, 0.4, 0.4, 0.1);
+  const double v0 = s.state().v_m_s;
+  run(s, 0, 0.4, 0.4, 1.0);
+  const RobotParams p;
+  EXPECT_NEAR(1e-9, 2.0 * 0.45 * normal_forces(p).N_r / p.m_t(), s.state().v_m_s - v0);
+}
+
+static void test_wheel_radius(void) {
+  Plant pl;
+  pl.set_effect(kWheelRadius, true, 0.04);
+  run(pl, 0, 0.05, 0.05, 1.0);
+  RobotParams p;
+  p.r = 0.04;
+  EXPECT_NEAR(1e-9, 2 * 0.05 / (0.04 * (p.m_t() + 2 * p.I_wy / (0.04 * 0.04))), pl.state().v_m_s);
+  EXPECT_NEAR(1e-9, pl.state().v_m_s, 0.04 * pl.state().dtheta_r_rad_s);
+}
+
+static void test_track_width(void) {
+  Plant pl;
+  pl.set_effect(kTrackWidth, true, 0.12);
+  run(pl, 0, 0.03, 0.01, 0.5);
+  const PlantState& s = pl.state();
+  TEST_ASSERT_FALSE(s.slipping_r || s.slipping_l);
+  EXPECT_NEAR(1e-9, 0.0365 * (s.dtheta_r_rad_s - s.dtheta_l_rad_s) / (2 * 0.12), s.omega_rad_s);
+}
+
+static double steady_wheel_speed(EffectId id, double p0, double u) {
+  Plant pl;
+  pl.set_effect(id, true, p0);
+  run(pl, 1, u, u, 6.0);
+  return pl.state().dtheta_r_rad_s;
+}
+
+static void test_motor_back_emf(void) {
+  // No-load speed drops to u no_load / ke_ratio; in torque mode the effect does nothing.
+  EXPECT_NEAR(0.01, 0.3 * 36.65 / 1.2, steady_wheel_speed(kMotorBackEmf, 1.2, 0.3));
+  Plant a, b;
+  b.set_effect(kMotorBackEmf, true, 1.2);
+  run(a, 0, 0.05, 0.05, 0.5);
+  run(b, 0, 0.05, 0.05, 0.5);
+  EXPECT_NEAR(0.0, a.state().x_m, b.state().x_m);
+}
+
+static void test_driver_voltage_drop(void) {
+  EXPECT_NEAR(0.01, 0.3 * 36.65 * (12.0 - 2.0) / 12.0, steady_wheel_speed(kDriverVoltageDrop, 2.0, 0.3));
+}
+
+static void test_deadband(void) {
+  Plant pl;
+  pl.set_effect(kDeadband, true, 1.0);
+  run(pl, 1, 0.05, 0.05, 1.0);  // 0.6 V < 1 V: no torque
+  EXPECT_NEAR(0.0, 0.0, pl.state().x_m);
+  EXPECT_NEAR(0.01, (0.3 * 12.0 - 1.0) / 12.0 * 36.65, steady_wheel_speed(kDeadband, 1.0, 0.3));
+}
+
+static void test_actuation_delay(void) {
+  Plant ref, del;
+  del.set_effect(kActuationDelay, true, 0.1);
+  run(del, 0, 0.05, 0.05, 0.1);
+  EXPECT_NEAR(0.0, 0.0, del.state().x_m);  // nothing arrives before 0.1 s
+  run(del, 0, 0.05, 0.05, 0.5);
+  run(ref, 0, 0.05, 0.05, 0.5);
+  EXPECT_NEAR(1e-12, ref.state().x_m, del.state().x_m);  // then the same motion, 0.1 s late
+}
+
+static void test_motor_lag(void) {
+  Plant pl;
+  pl.set_effect(kMotorLag, true, 0.05);
+  run(pl, 0, 0.08, 0.08, 0.05);
+  EXPECT_NEAR(1e-9, 0.08 * (1.0 - exp(-1.0)), pl.state().tau_r_nm);  // one time constant
+  run(pl, 0, 0.08, 0.08, 0.5);
+  EXPECT_NEAR(0.08 * 2e-5, 0.08, pl.state().tau_l_nm);  // exp(-11) = 1.7e-5 left
+}
+
+static void test_axle_viscous(void) {
+  Plant pl;
+  pl.set_effect(kAxleViscous, true, 0.002);
+  run(pl, 0, 0.05, 0.05, 12.0);  // terminal speed where tau = c dtheta
+  EXPECT_NEAR(0.005 * 25.0, 25.0, pl.state().dtheta_r_rad_s);
+}
+
+static void test_axle_coulomb(void) {
+  Plant stuck;
+  stuck.set_effect(kAxleCoulomb, true, 0.02);
+  run(stuck, 0, 0.015, 0.015, 1.0);  // below the friction torque: (almost) no motion
+  TEST_ASSERT_TRUE(fabs(stuck.state().x_m) < 1e-3);
+  Plant pl;
+  pl.set_effect(kAxleCoulomb, true, 0.02);
+  run(pl, 0, 0.05, 0.05, 1.0);  // above it: accelerates like 0.03 N m without friction
+  const RobotParams p;
+  // The friction is regularised over |dtheta| < 2 T dt / I_wy (README); the few steps spent in
+  // that band at the start leave a velocity excess of about 2 dt * 2T/(r m_eff) = 3e-4 m/s.
+  EXPECT_NEAR(5e-4, 2 * 0.03 / (p.r * rolling_mass_kg(p)), pl.state().v_m_s);
+}
+
+static void test_caster_drag(void) {
+  Plant pl;
+  pl.set_effect(kCasterDrag, true, 0.1);
+  run(pl, 0, 0.05, 0.05, 1.0);
+  const RobotParams p;
+  const double Nc = normal_forces(p).N_c;
+  // regularised like axle_coulomb: a few start-up steps in the band give < 5e-4 m/s excess
+  EXPECT_NEAR(5e-4, (2 * 0.05 / p.r - 0.1 * Nc) / rolling_mass_kg(p), pl.state().v_m_s);
+  Plant still;  // drag alone never moves the robot
+  still.set_effect(kCasterDrag, true, 0.1);
+  run(still, 0, 0.0, 0.0, 0.5);
+  EXPECT_NEAR(0.0, 0.0, still.state().x_m);
+}
+
+static void test_load_transfer(void) {
+  // Forward acceleration unloads the caster and loads the wheels by m_t a h / (d + e), which
+  // raises the wheels' traction: a ramp to 0.097 N m (above the static tau_max) then holds
+  // without slipping with h = 0.05 m, but slips without the effect.
+  const RobotParams p;
+  Plant with, without;
+  with.set_effect(kLoadTransfer, true, 0.05);
+  int slips_with = 0, slips_without = 0;
+  for (int k = 1; k <= 2000; ++k) {
+    const double tau = 0.097 * (k < 400 ? k / 400.0 : 1.0);
+    with.step_torque(tau, tau, kDt);
+    without.step_torque(tau, tau, kDt);
+    slips_with += with.state().slipping_r;
+    slips_without += without.state().slipping_r;
+  }
+  TEST_ASSERT_EQUAL_INT(0, slips_with);
+  TEST_ASSERT_TRUE(slips_without > 0);
+  const double a = 2 * 0.097 / (p.r * rolling_mass_kg(p));
+  EXPECT_NEAR(1e-6, normal_forces(p).N_c - p.m_t() * a * 0.05 / (p.d + p.e), with.state().N_c);
+  EXPECT_NEAR(1e-9, p.m_t() * p.g, with.state().N_r + with.state().N_l + with.state().N_c);
+}
+
+static void test_stribeck(void) {
+  // Friction mu_k0 = mu_s at zero slip speed falling to mu_k: after breakaway at 0.1 N m the
+  // body accelerates more than with constant mu_k, and with mu_k once the slip speed is large.
+  const RobotParams p;
+  Plant ref, st;
+  st.set_effect(kStribeck, true, 0.241, 0.05);
+  run(ref, 0, 0.1, 0.1, 0.3);
+  const int st_slips = run(st, 0, 0.1, 0.1, 0.3);
+  TEST_ASSERT_EQUAL_INT(2 * 600, st_slips);  // slipping throughout, no re-stick chatter
+  TEST_ASSERT_TRUE(st.state().v_m_s > ref.state().v_m_s + 1e-3);
+  run(st, 0, 0.1, 0.1, 1.0);
+  const double v0 = st.state().v_m_s;
+  run(st, 0, 0.1, 0.1, 0.5);
+  EXPECT_NEAR(1e-6, 2 * p.mu_k * normal_forces(p).N_r / p.m_t(), (st.state().v_m_s - v0) / 0.5);
+}
+
+static void test_motor_gain_asymmetry(void) {
+  Plant pl;
+  pl.set_effect(kMotorGainAsymmetry, true, 1.2);
+  run(pl, 0, 0.04, 0.04, 0.5);
+  EXPECT_NEAR(1e-12, 1.2, pl.state().tau_r_nm / pl.state().tau_l_nm);
+  TEST_ASSERT_TRUE(pl.state().phi_rad > 0.0);  // stronger right motor turns left
+  Plant d;
+  d.set_effect(kMotorGainAsymmetry, true, 1.2);
+  run(d, 1, 0.1, 0.1, 0.5);
+  TEST_ASSERT_TRUE(d.state().phi_rad > 0.0);
+}
+
+static void test_floor_slope(void) {
+  // Uphill along +x: with no torque the robot rolls back with g sin(a) m_t / m_eff.
+  const RobotParams p;
+  Plant pl;
+  pl.set_effect(kFloorSlope, true, 0.05);
+  run(pl, 0, 0.0, 0.0, 1.0);
+  EXPECT_NEAR(1e-9, -p.m_t() * p.g * sin(0.05) / rolling_mass_kg(p), pl.state().v_m_s);
+  EXPECT_NEAR(1e-9, p.m_t() * p.g * cos(0.05), pl.state().N_r + pl.state().N_l + pl.state().N_c);
+  // Facing across the slope (+y) the pull is lateral: the wheels hold it sideways (no lateral
+  // slip), and its moment about the axle (the centre of mass is d ahead) pivots the robot
+  // downhill (heading grows from pi/2 towards pi) before it rolls down (x < 0).
+  Plant side;
+  side.reset(0, 0, M_PI / 2);
+  side.set_effect(kFloorSlope, true, 0.05);
+  run(side, 0, 0.0, 0.0, 1.0);
+  EXPECT_NEAR(1e-12, 0.0, side.state().w_m_s);
+  TEST_ASSERT_TRUE(side.state().phi_rad > M_PI / 2 + 0.3);
+  run(side, 0, 0.0, 0.0, 1.0);
+  TEST_ASSERT_TRUE(side.state().x_m < -0.05);
+}
+
+int main(void) {
+  UNITY_BEGIN();
+  RUN_TEST(test_vocabulary_matches_run_format);
+  RUN_TEST(test_defaults_are_neutral);
+  RUN_TEST(test_friction_coefficient);
+  RUN_TEST(test_wheel_radius);
+  RUN_TEST(test_track_width);
+  RUN_TEST(test_motor_back_emf);
+  RUN_TEST(test_driver_voltage_drop);
+  RUN_TEST(test_deadband);
+  RUN_TEST(test_actuation_delay);
+  RUN_TEST(test_motor_lag);
+  RUN_TEST(test_axle_viscous);
+  RUN_TEST(test_axle_coulomb);
+  RUN_TEST(test_caster_drag);
+  RUN_TEST(test_load_transfer);
+  RUN_TEST(test_stribeck);
+  RUN_TEST(test_motor_gain_asymmetry);
+  RUN_TEST(test_floor_slope);
+  return UNITY_END();
+}
