@@ -1,0 +1,145 @@
+// The control cascade (float): kinematic tracking controller (outer loop, II.40-II.45),
+// velocity/torque controller with anti-windup (inner loop, II.46-II.48), torque split (II.49
+// re-derived), per-wheel tau_max clamp (II.51) and torque->PWM map with back-EMF compensation.
+//
+// Derivations (details and sign checks in lib/control/README.md):
+//
+// * Tracking error (II.40 corrected). With the error expressed in the ROBOT frame,
+//     e_x =  cos(phi) (x_r - x) + sin(phi) (y_r - y)
+//     e_y = -sin(phi) (x_r - x) + cos(phi) (y_r - y)
+//     e_phi = wrap(phi_r - phi)
+//   the error dynamics are exactly II.41 (v_d, omega_d being the robot's v, omega):
+//     de_x = omega e_y - v + v_r cos e_phi,  de_y = -omega e_x + v_r sin e_phi,
+//     de_phi = omega_r - omega.
+//   (II.40 as printed rotates q - q_r by phi_r, which does not give II.41.)
+//   V = (e_x^2 + e_y^2)/2 + (1 - cos e_phi)/k_y and II.44
+//     v_d = v_r cos e_phi + k_x e_x,  omega_d = omega_r + v_r k_y e_y + k_phi sin e_phi
+//   give dV/dt = -k_x e_x^2 - (k_phi/k_y) sin^2 e_phi  (II.45 with the square restored).
+//
+// * Velocity loop. From lib/slipmodel's pure-rolling model (rolling.h), which includes the
+//   wheels' spin inertia and the offset d of the centre of mass:
+//     m_eff dv/dt = F + m_t d omega^2,          F = (tau_r + tau_l) / r      [N]
+//     I_eff domega/dt = M - m_t d omega v,      M = b (tau_r - tau_l) / r    [N m]
+//   II.47 with these masses, plus an integral term (anti-windup: conditional integration):
+//     F = m_eff dv_ff - m_t d omega^2 + k_l e_v + I_v,   dI_v = k_il e_v dt
+//     M = I_eff dw_ff + m_t d omega v + k_a e_w + I_w,   dI_w = k_ia e_w dt
+//   where dv_ff, dw_ff are the reference accelerations (the derivative of the kinematic
+//   correction is left out: in discrete time it is noise).
+// * Split (II.49 re-derived for the conventions above; II.12/II.49 have the sign of the yaw
+//   term reversed and a factor 2 wrong):
+//     tau_r = (r/2) (F + M/b),  tau_l = (r/2) (F - M/b)
+// * Clamp (II.51): |tau_i| <= tau_max(N_i), N_i from slip::normal_forces with the lateral force
+//   m_t (v omega + d domega) that the wheels must supply in a turn (II.28 load transfer).
+// * PWM: u_i = slip::motor_duty_for_torque(motor, tau_i, dtheta_i) = tau/stall + dtheta/no_load,
+//   saturated to [-1, 1].
+#ifndef CONTROL_CASCADE_H
+#define CONTROL_CASCADE_H
+
+#include <stdint.h>
+
+#include <control/odometry.h>
+#include <control/reference.h>
+#include <slipmodel/params.h>
+
+namespace ctl {
+
+/// Controller gains (SI units).
+struct Gains {
+  float k_x;    ///< 1/s        outer: v_d += k_x e_x
+  float k_y;    ///< 1/m^2      outer: omega_d += v_r k_y e_y
+  float k_phi;  ///< 1/s        outer: omega_d += k_phi sin e_phi
+  float k_l;    ///< N s/m      inner: F += k_l e_v
+  float k_a;    ///< N m s      inner: M += k_a e_omega
+  float k_il;   ///< N/m        inner: integral of e_v
+  float k_ia;   ///< N m        inner: integral of e_omega
+};
+
+/// Default gains: velocity loop about 6 rad/s (k_l/m_eff, k_a/I_eff), well inside the 25 ms
+/// sample rate; outer loop 2-3 rad/s; e_y loop damping about 0.8 at v_r = 0.8 m/s.
+Gains default_gains();
+
+/// Constant configuration of the cascade (float path).
+struct ControlConfig {
+  slip::RobotParams robot;
+  slip::MotorParams motor;
+  Gains gains;
+  int32_t counts_per_rev;
+  float m_eff_kg;        ///< slip::rolling_mass_kg
+  float I_eff_kgm2;      ///< slip::rolling_yaw_inertia_kgm2
+  float v_max_m_s;       ///< |v_d| limit (r * no-load speed)
+  float omega_max_rad_s; ///< |omega_d| limit
+  float integ_max_n;     ///< |I_v| limit, N
+  float integ_max_nm;    ///< |I_w| limit, N m
+  bool clamp_enabled;    ///< tau_max clamp on/off (II.6.3 compares both)
+};
+
+/// Builds the configuration from the physics library (one source of truth).
+ControlConfig make_control_config(const slip::RobotParams& robot, const slip::MotorParams& motor,
+                                  const Gains& gains, bool clamp_enabled = true);
+
+/// Outer-loop result.
+struct KinematicOut {
+  float e_x_m, e_y_m, e_phi_rad;
+  float v_d_m_s, omega_d_rad_s;
+};
+
+/// II.40-II.44 (corrected frame), with |v_d|, |omega_d| saturated to the given limits.
+KinematicOut kinematic_law(const Gains& g, const Pose& pose, const RefSample& ref, float v_max_m_s,
+                           float omega_max_rad_s);
+
+struct WheelPair {
+  float r;
+  float l;
+};
+
+/// Torque split: tau_r = (r/2)(F + M/b), tau_l = (r/2)(F - M/b).
+WheelPair split_torque(float wheel_radius_m, float half_track_m, float force_n, float moment_nm);
+
+/// Symmetric clamp |tau| <= tau_max; sets *clamped when it acted.
+float clamp_torque(float tau_nm, float tau_max_nm, bool* clamped);
+
+/// Torque -> duty through the datasheet motor, with back-EMF compensation, saturated to
+/// [-1, 1]; *saturated set when the duty hit the limit.
+float torque_to_pwm(const slip::MotorParams& m, float tau_nm, float dtheta_rad_s, bool* saturated);
+
+/// Inner-loop output (what the firmware applies and reports).
+struct InnerOut {
+  float pwm_r, pwm_l;            ///< duty in [-1, 1]
+  float tau_r_nm, tau_l_nm;      ///< requested wheel torque after the clamp
+  float tau_max_r_nm, tau_max_l_nm;
+  bool clamped_r, clamped_l;     ///< the tau_max clamp acted
+  bool sat_r, sat_l;             ///< the duty saturated
+  OdoStatus odo;
+};
+
+/// The whole cascade with its state (float path). No heap; about 120 bytes of state.
+class Controller {
+ public:
+  explicit Controller(const ControlConfig& cfg);
+  /// Start at pose p with encoder readings enc_r, enc_l; clears integrators and commands.
+  void reset(int32_t enc_r, int32_t enc_l, const Pose& p);
+  /// Outer loop (50 ms): tracking law on the current odometry pose.
+  const KinematicOut& outer_step(const RefSample& ref);
+  /// Inner loop (25 ms): odometry from the counts, velocity loop, split, clamp, PWM.
+  const InnerOut& inner_step(int32_t enc_r, int32_t enc_l, float dt_s);
+
+  const Odometry& odometry() const { return odo_; }
+  const KinematicOut& kinematic() const { return kin_; }
+  const InnerOut& inner() const { return out_; }
+  float integ_v_n() const { return i_v_; }
+  float integ_w_nm() const { return i_w_; }
+  ControlConfig& config() { return cfg_; }
+
+ private:
+  ControlConfig cfg_;
+  OdometryConfig odo_cfg_;
+  Odometry odo_;
+  KinematicOut kin_;
+  InnerOut out_;
+  float dv_ff_, dw_ff_;
+  float i_v_, i_w_;
+};
+
+}  // namespace ctl
+
+#endif  // CONTROL_CASCADE_H

@@ -1,0 +1,108 @@
+// Closed-loop harness: slip::Plant (0.5 ms Euler steps) driven by the control cascade on the
+// 25 ms inner / 50 ms outer schedule, with encoder counts quantised as on the robot
+// (floor(theta * 1856 / 2pi), int32). Test code, host only.
+#ifndef TEST_CONTROL_CLOSED_LOOP_SIM_H
+#define TEST_CONTROL_CLOSED_LOOP_SIM_H
+
+#include <math.h>
+#include <stdint.h>
+
+#include <control/cascade.h>
+#include <control/reference.h>
+#include <slipmodel/plant.h>
+
+namespace sim {
+
+static const double kPlantDt = 5e-4;
+static const int kPlantPerInner = 50;  // 25 ms
+static const double kPi = 3.14159265358979323846;
+
+struct Result {
+  double max_pos_err_m = 0;      ///< max |p_true - p_ref| over the run
+  double final_pos_err_m = 0;    ///< at the end
+  double e_x = 0, e_y = 0, e_phi = 0;  ///< final tracking errors (true pose, robot frame)
+  double max_tail_err_m = 0;     ///< max |p_true - p_ref| over the last quarter of the run
+  int slip_steps = 0;            ///< plant steps that ended with a wheel slipping
+  double first_slip_t_s = -1;
+  double max_tau_cmd_nm = 0;     ///< max |tau requested after the clamp|
+  double max_odo_err_m = 0;      ///< max |odometry - truth|
+  double final_x_m = 0;          ///< true final x
+  double final_x_ref_m = 0;
+  int clamp_steps = 0, sat_steps = 0;
+};
+
+inline int32_t counts(double theta_rad) {
+  return static_cast<int32_t>(floor(theta_rad * 1856.0 / (2.0 * kPi)));
+}
+
+/// Adapter interface: the float Controller is used directly; the fixed one through the same
+/// calls (see the fixed test).
+template <typename Adapter>
+Result run(Adapter& ctl, const ctl::ReferenceSpec& ref, double x0, double y0, double phi0, double T_s) {
+  slip::Plant plant{slip::RobotParams(), slip::MotorParams()};
+  plant.reset(x0, y0, phi0);
+  ctl.reset(0, 0, x0, y0, phi0);
+  Result res;
+  double u_r = 0, u_l = 0;
+  const int n_inner = static_cast<int>(lround(T_s / 0.025));
+  for (int k = 0; k < n_inner; ++k) {
+    const double t = k * 0.025;
+    const slip::PlantState& s = plant.state();
+    // Firmware order in one 25 ms tick: the inner step reads the counts (odometry + velocity
+    // loop, using the last velocity command), then, every other tick, the outer step runs on
+    // the fresh pose and sets the command for the next inner steps.
+    ctl.inner(counts(s.theta_r_rad), counts(s.theta_l_rad), &u_r, &u_l);
+    double ox, oy;
+    ctl.odo_xy(&ox, &oy);
+    res.max_odo_err_m = fmax(res.max_odo_err_m, hypot(ox - s.x_m, oy - s.y_m));
+    if (k % 2 == 0) ctl.outer(ref, t);
+    res.max_tau_cmd_nm = fmax(res.max_tau_cmd_nm, fmax(fabs(ctl.tau_r()), fabs(ctl.tau_l())));
+    res.clamp_steps += ctl.clamped();
+    res.sat_steps += ctl.saturated();
+    for (int j = 0; j < kPlantPerInner; ++j) {
+      plant.step_duty(u_r, u_l, kPlantDt);
+      if (plant.state().slipping_r || plant.state().slipping_l) {
+        if (res.slip_steps == 0) res.first_slip_t_s = plant.state().t_s;
+        ++res.slip_steps;
+      }
+    }
+    const ctl::RefSample rs = ctl::reference_at(ref, static_cast<float>(t + 0.025));
+    const double err = hypot(plant.state().x_m - rs.x_m, plant.state().y_m - rs.y_m);
+    res.max_pos_err_m = fmax(res.max_pos_err_m, err);
+    if (k >= 3 * n_inner / 4) res.max_tail_err_m = fmax(res.max_tail_err_m, err);
+  }
+  const slip::PlantState& s = plant.state();
+  const ctl::RefSample rs = ctl::reference_at(ref, static_cast<float>(n_inner * 0.025));
+  const double dx = rs.x_m - s.x_m, dy = rs.y_m - s.y_m;
+  res.e_x = cos(s.phi_rad) * dx + sin(s.phi_rad) * dy;
+  res.e_y = -sin(s.phi_rad) * dx + cos(s.phi_rad) * dy;
+  res.e_phi = remainder(rs.phi_rad - s.phi_rad, 2 * kPi);
+  res.final_pos_err_m = hypot(dx, dy);
+  res.final_x_m = s.x_m;
+  res.final_x_ref_m = rs.x_m;
+  return res;
+}
+
+/// Adapter for the float Controller.
+struct FloatAdapter {
+  ctl::Controller c;
+  explicit FloatAdapter(const ctl::ControlConfig& cfg) : c(cfg) {}
+  void reset(int32_t er, int32_t el, double x, double y, double phi) {
+    c.reset(er, el, ctl::Pose{static_cast<float>(x), static_cast<float>(y), static_cast<float>(phi)});
+  }
+  void outer(const ctl::ReferenceSpec& ref, double t) { c.outer_step(ctl::reference_at(ref, static_cast<float>(t))); }
+  void inner(int32_t er, int32_t el, double* u_r, double* u_l) {
+    const ctl::InnerOut& o = c.inner_step(er, el, 0.025f);
+    *u_r = o.pwm_r;
+    *u_l = o.pwm_l;
+  }
+  double tau_r() const { return c.inner().tau_r_nm; }
+  double tau_l() const { return c.inner().tau_l_nm; }
+  bool clamped() const { return c.inner().clamped_r || c.inner().clamped_l; }
+  bool saturated() const { return c.inner().sat_r || c.inner().sat_l; }
+  void odo_xy(double* x, double* y) const { *x = c.odometry().pose().x_m; *y = c.odometry().pose().y_m; }
+};
+
+}  // namespace sim
+
+#endif
