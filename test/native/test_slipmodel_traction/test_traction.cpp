@@ -183,6 +183,41 @@ static void test_motor_imperfections(void) {
   EXPECT_NEAR(1e-12, -0.77 * (6.0 - 0.6) / 12.0, motor_torque_nm(m, -0.5, 0.0, x));
 }
 
+
+// The thesis states tau_max = 0.095 N m for Table II.2. Which assumption reproduces it? Each
+// variant changes one or two things in II.27-II.29 / II.51; none lands within the +-0.0005 that
+// a two-digit 0.095 allows (README, "Where does 0.095 come from?").
+static double tau_variant(double m_n, double m_k, double g, double mu, double Nc) {
+  const RobotParams p;
+  const double N = 0.5 * (m_n * g - Nc);
+  return mu * N * (2.0 * p.I_wy + m_k * p.r * p.r) / (m_k * p.r);
+}
+
+static void test_thesis_0p095_not_reproduced(void) {
+  const RobotParams p;
+  const double mt = p.m_t(), mr = p.m_r, k = p.d / (p.d + p.e);
+  struct { const char* what; double tau; } v[] = {
+      {"as printed (m_t, g = 9.81, mu_s, II.29)", tau_variant(mt, mt, 9.81, p.mu_s, mt * 9.81 * k)},
+      {"caster ignored, N = m_t g / 2", tau_variant(mt, mt, 9.81, p.mu_s, 0.0)},
+      {"m_r instead of m_t everywhere", tau_variant(mr, mr, 9.81, p.mu_s, mr * 9.81 * k)},
+      {"m_r in II.51 only", tau_variant(mt, mr, 9.81, p.mu_s, mt * 9.81 * k)},
+      {"wheel weight on the axle (N_c from m_r)", tau_variant(mt, mt, 9.81, p.mu_s, mr * 9.81 * k)},
+      {"measured 1.63 kg", tau_variant(1.63, 1.63, 9.81, p.mu_s, 1.63 * 9.81 * k)},
+      {"g = 10", tau_variant(mt, mt, 10.0, p.mu_s, mt * 10.0 * k)},
+      {"g = 10 and 1.63 kg", tau_variant(1.63, 1.63, 10.0, p.mu_s, 1.63 * 10.0 * k)},
+      {"mu_k instead of mu_s", tau_variant(mt, mt, 9.81, p.mu_k, mt * 9.81 * k)},
+      {"m_r in II.51 and mu_k", tau_variant(mt, mr, 9.81, p.mu_k, mt * 9.81 * k)},
+      {"caster e from the axle: N_c = m_t g d / e", tau_variant(mt, mt, 9.81, p.mu_s, mt * 9.81 * p.d / p.e)},
+  };
+  EXPECT_NEAR(1e-12, tau_max(p, normal_forces(p).N_r), v[0].tau);
+  for (const auto& x : v) {
+    char msg[120];
+    snprintf(msg, sizeof(msg), "%-44s tau_max = %.5f N m", x.what, x.tau);
+    TEST_MESSAGE(msg);
+    TEST_ASSERT_TRUE_MESSAGE(fabs(x.tau - 0.095) > 0.0005, x.what);
+  }
+}
+
 int main(void) {
   UNITY_BEGIN();
   RUN_TEST(test_table_ii2_defaults);
@@ -190,6 +225,7 @@ int main(void) {
   RUN_TEST(test_lateral_transfer_sign_and_balance);
   RUN_TEST(test_tau_max_table_ii2);
   RUN_TEST(test_tau_max_is_ii50_force_limit);
+  RUN_TEST(test_thesis_0p095_not_reproduced);
   RUN_TEST(test_fixed_point_error_bound);
   RUN_TEST(test_fixed_point_saturates);
   RUN_TEST(test_motor_model_datasheet_points);
