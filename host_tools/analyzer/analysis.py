@@ -1,0 +1,439 @@
+"""The analysis pipeline: load runs, replay them nominally, locate the mismatch, fit every
+vocabulary effect (in parallel), select, and assemble the report dictionary."""
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from host_tools import runfmt
+from host_tools.analyzer import effects as fx
+from host_tools.analyzer import signals as sg
+from host_tools.analyzer.fit import (Candidate, Problem, evaluate_candidate, judge, params_for)
+from host_tools.analyzer.replay import (CHANNELS, CUMULATIVE, FIT_CHANNELS, ClosedLoopReplay,
+                                        OpenLoopReplay, PreparedRun, channels, prepare,
+                                        state_table)
+
+REPORT_FORMAT = "mismatch-report/1"
+MODEL_FORMAT = "ddmodel/1"
+
+
+def _log(msg: str) -> None:
+    print(f"[analyze {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+# ------------------------------------------------------------------- noise floors
+
+
+def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, object]]
+                 ) -> dict[str, float]:
+    """Per-channel noise floor, pooled over runs, estimated from the data:
+    encoder quantization for wheel speeds and counts, the high-frequency part of the
+    residual for everything (ground-truth camera noise shows up there), and for cumulative
+    channels (counts, odometry) a 1 % tolerance of their range, since tiny speed differences
+    integrate."""
+    meta = preps[0].run.meta
+    ppr = int(meta["encoder_ppr"])
+    r = float(meta["robot"]["r"])
+    b = float(meta["robot"]["b"])
+    k = 2 * math.pi / ppr
+    dts = np.concatenate([np.diff(p.run.telemetry["t_s"]) for p in preps])
+    dt = float(np.median(dts))
+    floors: dict[str, float] = {}
+    names = set().union(*[set(c) for c in nominal])
+    for c in names:
+        res = [ch[c].resid for ch in nominal if c in ch]
+        hf = float(np.sqrt(np.mean([sg.hf_noise_std(x) ** 2 for x in res])))
+        if c.startswith("omega"):
+            base = sg.quantization_std(k / dt)
+        elif c.startswith("enc"):
+            base = sg.quantization_std(1.0)
+        elif c in ("x_odo_m", "y_odo_m"):
+            base = r * k
+        elif c == "phi_odo_rad":
+            base = r * k / (2 * b)
+        elif c in ("x_m", "y_m"):
+            base = 2e-4
+        elif c == "phi_rad":
+            base = 2e-3
+        else:
+            base = 1e-6
+        f = max(base, hf)
+        if c in CUMULATIVE:
+            span = max(float(np.ptp(ch[c].rec)) for ch in nominal if c in ch)
+            f = max(f, 0.01 * span)
+        floors[c] = f
+    return floors
+
+
+# ------------------------------------------------------------------------ worker
+
+
+_PROBLEM: Problem | None = None
+
+
+def _init_worker(problem: Problem) -> None:
+    global _PROBLEM
+    _PROBLEM = problem
+
+
+def _eval_task(args):
+    names, x0, ref_effects = args
+    t0 = time.time()
+    cand = evaluate_candidate(_PROBLEM, names, x0=x0, ref_effects=ref_effects)
+    return cand, time.time() - t0
+
+
+def _run_tasks(problem: Problem, tasks: list, jobs: int, label: str) -> list[Candidate]:
+    out: list[Candidate] = []
+    if jobs <= 1 or len(tasks) <= 1:
+        _init_worker(problem)
+        for i, task in enumerate(tasks, 1):
+            cand, dt = _eval_task(task)
+            out.append(cand)
+            _log(f"{label} {i}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
+        return out
+    ctx = mp.get_context("fork")
+    with ctx.Pool(jobs, initializer=_init_worker, initargs=(problem,)) as pool:
+        for i, (cand, dt) in enumerate(pool.imap_unordered(_eval_task, tasks), 1):
+            out.append(cand)
+            _log(f"{label} {i}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
+    order = {tuple(t[0]): i for i, t in enumerate(tasks)}
+    out.sort(key=lambda c: order[tuple(c.effects)])
+    return out
+
+
+# ----------------------------------------------------------------------- result
+
+
+@dataclass
+class Analysis:
+    runs: list[runfmt.Run]
+    preps: list[PreparedRun]
+    floors: dict[str, float]
+    nominal: list[dict]                 # per run: channel -> Channel (duty replay)
+    nominal_torque: list[dict]          # per run: channel -> Channel (torque replay)
+    updated: list[dict] | None
+    mismatch: list[dict]
+    candidates: list[Candidate]
+    selected: list[dict]
+    verdict: str
+    fit_table: dict
+    hint: dict | None
+    model: dict
+    notes: list[str] = field(default_factory=list)
+    windows: dict = field(default_factory=dict)   # (run idx, channel) -> [Window]
+    timing_s: float = 0.0
+
+
+def _window_entries(preps, chans_per_run, floors, channel_names, replay_name,
+                    regime_cands_per_run, tau_max) -> tuple[list[dict], dict, float]:
+    """Significant windows of every channel, with the regime that best explains them.
+    Returns the report entries, {(run, channel): windows} and the significant fraction."""
+    entries: list[dict] = []
+    wins: dict = {}
+    for c in channel_names:
+        masks, preds_runs, per_run = [], [], []
+        for i, (prep, chans) in enumerate(zip(preps, chans_per_run)):
+            ch = chans.get(c)
+            if ch is None:
+                continue
+            w, m = sg.significant_windows(ch.t, ch.resid, floors[c])
+            wins[(i, c)] = w
+            per_run.append((i, ch, w))
+            masks.append(m)
+            st = regime_cands_per_run[i]
+            preds_runs.append({k: np.interp(ch.t, st["t"], v) for k, v in st.items()})
+        if not masks or not any(m.any() for m in masks):
+            continue
+        pooled = {k: np.concatenate([p[k] for p in preds_runs]) for k in preds_runs[0]}
+        regime = sg.best_regime(np.concatenate(masks), sg.regime_candidates(pooled, tau_max))
+        for i, ch, w in per_run:
+            for win in w:
+                entries.append({"run": preps[i].name, "channel": c,
+                                "t_start_s": round(win.t_start_s, 4),
+                                "t_end_s": round(win.t_end_s, 4), "rms": _r(win.rms),
+                                "noise_floor": _r(floors[c]),
+                                "regime": regime.description if regime else "unknown",
+                                "regime_f1": round(regime.score, 3) if regime else 0.0,
+                                "replay": replay_name})
+    return entries, wins, 0.0
+
+
+def _r(v: float, sig: int = 4) -> float:
+    if v == 0 or not math.isfinite(v):
+        return float(v) if math.isfinite(v) else None  # type: ignore[return-value]
+    return float(f"{v:.{sig}g}")
+
+
+def _excess(problem: Problem, effects: Mapping) -> float:
+    r = problem.residual(effects, list(range(len(problem.preps))))
+    return float(np.mean(r ** 2)) if r.size else 0.0
+
+
+def sparse_hint(preps, chans_per_run) -> dict | None:
+    """Sparse regression of the wheel-acceleration residual on named state features."""
+    X, y = [], []
+    names = ["1", "sign(w)", "w", "w*|w|", "dw/dt", "tau_cmd", "duty", "yaw_rate*side",
+             "duty*w", "t"]
+    for prep, chans in zip(preps, chans_per_run):
+        st = state_table(prep)
+        for side, sgn in (("r", 1.0), ("l", -1.0)):
+            ch = chans.get(f"omega_{side}")
+            if ch is None or ch.t.size < 5:
+                continue
+            res = sg.smooth(ch.resid, 3)
+            acc = np.gradient(res, ch.t)
+            w = np.interp(ch.t, st["t"], st[f"w_{side}"])
+            a = np.interp(ch.t, st["t"], st[f"a_{side}"])
+            tau = np.interp(ch.t, st["t"], st[f"tau_{side}"])
+            u = np.interp(ch.t, st["t"], st[f"u_{side}"])
+            yaw = np.interp(ch.t, st["t"], st["yaw"])
+            X.append(np.column_stack([np.ones_like(w), np.sign(w) * (np.abs(w) > 0.5), w,
+                                      w * np.abs(w), a, tau, u, yaw * sgn, u * w, ch.t]))
+            y.append(acc)
+    if not X:
+        return None
+    X = np.vstack(X)
+    y = np.concatenate(y)
+    terms = sg.stlsq(X, y, names, threshold=0.15, max_terms=3)
+    if not terms:
+        return {"target": "d/dt of the wheel-speed residual (rad/s^2)", "terms": {},
+                "r2": 0.0, "text": "no sparse combination of the state features fits"}
+    idx = [names.index(n) for n in terms]
+    yhat = X[:, idx] @ np.array([terms[n] for n in terms])
+    r2 = sg.r_squared(y, yhat)
+    text = " + ".join(f"{v:.4g}*{n}" if n != "1" else f"{v:.4g}" for n, v in terms.items())
+    return {"target": "d/dt of the wheel-speed residual (rad/s^2), per wheel",
+            "terms": {n: _r(v) for n, v in terms.items()}, "r2": round(r2, 3),
+            "text": f"residual wheel acceleration ~ {text}"}
+
+
+def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | None = None,
+            dt_s: float = 5e-4, pairs_top: int = 4,
+            log: Callable[[str], None] = _log) -> Analysis:
+    t_start = time.time()
+    runs = [runfmt.load_run(p) for p in run_dirs]
+    runfmt.check_compatible(runs)
+    names_seen = [r.name for r in runs]
+    if len(set(names_seen)) != len(names_seen):
+        # two folders with one base name: use the paths
+        for r in runs:
+            r.path = os.path.abspath(r.path)
+    log(f"loaded {len(runs)} run(s): " + ", ".join(r.name for r in runs))
+    from host_tools import _native
+    vocab = _native.effect_vocabulary()
+    if effects:
+        unknown = [e for e in effects if e not in vocab]
+        if unknown:
+            raise runfmt.RunFormatError(f"unknown effect(s) {unknown}; known: {list(vocab)}")
+        vocab_fit = {e: vocab[e] for e in effects}
+    else:
+        vocab_fit = vocab
+    preps = [prepare(r) for r in runs]
+    notes: list[str] = []
+    duty = OpenLoopReplay("duty", dt_s=dt_s)
+    torque = OpenLoopReplay("torque", dt_s=dt_s)
+    nominal = [channels(p, duty.simulate(p, {}), "duty") for p in preps]
+    nominal_t = [channels(p, torque.simulate(p, {}), "torque") for p in preps]
+    ok, why = ClosedLoopReplay.available()
+    if not ok:
+        notes.append(f"closed-loop replay through lib/control not run: {why}; the controller's "
+                     "torque (tau_cmd) is therefore not compared")
+    floors = noise_floors(preps, nominal)
+    floors_t = noise_floors(preps, nominal_t)
+    log("noise floors: " + ", ".join(f"{c}={v:.3g}" for c, v in sorted(floors.items())))
+    plant = _native.Plant.from_meta(runs[0].meta)
+    tau_max = float(min(plant.tau_max()))
+    states = [state_table(p) for p in preps]
+    chan_names = [c for c in CHANNELS if any(c in ch for ch in nominal)]
+    entries, wins, _ = _window_entries(preps, nominal, floors, chan_names, "duty", states,
+                                       tau_max)
+    entries_t, _, _ = _window_entries(preps, nominal_t, floors_t, chan_names, "torque",
+                                      states, tau_max)
+    fit_chans = [c for c in FIT_CHANNELS if c in floors]
+    sig_fit = [e for e in entries if e["channel"] in fit_chans]
+    mismatch_seen = bool(sig_fit)
+    sig_t = [e for e in entries_t if e["channel"] in fit_chans]
+    if mismatch_seen and not sig_t:
+        notes.append("the torque-driven replay agrees with the recording while the duty-driven "
+                     "one does not: the mismatch sits between duty and torque (motor, driver)")
+    elif mismatch_seen and sig_t:
+        notes.append("both the duty- and the torque-driven replay disagree with the recording: "
+                     "the mismatch is (also) downstream of the motor torque (mechanics, contact, "
+                     "geometry) or in the timing of the command")
+    log(f"nominal replay: {len(entries)} significant window(s) "
+        f"({len(sig_fit)} in fit channels {', '.join(fit_chans)})")
+
+    problem = Problem(preps, floors, vocab, dt_s=dt_s, fit_channels=fit_chans)
+    runs_idx = list(range(len(preps)))
+    r0 = problem.residual({}, runs_idx)
+    rss0 = float(np.sum(r0 ** 2))
+    tasks = [([e], None, {}) for e in vocab_fit]
+    log(f"fitting {len(tasks)} candidate effect(s) on {jobs} process(es)")
+    cands = _run_tasks(problem, tasks, jobs, "candidate")
+    for c in cands:
+        judge(problem, c)
+    cands.sort(key=lambda c: c.delta_bic)
+    selected_c: list[Candidate] = []
+    best_single = next((c for c in cands if c.accepted), None)
+    final_effects: dict = {}
+    pair_cands: list[Candidate] = []
+    if mismatch_seen and best_single is not None:
+        selected_c = [best_single]
+        final_effects = dict(best_single.fit.params)
+    if mismatch_seen:
+        # is one effect enough?  try pairs when something significant remains
+        remaining = _remaining_windows(problem, final_effects, fit_chans)
+        ex0 = rss0 / max(r0.size, 1)
+        ex1 = _excess(problem, final_effects)
+        if remaining and (ex1 - 1.0) > 0.1 * (ex0 - 1.0):
+            ranked = [c.effects[0] for c in cands if c.checks.get("bic")][:pairs_top]
+            if best_single is not None and best_single.effects[0] not in ranked:
+                ranked = [best_single.effects[0]] + ranked[:pairs_top - 1]
+            import itertools
+            pair_tasks = []
+            for a, b in itertools.combinations(ranked, 2):
+                ca = next(c for c in cands if c.effects == [a])
+                cb = next(c for c in cands if c.effects == [b])
+                x0 = np.concatenate([ca.fit.x, cb.fit.x])
+                pair_tasks.append(([a, b], x0, {}))
+            if pair_tasks:
+                log(f"one effect leaves a mismatch: fitting {len(pair_tasks)} pair(s)")
+                pair_cands = _run_tasks(problem, pair_tasks, jobs, "pair")
+                for pc in pair_cands:
+                    judge(problem, pc)
+                    # the pair must also beat each of its singles
+                    for e in pc.effects:
+                        single = next(c for c in cands if c.effects == [e])
+                        better = (pc.fit.rss < single.fit.rss and
+                                  _pair_bic(pc, single, problem) < -10.0 and
+                                  pc.heldout_after < 0.95 * single.heldout_after)
+                        if not better:
+                            pc.checks["adds"] = False
+                            pc.reasons.append(f"not clearly better than {e} alone")
+                    if "adds" not in pc.checks:
+                        pc.checks["adds"] = True
+                pair_cands.sort(key=lambda c: c.delta_bic)
+                best_pair = next((c for c in pair_cands if c.accepted), None)
+                if best_pair is not None:
+                    selected_c = [best_pair]
+                    final_effects = dict(best_pair.fit.params)
+    # equivalents: other accepted singles that explain about as much
+    selected: list[dict] = []
+    if selected_c:
+        sel = selected_c[0]
+        for e in sel.effects:
+            equiv = []
+            for c in cands:
+                if c.effects[0] in sel.effects or not (c.checks.get("bic") and
+                                                       c.checks.get("heldout")):
+                    continue
+                me = next(x for x in cands if x.effects == [e])
+                close = ((c.delta_bic - me.delta_bic) < 10.0 and
+                         c.heldout_after <= max(1.25 * me.heldout_after,
+                                                me.heldout_after + 0.1))
+                if close and c.fit.rss < rss0:
+                    equiv.append(c.effects[0])
+            selected.append({"effect": e, "params": {k: _r(v, 5) for k, v in
+                                                    sel.fit.params[e].items()},
+                             "equivalent": equiv,
+                             "separating_measurement": {q: fx.separator(e, q) for q in equiv}})
+    # verdict
+    hint = None
+    updated = None
+    if not mismatch_seen:
+        verdict = "no_mismatch"
+        final_effects = {}
+    else:
+        ex0 = rss0 / max(r0.size, 1)
+        ex1 = _excess(problem, final_effects)
+        remaining = _remaining_windows(problem, final_effects, fit_chans)
+        explained = bool(selected) and (not remaining or (ex1 - 1.0) <= 0.25 * (ex0 - 1.0))
+        verdict = "explained" if explained else "unexplained"
+        if not explained:
+            chans_after = [channels(p, duty.simulate(p, final_effects), "duty") for p in preps]
+            hint = sparse_hint(preps, chans_after)
+            if selected:
+                notes.append("the selected effects explain part of the mismatch only "
+                             f"(mean squared normalized residual {ex0:.3g} -> {ex1:.3g})")
+    if final_effects:
+        updated = [channels(p, duty.simulate(p, final_effects), "duty") for p in preps]
+    # error tables: fitting data and held-out
+    rb = problem.channel_rmse({}, runs_idx)
+    ra = problem.channel_rmse(final_effects, runs_idx) if final_effects else dict(rb)
+    if selected_c:
+        hb, ha = selected_c[0].heldout_channels_before, selected_c[0].heldout_channels_after
+    else:
+        # no update: held-out error equals the nominal one on the held-out parts
+        c0 = cands[0] if cands else None
+        hb = c0.heldout_channels_before if c0 else dict(rb)
+        ha = dict(hb)
+    fit_table = {"rmse_before": {k: _r(v) for k, v in rb.items()},
+                 "rmse_after": {k: _r(v) for k, v in ra.items()},
+                 "heldout_rmse_before": {k: _r(v) for k, v in hb.items()},
+                 "heldout_rmse_after": {k: _r(v) for k, v in ha.items()},
+                 "heldout_method": ("leave one run out" if len(preps) > 1 else
+                                    f"time split at {problem.split_frac:.0%} of the run"),
+                 "noise_floor": {k: _r(v) for k, v in floors.items()}}
+    model = updated_model(runs[0].meta, final_effects, [r.path for r in runs])
+    all_c = cands + pair_cands
+    all_c.sort(key=lambda c: c.delta_bic)
+    an = Analysis(runs, preps, floors, nominal, nominal_t, updated,
+                  entries + entries_t if verdict != "no_mismatch" else [],
+                  all_c, selected, verdict, fit_table, hint, model, notes, wins)
+    an.timing_s = time.time() - t_start
+    log(f"verdict: {verdict}" + (f"; selected {', '.join(s['effect'] for s in selected)}"
+                                 if selected else "") + f" ({an.timing_s:.1f} s)")
+    return an
+
+
+def _pair_bic(pair: Candidate, single: Candidate, problem: Problem) -> float:
+    from host_tools.analyzer.fit import delta_bic, effective_n
+    r = problem.residual(single.fit.params, list(range(len(problem.preps))))
+    return delta_bic(pair.fit.rss, single.fit.rss, effective_n(r),
+                     len(pair.fit.values) - len(single.fit.values))
+
+
+def _remaining_windows(problem: Problem, effects: Mapping, fit_chans: Sequence[str]) -> int:
+    n = 0
+    for prep, chans in zip(problem.preps, problem.sim_channels(effects,
+                                                               range(len(problem.preps)))):
+        for c in fit_chans:
+            ch = chans.get(c)
+            if ch is None:
+                continue
+            w, _ = sg.significant_windows(ch.t, ch.resid, problem.floors[c])
+            n += len(w)
+    return n
+
+
+def updated_model(meta: Mapping, effects: Mapping[str, Mapping[str, float]],
+                  sources: Sequence[str]) -> dict:
+    """The updated model-parameter file (format ``ddmodel/1``, see docs/analyzer.md)."""
+    from host_tools import _native
+    robot = dict(meta["robot"])
+    motor = dict(meta["motor"])
+    plant = _native.Plant.from_meta(meta)
+    for name, params in effects.items():
+        plant.set_effect(name, **params)
+    # fold the effects that are plain parameter changes into the parameters themselves
+    if "friction_coefficient" in effects:
+        robot["mu_s"] = effects["friction_coefficient"].get("mu_s", robot["mu_s"])
+        robot["mu_k"] = effects["friction_coefficient"].get("mu_k", robot["mu_k"])
+    if "wheel_radius" in effects:
+        robot["r"] = effects["wheel_radius"]["r_eff"]
+    if "track_width" in effects:
+        robot["b"] = effects["track_width"]["b_eff"]
+    tr, tl = plant.tau_max()
+    return {"format": MODEL_FORMAT, "robot": robot, "motor": motor,
+            "encoder_ppr": int(meta["encoder_ppr"]),
+            "effects": {k: {p: float(v) for p, v in d.items()} for k, d in effects.items()},
+            "tau_max_nm": {"right": tr, "left": tl, "min": min(tr, tl)},
+            "source_runs": list(sources)}

@@ -1,0 +1,150 @@
+"""What the analyzer needs to know about each vocabulary effect in order to *fit* it:
+the neutral value (effect off) for a run's nominal parameters, search bounds, the
+smallest size worth reporting, and which measurement separates confusable effects.
+
+The physics of the effects is not here: it lives in lib/slipmodel and is reached
+through host_tools._native.  Effects the plant knows but this table does not get
+generic bounds around their default (see :func:`spec_for`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Mapping
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    name: str
+    neutral: Callable[[Mapping], float]  # meta -> neutral value
+    lo: Callable[[Mapping], float]
+    hi: Callable[[Mapping], float]
+    floor: Callable[[Mapping], float]  # smallest |value - neutral| worth reporting
+    unit: str = ""
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    name: str
+    params: tuple[ParamSpec, ...]
+    signature: str  # what it does to the recordings, for the human report
+
+    @property
+    def main(self) -> str:
+        return self.params[0].name
+
+
+def _c(v: float) -> Callable[[Mapping], float]:
+    return lambda meta: v
+
+
+def _robot(key: str, scale: float = 1.0) -> Callable[[Mapping], float]:
+    return lambda meta: scale * float(meta["robot"][key])
+
+
+def _motor(key: str, scale: float = 1.0) -> Callable[[Mapping], float]:
+    return lambda meta: scale * float(meta["motor"][key])
+
+
+P = ParamSpec
+SPECS: dict[str, EffectSpec] = {s.name: s for s in [
+    EffectSpec("friction_coefficient", (
+        P("mu_k", _robot("mu_k"), _c(0.03), _c(1.2), _robot("mu_k", 0.05)),
+        P("mu_s", _robot("mu_s"), _c(0.03), _c(1.2), _robot("mu_s", 0.05))),
+        "wheels spin up (slip) at a different torque; distance lost in slip changes"),
+    EffectSpec("wheel_radius", (
+        P("r_eff", _robot("r"), _robot("r", 0.7), _robot("r", 1.3), _robot("r", 0.015), "m"),),
+        "ground-truth distance scales against encoder distance"),
+    EffectSpec("track_width", (
+        P("b_eff", _robot("b"), _robot("b", 0.7), _robot("b", 1.4), _robot("b", 0.015), "m"),),
+        "ground-truth heading change scales against the encoder difference"),
+    EffectSpec("motor_back_emf", (
+        P("ke_ratio", _c(1.0), _c(0.5), _c(2.0), _c(0.03)),),
+        "torque shortfall growing with wheel speed"),
+    EffectSpec("driver_voltage_drop", (
+        P("volts", _c(0.0), _c(0.0), _motor("supply_v", 0.4), _motor("supply_v", 0.015), "V"),),
+        "constant fraction of drive voltage missing"),
+    EffectSpec("actuation_delay", (
+        P("delay_s", _c(0.0), _c(0.0), _c(0.1), _c(0.004), "s"),),
+        "response shifted later in time"),
+    EffectSpec("motor_lag", (
+        P("tau_s", _c(0.0), _c(0.0), _c(0.2), _c(0.005), "s"),),
+        "torque rises slowly after a step of the command"),
+    EffectSpec("axle_viscous", (
+        P("c", _c(0.0), _c(0.0), _motor("stall_nm", 0.5 / 36.65), _c(3e-4), "N m s/rad"),),
+        "drag torque proportional to wheel speed"),
+    EffectSpec("axle_coulomb", (
+        P("torque", _c(0.0), _c(0.0), _motor("stall_nm", 0.3), _motor("stall_nm", 0.006), "N m"),),
+        "constant drag torque while the wheel turns"),
+    EffectSpec("caster_drag", (
+        P("mu", _c(0.0), _c(0.0), _c(0.5), _c(0.01)),),
+        "constant drag force on the body while it moves"),
+    EffectSpec("load_transfer", (
+        P("h", _c(0.0), _c(0.0), _c(0.25), _c(0.005), "m"),),
+        "normal forces shift during acceleration; slip threshold moves"),
+    EffectSpec("stribeck", (
+        P("mu_k0", _robot("mu_k"), _c(0.03), _c(1.2), _robot("mu_k", 0.05)),
+        P("v_s", _c(0.01), _c(0.001), _c(1.0), _c(0.0))),
+        "kinetic friction depends on slip speed"),
+    EffectSpec("deadband", (
+        P("volts", _c(0.0), _c(0.0), _motor("supply_v", 0.3), _motor("supply_v", 0.01), "V"),),
+        "small duties give no torque"),
+    EffectSpec("motor_gain_asymmetry", (
+        P("ratio", _c(1.0), _c(0.6), _c(1.6), _c(0.02)),),
+        "one wheel stronger than the other: the robot curves"),
+    EffectSpec("floor_slope", (
+        P("rad", _c(0.0), _c(-0.2), _c(0.2), _c(0.004), "rad"),),
+        "constant along-track gravity force"),
+]}
+
+# The measurement that tells two confusable effects apart.
+SEPARATORS: dict[frozenset, str] = {
+    frozenset({"motor_back_emf", "axle_viscous"}):
+        "hold the wheels at one speed with two different supply voltages (or log motor current): "
+        "back-EMF scales with the voltage, axle friction does not",
+    frozenset({"motor_back_emf", "driver_voltage_drop"}):
+        "a run at low speed and high duty (stall-like): a voltage drop costs torque at zero "
+        "speed, back-EMF does not",
+    frozenset({"driver_voltage_drop", "deadband"}):
+        "a slow duty ramp from zero: a deadband gives no motion below its threshold, a drop "
+        "scales all duties",
+    frozenset({"driver_voltage_drop", "axle_coulomb"}):
+        "a run at two duty levels: a voltage drop scales with duty, Coulomb friction is constant",
+    frozenset({"axle_viscous", "axle_coulomb"}):
+        "coast-down from two speeds: viscous drag falls with speed, Coulomb drag does not",
+    frozenset({"axle_coulomb", "caster_drag"}):
+        "a spin in place: axle friction acts on the wheels, caster drag on the body",
+    frozenset({"axle_coulomb", "floor_slope"}):
+        "the same run driven in the opposite direction: a slope helps one way, friction never",
+    frozenset({"caster_drag", "floor_slope"}):
+        "the same run driven in the opposite direction: a slope helps one way, drag never",
+    frozenset({"actuation_delay", "motor_lag"}):
+        "a sharp torque step logged at a high rate: a delay shifts it, a lag rounds it",
+    frozenset({"wheel_radius", "friction_coefficient"}):
+        "ground truth during a gentle (no-slip) run: radius scales distance, slip does not",
+    frozenset({"friction_coefficient", "stribeck"}):
+        "steps to several torques above tau_max: Stribeck friction changes with slip speed",
+    frozenset({"friction_coefficient", "load_transfer"}):
+        "slip onset at several accelerations: load transfer moves tau_max with acceleration",
+    frozenset({"track_width", "motor_gain_asymmetry"}):
+        "a straight run: gain asymmetry curves it, a track-width error does not",
+}
+
+
+def separator(a: str, b: str) -> str:
+    return SEPARATORS.get(frozenset({a, b}),
+                          f"a run that excites {a} and {b} differently, with ground truth")
+
+
+def spec_for(name: str, defaults: Mapping[str, float]) -> EffectSpec:
+    """The fitting spec of ``name``; an effect the table does not know gets bounds of
+    0.5x..1.5x around a non-zero default (or 0..1 around zero) and a 3 % floor."""
+    if name in SPECS:
+        return SPECS[name]
+    params = []
+    for p, d in defaults.items():
+        d = float(d)
+        if d != 0:
+            lo, hi = sorted((0.5 * d, 1.5 * d))
+            params.append(P(p, _c(d), _c(lo), _c(hi), _c(0.03 * abs(d))))
+        else:
+            params.append(P(p, _c(0.0), _c(0.0), _c(1.0), _c(0.01)))
+    return EffectSpec(name, tuple(params), "effect unknown to the analyzer's table")

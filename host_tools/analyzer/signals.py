@@ -1,0 +1,223 @@
+"""Signal-level pieces of the analyzer that need no physics: noise floors estimated
+from the data, significant windows of a residual, and the operating regime that
+best explains where a residual is significant."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+
+def robust_std(x: np.ndarray) -> float:
+    """1.4826 * median absolute deviation (a Gaussian's std), ignoring NaN."""
+    x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(x - np.median(x))))
+
+
+def hf_noise_std(resid: np.ndarray) -> float:
+    """Std of the white part of a residual, from its second differences.
+
+    A smooth mismatch (drift, bias, slow dynamics) has small second differences;
+    white noise of std s has second differences of std s*sqrt(6).  The MAD keeps
+    a few steps (an edge of a mismatch) from inflating the estimate."""
+    r = np.asarray(resid, dtype=float)
+    r = r[np.isfinite(r)]
+    if r.size < 5:
+        return 0.0
+    return robust_std(np.diff(r, 2)) / np.sqrt(6.0)
+
+
+def quantization_std(step: float) -> float:
+    """Std of the difference of two independent uniform quantization errors of one step
+    (e.g. a speed from two encoder readings)."""
+    return float(step) / np.sqrt(6.0)
+
+
+def smooth(x: np.ndarray, n: int) -> np.ndarray:
+    """Centred moving average over n samples (n odd), edges shrunk."""
+    x = np.asarray(x, dtype=float)
+    if n <= 1 or x.size == 0:
+        return x.copy()
+    n = int(n) | 1
+    k = np.ones(n)
+    num = np.convolve(x, k, mode="same")
+    den = np.convolve(np.ones_like(x), k, mode="same")
+    return num / den
+
+
+@dataclass
+class Window:
+    t_start_s: float
+    t_end_s: float
+    i0: int
+    i1: int  # inclusive
+    rms: float
+
+
+def significant_windows(t: np.ndarray, resid: np.ndarray, floor: float, k: float = 3.0,
+                        smooth_n: int = 5, min_len: int = 3, merge_gap_s: float = 0.06
+                        ) -> tuple[list[Window], np.ndarray]:
+    """Windows where the smoothed |residual| exceeds k * floor / sqrt(smooth_n) and the raw
+    RMS over the window exceeds k * floor... in short: sustained, not single spikes.
+
+    Returns the windows and the boolean significance mask (per sample)."""
+    t = np.asarray(t, dtype=float)
+    r = np.asarray(resid, dtype=float)
+    if r.size == 0 or floor <= 0:
+        return [], np.zeros(r.shape, bool)
+    n = min(smooth_n, max(1, r.size))
+    s = smooth(r, n)
+    thr = k * floor / np.sqrt(n)
+    # a smoothed residual of pure noise has std floor/sqrt(n); demand also a raw size
+    mask = (np.abs(s) > max(thr, 1.0 * floor))
+    idx = np.flatnonzero(mask)
+    windows: list[Window] = []
+    if idx.size:
+        starts = [idx[0]]
+        ends = []
+        for a, b in zip(idx[:-1], idx[1:]):
+            if t[b] - t[a] > merge_gap_s:
+                ends.append(a)
+                starts.append(b)
+        ends.append(idx[-1])
+        for i0, i1 in zip(starts, ends):
+            if i1 - i0 + 1 < min_len:
+                mask[i0:i1 + 1] = False
+                continue
+            seg = r[i0:i1 + 1]
+            rms = float(np.sqrt(np.mean(seg ** 2)))
+            if rms < k * floor / np.sqrt(i1 - i0 + 1) or rms < floor:
+                mask[i0:i1 + 1] = False
+                continue
+            mask[i0:i1 + 1] = True
+            windows.append(Window(float(t[i0]), float(t[i1]), int(i0), int(i1), rms))
+    return windows, mask
+
+
+# --------------------------------------------------------------------------- regimes
+
+
+@dataclass
+class Regime:
+    description: str
+    score: float  # F1 of the predicate against the significance mask, 0..1
+    mask: np.ndarray
+
+
+def regime_candidates(state: dict[str, np.ndarray], tau_max: float | None
+                      ) -> list[tuple[str, np.ndarray]]:
+    """Named predicates over the operating state at each sample.
+
+    ``state`` holds arrays on one time base: ``t``, ``w_r``, ``w_l`` (wheel speeds, rad/s),
+    ``a_r``, ``a_l`` (wheel accelerations, rad/s^2), ``tau_r``, ``tau_l`` (torque command),
+    ``u_r``, ``u_l`` (duty) and ``yaw`` (yaw rate, rad/s)."""
+    t = state["t"]
+    out: list[tuple[str, np.ndarray]] = []
+    wmax = np.maximum(np.abs(state["w_r"]), np.abs(state["w_l"]))
+    amax = np.maximum(np.abs(state["a_r"]), np.abs(state["a_l"]))
+    top = float(np.max(wmax)) if wmax.size else 0.0
+    for q in np.linspace(0.1, 0.9, 9):
+        thr = round(q * top, 1)
+        if thr > 0:
+            out.append((f"wheel speed above {thr:g} rad/s", wmax > thr))
+            out.append((f"wheel speed below {thr:g} rad/s", wmax < thr))
+    atop = float(np.max(amax)) if amax.size else 0.0
+    for q in (0.1, 0.2, 0.3, 0.5):
+        thr = round(q * atop, 0)
+        if thr > 0:
+            out.append((f"during acceleration (|wheel acceleration| above {thr:g} rad/s^2)",
+                        amax > thr))
+    amean = 0.5 * (state["a_r"] + state["a_l"])
+    wmean = 0.5 * (state["w_r"] + state["w_l"])
+    if atop > 0:
+        out.append(("while speeding up", amean * np.sign(wmean + 1e-12) > 0.1 * atop))
+        out.append(("while slowing down", amean * np.sign(wmean + 1e-12) < -0.1 * atop))
+        out.append(("at steady speed", amax < 0.1 * atop))
+    if tau_max is not None and tau_max > 0:
+        tmax = np.maximum(np.abs(state["tau_r"]), np.abs(state["tau_l"]))
+        out.append((f"when the torque command exceeds tau_max ({tau_max:.3g} N m)",
+                    tmax > 0.98 * tau_max))
+        out.append(("when the torque command is near tau_max (above 80 %)",
+                    tmax > 0.8 * tau_max))
+    umax = np.maximum(np.abs(state["u_r"]), np.abs(state["u_l"]))
+    for thr in (0.05, 0.1, 0.2):
+        out.append((f"when the duty is small (|pwm| below {thr:g})", umax < thr))
+    ytop = float(np.max(np.abs(state["yaw"]))) if state["yaw"].size else 0.0
+    if ytop > 0.05:
+        out.append(("only in turns", np.abs(state["yaw"]) > max(0.2 * ytop, 0.05)))
+        out.append(("only on straight segments", np.abs(state["yaw"]) < max(0.2 * ytop, 0.05)))
+    if t.size:
+        for q in (0.25, 0.5, 0.75):
+            thr = round(float(t[0] + q * (t[-1] - t[0])), 2)
+            out.append((f"after t = {thr:g} s", t > thr))
+        out.append(("everywhere the robot moves", wmax > 0.05 * max(top, 1e-9)))
+    return out
+
+
+def best_regime(mask: np.ndarray, candidates: list[tuple[str, np.ndarray]]) -> Regime | None:
+    """The predicate whose samples best coincide with the significance mask (F1 score)."""
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        return None
+    best: Regime | None = None
+    for desc, pred in candidates:
+        pred = np.asarray(pred, bool)
+        if pred.shape != mask.shape or not pred.any():
+            continue
+        tp = float(np.sum(pred & mask))
+        prec = tp / float(np.sum(pred))
+        rec = tp / float(np.sum(mask))
+        f1 = 0.0 if tp == 0 else 2 * prec * rec / (prec + rec)
+        if best is None or f1 > best.score + 1e-12:
+            best = Regime(desc, f1, pred)
+    return best
+
+
+# ----------------------------------------------------------------- sparse regression
+
+
+def stlsq(X: np.ndarray, y: np.ndarray, names: list[str], threshold: float = 0.1,
+          iters: int = 10, max_terms: int = 4) -> dict[str, float]:
+    """Sequentially thresholded least squares (the SINDy regression) on standardized
+    features; returns {feature name: coefficient in original units} of the kept terms."""
+    X = np.asarray(X, float)
+    y = np.asarray(y, float)
+    ok = np.all(np.isfinite(X), axis=1) & np.isfinite(y)
+    X, y = X[ok], y[ok]
+    if y.size < 5:
+        return {}
+    scale = np.std(X, axis=0)
+    scale[scale == 0] = 1.0
+    Z = X / scale
+    ys = float(np.std(y)) or 1.0
+    keep = np.ones(Z.shape[1], bool)
+    coef = np.zeros(Z.shape[1])
+    for _ in range(iters):
+        if not keep.any():
+            break
+        c, *_ = np.linalg.lstsq(Z[:, keep], y / ys, rcond=None)
+        coef[:] = 0
+        coef[keep] = c
+        small = np.abs(coef) < threshold
+        if keep.sum() > max_terms:
+            order = np.argsort(-np.abs(coef))
+            small |= ~np.isin(np.arange(coef.size), order[:max_terms])
+        new_keep = keep & ~small
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    return {names[i]: float(coef[i] * ys / scale[i]) for i in np.flatnonzero(keep)
+            if coef[i] != 0}
+
+
+def r_squared(y: np.ndarray, yhat: np.ndarray) -> float:
+    y = np.asarray(y, float)
+    ss = float(np.sum((y - np.mean(y)) ** 2))
+    return 0.0 if ss == 0 else 1.0 - float(np.sum((y - yhat) ** 2)) / ss
+
+
+Predicate = Callable[[dict[str, np.ndarray]], np.ndarray]
