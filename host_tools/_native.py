@@ -247,8 +247,14 @@ class Plant:
                              f"it has {list(vocab[name])}")
         values = dict(vocab[name])
         values.update(params)
-        for p, v in values.items():
-            self.set(f"{name}.{p}", v)
+        old = {p: self.get(f"{name}.{p}") for p in values}
+        try:
+            for p, v in values.items():
+                self.set(f"{name}.{p}", v)
+        except ValueError:
+            for p, v in old.items():  # all or nothing: a bad value changes no setting
+                self.set(f"{name}.{p}", v)
+            raise
         self.set(f"{name}.enabled", 1.0)
 
     def disable_effect(self, name: str) -> None:

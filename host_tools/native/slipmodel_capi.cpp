@@ -161,7 +161,7 @@ int sm_plant_set(void* p, const char* key, double v) {
     set_err(h, "unknown key '%s'", key);
     return SM_ERR_KEY;
   }
-  if (!isfinite(v)) {
+  if (!isfinite(v) || (k >= 0 && !slip::effect_param_valid(id, k, v))) {
     set_err(h, "%s: bad value %g", key, v);
     return SM_ERR_VALUE;
   }

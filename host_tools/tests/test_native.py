@@ -133,6 +133,8 @@ def test_parameters_from_dicts_and_meta():
     (lambda: _native.Plant().set_effect("wind"), "wind"),
     (lambda: _native.Plant().set_effect("stribeck", vs=1.0), "vs"),
     (lambda: _native.Plant().get("robot.nope"), "robot.nope"),
+    (lambda: _native.Plant().set_effect("wheel_radius", r_eff=0.0), "wheel_radius.r_eff"),
+    (lambda: _native.Plant().set_effect("motor_lag", tau_s=-1.0), "motor_lag.tau_s"),
 ])
 def test_bad_keys_and_values_raise_clear_errors(call, needle):
     with pytest.raises(ValueError, match=needle):
@@ -176,3 +178,11 @@ def test_c_abi_rejects_bad_input_without_crashing():
         assert lib.sm_effect_name(99) is None and lib.sm_out_col_name(-1) is None
     finally:
         lib.sm_plant_free(h)
+
+
+def test_bad_effect_value_changes_nothing():
+    p = _native.Plant()
+    p.set_effect("stribeck", mu_k0=0.24, v_s=0.02)
+    with pytest.raises(ValueError, match="stribeck.v_s"):
+        p.set_effect("stribeck", mu_k0=0.2, v_s=-1.0)
+    assert p.enabled_effects() == {"stribeck": {"mu_k0": 0.24, "v_s": 0.02}}

@@ -1,6 +1,7 @@
 #if !defined(__AVR__)
 #include <slipmodel/effects.h>
 
+#include <math.h>
 #include <string.h>
 
 namespace slip {
@@ -39,6 +40,27 @@ int effect_param_index(int id, const char* param) {
   for (int k = 0; k < kInfo[id].param_count; ++k)
     if (strcmp(kInfo[id].param_names[k], param) == 0) return k;
   return -1;
+}
+
+bool effect_param_valid(int id, int k, double v) {
+  if (id < 0 || id >= kEffectCount || k < 0 || k >= kInfo[id].param_count) return false;
+  if (!isfinite(v)) return false;
+  switch (id) {
+    case kWheelRadius:
+    case kTrackWidth:
+    case kMotorGainAsymmetry:
+      return v > 0.0;
+    case kStribeck:
+      return k == 1 ? v > 0.0 : v >= 0.0;
+    case kFloorSlope:
+      return fabs(v) < 1.5707963267948966;
+    case kLoadTransfer:
+      return true;  // any height; negative models a centre of mass below the contact plane
+    case kDriverVoltageDrop:
+      return true;  // negative: the driver delivers more than the nominal supply
+    default:  // coefficients, ratios, times, torques, deadband
+      return v >= 0.0;
+  }
 }
 
 Effects::Effects() { clear(); }

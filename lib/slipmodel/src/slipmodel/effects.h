@@ -43,6 +43,9 @@ const EffectInfo& effect_info(int id);
 int effect_id(const char* name);
 /// Parameter index within an effect, or -1.
 int effect_param_index(int id, const char* param);
+/// True if v is a usable value for parameter k of effect id (finite and in its physical range:
+/// lengths, ratios and v_s > 0; times, coefficients, torques, deadband >= 0; |rad| < pi/2).
+bool effect_param_valid(int id, int k, double v);
 
 /// Switches and parameters of all effects (plain data, copyable).
 struct Effects {
