@@ -12,6 +12,7 @@
 
 using namespace slip;
 
+// Own comparison: Unity's double assertions need UNITY_INCLUDE_DOUBLE for the whole build.
 #define EXPECT_NEAR(tol, expected, actual)                                                \
   do {                                                                                    \
     const double e_ = (expected), a_ = (actual), t_ = (tol);                              \

@@ -10,8 +10,8 @@
 
 using namespace slip;
 
-// Unity's double assertions compile to "ignored" unless UNITY_INCLUDE_DOUBLE is set for the
-// whole build, so these tests use their own comparison (fails on NaN too).
+// Unity's double assertions fail with "Double Precision Disabled" unless UNITY_INCLUDE_DOUBLE is
+// set for the whole build (unity.c too), so these tests use their own comparison (fails on NaN).
 #define EXPECT_NEAR(tol, expected, actual)                                                \
   do {                                                                                    \
     const double e_ = (expected), a_ = (actual), t_ = (tol);                              \
