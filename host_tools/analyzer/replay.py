@@ -45,18 +45,33 @@ def reconstruct_input_times(t: np.ndarray, values: list[np.ndarray], period: flo
     dt_tel = float(np.median(np.diff(t)))
     if period < dt_tel * 0.999:  # loop faster than telemetry: several ticks per interval
         return eff
-    best_phase, best_ok = None, -1
-    for phase in np.linspace(0.0, period, 200, endpoint=False):
-        # latest tick <= t[k]
-        tick = phase + np.floor((t[ks] - phase) / period + 1e-6) * period
-        ok = int(np.sum(tick > t[ks - 1] - 1e-6))
-        if ok > best_ok:
-            best_ok, best_phase = ok, phase
-    if best_ok < ks.size:  # not every change is explained by one periodic loop
+    phases = np.linspace(0.0, period, 400, endpoint=False)
+    bad = np.zeros(phases.size, int)
+    for j, phase in enumerate(phases):
+        # latest tick <= t[k] must lie after t[k-1] (a tick on a frame counts as before it)
+        tick = phase + np.floor((t[ks] - phase) / period + 1e-9) * period
+        bad[j] = int(np.sum(~(tick > t[ks - 1] + 1e-9)))
+    # tolerate a few changes that no phase explains (timing jitter at coincidences)
+    if bad.min() > max(1, int(0.05 * ks.size)):  # not one periodic loop: keep frame times
         return eff
-    tick = best_phase + np.floor((t[ks] - best_phase) / period + 1e-6) * period
-    tick = np.maximum(tick, t[ks - 1] + 1e-9)  # a tick on a frame: that frame saw the old value
-    eff[ks] = tick
+    feasible = bad == bad.min()
+    # the data pin the phase down to an arc of feasible phases: take its centre
+    if feasible.all():
+        return eff
+    start = int(np.flatnonzero(~feasible)[0])
+    rolled = np.roll(feasible, -start)
+    best_len, best_mid, run_start = 0, 0, None
+    for j, f in enumerate(np.append(rolled, False)):
+        if f and run_start is None:
+            run_start = j
+        elif not f and run_start is not None:
+            if j - run_start > best_len:
+                best_len, best_mid = j - run_start, (run_start + j - 1) / 2.0
+            run_start = None
+    best_phase = ((best_mid + start) % phases.size) * period / phases.size
+    tick = best_phase + np.floor((t[ks] - best_phase) / period + 1e-9) * period
+    ok = tick > t[ks - 1] + 1e-9
+    eff[ks[ok]] = tick[ok]
     return eff
 
 

@@ -1,0 +1,114 @@
+"""Unit tests of the analyzer's physics-free pieces: noise floors, windows, regimes,
+sparse regression, input-time reconstruction."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from host_tools.analyzer import signals as sg
+from host_tools.analyzer.replay import reconstruct_input_times
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_hf_noise_std_ignores_smooth_mismatch(seed):
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1.5, 400)
+    drift = 5.0 * np.sin(2 * t) + 3 * t ** 2  # large, smooth
+    r = drift + rng.normal(0, 0.2, t.size)
+    assert sg.hf_noise_std(r) == pytest.approx(0.2, rel=0.2)
+    assert sg.robust_std(r) > 1.0  # the plain spread would be fooled
+
+
+def test_quantization_std():
+    # difference of two uniform quantization errors of step q: std q/sqrt(6)
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0, 100, 200000)
+    y = x + rng.uniform(0, 5, x.size)
+    d = (np.floor(y) - np.floor(x)) - (y - x)
+    assert np.std(d) == pytest.approx(sg.quantization_std(1.0), rel=0.02)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_no_window_on_pure_noise(seed):
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, 1.5, 0.02)
+    w, m = sg.significant_windows(t, rng.normal(0, 1.0, t.size), 1.0)
+    assert w == [] and not m.any()
+
+
+def test_window_found_where_the_bump_is():
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 1.5, 0.02)
+    r = rng.normal(0, 1.0, t.size)
+    r[(t > 0.6) & (t < 0.9)] += 4.0
+    w, m = sg.significant_windows(t, r, 1.0)
+    assert len(w) == 1
+    assert 0.55 <= w[0].t_start_s <= 0.66 and 0.84 <= w[0].t_end_s <= 0.95
+    assert w[0].rms > 3
+
+
+def test_best_regime_finds_speed_threshold():
+    t = np.linspace(0, 1.5, 200)
+    w = 30 * np.clip(t / 0.75, 0, 1)
+    state = {"t": t, "w_r": w, "w_l": w, "a_r": np.gradient(w, t), "a_l": np.gradient(w, t),
+             "tau_r": np.full_like(t, 0.05), "tau_l": np.full_like(t, 0.05),
+             "u_r": w / 36, "u_l": w / 36, "yaw": np.zeros_like(t)}
+    mask = w > 18
+    reg = sg.best_regime(mask, sg.regime_candidates(state, tau_max=0.09))
+    assert reg.description.startswith("wheel speed above")
+    thr = float(reg.description.split()[3])
+    assert 15 <= thr <= 21 and reg.score > 0.9
+
+
+def test_best_regime_finds_turns_and_torque_limit():
+    t = np.linspace(0, 1.5, 200)
+    turning = (t > 0.5) & (t < 1.0)
+    straight = np.where(t < 0.5, 8.0, 14.0)  # speeds alone cannot single out the turn
+    w_r = np.where(turning, 12.0, straight)
+    w_l = np.where(turning, 8.0, straight)
+    tau = np.where(t < 0.3, 0.12, 0.04)
+    state = {"t": t, "w_r": w_r, "w_l": w_l, "a_r": np.zeros_like(t), "a_l": np.zeros_like(t),
+             "tau_r": tau, "tau_l": tau, "u_r": w_r / 36, "u_l": w_l / 36,
+             "yaw": 0.0365 * (w_r - w_l) / 0.21}
+    cands = sg.regime_candidates(state, tau_max=0.09)
+    assert sg.best_regime(turning, cands).description == "only in turns"
+    assert "exceeds tau_max" in sg.best_regime(tau > 0.09, cands).description
+    assert sg.best_regime(np.zeros_like(turning), cands) is None
+
+
+def test_stlsq_recovers_sparse_law():
+    rng = np.random.default_rng(3)
+    n = 500
+    X = rng.normal(size=(n, 6))
+    y = 2.0 * X[:, 1] - 0.5 * X[:, 4] + rng.normal(0, 0.01, n)
+    names = [f"f{i}" for i in range(6)]
+    terms = sg.stlsq(X, y, names)
+    assert set(terms) == {"f1", "f4"}
+    assert terms["f1"] == pytest.approx(2.0, rel=0.02)
+    assert terms["f4"] == pytest.approx(-0.5, rel=0.05)
+
+
+@pytest.mark.parametrize("phase", [0.0, 0.007, 0.019])
+def test_reconstruct_input_times(phase):
+    period, dt = 0.025, 0.02
+    t = np.round(np.arange(0, 1.0, dt), 9)
+    ticks = np.round(phase + np.arange(0, 1.1, period), 9)
+    vals = np.arange(ticks.size, dtype=float)  # changes at every tick
+    seen = vals[np.searchsorted(ticks, t, side="right") - 1].copy()
+    seen[t < phase] = -1.0
+    eff = reconstruct_input_times(t, [seen], period)
+    ch = np.flatnonzero(np.diff(seen) != 0) + 1
+    true_tick = ticks[np.searchsorted(ticks, t[ch], side="right") - 1]
+    # the data pin the loop phase down to a few ms; the frame times are up to 20 ms late
+    err = np.abs(eff[ch] - true_tick)
+    assert err.max() <= 0.2 * period
+    assert err.mean() < 0.5 * np.abs(t[ch] - true_tick).mean()
+    # frames without a change keep their own time
+    same = np.setdiff1d(np.arange(t.size), ch)
+    np.testing.assert_array_equal(eff[same], t[same])
+
+
+def test_reconstruct_input_times_falls_back_when_inconsistent():
+    t = np.round(np.arange(0, 1.0, 0.02), 9)
+    v = np.arange(t.size, dtype=float)  # changes every frame: faster than a 25 ms loop
+    np.testing.assert_array_equal(reconstruct_input_times(t, [v], 0.025), t)
