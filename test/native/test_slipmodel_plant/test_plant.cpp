@@ -264,6 +264,40 @@ static void test_step_size_convergence(void) {
   TEST_ASSERT_TRUE(d12 < 0.7 * d01);
 }
 
+
+static void test_combined_slip_friction_and_lateral_transfer(void) {
+  // A fast coasting left turn: the centripetal force needed exceeds the static limit, both wheels
+  // slide with longitudinal and lateral slip, and each contact force has magnitude mu_k N
+  // opposite its slip velocity (II.36-II.39). The lateral force loads the outer (right) wheel (II.28).
+  const RobotParams p;
+  Plant pl;
+  const double v = 1.5, om = 8.0;
+  pl.set_velocity(v, 0.0, om, (v + p.b * om) / p.r, (v - p.b * om) / p.r);
+  pl.step_torque(0.0, 0.0, kDt);
+  const double lat1 = pl.state().L_r_n + pl.state().L_l_n;
+  pl.step_torque(0.0, 0.0, kDt);
+  const PlantState& s = pl.state();
+  TEST_ASSERT_TRUE(s.slipping_r && s.slipping_l);
+  TEST_ASSERT_TRUE(s.w_m_s < 0.0);  // drifts outwards (to the right of a left turn)
+  EXPECT_NEAR(1e-12, p.mu_k * s.N_r, hypot(s.F_r_n, s.L_r_n));
+  EXPECT_NEAR(1e-12, p.mu_k * s.N_l, hypot(s.F_l_n, s.L_l_n));
+  TEST_ASSERT_TRUE(s.L_r_n > 0.0 && s.L_l_n > 0.0);  // friction opposes the outward drift
+  TEST_ASSERT_TRUE(s.N_r > s.N_l);
+  EXPECT_NEAR(1e-12, p.h * lat1, (s.N_r - s.N_l) * p.b);  // II.28 with the previous step's force
+}
+
+static void test_rolling_turn_lateral_transfer(void) {
+  // A gentle left turn in pure rolling: the wheels hold the centripetal force laterally, and
+  // II.28 moves load to the right wheel.
+  Plant pl;
+  run_torque(pl, 0.03, 0.01, 1.0);
+  const PlantState& s = pl.state();
+  TEST_ASSERT_FALSE(s.slipping_r || s.slipping_l);
+  EXPECT_NEAR(1e-12, 0.0, s.w_m_s);
+  TEST_ASSERT_TRUE(s.L_r_n + s.L_l_n > 0.0);
+  TEST_ASSERT_TRUE(s.N_r > s.N_l);
+}
+
 int main(void) {
   UNITY_BEGIN();
   RUN_TEST(test_ii61_0p09_equals_pure_rolling);
@@ -280,5 +314,7 @@ int main(void) {
   RUN_TEST(test_restick_without_chattering);
   RUN_TEST(test_kinetic_stiction_hysteresis);
   RUN_TEST(test_step_size_convergence);
+  RUN_TEST(test_combined_slip_friction_and_lateral_transfer);
+  RUN_TEST(test_rolling_turn_lateral_transfer);
   return UNITY_END();
 }
