@@ -106,3 +106,40 @@ struct FloatAdapter {
 }  // namespace sim
 
 #endif
+
+#include <control/cascade_q.h>
+
+namespace sim {
+
+/// Adapter for the fixed-point ControllerQ (reference also generated in fixed point).
+struct FixedAdapter {
+  ctl::ControlConfigQ cfg;
+  ctl::ControllerQ c;
+  ctl::ReferenceSpecQ spec_q{ctl::ReferenceSpec{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f}};
+  explicit FixedAdapter(const ctl::ControlConfig& f) : cfg(f), c(cfg) {}
+  void reset(int32_t er, int32_t el, double x, double y, double phi) {
+    const double turns = phi / (2 * kPi);
+    const uint32_t phi_b32 = static_cast<uint32_t>(static_cast<int64_t>(llround(turns * 4294967296.0)));
+    c.reset(er, el, ctl::PoseQ{static_cast<int32_t>(lround(x * 1048576.0)),
+                               static_cast<int32_t>(lround(y * 1048576.0)), phi_b32});
+  }
+  void outer(const ctl::ReferenceSpec& ref, double t) {
+    spec_q = ctl::ReferenceSpecQ(ref);
+    c.outer_step(ctl::reference_at_q(spec_q, static_cast<uint32_t>(lround(t * 1000.0))));
+  }
+  void inner(int32_t er, int32_t el, double* u_r, double* u_l) {
+    const ctl::InnerOutQ& o = c.inner_step(er, el, 25000);
+    *u_r = o.pwm_r_q15 / 32768.0;
+    *u_l = o.pwm_l_q15 / 32768.0;
+  }
+  double tau_r() const { return c.inner().tau_r_q16 / 65536.0; }
+  double tau_l() const { return c.inner().tau_l_q16 / 65536.0; }
+  bool clamped() const { return c.inner().clamped_r || c.inner().clamped_l; }
+  bool saturated() const { return c.inner().sat_r || c.inner().sat_l; }
+  void odo_xy(double* x, double* y) const {
+    *x = c.odometry().pose().x_q20 / 1048576.0;
+    *y = c.odometry().pose().y_q20 / 1048576.0;
+  }
+};
+
+}  // namespace sim

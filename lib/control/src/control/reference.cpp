@@ -56,20 +56,21 @@ RefSampleQ reference_at_q(const ReferenceSpecQ& sp, uint32_t t_ms) {
   if (t_ms > 32000000UL) t_ms = 32000000UL;  // 8.9 h: t_q16 stays below 2^31
   // t in Q16 s: t_ms * 65.536 = t_ms * 65 + t_ms * 549 / 1024 (error 1e-6 relative).
   const int32_t t_q16 = static_cast<int32_t>(t_ms * 65UL + ((t_ms * 549UL) >> 10));
-  int32_t s_q20, v_q16, dv_q16;
+  int32_t s_q20, v_q24, dv_q24;
   if (t_q16 < sp.t_ramp_q16) {
-    v_q16 = static_cast<int32_t>((static_cast<int64_t>(sp.accel_q16) * t_q16) >> 16);
-    s_q20 = static_cast<int32_t>((static_cast<int64_t>(v_q16) * t_q16) >> 13);
-    dv_q16 = sp.accel_q16;
+    const int64_t v = (static_cast<int64_t>(sp.accel_q24) * t_q16) >> 16;       // Q24
+    v_q24 = static_cast<int32_t>(v);
+    s_q20 = static_cast<int32_t>((v * t_q16) >> 21);                            // v t / 2
+    dv_q24 = sp.accel_q24;
   } else {
-    v_q16 = sp.cruise_q16;
+    v_q24 = sp.cruise_q28 >> 4;
     const int64_t s = static_cast<int64_t>(sp.s_ramp_q20) +
-                      ((static_cast<int64_t>(sp.cruise_q16) * (t_q16 - sp.t_ramp_q16)) >> 12);
+                      ((static_cast<int64_t>(sp.cruise_q28) * (t_q16 - sp.t_ramp_q16)) >> 24);
     s_q20 = s > INT32_MAX ? INT32_MAX : static_cast<int32_t>(s);
-    dv_q16 = 0;
+    dv_q24 = 0;
   }
-  o.v_q12 = fx::sat16(v_q16 >> 4);
-  o.dv_q12 = fx::sat16(dv_q16 >> 4);
+  o.v_q12 = fx::sat16(fx::rshift_round(v_q24, 12));
+  o.dv_q12 = fx::sat16(fx::rshift_round(dv_q24, 12));
   if (sp.kind == static_cast<uint8_t>(PathKind::kLine)) {
     o.x_q20 = s_q20;
     return o;

@@ -66,8 +66,8 @@ struct RefSampleQ {
 /// Fixed-point reference constants, from a ReferenceSpec at compile time (constexpr).
 struct ReferenceSpecQ {
   uint8_t kind;
-  int32_t accel_q16;       ///< m/s^2, Q16
-  int32_t cruise_q16;      ///< m/s, Q16
+  int32_t accel_q24;       ///< m/s^2, Q24 (<= 20)
+  int32_t cruise_q28;      ///< m/s, Q28 (<= 4)
   int32_t t_ramp_q16;      ///< cruise / accel, s, Q16
   int32_t s_ramp_q20;      ///< distance at the end of the ramp, Q20
   int32_t radius_q20;      ///< signed radius, Q20 (0 for a line)
@@ -78,8 +78,8 @@ struct ReferenceSpecQ {
 
   constexpr explicit ReferenceSpecQ(const ReferenceSpec& s)
       : kind(static_cast<uint8_t>(s.kind)),
-        accel_q16(s.valid() ? fx::q_const(s.accel_m_s2, 16) : 0),
-        cruise_q16(s.valid() ? fx::q_const(s.cruise_m_s, 16) : 0),
+        accel_q24(s.valid() ? fx::q_const(s.accel_m_s2, 24) : 0),
+        cruise_q28(s.valid() ? fx::q_const(s.cruise_m_s, 28) : 0),
         t_ramp_q16(s.valid() ? fx::q_const(s.cruise_m_s / s.accel_m_s2, 16) : 0),
         s_ramp_q20(s.valid() ? fx::q_const(0.5 * s.cruise_m_s * s.cruise_m_s / s.accel_m_s2, 20) : 0),
         radius_q20(s.valid() && s.kind != PathKind::kLine ? fx::q_const(s.radius_m, 20) : 0),

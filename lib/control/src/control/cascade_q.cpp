@@ -1,0 +1,136 @@
+#include <control/cascade_q.h>
+
+namespace ctl {
+
+namespace {
+inline int32_t sub_sat32(int32_t a, int32_t b) {
+  if (b == INT32_MIN) return a >= 0 ? INT32_MAX : a - b;
+  return fx::add_sat32(a, -b);
+}
+inline int8_t sign32(int32_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
+// Q20 metres -> Q12 metres, saturated at +-8 m.
+inline int16_t q20_to_q12(int32_t x) { return fx::sat16(fx::rshift_round(x, 8)); }
+}  // namespace
+
+KinematicOutQ kinematic_law_q(const ControlConfigQ& c, const PoseQ& pose, const RefSampleQ& ref) {
+  KinematicOutQ k;
+  const int32_t dx = sub_sat32(ref.x_q20, pose.x_q20);
+  const int32_t dy = sub_sat32(ref.y_q20, pose.y_q20);
+  const int16_t cp = fx::cos_q15(pose.phi_b32), sp = fx::sin_q15(pose.phi_b32);
+  const int32_t ex = fx::add_sat32(fx::mul_trig(dx, cp, 15), fx::mul_trig(dy, sp, 15));
+  const int32_t ey = sub_sat32(fx::mul_trig(dy, cp, 15), fx::mul_trig(dx, sp, 15));
+  k.e_x_q12 = q20_to_q12(ex);
+  k.e_y_q12 = q20_to_q12(ey);
+  k.e_phi_b32 = static_cast<int32_t>(ref.phi_b32 - pose.phi_b32);
+  const uint32_t ephi = static_cast<uint32_t>(k.e_phi_b32);
+  const int16_t ce = fx::cos_q15(ephi), se = fx::sin_q15(ephi);
+  // v_d = v_r cos e_phi + k_x e_x                      (Q12)
+  const int32_t v_d = fx::mul16(ref.v_q12, ce, 15) + fx::mul16(k.e_x_q12, c.k_x_q8, 8);
+  // omega_d = omega_r + v_r k_y e_y + k_phi sin e_phi  (Q11)
+  const int32_t vey_q12 = fx::mul16(ref.v_q12, k.e_y_q12, 12);
+  const int32_t w_d = static_cast<int32_t>(ref.omega_q11) + fx::mul32x16(vey_q12, c.k_y_q8, 9) +
+                      fx::mul16(se, c.k_phi_q8, 12);
+  k.v_d_q12 = static_cast<int16_t>(fx::clamp32(v_d, c.v_max_q12));
+  k.omega_d_q11 = static_cast<int16_t>(fx::clamp32(w_d, c.omega_max_q11));
+  return k;
+}
+
+ControllerQ::ControllerQ(const ControlConfigQ& cfg) : cfg_(cfg), odo_(cfg.odo) { reset(0, 0, PoseQ{0, 0, 0}); }
+
+void ControllerQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
+  odo_.reset(enc_r, enc_l, p);
+  kin_ = KinematicOutQ{0, 0, 0, 0, 0};
+  out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kOk};
+  dv_ff_q12_ = dw_ff_q11_ = 0;
+  i_v_q16_ = i_w_q16_ = 0;
+}
+
+const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
+  kin_ = kinematic_law_q(cfg_, odo_.pose(), ref);
+  dv_ff_q12_ = ref.dv_q12;
+  dw_ff_q11_ = ref.domega_q11;
+  return kin_;
+}
+
+const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
+  if (!cfg_.ok) {  // refuse to drive with a configuration that did not convert
+    out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kBadConfig};
+    return out_;
+  }
+  out_.odo = odo_.update(enc_r, enc_l, dt_us);
+  const int16_t v = odo_.v_q12(), w = odo_.omega_q11();
+
+  // Velocity errors (int32: the difference of two int16).
+  const int16_t e_v = fx::sat16(static_cast<int32_t>(kin_.v_d_q12) - v);       // Q12
+  // |omega_d - omega| can reach 2 x 16 rad/s: kept in int32 Q11.
+  const int32_t e_w = static_cast<int32_t>(kin_.omega_d_q11) - w;              // Q11
+
+  // F (Q8 N) = m_eff dv_ff - m_t d w^2 + k_l e_v + I_v
+  const int32_t w2_q8 = fx::rshift_round(static_cast<int32_t>(w) * w, 14);     // Q22 -> Q8
+  int32_t force = fx::mul16(dv_ff_q12_, cfg_.m_eff_q12, 16);
+  force -= fx::mul32x16(w2_q8, cfg_.mtd_q16, 16);
+  force += fx::mul16(e_v, cfg_.k_l_q8, 12);
+  force = fx::add_sat32(force, fx::rshift_round(i_v_q16_, 8));
+  // M (Q12 N m) = I_eff dw_ff + m_t d w v + k_a e_w + I_w
+  const int32_t wv_q12 = fx::mul16(w, v, 11);                                  // Q23 -> Q12
+  int32_t moment = fx::mul16(dw_ff_q11_, cfg_.I_eff_q16, 15);
+  moment += fx::mul32x16(wv_q12, cfg_.mtd_q16, 16);
+  moment += fx::mul32x16(e_w, cfg_.k_a_q12, 11);
+  moment = fx::add_sat32(moment, fx::rshift_round(i_w_q16_, 4));
+  // Bound F and M so that everything downstream stays in range (|tau| <= 1.6e4 N m worth).
+  force = fx::clamp32(force, 0x3FFFFFL);    // 16384 N
+  moment = fx::clamp32(moment, 0x3FFFFFL);  // 1024 N m
+
+  // Split: tau = (r/2)(F +- M/b), Q16 N m.
+  const int32_t m_over_b_q8 = fx::mul32x16(moment, cfg_.inv_b_q8, 12);         // Q20 -> Q8 N
+  const int32_t tau_r = fx::mul32x16(force + m_over_b_q8, cfg_.half_r_q16, 8);
+  const int32_t tau_l = fx::mul32x16(force - m_over_b_q8, cfg_.half_r_q16, 8);
+
+  // Per-wheel tau_max: lateral force m_t (v w + d dw_ff), Q16 N.
+  const int32_t a_lat_q16 = fx::rshift_round(static_cast<int32_t>(v) * w, 7);  // Q23 -> Q16
+  const int32_t lat_q16 = fx::add_sat32(fx::mul32x16(a_lat_q16, cfg_.m_t_q8, 8),
+                                        fx::mul16(dw_ff_q11_, cfg_.mtd_q16, 11));
+  const slip::NormalForcesQ nf = slip::normal_forces_q16(cfg_.traction, lat_q16);
+  out_.tau_max_r_q16 = slip::tau_max_q16(cfg_.traction, nf.N_r_q16);
+  out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
+  const int32_t lim_r = cfg_.clamp_enabled ? out_.tau_max_r_q16 : cfg_.tau_big_q16;
+  const int32_t lim_l = cfg_.clamp_enabled ? out_.tau_max_l_q16 : cfg_.tau_big_q16;
+  out_.tau_r_q16 = fx::clamp32(tau_r, lim_r);
+  out_.tau_l_q16 = fx::clamp32(tau_l, lim_l);
+  out_.clamped_r = out_.tau_r_q16 != tau_r;
+  out_.clamped_l = out_.tau_l_q16 != tau_l;
+
+  // Duty u = tau/stall + dtheta/no_load (Q15), saturated. |tau| <= 10 stall here, so the
+  // Q16 torque fits the 32x16 multiply.
+  const int32_t u_r = fx::mul32x16(out_.tau_r_q16, cfg_.inv_stall_q12, 13) +
+                      fx::mul16(odo_.omega_r_q8(), cfg_.inv_no_load_q20, 13);
+  const int32_t u_l = fx::mul32x16(out_.tau_l_q16, cfg_.inv_stall_q12, 13) +
+                      fx::mul16(odo_.omega_l_q8(), cfg_.inv_no_load_q20, 13);
+  out_.pwm_r_q15 = static_cast<int16_t>(fx::clamp32(u_r, fx::kQ15One));
+  out_.pwm_l_q15 = static_cast<int16_t>(fx::clamp32(u_l, fx::kQ15One));
+  out_.sat_r = u_r >= fx::kQ15One || u_r <= -fx::kQ15One;
+  out_.sat_l = u_l >= fx::kQ15One || u_l <= -fx::kQ15One;
+
+  // Anti-windup by conditional integration (same rule as the float path).
+  const int8_t s_r = (out_.clamped_r || out_.sat_r) ? sign32(tau_r) : 0;
+  const int8_t s_l = (out_.clamped_l || out_.sat_l) ? sign32(tau_l) : 0;
+  if (dt_us > 0 && dt_us < 1000000UL) {
+    // dt in Q16 s: dt_us * 65536 / 1e6 = dt_us * 4295 / 65536 (error 8e-6 relative).
+    const int16_t dt_q16 = static_cast<int16_t>((dt_us * 4295UL) >> 16);
+    const bool block_v = (s_r * e_v > 0) || (s_l * e_v > 0);
+    const bool block_w = (s_r * e_w > 0) || (-s_l * e_w > 0);
+    if (!block_v) {
+      const int32_t rate_q20 = static_cast<int32_t>(e_v) * cfg_.k_il_q8;        // Q12*Q8, N/s
+      const int32_t inc_q16 = fx::rshift_round(fx::mul32x16(rate_q20, dt_q16, 16), 4);
+      i_v_q16_ = fx::clamp32(fx::add_sat32(i_v_q16_, inc_q16), cfg_.integ_max_v_q16);
+    }
+    if (!block_w) {
+      const int32_t rate_q22 = fx::mul32x16(e_w, cfg_.k_ia_q12, 1);            // Q11*Q12/2, N m/s
+      const int32_t inc_q16 = fx::rshift_round(fx::mul32x16(rate_q22, dt_q16, 16), 6);
+      i_w_q16_ = fx::clamp32(fx::add_sat32(i_w_q16_, inc_q16), cfg_.integ_max_w_q16);
+    }
+  }
+  return out_;
+}
+
+}  // namespace ctl

@@ -1,0 +1,124 @@
+// The control cascade in fixed point (integer only; the AVR inner/outer loop).
+// Same equations as cascade.h; formats (Qn = value * 2^n):
+//   positions Q20 m (int32), heading binary angle (uint32), position errors Q12 m (int16, +-8 m)
+//   v Q12 m/s, omega Q11 rad/s, wheel speeds Q8 rad/s (int16)
+//   dv_ff Q12 m/s^2, domega_ff Q11 rad/s^2 (int16)
+//   force F Q8 N, moment M Q12 N m (int32); integrators Q16 (int32)
+//   wheel torques and tau_max Q16 N m (int32, the format of slip::tau_max_q16); duty Q15 (int16)
+// Every intermediate is saturated; no input in range can overflow (see test_control_fixed).
+#ifndef CONTROL_CASCADE_Q_H
+#define CONTROL_CASCADE_Q_H
+
+#include <stdint.h>
+
+#include <control/cascade.h>
+#include <control/fixmath.h>
+#include <control/odometry.h>
+#include <control/reference.h>
+#include <slipmodel/traction.h>
+
+namespace ctl {
+
+/// Fixed-point configuration, built from the float one by a constexpr constructor, so that the
+/// firmware can fold it at compile time when its ControlConfig is a constant expression.
+struct ControlConfigQ {
+  OdometryConfigQ odo;
+  slip::TractionQ traction;
+  int16_t k_x_q8, k_y_q8, k_phi_q8;  // 1/s, 1/m^2, 1/s
+  int16_t k_l_q8;                    // N s/m
+  int16_t k_a_q12;                   // N m s
+  int16_t k_il_q8;                   // N/m
+  int16_t k_ia_q12;                  // N m
+  int16_t m_eff_q12;                 // kg (< 8)
+  int16_t I_eff_q16;                 // kg m^2
+  int16_t m_t_q8;                    // kg
+  int16_t mtd_q16;                   // m_t d, kg m
+  int16_t inv_b_q8;                  // 1/b, 1/m
+  int16_t half_r_q16;                // r/2, m
+  int16_t inv_stall_q12;             // 1/stall, 1/(N m)
+  int16_t inv_no_load_q20;           // 1/no_load, s/rad
+  int16_t v_max_q12, omega_max_q11;
+  int32_t integ_max_v_q16, integ_max_w_q16;
+  int32_t tau_big_q16;               // sanity limit when the clamp is off (10 stall)
+  bool clamp_enabled;
+  bool ok;
+
+  constexpr explicit ControlConfigQ(const ControlConfig& c)
+      : odo(OdometryConfig{static_cast<float>(c.robot.r), static_cast<float>(c.robot.b), c.counts_per_rev}),
+        traction(slip::traction_q(c.robot)),
+        k_x_q8(q16c(c.gains.k_x, 8)), k_y_q8(q16c(c.gains.k_y, 8)), k_phi_q8(q16c(c.gains.k_phi, 8)),
+        k_l_q8(q16c(c.gains.k_l, 8)), k_a_q12(q16c(c.gains.k_a, 12)),
+        k_il_q8(q16c(c.gains.k_il, 8)), k_ia_q12(q16c(c.gains.k_ia, 12)),
+        m_eff_q12(q16c(c.m_eff_kg, 12)), I_eff_q16(q16c(c.I_eff_kgm2, 16)),
+        m_t_q8(q16c(c.robot.m_t(), 8)), mtd_q16(q16c(c.robot.m_t() * c.robot.d, 16)),
+        inv_b_q8(q16c(1.0 / c.robot.b, 8)), half_r_q16(q16c(c.robot.r / 2.0, 16)),
+        inv_stall_q12(q16c(1.0 / c.motor.stall_nm, 12)),
+        inv_no_load_q20(q16c(1.0 / c.motor.no_load_rad_s, 20)),
+        v_max_q12(q16c(c.v_max_m_s, 12)), omega_max_q11(q16c(c.omega_max_rad_s, 11)),
+        integ_max_v_q16(fx::q_const(c.integ_max_n, 16)), integ_max_w_q16(fx::q_const(c.integ_max_nm, 16)),
+        tau_big_q16(fx::q_const(10.0 * c.motor.stall_nm, 16)),
+        clamp_enabled(c.clamp_enabled),
+        ok(OdometryConfigQ::ok_range(OdometryConfig{static_cast<float>(c.robot.r), static_cast<float>(c.robot.b),
+                                                    c.counts_per_rev}) &&
+           fits16(c.gains.k_x, 8) && fits16(c.gains.k_y, 8) && fits16(c.gains.k_phi, 8) &&
+           fits16(c.gains.k_l, 8) && fits16(c.gains.k_a, 12) && fits16(c.gains.k_il, 8) &&
+           fits16(c.gains.k_ia, 12) && fits16(c.m_eff_kg, 12) && fits16(c.I_eff_kgm2, 16) &&
+           fits16(c.robot.m_t() * c.robot.d, 16) && fits16(1.0 / c.robot.b, 8) &&
+           fits16(1.0 / c.motor.stall_nm, 12) && fits16(1.0 / c.motor.no_load_rad_s, 20) &&
+           fits16(c.v_max_m_s, 12) && fits16(c.omega_max_rad_s, 11) && c.gains.k_x >= 0 &&
+           c.gains.k_y >= 0 && c.gains.k_phi >= 0 && c.gains.k_l >= 0 && c.gains.k_a >= 0 &&
+           c.gains.k_il >= 0 && c.gains.k_ia >= 0) {}
+
+  static constexpr bool fits16(double v, int shift) {
+    return v * fx::pow2(shift) < 32767.0 && v * fx::pow2(shift) > -32768.0;
+  }
+  static constexpr int16_t q16c(double v, int shift) {
+    return fits16(v, shift) ? static_cast<int16_t>(fx::q_const(v, shift)) : 0;
+  }
+};
+
+struct KinematicOutQ {
+  int16_t e_x_q12, e_y_q12;  ///< m, Q12 (saturated at +-8 m)
+  int32_t e_phi_b32;         ///< binary angle, signed
+  int16_t v_d_q12, omega_d_q11;
+};
+
+/// Fixed-point kinematic law (II.40-II.44, corrected frame).
+KinematicOutQ kinematic_law_q(const ControlConfigQ& c, const PoseQ& pose, const RefSampleQ& ref);
+
+struct InnerOutQ {
+  int16_t pwm_r_q15, pwm_l_q15;
+  int32_t tau_r_q16, tau_l_q16;       ///< after the clamp
+  int32_t tau_max_r_q16, tau_max_l_q16;
+  bool clamped_r, clamped_l, sat_r, sat_l;
+  OdoStatus odo;
+};
+
+class ControllerQ {
+ public:
+  explicit ControllerQ(const ControlConfigQ& cfg);
+  void reset(int32_t enc_r, int32_t enc_l, const PoseQ& p);
+  /// Outer loop (50 ms). Call after the inner step of the same tick (fresh pose).
+  const KinematicOutQ& outer_step(const RefSampleQ& ref);
+  /// Inner loop (25 ms): counts and dt in microseconds.
+  const InnerOutQ& inner_step(int32_t enc_r, int32_t enc_l, uint32_t dt_us);
+
+  const OdometryQ& odometry() const { return odo_; }
+  const KinematicOutQ& kinematic() const { return kin_; }
+  const InnerOutQ& inner() const { return out_; }
+  int32_t integ_v_q16() const { return i_v_q16_; }
+  int32_t integ_w_q16() const { return i_w_q16_; }
+  bool config_ok() const { return cfg_.ok; }
+
+ private:
+  ControlConfigQ cfg_;
+  OdometryQ odo_;
+  KinematicOutQ kin_;
+  InnerOutQ out_;
+  int16_t dv_ff_q12_, dw_ff_q11_;
+  int32_t i_v_q16_, i_w_q16_;
+};
+
+}  // namespace ctl
+
+#endif  // CONTROL_CASCADE_Q_H

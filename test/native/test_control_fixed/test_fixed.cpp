@@ -1,0 +1,222 @@
+// Fixed-point cascade and references: agreement with the float path (stated bounds), closed
+// loop with slip::Plant, and saturation (no overflow, no wrap) over the whole input range.
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+
+#include <unity.h>
+
+#include "../test_control_closed_loop/closed_loop_sim.h"
+
+using namespace ctl;
+
+namespace {
+
+const double kPi = 3.14159265358979323846;
+ControlConfig config(bool clamp) {
+  return make_control_config(slip::RobotParams(), slip::MotorParams(), default_gains(), clamp);
+}
+double q20(int32_t v) { return v / 1048576.0; }
+double b32(uint32_t a) { return static_cast<int32_t>(a) * (2 * kPi / 4294967296.0); }
+uint32_t to_b32(double rad) {
+  return static_cast<uint32_t>(static_cast<int64_t>(llround(rad / (2 * kPi) * 4294967296.0)));
+}
+double urand(double lo, double hi) { return lo + (hi - lo) * (rand() / static_cast<double>(RAND_MAX)); }
+
+#define CHECK_NEAR(expected, actual, tol, what)                                              \
+  do {                                                                                       \
+    const double e_ = (expected), a_ = (actual), t_ = (tol);                                 \
+    if (!(fabs(e_ - a_) <= t_)) {                                                            \
+      char m_[200];                                                                          \
+      snprintf(m_, sizeof m_, "%s: expected %.9g got %.9g (tol %.3g)", what, e_, a_, t_);    \
+      TEST_FAIL_MESSAGE(m_);                                                                 \
+    }                                                                                        \
+  } while (0)
+
+}  // namespace
+
+void setUp() {}
+void tearDown() {}
+
+void test_config_converts() {
+  const ControlConfigQ q(config(true));
+  TEST_ASSERT_TRUE(q.ok);
+  ControlConfig bad = config(true);
+  bad.gains.k_y = 1000.0f;  // does not fit Q8 int16
+  TEST_ASSERT_FALSE(ControlConfigQ(bad).ok);
+  ControllerQ c{ControlConfigQ(bad)};
+  TEST_ASSERT_EQUAL(static_cast<int>(OdoStatus::kBadConfig), static_cast<int>(c.inner_step(10, 10, 25000).odo));
+  TEST_ASSERT_EQUAL_INT16(0, c.inner().pwm_r_q15);  // refuses to drive
+}
+
+// References: fixed vs float for 10 minutes of each path.
+void test_reference_fixed_vs_float() {
+  const ReferenceSpec specs[] = {straight_profile(0.0365f, 72.0f),
+                                 ReferenceSpec{PathKind::kArc, 0.5f, 0.4f, 0.6f},
+                                 ReferenceSpec{PathKind::kArc, 0.3f, 0.3f, -0.25f},
+                                 ReferenceSpec{PathKind::kFigureEight, 0.5f, 0.4f, 0.6f}};
+  for (const ReferenceSpec& sp : specs) {
+    const ReferenceSpecQ q(sp);
+    TEST_ASSERT_TRUE(q.ok);
+    double max_pos = 0, max_phi = 0, max_v = 0, max_w = 0;
+    for (uint32_t t_ms = 0; t_ms <= 600000; t_ms += 50) {
+      // Double-precision truth of the same spec (the float sample loses precision at 600 m).
+      const RefSample f = reference_at(sp, t_ms / 1000.0f);
+      const RefSampleQ r = reference_at_q(q, t_ms);
+      if (t_ms <= 20000) {  // float position is only good to ~1e-7 relative; compare early part
+        max_pos = fmax(max_pos, hypot(q20(r.x_q20) - f.x_m, q20(r.y_q20) - f.y_m));
+        max_phi = fmax(max_phi, fabs(remainder(b32(r.phi_b32) - f.phi_rad, 2 * kPi)));
+      }
+      max_v = fmax(max_v, fabs(r.v_q12 / 4096.0 - f.v_m_s));
+      max_w = fmax(max_w, fabs(r.omega_q11 / 2048.0 - f.omega_rad_s));
+    }
+    printf("reference kind %d R %.2f: fixed-float max |dp| %.2e m, |dphi| %.2e rad (20 s), |dv| %.2e, |dw| %.2e\n",
+           static_cast<int>(sp.kind), sp.radius_m, max_pos, max_phi, max_v, max_w);
+    TEST_ASSERT_TRUE(max_pos < 1e-4);
+    TEST_ASSERT_TRUE(max_phi < 2e-4);
+    TEST_ASSERT_TRUE(max_v < 3.0 / 4096);
+    TEST_ASSERT_TRUE(max_w < 3.0 / 2048);
+  }
+  // Invalid spec: sample at rest, no garbage.
+  const ReferenceSpecQ bad{ReferenceSpec{PathKind::kArc, 0.5f, 0.4f, 0.0f}};
+  TEST_ASSERT_FALSE(bad.ok);
+  TEST_ASSERT_EQUAL_INT16(0, reference_at_q(bad, 1000).v_q12);
+}
+
+// Kinematic law: fixed vs float on random poses and references.
+void test_kinematic_fixed_vs_float() {
+  const ControlConfig fc = config(true);
+  const ControlConfigQ qc(fc);
+  srand(4);
+  double max_v = 0, max_w = 0, max_e = 0;
+  for (int i = 0; i < 20000; ++i) {
+    const Pose p{static_cast<float>(urand(-50, 50)), static_cast<float>(urand(-50, 50)),
+                 static_cast<float>(urand(-kPi, kPi))};
+    const RefSample r{static_cast<float>(p.x_m + urand(-2, 2)), static_cast<float>(p.y_m + urand(-2, 2)),
+                      static_cast<float>(urand(-kPi, kPi)), static_cast<float>(urand(-1.3, 1.3)),
+                      static_cast<float>(urand(-5, 5)), 0, 0};
+    const KinematicOut kf = kinematic_law(fc.gains, p, r, fc.v_max_m_s, fc.omega_max_rad_s);
+    const PoseQ pq{static_cast<int32_t>(lround(p.x_m * 1048576.0)), static_cast<int32_t>(lround(p.y_m * 1048576.0)),
+                   to_b32(p.phi_rad)};
+    const RefSampleQ rq{static_cast<int32_t>(lround(r.x_m * 1048576.0)), static_cast<int32_t>(lround(r.y_m * 1048576.0)),
+                        to_b32(r.phi_rad), static_cast<int16_t>(lround(r.v_m_s * 4096)),
+                        static_cast<int16_t>(lround(r.omega_rad_s * 2048)), 0, 0};
+    const KinematicOutQ kq = kinematic_law_q(qc, pq, rq);
+    max_e = fmax(max_e, fmax(fabs(kq.e_x_q12 / 4096.0 - kf.e_x_m), fabs(kq.e_y_q12 / 4096.0 - kf.e_y_m)));
+    max_v = fmax(max_v, fabs(kq.v_d_q12 / 4096.0 - kf.v_d_m_s));
+    max_w = fmax(max_w, fabs(kq.omega_d_q11 / 2048.0 - kf.omega_d_rad_s));
+  }
+  printf("kinematic law fixed-float: |e| %.2e m, |v_d| %.2e m/s, |omega_d| %.2e rad/s\n", max_e, max_v, max_w);
+  TEST_ASSERT_TRUE(max_e < 2e-4);    // Q12 rounding + Q15 trig on a 2.8 m error
+  TEST_ASSERT_TRUE(max_v < 2e-3);
+  TEST_ASSERT_TRUE(max_w < 1e-2);
+}
+
+// Closed loop on the plant with the fixed controller and fixed references.
+void test_fixed_closed_loop_converges() {
+  const ReferenceSpec specs[] = {ReferenceSpec{PathKind::kLine, 0.5f, 0.5f, 0.0f},
+                                 ReferenceSpec{PathKind::kArc, 0.5f, 0.4f, 0.6f}};
+  for (const ReferenceSpec& sp : specs) {
+    sim::FixedAdapter ad(config(true));
+    const sim::Result r = sim::run(ad, sp, -0.1, 0.15, 0.4, 20.0);
+    printf("fixed closed loop kind %d: start error %.3f m -> e_x %.2e e_y %.2e e_phi %.2e\n",
+           static_cast<int>(sp.kind), r.max_pos_err_m, r.e_x, r.e_y, r.e_phi);
+    TEST_ASSERT_TRUE(r.max_pos_err_m > 0.15);
+    TEST_ASSERT_TRUE(fabs(r.e_x) < 2e-3 && fabs(r.e_y) < 2e-3 && fabs(r.e_phi) < 5e-3);
+  }
+  sim::FixedAdapter ad(config(true));
+  const sim::Result r = sim::run(ad, ReferenceSpec{PathKind::kFigureEight, 0.5f, 0.4f, 0.6f}, -0.1, 0.15, 0.4, 20.0);
+  printf("fixed closed loop figure eight: start %.3f m, last-5-s max error %.4f m\n", r.max_pos_err_m, r.max_tail_err_m);
+  TEST_ASSERT_TRUE(r.max_tail_err_m < 0.04);
+}
+
+void test_fixed_ii63_at_72() {
+  const ReferenceSpec ref = straight_profile(0.0365f, 72.0f);
+  sim::FixedAdapter off_a(config(false)), on_a(config(true));
+  const sim::Result off = sim::run(off_a, ref, 0, 0, 0, 20.0);
+  const sim::Result on = sim::run(on_a, ref, 0, 0, 0, 20.0);
+  printf("fixed II.6.3: clamp off slip %d max %.3f final %.3f; clamp on slip %d max %.3f final %.4f\n",
+         off.slip_steps, off.max_pos_err_m, off.final_pos_err_m, on.slip_steps, on.max_pos_err_m,
+         on.final_pos_err_m);
+  TEST_ASSERT_TRUE(off.slip_steps > 100 && off.final_pos_err_m > 0.15);
+  TEST_ASSERT_EQUAL_INT(0, on.slip_steps);
+  TEST_ASSERT_TRUE(on.final_pos_err_m < 0.01);
+}
+
+// Inner step: fixed vs float from identical states, across the input range; and saturation:
+// wheel speeds up to full motor speed (and 3x beyond), torque requests up to 10x nominal and
+// far beyond. A wrapped intermediate would show up as a duty or torque of the wrong sign.
+void test_inner_step_range_and_saturation() {
+  srand(99);
+  double max_du = 0, max_dtau = 0;
+  int n_sat = 0, n_clamp = 0;
+  for (int clamp = 0; clamp < 2; ++clamp) {
+    const ControlConfig fc = config(clamp != 0);
+    const ControlConfigQ qc(fc);
+    for (int i = 0; i < 20000; ++i) {
+      Controller f(fc);
+      ControllerQ q(qc);
+      // Encoder increments over 25 ms: up to 3x the no-load speed (270 counts = 36.65 rad/s).
+      const double span = (i % 4 == 0) ? 810 : 270;
+      const int32_t dr = static_cast<int32_t>(lround(urand(-span, span)));
+      const int32_t dl = static_cast<int32_t>(lround(urand(-span, span)));
+      // Commands: reference speeds and accelerations up to 10x nominal (72 rad/s^2 wheel
+      // acceleration is 2.6 m/s^2; 10x that saturates the Q12 m/s^2 input at 8 m/s^2), and
+      // pose errors up to 100 m.
+      const double ex = urand(-100, 100) * (i % 3 == 0 ? 1.0 : 0.01), ey = urand(-100, 100) * (i % 3 == 0 ? 1.0 : 0.01);
+      const RefSample rf{static_cast<float>(ex), static_cast<float>(ey), static_cast<float>(urand(-kPi, kPi)),
+                         static_cast<float>(urand(-1.34, 1.34)), static_cast<float>(urand(-6, 6)),
+                         static_cast<float>(urand(-7.9, 7.9)), static_cast<float>(urand(-15, 15))};
+      const RefSampleQ rq{static_cast<int32_t>(lround(ex * 1048576.0)), static_cast<int32_t>(lround(ey * 1048576.0)),
+                          to_b32(rf.phi_rad), static_cast<int16_t>(lround(rf.v_m_s * 4096)),
+                          static_cast<int16_t>(lround(rf.omega_rad_s * 2048)),
+                          static_cast<int16_t>(lround(rf.dv_m_s2 * 4096)),
+                          static_cast<int16_t>(lround(rf.domega_rad_s2 * 2048))};
+      // One inner step to establish the wheel speeds, then outer, then the inner step compared.
+      f.inner_step(dr, dl, 0.025f);
+      q.inner_step(dr, dl, 25000);
+      f.outer_step(rf);
+      q.outer_step(rq);
+      const InnerOut& of = f.inner_step(2 * dr, 2 * dl, 0.025f);
+      const InnerOutQ& oq = q.inner_step(2 * dr, 2 * dl, 25000);
+      const double uq_r = oq.pwm_r_q15 / 32768.0, uq_l = oq.pwm_l_q15 / 32768.0;
+      TEST_ASSERT_TRUE(fabs(uq_r) <= 1.0 && fabs(uq_l) <= 1.0);
+      TEST_ASSERT_TRUE(isfinite(of.pwm_r) && isfinite(of.pwm_l));
+      // In range (speeds up to full motor speed, pose errors inside the +-8 m of Q12):
+      // agreement with the float path.
+      if (fabs(dr) <= 270 && fabs(dl) <= 270 && i % 3 != 0) {
+        max_du = fmax(max_du, fmax(fabs(uq_r - of.pwm_r), fabs(uq_l - of.pwm_l)));
+        max_dtau = fmax(max_dtau, fmax(fabs(oq.tau_r_q16 / 65536.0 - of.tau_r_nm), fabs(oq.tau_l_q16 / 65536.0 - of.tau_l_nm)));
+      } else {  // beyond full speed the fixed omega saturates at 16 rad/s (float does not), so
+                // only bounds are checked: torques within the limits, duties within [-1, 1].
+        const int32_t lim = clamp ? 0x7FFFFFFF : qc.tau_big_q16;
+        TEST_ASSERT_TRUE(oq.tau_r_q16 <= lim && oq.tau_r_q16 >= -lim);
+        TEST_ASSERT_TRUE(oq.tau_l_q16 <= lim && oq.tau_l_q16 >= -lim);
+        if (clamp) TEST_ASSERT_TRUE(oq.tau_r_q16 <= oq.tau_max_r_q16 && oq.tau_r_q16 >= -oq.tau_max_r_q16);
+      }
+      n_sat += oq.sat_r + oq.sat_l;
+      n_clamp += oq.clamped_r + oq.clamped_l;
+      TEST_ASSERT_TRUE(q.integ_v_q16() <= qc.integ_max_v_q16 && q.integ_v_q16() >= -qc.integ_max_v_q16);
+    }
+  }
+  printf("inner step over the range: max |duty fixed - float| %.2e, max |tau fixed - float| %.2e N m; "
+         "%d saturated and %d clamped wheel-steps exercised\n", max_du, max_dtau, n_sat, n_clamp);
+  TEST_ASSERT_TRUE(max_du < 2e-3);
+  // Stated bound: the Q12 pose error and Q15 trigonometry of the outer law move v_d by up to
+  // ~5e-4 m/s, which k_l turns into ~2e-4 N m; all rounding together stays below 1e-3 N m
+  // (1 % of tau_max) and 2e-3 of duty.
+  TEST_ASSERT_TRUE(max_dtau < 1e-3);
+  TEST_ASSERT_TRUE(n_sat > 1000 && n_clamp > 1000);
+}
+
+int main() {
+  UNITY_BEGIN();
+  RUN_TEST(test_config_converts);
+  RUN_TEST(test_reference_fixed_vs_float);
+  RUN_TEST(test_kinematic_fixed_vs_float);
+  RUN_TEST(test_fixed_closed_loop_converges);
+  RUN_TEST(test_fixed_ii63_at_72);
+  RUN_TEST(test_inner_step_range_and_saturation);
+  return UNITY_END();
+}
+
