@@ -230,10 +230,16 @@ void Plant::step(int mode, double in_r, double in_l, double dt) {
     double ag[kN];
     A.apply(g, ag);
     for (int i = 0; i < kN; ++i) u1[i] = u0[i] + dt * ag[i];
-    const double e0 = M.energy2(u0), e1 = M.energy2(u1);
-    if (e1 > 0.0 && e0 >= 0.0) {
+    // Only the body block (v, w, omega) is touched by g, and M is block-diagonal between the body
+    // and the wheels, so the body block alone is scaled back to its energy.
+    const double w0[kN] = {u0[kV], u0[kW], u0[kOm], 0.0, 0.0};
+    const double w1[kN] = {u1[kV], u1[kW], u1[kOm], 0.0, 0.0};
+    const double e0 = M.energy2(w0), e1 = M.energy2(w1);
+    if (e1 > 0.0) {
       const double k = sqrt(e0 / e1);
-      for (int i = 0; i < kN; ++i) u1[i] *= k;
+      u1[kV] *= k;
+      u1[kW] *= k;
+      u1[kOm] *= k;
     }
   }
 
