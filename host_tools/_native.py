@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import ctypes
 import fcntl
+import functools
 import math
 import os
 import subprocess
@@ -140,6 +141,11 @@ def _load() -> ctypes.CDLL:
 
 def effect_vocabulary() -> dict[str, dict[str, float]]:
     """Effect name -> {parameter name -> default}, as the native library defines them."""
+    return {k: dict(v) for k, v in _vocabulary().items()}
+
+
+@functools.lru_cache(maxsize=None)
+def _vocabulary() -> dict[str, dict[str, float]]:
     lib = _load()
     vocab: dict[str, dict[str, float]] = {}
     for i in range(lib.sm_effect_count()):
@@ -151,14 +157,24 @@ def effect_vocabulary() -> dict[str, dict[str, float]]:
 
 def output_columns() -> list[str]:
     """Names of the columns ``Plant.simulate`` returns, in the native order."""
+    return list(_columns())
+
+
+@functools.lru_cache(maxsize=None)
+def _columns() -> tuple[str, ...]:
     lib = _load()
-    return [lib.sm_out_col_name(i).decode() for i in range(lib.sm_out_cols())]
+    return tuple(lib.sm_out_col_name(i).decode() for i in range(lib.sm_out_cols()))
 
 
 def param_keys() -> list[str]:
     """The plant's parameter keys: ``robot.<name>`` (Table II.2) and ``motor.<name>``."""
+    return list(_param_keys())
+
+
+@functools.lru_cache(maxsize=None)
+def _param_keys() -> tuple[str, ...]:
     lib = _load()
-    return [lib.sm_param_name(i).decode() for i in range(lib.sm_param_count())]
+    return tuple(lib.sm_param_name(i).decode() for i in range(lib.sm_param_count()))
 
 
 _MODES = {"torque": 0, "duty": 1}
@@ -238,7 +254,7 @@ class Plant:
 
     def set_effect(self, name: str, **params: float) -> None:
         """Switch effect ``name`` on; parameters not given take their defaults."""
-        vocab = effect_vocabulary()
+        vocab = _vocabulary()
         if name not in vocab:
             raise ValueError(f"unknown effect '{name}'; known: {', '.join(vocab)}")
         unknown = set(params) - set(vocab[name])
@@ -306,7 +322,7 @@ class Plant:
         rc = self._lib.sm_plant_reset(self._h, *(float(v) for v in start_pose))
         if rc != 0:
             raise ValueError(self._err())
-        cols = output_columns()
+        cols = _columns()
         out = np.empty((n, len(cols)), dtype=np.float64)
         dp = ctypes.POINTER(ctypes.c_double)
         rc = self._lib.sm_simulate(self._h, _MODES[mode], n, t.ctypes.data_as(dp),

@@ -186,3 +186,21 @@ def test_bad_effect_value_changes_nothing():
     with pytest.raises(ValueError, match="stribeck.v_s"):
         p.set_effect("stribeck", mu_k0=0.2, v_s=-1.0)
     assert p.enabled_effects() == {"stribeck": {"mu_k0": 0.24, "v_s": 0.02}}
+
+
+def test_staleness_follows_sources(tmp_path, monkeypatch):
+    _native.build()
+    assert not _native._is_stale()
+    newer = tmp_path / "new.cpp"
+    newer.write_text("// newer than the library\n")
+    lib_mtime = _native.library_path().stat().st_mtime
+    import os
+    os.utime(newer, (lib_mtime + 10, lib_mtime + 10))
+    monkeypatch.setattr(_native, "_inputs", lambda: [newer])
+    assert _native._is_stale()
+
+
+def test_vocabulary_copy_is_safe_to_modify():
+    v = _native.effect_vocabulary()
+    v["stribeck"]["v_s"] = 99.0
+    assert _native.effect_vocabulary()["stribeck"]["v_s"] == 0.01
