@@ -39,6 +39,7 @@ double tau_max(const RobotParams& p, double N_n);
 // run-time path (normal_forces_q16, tau_max_q16) uses integers only.
 //
 // Error bound (see README, tested in test_slipmodel_traction): for |lat_force| <= 256 N,
+// N <= 64 N and tau_max/N <= 1 m,
 //   |N_q16 - N|     <= 3 * 2^-17 N      (~2.3e-5 N)
 //   |tau_q16 - tau| <= 2^-16 N m        (~1.53e-5 N m)
 // against the double-precision functions above with the same parameters.
