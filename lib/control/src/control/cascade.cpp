@@ -97,13 +97,26 @@ void Controller::reset(int32_t enc_r, int32_t enc_l, const Pose& p) {
   out_ = InnerOut{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kOk};
   dv_ff_ = dw_ff_ = 0.0f;
   i_v_ = i_w_ = 0.0f;
+  update_tau_max();
 }
 
 const KinematicOut& Controller::outer_step(const RefSample& ref) {
   kin_ = kinematic_law(cfg_.gains, odo_.pose(), ref, cfg_.v_max_m_s, cfg_.omega_max_rad_s);
   dv_ff_ = clampf(ref.dv_m_s2, 100.0f);
   dw_ff_ = clampf(ref.domega_rad_s2, 1000.0f);
+  update_tau_max();
   return kin_;
+}
+
+void Controller::update_tau_max() {
+  // Per-wheel tau_max from the wheel's own normal force (lateral load transfer II.28), with
+  // the lateral force m_t (v w + d dw_ff) of the latest measured v, w. Refreshed at the outer
+  // rate: the load transfer changes slowly.
+  const float m_t = static_cast<float>(cfg_.robot.m_t()), d = static_cast<float>(cfg_.robot.d);
+  const float lat_n = m_t * (odo_.v_m_s() * odo_.omega_rad_s() + d * dw_ff_);
+  const slip::NormalForces nf = slip::normal_forces(cfg_.robot, lat_n);
+  out_.tau_max_r_nm = static_cast<float>(slip::tau_max(cfg_.robot, nf.N_r));
+  out_.tau_max_l_nm = static_cast<float>(slip::tau_max(cfg_.robot, nf.N_l));
 }
 
 const InnerOut& Controller::inner_step(int32_t enc_r, int32_t enc_l, float dt_s) {
@@ -119,11 +132,6 @@ const InnerOut& Controller::inner_step(int32_t enc_r, int32_t enc_l, float dt_s)
   const float moment = cfg_.I_eff_kgm2 * dw_ff_ + m_t * d * w * v + g.k_a * e_w + i_w_;
   const WheelPair tau = split_torque(r, b, force, moment);
 
-  // Per-wheel tau_max from the wheel's own normal force (lateral load transfer II.28).
-  const float lat_n = m_t * (v * w + d * dw_ff_);
-  const slip::NormalForces nf = slip::normal_forces(cfg_.robot, lat_n);
-  out_.tau_max_r_nm = static_cast<float>(slip::tau_max(cfg_.robot, nf.N_r));
-  out_.tau_max_l_nm = static_cast<float>(slip::tau_max(cfg_.robot, nf.N_l));
   const float big = static_cast<float>(cfg_.motor.stall_nm) * 10.0f;
   if (cfg_.clamp_enabled) {
     out_.tau_r_nm = clamp_torque(tau.r, out_.tau_max_r_nm, &out_.clamped_r);

@@ -118,7 +118,8 @@ class Controller {
   explicit Controller(const ControlConfig& cfg);
   /// Start at pose p with encoder readings enc_r, enc_l; clears integrators and commands.
   void reset(int32_t enc_r, int32_t enc_l, const Pose& p);
-  /// Outer loop (50 ms): tracking law on the current odometry pose.
+  /// Outer loop (50 ms): tracking law on the current odometry pose; also refreshes the
+  /// per-wheel tau_max. Call it after the inner step of the same tick (fresh pose).
   const KinematicOut& outer_step(const RefSample& ref);
   /// Inner loop (25 ms): odometry from the counts, velocity loop, split, clamp, PWM.
   const InnerOut& inner_step(int32_t enc_r, int32_t enc_l, float dt_s);
@@ -131,6 +132,8 @@ class Controller {
   ControlConfig& config() { return cfg_; }
 
  private:
+  void update_tau_max();
+
   ControlConfig cfg_;
   OdometryConfig odo_cfg_;
   Odometry odo_;

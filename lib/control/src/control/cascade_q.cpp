@@ -9,7 +9,7 @@ inline int32_t sub_sat32(int32_t a, int32_t b) {
 }
 inline int8_t sign32(int32_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
 // Q20 metres -> Q12 metres, saturated at +-8 m.
-inline int16_t q20_to_q12(int32_t x) { return fx::sat16(fx::rshift_round(x, 8)); }
+inline int16_t q20_to_q12(int32_t x) { return fx::sat16(fx::rshift_round<8>(x)); }
 }  // namespace
 
 KinematicOutQ kinematic_law_q(const ControlConfigQ& c, const PoseQ& pose, const RefSampleQ& ref) {
@@ -17,19 +17,19 @@ KinematicOutQ kinematic_law_q(const ControlConfigQ& c, const PoseQ& pose, const 
   const int32_t dx = sub_sat32(ref.x_q20, pose.x_q20);
   const int32_t dy = sub_sat32(ref.y_q20, pose.y_q20);
   const int16_t cp = fx::cos_q15(pose.phi_b32), sp = fx::sin_q15(pose.phi_b32);
-  const int32_t ex = fx::add_sat32(fx::mul_trig(dx, cp, 15), fx::mul_trig(dy, sp, 15));
-  const int32_t ey = sub_sat32(fx::mul_trig(dy, cp, 15), fx::mul_trig(dx, sp, 15));
+  const int32_t ex = fx::add_sat32(fx::mul_trig<15>(dx, cp), fx::mul_trig<15>(dy, sp));
+  const int32_t ey = sub_sat32(fx::mul_trig<15>(dy, cp), fx::mul_trig<15>(dx, sp));
   k.e_x_q12 = q20_to_q12(ex);
   k.e_y_q12 = q20_to_q12(ey);
   k.e_phi_b32 = static_cast<int32_t>(ref.phi_b32 - pose.phi_b32);
   const uint32_t ephi = static_cast<uint32_t>(k.e_phi_b32);
   const int16_t ce = fx::cos_q15(ephi), se = fx::sin_q15(ephi);
   // v_d = v_r cos e_phi + k_x e_x                      (Q12)
-  const int32_t v_d = fx::mul16(ref.v_q12, ce, 15) + fx::mul16(k.e_x_q12, c.k_x_q8, 8);
+  const int32_t v_d = fx::mul16<15>(ref.v_q12, ce) + fx::mul16<8>(k.e_x_q12, c.k_x_q8);
   // omega_d = omega_r + v_r k_y e_y + k_phi sin e_phi  (Q11)
-  const int32_t vey_q12 = fx::mul16(ref.v_q12, k.e_y_q12, 12);
-  const int32_t w_d = static_cast<int32_t>(ref.omega_q11) + fx::mul32x16(vey_q12, c.k_y_q8, 9) +
-                      fx::mul16(se, c.k_phi_q8, 12);
+  const int32_t vey_q12 = fx::mul16<12>(ref.v_q12, k.e_y_q12);
+  const int32_t w_d = static_cast<int32_t>(ref.omega_q11) + fx::mul32x16<9>(vey_q12, c.k_y_q8) +
+                      fx::mul16<12>(se, c.k_phi_q8);
   k.v_d_q12 = static_cast<int16_t>(fx::clamp32(v_d, c.v_max_q12));
   k.omega_d_q11 = static_cast<int16_t>(fx::clamp32(w_d, c.omega_max_q11));
   return k;
@@ -41,6 +41,9 @@ void ControllerQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
   odo_.reset(enc_r, enc_l, p);
   kin_ = KinematicOutQ{0, 0, 0, 0, 0};
   out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kOk};
+  const slip::NormalForcesQ nf = slip::normal_forces_q16(cfg_.traction, 0);
+  out_.tau_max_r_q16 = slip::tau_max_q16(cfg_.traction, nf.N_r_q16);
+  out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
   dv_ff_q12_ = dw_ff_q11_ = 0;
   i_v_q16_ = i_w_q16_ = 0;
 }
@@ -49,12 +52,22 @@ const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
   kin_ = kinematic_law_q(cfg_, odo_.pose(), ref);
   dv_ff_q12_ = ref.dv_q12;
   dw_ff_q11_ = ref.domega_q11;
+  // Per-wheel tau_max, refreshed at the outer rate (the load transfer changes slowly):
+  // lateral force m_t (v w + d dw_ff), Q16 N, from the latest measured v, w.
+  const int16_t v = odo_.v_q12(), w = odo_.omega_q11();
+  const int32_t a_lat_q16 = fx::rshift_round<7>(static_cast<int32_t>(v) * w);  // Q23 -> Q16
+  const int32_t lat_q16 = fx::add_sat32(fx::mul32x16<8>(a_lat_q16, cfg_.m_t_q8),
+                                        fx::mul16<11>(dw_ff_q11_, cfg_.mtd_q16));
+  const slip::NormalForcesQ nf = slip::normal_forces_q16(cfg_.traction, lat_q16);
+  out_.tau_max_r_q16 = slip::tau_max_q16(cfg_.traction, nf.N_r_q16);
+  out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
   return kin_;
 }
 
 const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
   if (!cfg_.ok) {  // refuse to drive with a configuration that did not convert
     out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kBadConfig};
+
     return out_;
   }
   out_.odo = odo_.update(enc_r, enc_l, dt_us);
@@ -66,33 +79,26 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   const int32_t e_w = static_cast<int32_t>(kin_.omega_d_q11) - w;              // Q11
 
   // F (Q8 N) = m_eff dv_ff - m_t d w^2 + k_l e_v + I_v
-  const int32_t w2_q8 = fx::rshift_round(static_cast<int32_t>(w) * w, 14);     // Q22 -> Q8
-  int32_t force = fx::mul16(dv_ff_q12_, cfg_.m_eff_q12, 16);
-  force -= fx::mul32x16(w2_q8, cfg_.mtd_q16, 16);
-  force += fx::mul16(e_v, cfg_.k_l_q8, 12);
-  force = fx::add_sat32(force, fx::rshift_round(i_v_q16_, 8));
+  const int32_t w2_q8 = fx::rshift_round<14>(static_cast<int32_t>(w) * w);     // Q22 -> Q8
+  int32_t force = fx::mul16<16>(dv_ff_q12_, cfg_.m_eff_q12);
+  force -= fx::mul32x16<16>(w2_q8, cfg_.mtd_q16);
+  force += fx::mul16<12>(e_v, cfg_.k_l_q8);
+  force = fx::add_sat32(force, fx::rshift_round<8>(i_v_q16_));
   // M (Q12 N m) = I_eff dw_ff + m_t d w v + k_a e_w + I_w
-  const int32_t wv_q12 = fx::mul16(w, v, 11);                                  // Q23 -> Q12
-  int32_t moment = fx::mul16(dw_ff_q11_, cfg_.I_eff_q16, 15);
-  moment += fx::mul32x16(wv_q12, cfg_.mtd_q16, 16);
-  moment += fx::mul32x16(e_w, cfg_.k_a_q12, 11);
-  moment = fx::add_sat32(moment, fx::rshift_round(i_w_q16_, 4));
+  const int32_t wv_q12 = fx::mul16<11>(w, v);                                  // Q23 -> Q12
+  int32_t moment = fx::mul16<15>(dw_ff_q11_, cfg_.I_eff_q16);
+  moment += fx::mul32x16<16>(wv_q12, cfg_.mtd_q16);
+  moment += fx::mul32x16<11>(e_w, cfg_.k_a_q12);
+  moment = fx::add_sat32(moment, fx::rshift_round<4>(i_w_q16_));
   // Bound F and M so that everything downstream stays in range (|tau| <= 1.6e4 N m worth).
   force = fx::clamp32(force, 0x3FFFFFL);    // 16384 N
   moment = fx::clamp32(moment, 0x3FFFFFL);  // 1024 N m
 
   // Split: tau = (r/2)(F +- M/b), Q16 N m.
-  const int32_t m_over_b_q8 = fx::mul32x16(moment, cfg_.inv_b_q8, 12);         // Q20 -> Q8 N
-  const int32_t tau_r = fx::mul32x16(force + m_over_b_q8, cfg_.half_r_q16, 8);
-  const int32_t tau_l = fx::mul32x16(force - m_over_b_q8, cfg_.half_r_q16, 8);
+  const int32_t m_over_b_q8 = fx::mul32x16<12>(moment, cfg_.inv_b_q8);         // Q20 -> Q8 N
+  const int32_t tau_r = fx::mul32x16<8>(force + m_over_b_q8, cfg_.half_r_q16);
+  const int32_t tau_l = fx::mul32x16<8>(force - m_over_b_q8, cfg_.half_r_q16);
 
-  // Per-wheel tau_max: lateral force m_t (v w + d dw_ff), Q16 N.
-  const int32_t a_lat_q16 = fx::rshift_round(static_cast<int32_t>(v) * w, 7);  // Q23 -> Q16
-  const int32_t lat_q16 = fx::add_sat32(fx::mul32x16(a_lat_q16, cfg_.m_t_q8, 8),
-                                        fx::mul16(dw_ff_q11_, cfg_.mtd_q16, 11));
-  const slip::NormalForcesQ nf = slip::normal_forces_q16(cfg_.traction, lat_q16);
-  out_.tau_max_r_q16 = slip::tau_max_q16(cfg_.traction, nf.N_r_q16);
-  out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
   const int32_t lim_r = cfg_.clamp_enabled ? out_.tau_max_r_q16 : cfg_.tau_big_q16;
   const int32_t lim_l = cfg_.clamp_enabled ? out_.tau_max_l_q16 : cfg_.tau_big_q16;
   out_.tau_r_q16 = fx::clamp32(tau_r, lim_r);
@@ -102,10 +108,10 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
 
   // Duty u = tau/stall + dtheta/no_load (Q15), saturated. |tau| <= 10 stall here, so the
   // Q16 torque fits the 32x16 multiply.
-  const int32_t u_r = fx::mul32x16(out_.tau_r_q16, cfg_.inv_stall_q12, 13) +
-                      fx::mul16(odo_.omega_r_q8(), cfg_.inv_no_load_q20, 13);
-  const int32_t u_l = fx::mul32x16(out_.tau_l_q16, cfg_.inv_stall_q12, 13) +
-                      fx::mul16(odo_.omega_l_q8(), cfg_.inv_no_load_q20, 13);
+  const int32_t u_r = fx::mul32x16<13>(out_.tau_r_q16, cfg_.inv_stall_q12) +
+                      fx::mul16<13>(odo_.omega_r_q8(), cfg_.inv_no_load_q20);
+  const int32_t u_l = fx::mul32x16<13>(out_.tau_l_q16, cfg_.inv_stall_q12) +
+                      fx::mul16<13>(odo_.omega_l_q8(), cfg_.inv_no_load_q20);
   out_.pwm_r_q15 = static_cast<int16_t>(fx::clamp32(u_r, fx::kQ15One));
   out_.pwm_l_q15 = static_cast<int16_t>(fx::clamp32(u_l, fx::kQ15One));
   out_.sat_r = u_r >= fx::kQ15One || u_r <= -fx::kQ15One;
@@ -121,12 +127,12 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
     const bool block_w = (s_r * e_w > 0) || (-s_l * e_w > 0);
     if (!block_v) {
       const int32_t rate_q20 = static_cast<int32_t>(e_v) * cfg_.k_il_q8;        // Q12*Q8, N/s
-      const int32_t inc_q16 = fx::rshift_round(fx::mul32x16(rate_q20, dt_q16, 16), 4);
+      const int32_t inc_q16 = fx::rshift_round<4>(fx::mul32x16<16>(rate_q20, dt_q16));
       i_v_q16_ = fx::clamp32(fx::add_sat32(i_v_q16_, inc_q16), cfg_.integ_max_v_q16);
     }
     if (!block_w) {
-      const int32_t rate_q22 = fx::mul32x16(e_w, cfg_.k_ia_q12, 1);            // Q11*Q12/2, N m/s
-      const int32_t inc_q16 = fx::rshift_round(fx::mul32x16(rate_q22, dt_q16, 16), 6);
+      const int32_t rate_q22 = fx::mul32x16<1>(e_w, cfg_.k_ia_q12);            // Q11*Q12/2, N m/s
+      const int32_t inc_q16 = fx::rshift_round<6>(fx::mul32x16<16>(rate_q22, dt_q16));
       i_w_q16_ = fx::clamp32(fx::add_sat32(i_w_q16_, inc_q16), cfg_.integ_max_w_q16);
     }
   }

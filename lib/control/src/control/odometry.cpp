@@ -110,26 +110,26 @@ OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
 
   // Arc length of o, Q28 metres (|ds| <= 2.03 m for the clamped increments).
   const int16_t n_sum = static_cast<int16_t>(dn_r + dn_l);
-  const int32_t ds_q28 = fx::mul32x16(cfg_.ds_per_count_q35, n_sum, 7);
+  const int32_t ds_q28 = fx::mul32x16<7>(cfg_.ds_per_count_q35, n_sum);
 
   // sinc(dphi/2) = 1 - a^2/6 + a^4/120, a = dphi/2 in rad (Q15), |a| clamped to 1 rad
   // (truncation error a^6/5040 <= 2e-4 at the clamp, < 3e-9 for |a| < 0.16 = full-speed spin).
   int16_t t = static_cast<int16_t>(static_cast<int32_t>(dphi) >> 16);  // 2pi/65536 units of dphi
   if (t > 20860) t = 20860;
   if (t < -20860) t = -20860;
-  const int16_t a_q15 = static_cast<int16_t>(fx::mul16(t, 25736, 14));  // t * pi/2 -> Q15 rad
-  const int16_t a2 = static_cast<int16_t>(fx::mul16(a_q15, a_q15, 15));
-  const int16_t a4 = static_cast<int16_t>(fx::mul16(a2, a2, 15));
+  const int16_t a_q15 = static_cast<int16_t>(fx::mul16<14>(t, 25736));  // t * pi/2 -> Q15 rad
+  const int16_t a2 = static_cast<int16_t>(fx::mul16<15>(a_q15, a_q15));
+  const int16_t a4 = static_cast<int16_t>(fx::mul16<15>(a2, a2));
   const int16_t one_minus_sinc_q15 =
-      static_cast<int16_t>(fx::mul16(a2, 5461, 15) - fx::mul16(a4, 273, 15));
-  const int32_t chord_q28 = ds_q28 - fx::mul32x16(ds_q28, one_minus_sinc_q15, 15);
+      static_cast<int16_t>(fx::mul16<15>(a2, 5461) - fx::mul16<15>(a4, 273));
+  const int32_t chord_q28 = ds_q28 - fx::mul32x16<15>(ds_q28, one_minus_sinc_q15);
 
   // Position increments in Q28; the 8 bits below Q20 are carried in x_frac_/y_frac_ so that
   // rounding does not accumulate (a constant increment would otherwise bias the position by
   // up to 0.5 LSB of Q20 per step: 2 mm over 4,000 steps).
   const uint32_t mid = pose_.phi_b32 + static_cast<uint32_t>(static_cast<int32_t>(dphi) >> 1);
-  const int32_t dx_q28 = fx::mul_trig(chord_q28, fx::cos_q15(mid), 15);
-  const int32_t dy_q28 = fx::mul_trig(chord_q28, fx::sin_q15(mid), 15);
+  const int32_t dx_q28 = fx::mul_trig<15>(chord_q28, fx::cos_q15(mid));
+  const int32_t dy_q28 = fx::mul_trig<15>(chord_q28, fx::sin_q15(mid));
   const int16_t sx = static_cast<int16_t>(x_frac_ + (dx_q28 & 0xFF));
   const int16_t sy = static_cast<int16_t>(y_frac_ + (dy_q28 & 0xFF));
   x_frac_ = static_cast<uint8_t>(sx & 0xFF);
@@ -149,13 +149,13 @@ OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
       last_dt_us_ = dt_us;
       rate_per_count_q11_ = static_cast<int32_t>(static_cast<uint32_t>(cfg_.wheel_rate_q11) / dt_us);
     }
-    w_r_q8_ = fx::sat16(fx::mul32x16(rate_per_count_q11_, static_cast<int16_t>(dn_r), 11));
-    w_l_q8_ = fx::sat16(fx::mul32x16(rate_per_count_q11_, static_cast<int16_t>(dn_l), 11));
+    w_r_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, static_cast<int16_t>(dn_r)));
+    w_l_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, static_cast<int16_t>(dn_l)));
   }
   const int32_t sum_q8 = static_cast<int32_t>(w_r_q8_) + w_l_q8_;
   const int32_t diff_q8 = static_cast<int32_t>(w_r_q8_) - w_l_q8_;
-  v_q12_ = fx::sat16(fx::mul32x16(sum_q8, cfg_.half_r_q16, 12));     // Q8*Q16>>12
-  w_q11_ = fx::sat16(fx::mul32x16(diff_q8, cfg_.r_over_2b_q15, 12));  // Q8*Q15>>12
+  v_q12_ = fx::sat16(fx::mul32x16<12>(sum_q8, cfg_.half_r_q16));     // Q8*Q16>>12
+  w_q11_ = fx::sat16(fx::mul32x16<12>(diff_q8, cfg_.r_over_2b_q15));  // Q8*Q15>>12
   return st;
 }
 

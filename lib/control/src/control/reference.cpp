@@ -69,8 +69,8 @@ RefSampleQ reference_at_q(const ReferenceSpecQ& sp, uint32_t t_ms) {
     s_q20 = s > INT32_MAX ? INT32_MAX : static_cast<int32_t>(s);
     dv_q24 = 0;
   }
-  o.v_q12 = fx::sat16(fx::rshift_round(v_q24, 12));
-  o.dv_q12 = fx::sat16(fx::rshift_round(dv_q24, 12));
+  o.v_q12 = fx::sat16(fx::rshift_round<12>(v_q24));
+  o.dv_q12 = fx::sat16(fx::rshift_round<12>(dv_q24));
   if (sp.kind == static_cast<uint8_t>(PathKind::kLine)) {
     o.x_q20 = s_q20;
     return o;
@@ -92,10 +92,10 @@ RefSampleQ reference_at_q(const ReferenceSpecQ& sp, uint32_t t_ms) {
     curv_q12 = static_cast<int16_t>(-curv_q12);
   }
   o.phi_b32 = phi;
-  o.x_q20 = fx::mul_trig(rad_q20, fx::sin_q15(phi), 15);
-  o.y_q20 = rad_q20 - fx::mul_trig(rad_q20, fx::cos_q15(phi), 15);
-  o.omega_q11 = fx::sat16(fx::mul16(o.v_q12, curv_q12, 13));
-  o.domega_q11 = fx::sat16(fx::mul16(o.dv_q12, curv_q12, 13));
+  o.x_q20 = fx::mul_trig<15>(rad_q20, fx::sin_q15(phi));
+  o.y_q20 = rad_q20 - fx::mul_trig<15>(rad_q20, fx::cos_q15(phi));
+  o.omega_q11 = fx::sat16(fx::mul16<13>(o.v_q12, curv_q12));
+  o.domega_q11 = fx::sat16(fx::mul16<13>(o.dv_q12, curv_q12));
   return o;
 }
 

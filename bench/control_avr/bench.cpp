@@ -1,0 +1,125 @@
+// AVR cycle benchmark of lib/control: one inner and one outer step, float and fixed point.
+// Built like the firmware (avr-g++ 5.4, -Os, -mmcu=atmega2560, F_CPU 16 MHz) and run in simavr
+// by bench/control_avr/run.sh. Timer1 runs at prescaler 1, so TCNT1 counts CPU cycles; the
+// cost of reading the timer around an empty call is measured and subtracted. Every figure is
+// the min / mean / max over kRuns calls with varying encoder counts on an arc reference
+// (trigonometry active, both wheels moving, clamp on).
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <avr/sleep.h>
+#include <stdint.h>
+#include <stdio.h>
+
+#include <control/cascade.h>
+#include <control/cascade_q.h>
+#include <control/reference.h>
+
+namespace {
+
+int uart_putchar(char c, FILE*) {
+  while (!(UCSR0A & (1 << UDRE0))) {
+  }
+  UDR0 = static_cast<uint8_t>(c);
+  return 0;
+}
+FILE uart_out;
+
+const uint8_t kRuns = 64;
+
+struct Stat {
+  uint32_t sum;
+  uint16_t lo, hi;
+  void reset() { sum = 0; lo = 0xFFFF; hi = 0; }
+  void add(uint16_t c) {
+    sum += c;
+    if (c < lo) lo = c;
+    if (c > hi) hi = c;
+  }
+};
+
+uint16_t overhead;
+
+// Times `expr` in CPU cycles (Timer1 at clk/1); an overflow (> 65535 cycles) is reported.
+#define TIME_IT(stat, expr)                              \
+  do {                                                   \
+    TCNT1 = 0;                                           \
+    TIFR1 = (1 << TOV1);                                 \
+    const uint16_t t0_ = TCNT1;                          \
+    expr;                                                \
+    const uint16_t t1_ = TCNT1;                          \
+    if (TIFR1 & (1 << TOV1)) overflowed = true;          \
+    (stat).add(static_cast<uint16_t>(t1_ - t0_ - overhead)); \
+  } while (0)
+
+bool overflowed = false;
+volatile int32_t sink;
+
+void row(const char* name, const Stat& s) {
+  printf("%-34s %6u %6lu %6u\n", name, s.lo, static_cast<unsigned long>(s.sum / kRuns), s.hi);
+}
+
+// Configuration (built once at start-up; the float conversion is not part of the steps).
+ctl::ControlConfig cfg =
+    ctl::make_control_config(slip::RobotParams(), slip::MotorParams(), ctl::default_gains(), true);
+ctl::ControlConfigQ cfg_q(cfg);
+const ctl::ReferenceSpec spec{ctl::PathKind::kArc, 0.5f, 0.4f, 0.6f};
+constexpr ctl::ReferenceSpecQ spec_q{ctl::ReferenceSpec{ctl::PathKind::kArc, 0.5f, 0.4f, 0.6f}};
+ctl::Controller fc(cfg);
+ctl::ControllerQ qc(cfg_q);
+
+}  // namespace
+
+int main() {
+  UBRR0 = 8;  // 115200 Bd at 16 MHz (irrelevant in simavr)
+  UCSR0B = (1 << TXEN0);
+  fdev_setup_stream(&uart_out, uart_putchar, NULL, _FDEV_SETUP_WRITE);
+  stdout = &uart_out;
+  TCCR1A = 0;
+  TCCR1B = (1 << CS10);  // clk/1
+
+  // Overhead of the measurement itself.
+  {
+    Stat s;
+    s.reset();
+    overhead = 0;
+    for (uint8_t i = 0; i < kRuns; ++i) TIME_IT(s, sink = i);
+    overhead = s.lo;
+  }
+
+  Stat in_q, out_q, ref_q, in_f, out_f, ref_f;
+  in_q.reset(); out_q.reset(); ref_q.reset(); in_f.reset(); out_f.reset(); ref_f.reset();
+  int32_t enc_r = 0, enc_l = 0;
+  ctl::RefSampleQ rq;
+  ctl::RefSample rf;
+  for (uint8_t i = 0; i < kRuns; ++i) {
+    enc_r += 180 + (i & 7);
+    enc_l += 120 - (i & 3);
+    const uint32_t t_ms = 25UL * i;
+    TIME_IT(in_q, qc.inner_step(enc_r, enc_l, 25000UL));
+    TIME_IT(ref_q, rq = ctl::reference_at_q(spec_q, t_ms));
+    TIME_IT(out_q, qc.outer_step(rq));
+    TIME_IT(in_f, fc.inner_step(enc_r, enc_l, 0.025f));
+    TIME_IT(ref_f, rf = ctl::reference_at(spec, 0.025f * i));
+    TIME_IT(out_f, fc.outer_step(rf));
+  }
+  sink = qc.inner().pwm_r_q15 + static_cast<int32_t>(fc.inner().pwm_r * 1000.0f);
+
+  printf("BEGIN control_avr cycles (ATmega2560, -Os, %u calls each, overhead %u subtracted)\n",
+         static_cast<unsigned>(kRuns), overhead);
+  printf("%-34s %6s %6s %6s\n", "step", "min", "mean", "max");
+  row("fixed inner_step (25 ms)", in_q);
+  row("fixed outer_step (50 ms)", out_q);
+  row("fixed reference_at_q", ref_q);
+  row("float inner_step (25 ms)", in_f);
+  row("float outer_step (50 ms)", out_f);
+  row("float reference_at", ref_f);
+  printf("state bytes: ControllerQ %u, Controller %u\n", static_cast<unsigned>(sizeof(ctl::ControllerQ)),
+         static_cast<unsigned>(sizeof(ctl::Controller)));
+  printf("timer overflow: %s\n", overflowed ? "YES (figures invalid)" : "no");
+  printf("END\n");
+  while (!(UCSR0A & (1 << TXC0))) {
+  }
+  cli();
+  sleep_cpu();
+  return 0;
+}
