@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include <slipmodel/effects.h>
+#include <slipmodel/keys.h>
 #include <slipmodel/params.h>
 #include <slipmodel/plant.h>
 #include <slipmodel/traction.h>
@@ -27,29 +28,6 @@ struct Handle {
   Handle() : plant() { err[0] = '\0'; }
 };
 
-enum Rule { kAny, kPositive, kNonNegative };
-
-struct ParamKey {
-  const char* key;
-  double* (*get)(Handle*);
-  Rule rule;
-};
-
-#define ROBOT_KEY(name, rule) \
-  {"robot." #name, [](Handle* h) -> double* { return &h->plant.robot().name; }, rule}
-#define MOTOR_KEY(name) \
-  {"motor." #name, [](Handle* h) -> double* { return &h->plant.motor().name; }, kPositive}
-
-const ParamKey kKeys[] = {
-    ROBOT_KEY(mu_s, kNonNegative), ROBOT_KEY(mu_k, kNonNegative), ROBOT_KEY(b, kPositive),
-    ROBOT_KEY(e, kNonNegative),    ROBOT_KEY(d, kAny),            ROBOT_KEY(g, kPositive),
-    ROBOT_KEY(h, kNonNegative),    ROBOT_KEY(m_r, kPositive),     ROBOT_KEY(I_rz, kPositive),
-    ROBOT_KEY(I_wz, kNonNegative), ROBOT_KEY(I_wy, kPositive),    ROBOT_KEY(r, kPositive),
-    ROBOT_KEY(m_w, kNonNegative),  MOTOR_KEY(supply_v),           MOTOR_KEY(no_load_rad_s),
-    MOTOR_KEY(stall_nm),
-};
-const int kKeyCount = sizeof(kKeys) / sizeof(kKeys[0]);
-
 const char* const kCols[] = {"t_s",         "x_m",         "y_m",            "phi_rad",
                              "v_m_s",       "omega_rad_s", "theta_r_rad",    "theta_l_rad",
                              "dtheta_r_rad_s", "dtheta_l_rad_s", "tau_r_nm", "tau_l_nm",
@@ -62,22 +40,6 @@ Handle* H(void* p) { return static_cast<Handle*>(p); }
 
 void set_err(Handle* h, const char* fmt, const char* a, double x = 0.0, int i = 0) {
   if (h) snprintf(h->err, sizeof(h->err), fmt, a, x, i);
-}
-
-// Splits "effect.param" into an effect id and a parameter index (-2 for "enabled").
-bool parse_effect_key(const char* key, int* id, int* k) {
-  const char* dot = strrchr(key, '.');
-  if (dot == nullptr || dot == key) return false;
-  char name[64];
-  const size_t len = static_cast<size_t>(dot - key);
-  if (len >= sizeof(name)) return false;
-  memcpy(name, key, len);
-  name[len] = '\0';
-  *id = slip::effect_id(name);
-  if (*id < 0) return false;
-  if (strcmp(dot + 1, "enabled") == 0) { *k = -2; return true; }
-  *k = slip::effect_param_index(*id, dot + 1);
-  return *k >= 0;
 }
 
 void fill_dynamic(const slip::PlantState& s, double* row) {
@@ -134,8 +96,8 @@ double sm_effect_param_default(int i, int k) {
   return slip::effect_info(i).defaults[k];
 }
 
-int sm_param_count(void) { return kKeyCount; }
-const char* sm_param_name(int i) { return (i >= 0 && i < kKeyCount) ? kKeys[i].key : nullptr; }
+int sm_param_count(void) { return slip::param_key_count(); }
+const char* sm_param_name(int i) { return slip::param_key_name(i); }
 
 void* sm_plant_new(void) { return new Handle(); }
 
@@ -146,47 +108,19 @@ const char* sm_last_error(void* p) { return p ? H(p)->err : "null plant"; }
 int sm_plant_set(void* p, const char* key, double v) {
   Handle* h = H(p);
   if (h == nullptr || key == nullptr) return SM_ERR_ARG;
-  for (int i = 0; i < kKeyCount; ++i) {
-    if (strcmp(kKeys[i].key, key) != 0) continue;
-    const Rule rule = kKeys[i].rule;
-    if (!isfinite(v) || (rule == kPositive && !(v > 0.0)) || (rule == kNonNegative && v < 0.0)) {
-      set_err(h, "%s: bad value %g", key, v);
-      return SM_ERR_VALUE;
-    }
-    *kKeys[i].get(h) = v;
-    return SM_OK;
-  }
-  int id = -1, k = -1;
-  if (!parse_effect_key(key, &id, &k)) {
-    set_err(h, "unknown key '%s'", key);
-    return SM_ERR_KEY;
-  }
-  if (!isfinite(v) || (k >= 0 && !slip::effect_param_valid(id, k, v))) {
-    set_err(h, "%s: bad value %g", key, v);
-    return SM_ERR_VALUE;
-  }
-  if (k == -2)
-    h->plant.effects().enabled[id] = (v != 0.0);
-  else
-    h->plant.effects().p[id][k] = v;
-  return SM_OK;
+  const int rc = slip::plant_set(h->plant, key, v);
+  if (rc == slip::kKeyUnknown) set_err(h, "unknown key '%s'", key);
+  else if (rc != slip::kKeyOk) set_err(h, "%s: bad value %g", key, v);
+  return rc == slip::kKeyUnknown ? SM_ERR_KEY : (rc == slip::kKeyOk ? SM_OK : SM_ERR_VALUE);
 }
 
 int sm_plant_get(void* p, const char* key, double* out) {
   Handle* h = H(p);
   if (h == nullptr || key == nullptr || out == nullptr) return SM_ERR_ARG;
-  for (int i = 0; i < kKeyCount; ++i) {
-    if (strcmp(kKeys[i].key, key) == 0) {
-      *out = *kKeys[i].get(h);
-      return SM_OK;
-    }
-  }
-  int id = -1, k = -1;
-  if (!parse_effect_key(key, &id, &k)) {
+  if (slip::plant_get(h->plant, key, out) != slip::kKeyOk) {
     set_err(h, "unknown key '%s'", key);
     return SM_ERR_KEY;
   }
-  *out = (k == -2) ? (h->plant.effects().enabled[id] ? 1.0 : 0.0) : h->plant.effects().p[id][k];
   return SM_OK;
 }
 

@@ -6,6 +6,7 @@
 #include <unity.h>
 
 #include <slipmodel/effects.h>
+#include <slipmodel/keys.h>
 #include <slipmodel/plant.h>
 #include <slipmodel/rolling.h>
 #include <slipmodel/traction.h>
@@ -266,6 +267,37 @@ static void test_floor_slope(void) {
   TEST_ASSERT_TRUE(side.state().x_m < -0.05);
 }
 
+
+static void test_string_keys(void) {
+  Plant pl;
+  TEST_ASSERT_EQUAL_INT(kKeyOk, plant_set(pl, "robot.mu_s", 0.5));
+  EXPECT_NEAR(0.0, 0.5, pl.robot().mu_s);
+  TEST_ASSERT_EQUAL_INT(kKeyOk, plant_set(pl, "motor.stall_nm", 1.1));
+  EXPECT_NEAR(0.0, 1.1, pl.motor().stall_nm);
+  TEST_ASSERT_EQUAL_INT(kKeyOk, plant_set(pl, "stribeck.v_s", 0.03));
+  TEST_ASSERT_EQUAL_INT(kKeyOk, plant_set(pl, "stribeck.enabled", 1.0));
+  TEST_ASSERT_TRUE(pl.effects().on(kStribeck));
+  double v = 0.0;
+  TEST_ASSERT_EQUAL_INT(kKeyOk, plant_get(pl, "stribeck.v_s", &v));
+  EXPECT_NEAR(0.0, 0.03, v);
+  TEST_ASSERT_EQUAL_INT(kKeyOk, plant_get(pl, "robot.I_wy", &v));
+  EXPECT_NEAR(0.0, 0.001168, v);
+  // errors change nothing
+  TEST_ASSERT_EQUAL_INT(kKeyUnknown, plant_set(pl, "robot.mass", 1.0));
+  TEST_ASSERT_EQUAL_INT(kKeyUnknown, plant_set(pl, "stribeck.vs", 1.0));
+  TEST_ASSERT_EQUAL_INT(kKeyUnknown, plant_set(pl, ".enabled", 1.0));
+  TEST_ASSERT_EQUAL_INT(kKeyUnknown, plant_set(pl, nullptr, 1.0));
+  TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "robot.r", 0.0));
+  TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "robot.mu_k", NAN));
+  TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "wheel_radius.r_eff", -0.01));
+  TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "floor_slope.rad", 2.0));
+  EXPECT_NEAR(0.0, 0.0365, pl.robot().r);
+  EXPECT_NEAR(0.0, 0.239, pl.robot().mu_k);
+  TEST_ASSERT_EQUAL_INT(16, param_key_count());
+  TEST_ASSERT_EQUAL_STRING("robot.mu_s", param_key_name(0));
+  TEST_ASSERT_NULL(param_key_name(16));
+}
+
 int main(void) {
   UNITY_BEGIN();
   RUN_TEST(test_vocabulary_matches_run_format);
@@ -285,5 +317,6 @@ int main(void) {
   RUN_TEST(test_stribeck);
   RUN_TEST(test_motor_gain_asymmetry);
   RUN_TEST(test_floor_slope);
+  RUN_TEST(test_string_keys);
   return UNITY_END();
 }
