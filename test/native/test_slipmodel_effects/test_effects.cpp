@@ -92,6 +92,17 @@ static void test_friction_coefficient(void) {
   run(s, 0, 0.4, 0.4, 1.0);
   const RobotParams p;
   EXPECT_NEAR(1e-9, 2.0 * 0.45 * normal_forces(p).N_r / p.m_t(), s.state().v_m_s - v0);
+  // mu_k above mu_s is used as mu_s: the wheels slip steadily, without stick/slip chatter.
+  Plant hi_k;
+  hi_k.set_effect(kFrictionCoefficient, true, 0.241, 0.3);
+  int transitions = 0;
+  bool prev = false;
+  for (int k = 0; k < 2000; ++k) {
+    hi_k.step_torque(0.1, 0.1, kDt);  // needs between mu_s N and 0.3 N
+    transitions += hi_k.state().slipping_r != prev;
+    prev = hi_k.state().slipping_r;
+  }
+  TEST_ASSERT_EQUAL_INT(1, transitions);
 }
 
 static void test_wheel_radius(void) {

@@ -155,7 +155,10 @@ void Plant::step(int mode, double in_r, double in_l, double dt) {
   const double r = fx_.on(kWheelRadius) ? fx_.p[kWheelRadius][0] : p.r;
   const double b = fx_.on(kTrackWidth) ? fx_.p[kTrackWidth][0] : p.b;
   const double mu_s = fx_.on(kFrictionCoefficient) ? fx_.p[kFrictionCoefficient][0] : p.mu_s;
-  const double mu_k = fx_.on(kFrictionCoefficient) ? fx_.p[kFrictionCoefficient][1] : p.mu_k;
+  // Kinetic friction never exceeds static: a larger mu_k would make a wheel that breaks loose
+  // stick again at once (chatter). mu_k > mu_s is therefore used as mu_k = mu_s.
+  double mu_k = fx_.on(kFrictionCoefficient) ? fx_.p[kFrictionCoefficient][1] : p.mu_k;
+  if (mu_k > mu_s) mu_k = mu_s;
 
   // ---- 1. command pipeline -------------------------------------------------------------
   double cmd_r = in_r, cmd_l = in_l;
