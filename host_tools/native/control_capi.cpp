@@ -1,0 +1,306 @@
+// C ABI over lib/control for Python (ctypes) and for the independent truth simulator: the
+// cascade (float or fixed point) and its references, driven exactly as the firmware drives it
+// (encoder counts in, duties out). Built into .build/host/libddrobot.so by host_tools/_native.py.
+//
+// Self-describing: ctl_describe() returns a JSON document listing the settable keys with their
+// defaults and units, the reference kinds and the output columns of ctl_inner(); the column
+// order is also available as ctl_column_count()/ctl_column_name(i).
+// Never crashes on bad input: unknown keys, NaN values, null pointers and short arrays give a
+// negative return code and a message from ctl_last_error(h).
+//
+// Typical replay loop (one tick = 25 ms):
+//   h = ctl_new(fixed, clamp); ctl_set_reference(h, kind, accel, cruise, radius);
+//   ctl_reset(h, enc_r0, enc_l0, x0, y0, phi0);
+//   each tick k: ctl_inner(h, enc_r, enc_l, 0.025, row, n); if k even: ctl_outer(h, k*0.025)
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <control/cascade.h>
+#include <control/cascade_q.h>
+#include <control/reference.h>
+#include <slipmodel/params.h>
+
+namespace {
+
+enum {
+  CTL_OK = 0,
+  CTL_ERR_KEY = -1,    // unknown key or reference kind
+  CTL_ERR_VALUE = -2,  // NaN, infinite or out-of-range value
+  CTL_ERR_ARG = -3,    // null pointer, short output array
+  CTL_ERR_CONFIG = -4, // the configuration does not convert to fixed point
+};
+
+const char* const kCols[] = {
+    "pwm_r",     "pwm_l",     "tau_cmd_r", "tau_cmd_l",   "tau_max_r", "tau_max_l",
+    "clamped_r", "clamped_l", "sat_r",     "sat_l",       "omega_r",   "omega_l",
+    "x_odo_m",   "y_odo_m",   "phi_odo_rad", "v_d_m_s",   "omega_d_rad_s", "e_x_m",
+    "e_y_m",     "e_phi_rad", "odo_status"};
+const int kColCount = static_cast<int>(sizeof(kCols) / sizeof(kCols[0]));
+
+struct Key {
+  const char* name;
+  const char* unit;
+};
+// Settable keys: Table II.2 names, the datasheet motor, the gains, the clamp switch.
+const Key kKeys[] = {{"mu_s", "1"},       {"mu_k", "1"},       {"b", "m"},         {"e", "m"},
+                     {"d", "m"},          {"g", "m/s^2"},      {"h", "m"},         {"m_r", "kg"},
+                     {"I_rz", "kg m^2"},  {"I_wz", "kg m^2"},  {"I_wy", "kg m^2"}, {"r", "m"},
+                     {"m_w", "kg"},       {"supply_v", "V"},   {"no_load_rad_s", "rad/s"},
+                     {"stall_nm", "N m"}, {"k_x", "1/s"},      {"k_y", "1/m^2"},   {"k_phi", "1/s"},
+                     {"k_l", "N s/m"},    {"k_a", "N m s"},    {"k_il", "N/m"},    {"k_ia", "N m"},
+                     {"clamp", "0/1"}};
+const int kKeyCount = static_cast<int>(sizeof(kKeys) / sizeof(kKeys[0]));
+
+struct Handle {
+  bool fixed;
+  slip::RobotParams robot;
+  slip::MotorParams motor;
+  ctl::Gains gains;
+  bool clamp;
+  ctl::ReferenceSpec ref;
+  ctl::ControlConfig cfg;
+  ctl::ControlConfigQ cfg_q;
+  ctl::ReferenceSpecQ ref_q;
+  ctl::Controller fc;
+  ctl::ControllerQ qc;
+  char err[256];
+
+  Handle(bool fixed_point, bool clamp_on)
+      : fixed(fixed_point),
+        robot(),
+        motor(),
+        gains(ctl::default_gains()),
+        clamp(clamp_on),
+        ref{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f},
+        cfg(ctl::make_control_config(robot, motor, gains, clamp)),
+        cfg_q(cfg),
+        ref_q(ref),
+        fc(cfg),
+        qc(cfg_q) {
+    err[0] = '\0';
+  }
+  double* field(const char* k) {
+    double* const p[] = {&robot.mu_s, &robot.mu_k, &robot.b,    &robot.e,    &robot.d,
+                         &robot.g,    &robot.h,    &robot.m_r,  &robot.I_rz, &robot.I_wz,
+                         &robot.I_wy, &robot.r,    &robot.m_w,  &motor.supply_v,
+                         &motor.no_load_rad_s,     &motor.stall_nm};
+    for (int i = 0; i < 16; ++i)
+      if (strcmp(k, kKeys[i].name) == 0) return p[i];
+    return nullptr;
+  }
+  float* gain(const char* k) {
+    float* const p[] = {&gains.k_x, &gains.k_y, &gains.k_phi, &gains.k_l, &gains.k_a, &gains.k_il, &gains.k_ia};
+    for (int i = 0; i < 7; ++i)
+      if (strcmp(k, kKeys[16 + i].name) == 0) return p[i];
+    return nullptr;
+  }
+  // Rebuild both configurations (the controllers are reset).
+  int rebuild() {
+    cfg = ctl::make_control_config(robot, motor, gains, clamp);
+    cfg_q = ctl::ControlConfigQ(cfg);
+    fc = ctl::Controller(cfg);
+    qc = ctl::ControllerQ(cfg_q);
+    if (fixed && !cfg_q.ok) {
+      snprintf(err, sizeof err, "configuration does not fit the fixed-point formats");
+      return CTL_ERR_CONFIG;
+    }
+    return CTL_OK;
+  }
+};
+
+Handle* H(void* p) { return static_cast<Handle*>(p); }
+bool is_fin(double x) { return isfinite(x) != 0; }
+uint32_t to_b32(double rad) {
+  const double turns = rad / (2.0 * 3.14159265358979323846);
+  return static_cast<uint32_t>(static_cast<int64_t>(llround((turns - floor(turns)) * 4294967296.0)));
+}
+double from_b32(uint32_t a) { return static_cast<int32_t>(a) * (2.0 * 3.14159265358979323846 / 4294967296.0); }
+
+}  // namespace
+
+extern "C" {
+
+int ctl_abi_version(void) { return 1; }
+
+/// JSON: keys (name, unit, default), reference kinds, output columns, formats.
+const char* ctl_describe(void) {
+  static char buf[4096];
+  if (buf[0]) return buf;
+  Handle tmp(false, true);
+  int n = snprintf(buf, sizeof buf, "{\"abi\": 1, \"keys\": [");
+  for (int i = 0; i < kKeyCount && n < static_cast<int>(sizeof buf); ++i) {
+    double def = 0.0;
+    if (i < 16) def = *tmp.field(kKeys[i].name);
+    else if (i < 23) def = *tmp.gain(kKeys[i].name);
+    else def = 1.0;
+    n += snprintf(buf + n, sizeof buf - n, "%s{\"name\": \"%s\", \"unit\": \"%s\", \"default\": %.9g}",
+                  i ? ", " : "", kKeys[i].name, kKeys[i].unit, def);
+  }
+  n += snprintf(buf + n, sizeof buf - n,
+                "], \"reference_kinds\": {\"line\": 0, \"arc\": 1, \"figure_eight\": 2}, "
+                "\"periods_s\": {\"inner\": 0.025, \"outer\": 0.05}, \"encoder_ppr\": %ld, \"columns\": [",
+                static_cast<long>(slip::kEncoderPpr));
+  for (int i = 0; i < kColCount && n < static_cast<int>(sizeof buf); ++i)
+    n += snprintf(buf + n, sizeof buf - n, "%s\"%s\"", i ? ", " : "", kCols[i]);
+  if (n < static_cast<int>(sizeof buf)) snprintf(buf + n, sizeof buf - n, "]}");
+  return buf;
+}
+
+int ctl_column_count(void) { return kColCount; }
+const char* ctl_column_name(int i) { return (i >= 0 && i < kColCount) ? kCols[i] : nullptr; }
+
+/// New controller with Table II.2, the datasheet motor and the default gains.
+void* ctl_new(int fixed_point, int clamp_enabled) { return new Handle(fixed_point != 0, clamp_enabled != 0); }
+void ctl_free(void* h) { delete H(h); }
+const char* ctl_last_error(void* h) { return h ? H(h)->err : "null handle"; }
+
+/// Set a key (see ctl_describe). Rebuilds the configuration and resets the controller.
+int ctl_set(void* h, const char* key, double value) {
+  if (!h || !key) return CTL_ERR_ARG;
+  Handle* p = H(h);
+  if (!is_fin(value)) {
+    snprintf(p->err, sizeof p->err, "value for %s is not finite", key);
+    return CTL_ERR_VALUE;
+  }
+  if (double* f = p->field(key)) {
+    if (value <= 0.0 && strcmp(key, "h") != 0 && strcmp(key, "d") != 0 && strcmp(key, "e") != 0) {
+      snprintf(p->err, sizeof p->err, "%s must be positive", key);
+      return CTL_ERR_VALUE;
+    }
+    *f = value;
+  } else if (float* g = p->gain(key)) {
+    if (value < 0.0) {
+      snprintf(p->err, sizeof p->err, "gain %s must be >= 0", key);
+      return CTL_ERR_VALUE;
+    }
+    *g = static_cast<float>(value);
+  } else if (strcmp(key, "clamp") == 0) {
+    p->clamp = value != 0.0;
+  } else {
+    snprintf(p->err, sizeof p->err, "unknown key %s", key);
+    return CTL_ERR_KEY;
+  }
+  return p->rebuild();
+}
+
+int ctl_get(void* h, const char* key, double* out) {
+  if (!h || !key || !out) return CTL_ERR_ARG;
+  Handle* p = H(h);
+  if (double* f = p->field(key)) *out = *f;
+  else if (float* g = p->gain(key)) *out = *g;
+  else if (strcmp(key, "clamp") == 0) *out = p->clamp ? 1.0 : 0.0;
+  else {
+    snprintf(p->err, sizeof p->err, "unknown key %s", key);
+    return CTL_ERR_KEY;
+  }
+  return CTL_OK;
+}
+
+/// Reference: kind 0 line, 1 arc, 2 figure eight; accel m/s^2, cruise m/s, signed radius m.
+int ctl_set_reference(void* h, int kind, double accel_m_s2, double cruise_m_s, double radius_m) {
+  if (!h) return CTL_ERR_ARG;
+  Handle* p = H(h);
+  if (kind < 0 || kind > 2) {
+    snprintf(p->err, sizeof p->err, "unknown reference kind %d", kind);
+    return CTL_ERR_KEY;
+  }
+  const ctl::ReferenceSpec s{static_cast<ctl::PathKind>(kind), static_cast<float>(accel_m_s2),
+                             static_cast<float>(cruise_m_s), static_cast<float>(radius_m)};
+  if (!is_fin(accel_m_s2) || !is_fin(cruise_m_s) || !is_fin(radius_m) || !s.valid()) {
+    snprintf(p->err, sizeof p->err, "invalid reference (accel in (0,20], cruise in [0,4], |R| in [0.05,100])");
+    return CTL_ERR_VALUE;
+  }
+  p->ref = s;
+  p->ref_q = ctl::ReferenceSpecQ(s);
+  return CTL_OK;
+}
+
+/// Reference sample at t_s: out[7] = x, y, phi, v, omega, dv, domega (fixed handles sample the
+/// fixed-point reference at the nearest millisecond).
+int ctl_reference(void* h, double t_s, double* out, int n) {
+  if (!h || !out || n < 7) return CTL_ERR_ARG;
+  Handle* p = H(h);
+  if (!is_fin(t_s) || t_s < 0.0) {
+    snprintf(p->err, sizeof p->err, "t_s must be finite and >= 0");
+    return CTL_ERR_VALUE;
+  }
+  if (p->fixed) {
+    const ctl::RefSampleQ r = ctl::reference_at_q(p->ref_q, static_cast<uint32_t>(llround(fmin(t_s, 32000.0) * 1000.0)));
+    const double v[7] = {r.x_q20 / 1048576.0, r.y_q20 / 1048576.0, from_b32(r.phi_b32), r.v_q12 / 4096.0,
+                         r.omega_q11 / 2048.0, r.dv_q12 / 4096.0, r.domega_q11 / 2048.0};
+    memcpy(out, v, sizeof v);
+  } else {
+    const ctl::RefSample r = ctl::reference_at(p->ref, static_cast<float>(t_s));
+    const double v[7] = {r.x_m, r.y_m, r.phi_rad, r.v_m_s, r.omega_rad_s, r.dv_m_s2, r.domega_rad_s2};
+    memcpy(out, v, sizeof v);
+  }
+  return CTL_OK;
+}
+
+/// Start at pose (x, y, phi) with the encoders reading (enc_r, enc_l).
+int ctl_reset(void* h, int32_t enc_r, int32_t enc_l, double x_m, double y_m, double phi_rad) {
+  if (!h) return CTL_ERR_ARG;
+  Handle* p = H(h);
+  if (!is_fin(x_m) || !is_fin(y_m) || !is_fin(phi_rad) || fabs(x_m) > 2000.0 || fabs(y_m) > 2000.0) {
+    snprintf(p->err, sizeof p->err, "start pose must be finite and within +-2000 m");
+    return CTL_ERR_VALUE;
+  }
+  p->fc.reset(enc_r, enc_l, ctl::Pose{static_cast<float>(x_m), static_cast<float>(y_m), static_cast<float>(phi_rad)});
+  p->qc.reset(enc_r, enc_l, ctl::PoseQ{static_cast<int32_t>(llround(x_m * 1048576.0)),
+                                       static_cast<int32_t>(llround(y_m * 1048576.0)), to_b32(phi_rad)});
+  return CTL_OK;
+}
+
+/// Outer step with the reference at t_s (call after the inner step of the same tick).
+int ctl_outer(void* h, double t_s) {
+  if (!h) return CTL_ERR_ARG;
+  Handle* p = H(h);
+  if (!is_fin(t_s) || t_s < 0.0) {
+    snprintf(p->err, sizeof p->err, "t_s must be finite and >= 0");
+    return CTL_ERR_VALUE;
+  }
+  if (p->fixed) p->qc.outer_step(ctl::reference_at_q(p->ref_q, static_cast<uint32_t>(llround(fmin(t_s, 32000.0) * 1000.0))));
+  else p->fc.outer_step(ctl::reference_at(p->ref, static_cast<float>(t_s)));
+  return CTL_OK;
+}
+
+/// Inner step: cumulative counts, dt in seconds; fills out[0..n) with the columns (see
+/// ctl_column_name). Returns the odometry status (0 ok, > 0 a reported input problem).
+int ctl_inner(void* h, int32_t enc_r, int32_t enc_l, double dt_s, double* out, int n) {
+  if (!h || !out || n < kColCount) return CTL_ERR_ARG;
+  Handle* p = H(h);
+  if (!is_fin(dt_s) || dt_s <= 0.0 || dt_s > 1.0) {
+    snprintf(p->err, sizeof p->err, "dt_s must be in (0, 1] s");
+    return CTL_ERR_VALUE;
+  }
+  if (p->fixed) {
+    if (!p->cfg_q.ok) {
+      snprintf(p->err, sizeof p->err, "configuration does not fit the fixed-point formats");
+      return CTL_ERR_CONFIG;
+    }
+    const ctl::InnerOutQ& o = p->qc.inner_step(enc_r, enc_l, static_cast<uint32_t>(llround(dt_s * 1e6)));
+    const ctl::KinematicOutQ& k = p->qc.kinematic();
+    const ctl::OdometryQ& od = p->qc.odometry();
+    const double v[] = {o.pwm_r_q15 / 32768.0, o.pwm_l_q15 / 32768.0, o.tau_r_q16 / 65536.0, o.tau_l_q16 / 65536.0,
+                        o.tau_max_r_q16 / 65536.0, o.tau_max_l_q16 / 65536.0, double(o.clamped_r), double(o.clamped_l),
+                        double(o.sat_r), double(o.sat_l), od.omega_r_q8() / 256.0, od.omega_l_q8() / 256.0,
+                        od.pose().x_q20 / 1048576.0, od.pose().y_q20 / 1048576.0, from_b32(od.pose().phi_b32),
+                        k.v_d_q12 / 4096.0, k.omega_d_q11 / 2048.0, k.e_x_q12 / 4096.0, k.e_y_q12 / 4096.0,
+                        from_b32(static_cast<uint32_t>(k.e_phi_b32)), double(static_cast<int>(o.odo))};
+    memcpy(out, v, sizeof v);
+    return static_cast<int>(o.odo);
+  }
+  const ctl::InnerOut& o = p->fc.inner_step(enc_r, enc_l, static_cast<float>(dt_s));
+  const ctl::KinematicOut& k = p->fc.kinematic();
+  const ctl::Odometry& od = p->fc.odometry();
+  const double v[] = {o.pwm_r, o.pwm_l, o.tau_r_nm, o.tau_l_nm, o.tau_max_r_nm, o.tau_max_l_nm,
+                      double(o.clamped_r), double(o.clamped_l), double(o.sat_r), double(o.sat_l),
+                      od.omega_r_rad_s(), od.omega_l_rad_s(), od.pose().x_m, od.pose().y_m, od.pose().phi_rad,
+                      k.v_d_m_s, k.omega_d_rad_s, k.e_x_m, k.e_y_m, k.e_phi_rad, double(static_cast<int>(o.odo))};
+  memcpy(out, v, sizeof v);
+  return static_cast<int>(o.odo);
+}
+
+}  // extern "C"
