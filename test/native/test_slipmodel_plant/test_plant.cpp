@@ -298,6 +298,26 @@ static void test_rolling_turn_lateral_transfer(void) {
   TEST_ASSERT_TRUE(s.N_r > s.N_l);
 }
 
+
+static void test_no_flag_chatter_over_torque_grid(void) {
+  // Constant torque pairs over [-0.15, 0.15]^2 N m for 2 s: stick/slip changes stay few. This
+  // guards the lateral split by remaining friction capacity: a split by normal force alone made
+  // turns near the limit alternate the slipping wheel every step (2655 changes at 0.0375/0.0625).
+  int worst = 0;
+  double worst_r = 0.0, worst_l = 0.0;
+  for (int i = -12; i <= 12; ++i) {
+    for (int j = -12; j <= 12; ++j) {
+      Plant pl;
+      const RunResult r = run_torque(pl, 0.0125 * i, 0.0125 * j, 2.0);
+      if (r.transitions > worst) { worst = r.transitions; worst_r = 0.0125 * i; worst_l = 0.0125 * j; }
+    }
+  }
+  char msg[96];
+  snprintf(msg, sizeof(msg), "worst: %d stick/slip changes in 2 s at (%.4f, %.4f) N m", worst, worst_r, worst_l);
+  TEST_MESSAGE(msg);
+  TEST_ASSERT_TRUE(worst <= 10);
+}
+
 int main(void) {
   UNITY_BEGIN();
   RUN_TEST(test_ii61_0p09_equals_pure_rolling);
@@ -316,5 +336,6 @@ int main(void) {
   RUN_TEST(test_step_size_convergence);
   RUN_TEST(test_combined_slip_friction_and_lateral_transfer);
   RUN_TEST(test_rolling_turn_lateral_transfer);
+  RUN_TEST(test_no_flag_chatter_over_torque_grid);
   return UNITY_END();
 }

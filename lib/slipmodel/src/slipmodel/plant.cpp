@@ -359,18 +359,26 @@ void Plant::step(int mode, double in_r, double in_l, double dt) {
     if (any_stuck) {
       int a = 0;
       const double lat = lam[nr - 1];  // nr >= 1 here: the lateral row is last
-      double share[2] = {0.0, 0.0};
+      for (int i = 0; i < 2; ++i)
+        if (stuck[i]) f[i][0] = lam[a++];
       if (stuck[0] && stuck[1]) {
-        const double ns = N[0] + N[1];
-        share[0] = ns > 0.0 ? N[0] / ns : 0.5;
-        share[1] = 1.0 - share[0];
+        // Rigid contacts determine only the sum of the lateral forces. Split it in proportion
+        // to each wheel's remaining lateral capacity sqrt((mu_s N)^2 - F^2): if any split keeps
+        // both wheels inside their friction cones, this one does (then neither breaks loose).
+        double cap[2];
+        for (int i = 0; i < 2; ++i) {
+          const double lim = mu_s * N[i];
+          const double c2 = lim * lim - f[i][0] * f[i][0];
+          cap[i] = c2 > 0.0 ? sqrt(c2) : 0.0;
+        }
+        const double cs = cap[0] + cap[1];
+        double share0;
+        if (cs > 0.0) share0 = cap[0] / cs;
+        else share0 = (N[0] + N[1]) > 0.0 ? N[0] / (N[0] + N[1]) : 0.5;
+        f[0][1] = share0 * lat;
+        f[1][1] = (1.0 - share0) * lat;
       } else {
-        share[stuck[0] ? 0 : 1] = 1.0;
-      }
-      for (int i = 0; i < 2; ++i) {
-        if (!stuck[i]) continue;
-        f[i][0] = lam[a++];
-        f[i][1] = share[i] * lat;
+        f[stuck[0] ? 0 : 1][1] = lat;
       }
     }
 
