@@ -1,0 +1,249 @@
+/*
+ * Encoder ISR cycle harness (libsimavr). Loads an ATmega2560 ELF that uses src/encoder_isr.S,
+ * drives PD0..PD3 with quadrature signals at controlled edge rates and reports:
+ *   - cycles per edge of every encoder ISR invocation (response + JMP + body + RETI), per path;
+ *   - for a sweep of edge rates (both wheels together): counts lost, illegal transitions and
+ *     the CPU share taken by the ISRs.
+ * Corrections for simavr 1.6 (so the figures are those of the hardware):
+ *   1. simavr charges 0 cycles for the interrupt response; the ATmega2560 takes 5 (3-byte PC
+ *      push). The harness adds 5 cycles to the clock every time the core vectors.
+ *   2. after RETI simavr runs two main-program instructions before a pending interrupt; the
+ *      hardware runs one. The harness shortens simavr's wait to one instruction.
+ * Usage: isr_bench FIRMWARE.elf [--trace]
+ */
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <simavr/avr_ioport.h>
+#include <simavr/sim_avr.h>
+#include <simavr/sim_core.h>
+#include <simavr/sim_elf.h>
+#include <simavr/sim_interrupts.h>
+
+#define F_CPU 16000000.0
+#define VECTOR_TABLE_END 0xE4u /* 57 vectors x 4 bytes */
+#define RESPONSE_CYCLES 5
+
+static avr_t *avr;
+static avr_irq_t *pin_irq[4];
+static uint16_t a_raw_l, a_raw_r, a_ill_l, a_ill_r;
+
+/* per-invocation bookkeeping */
+static int in_isr;
+static int isr_vector;
+static avr_cycle_count_t isr_start;
+static uint16_t isr_pre[4];
+static unsigned long n_isr[8], hist_min[8], hist_max[8];
+static double hist_sum[8];
+static avr_cycle_count_t isr_cycles_total;
+static int trace;
+
+static uint32_t sym_addr(const char *elf, const char *name) {
+    char cmd[512];
+    snprintf(cmd, sizeof cmd, "avr-nm '%s'", elf);
+    FILE *p = popen(cmd, "r");
+    if (!p) { perror("avr-nm"); exit(2); }
+    char line[256];
+    uint32_t addr = 0;
+    int found = 0;
+    while (fgets(line, sizeof line, p)) {
+        unsigned long a; char t; char s[200];
+        if (sscanf(line, "%lx %c %199s", &a, &t, s) == 3 && strcmp(s, name) == 0) {
+            addr = (uint32_t)a; found = 1;
+        }
+    }
+    pclose(p);
+    if (!found) { fprintf(stderr, "symbol %s not found in %s\n", name, elf); exit(2); }
+    return addr & 0xFFFFu; /* data addresses are 0x80xxxx */
+}
+
+static uint16_t rd16(uint16_t a) { return (uint16_t)(avr->data[a] | (avr->data[a + 1] << 8)); }
+
+/* Path classification of one invocation from the counter changes. */
+enum { P_NONE, P_INC_L, P_DEC_L, P_ILL_L, P_INC_R, P_DEC_R, P_ILL_R, P_OTHER };
+static const char *path_name[8] = {"no change", "left +1", "left -1", "left illegal",
+                                   "right +1", "right -1", "right illegal", "other"};
+
+static void step(void) {
+    avr_flashaddr_t pc0 = avr->pc;
+    uint16_t op = (uint16_t)(avr->flash[pc0] | (avr->flash[pc0 + 1] << 8));
+    avr_cycle_count_t c0 = avr->cycle;
+    avr_run(avr);
+    if (trace && in_isr)
+        printf("  trace pc=%05x op=%04x cycles=%llu\n", (unsigned)pc0, op,
+               (unsigned long long)(avr->cycle - c0));
+    if (op == 0x9518 && in_isr) { /* RETI executed */
+        /* correction 2: one main instruction before the next pending interrupt */
+        if (avr->interrupt_state < -1) avr->interrupt_state = -1;
+        avr_cycle_count_t d = avr->cycle - isr_start;
+        uint16_t post[4] = {rd16(a_raw_l), rd16(a_raw_r), rd16(a_ill_l), rd16(a_ill_r)};
+        int path = P_NONE, changed = 0;
+        if (post[0] != isr_pre[0]) { path = (uint16_t)(post[0] - isr_pre[0]) == 1 ? P_INC_L : P_DEC_L; changed++; }
+        if (post[1] != isr_pre[1]) { path = (uint16_t)(post[1] - isr_pre[1]) == 1 ? P_INC_R : P_DEC_R; changed++; }
+        if (post[2] != isr_pre[2]) { path = P_ILL_L; changed++; }
+        if (post[3] != isr_pre[3]) { path = P_ILL_R; changed++; }
+        if (changed > 1) path = P_OTHER;
+        if (n_isr[path] == 0 || d < hist_min[path]) hist_min[path] = d;
+        if (d > hist_max[path]) hist_max[path] = d;
+        hist_sum[path] += (double)d;
+        n_isr[path]++;
+        isr_cycles_total += d;
+        in_isr = 0;
+        if (trace) { printf("  trace: end of ISR, %llu cycles incl. response\n", (unsigned long long)d); trace = 0; }
+    }
+    if (!in_isr && avr->pc < VECTOR_TABLE_END && avr->pc != 0 && pc0 >= VECTOR_TABLE_END) {
+        /* the core has just vectored (simavr did it at zero cost) */
+        isr_vector = (int)(avr->pc / 4);
+        isr_start = avr->cycle;
+        avr->cycle += RESPONSE_CYCLES; /* correction 1 */
+        if (isr_vector >= 1 && isr_vector <= 4) {
+            in_isr = 1;
+            isr_pre[0] = rd16(a_raw_l); isr_pre[1] = rd16(a_raw_r);
+            isr_pre[2] = rd16(a_ill_l); isr_pre[3] = rd16(a_ill_r);
+            if (trace) printf("  trace: vector %d at cycle %llu (+5 response)\n", isr_vector, (unsigned long long)isr_start);
+        }
+    }
+}
+
+static void run_until(avr_cycle_count_t c) { while (avr->cycle < c) step(); }
+
+/* Gray sequence (B,A): forward when A leads B = 00,01,11,10 */
+static const uint8_t gray[4] = {0, 1, 3, 2};
+static int pos_l, pos_r;  /* Gray positions of the generated signals */
+
+static void drive(int wheel, int pos) {
+    uint8_t s = gray[pos & 3];
+    int base = wheel ? 2 : 0;
+    avr_raise_irq(pin_irq[base + 0], s & 1);
+    avr_raise_irq(pin_irq[base + 1], (s >> 1) & 1);
+}
+
+static void reset_stats(void) {
+    memset(n_isr, 0, sizeof n_isr); memset(hist_min, 0, sizeof hist_min);
+    memset(hist_max, 0, sizeof hist_max); memset(hist_sum, 0, sizeof hist_sum);
+    isr_cycles_total = 0;
+}
+
+/* One run: n edges per wheel at rate_per_wheel edges/s, right wheel phase-shifted by `phase`
+ * of an edge interval. Generated direction: the wheel's "A leads B" sense (dir_l, dir_r = +-1).
+ * Returns 1 if lossless. */
+static int run_rate(double rate_per_wheel, double phase, long n, int dir_l, int dir_r,
+                    int sign_l, int sign_r, int verbose) {
+    uint16_t l0 = rd16(a_raw_l), r0 = rd16(a_raw_r), il0 = rd16(a_ill_l), ir0 = rd16(a_ill_r);
+    double interval = F_CPU / rate_per_wheel;
+    double t0 = (double)avr->cycle + 100.0;
+    double next_l = t0, next_r = t0 + phase * interval;
+    long k_l = 0, k_r = 0;
+    reset_stats();
+    avr_cycle_count_t start = avr->cycle;
+    while (k_l < n || k_r < n) {
+        if (k_l < n && (double)avr->cycle >= next_l) { pos_l += dir_l; drive(0, pos_l); k_l++; next_l += interval; }
+        if (k_r < n && (double)avr->cycle >= next_r) { pos_r += dir_r; drive(1, pos_r); k_r++; next_r += interval; }
+        step();
+    }
+    run_until(avr->cycle + 2000); /* let pending ISRs finish */
+    avr_cycle_count_t span = avr->cycle - start;
+    int16_t got_l = (int16_t)(rd16(a_raw_l) - l0), got_r = (int16_t)(rd16(a_raw_r) - r0);
+    long exp_l = (long)sign_l * dir_l * n, exp_r = (long)sign_r * dir_r * n;
+    uint16_t ill_l = (uint16_t)(rd16(a_ill_l) - il0), ill_r = (uint16_t)(rd16(a_ill_r) - ir0);
+    int ok = got_l == exp_l && got_r == exp_r && ill_l == 0 && ill_r == 0;
+    if (verbose)
+        printf("%9.0f %6.2f %7ld %7d %7ld %7d %6u %6u %6.1f%%  %s\n", 2.0 * rate_per_wheel, phase,
+               exp_l, got_l, exp_r, got_r, ill_l, ill_r,
+               100.0 * (double)isr_cycles_total / (double)span,
+               ok ? "lossless" : ((ill_l || ill_r) ? "LOST, flagged as illegal" : "LOST, NOT flagged"));
+    return ok;
+}
+
+int main(int argc, char **argv) {
+    if (argc < 2) { fprintf(stderr, "usage: %s firmware.elf [--trace]\n", argv[0]); return 2; }
+    trace = argc > 2 && strcmp(argv[2], "--trace") == 0;
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof fw);
+    if (elf_read_firmware(argv[1], &fw)) { fprintf(stderr, "cannot read %s\n", argv[1]); return 2; }
+    avr = avr_make_mcu_by_name("atmega2560");
+    if (!avr) return 2;
+    avr_init(avr);
+    avr->frequency = (uint32_t)F_CPU;
+    avr->log = 0;
+    avr_load_firmware(avr, &fw);
+    a_raw_l = (uint16_t)sym_addr(argv[1], "enc_raw_l");
+    a_raw_r = (uint16_t)sym_addr(argv[1], "enc_raw_r");
+    a_ill_l = (uint16_t)sym_addr(argv[1], "enc_ill_l");
+    a_ill_r = (uint16_t)sym_addr(argv[1], "enc_ill_r");
+    for (int i = 0; i < 4; i++) pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), i);
+    /* boot with all encoder lines low, then wait for the firmware to enable INT0..3 */
+    for (int i = 0; i < 4; i++) avr_raise_irq(pin_irq[i], 0);
+    int trace_req = trace; trace = 0;
+    run_until(16000ull * 20); /* 20 ms */
+    if ((avr->data[0x3D] & 0x0F) != 0x0F) { /* EIMSK */
+        fprintf(stderr, "firmware did not enable INT0..INT3 within 20 ms (EIMSK=%02x)\n", avr->data[0x3D]);
+        return 1;
+    }
+    int sign_l = 1, sign_r = 1;
+    {   /* learn each wheel's sign convention (ENC_*_REVERSED) from one slow forward step */
+        drive(0, pos_l); drive(1, pos_r);          /* settle: pull-ups may have moved the lines */
+        run_until(avr->cycle + 4000);
+        uint16_t l0 = rd16(a_raw_l), r0 = rd16(a_raw_r);
+        pos_l++; drive(0, pos_l); pos_r++; drive(1, pos_r);
+        run_until(avr->cycle + 4000);
+        sign_l = (int16_t)(rd16(a_raw_l) - l0); sign_r = (int16_t)(rd16(a_raw_r) - r0);
+        if ((sign_l != 1 && sign_l != -1) || (sign_r != 1 && sign_r != -1)) {
+            fprintf(stderr, "single step not counted as +-1 (%d, %d)\n", sign_l, sign_r);
+            return 1;
+        }
+    }
+    trace = trace_req;
+
+    printf("# encoder ISR cycles per edge (hardware-corrected: +%d response; RETI/JMP as charged)\n", RESPONSE_CYCLES);
+    run_rate(2000.0, 0.5, 400, +1, +1, sign_l, sign_r, 0);
+    run_rate(2000.0, 0.5, 400, -1, -1, sign_l, sign_r, 0);
+    /* remember the per-path figures of the slow runs (both directions) */
+    printf("%-15s %8s %6s %6s %7s\n", "path", "calls", "min", "max", "mean");
+    reset_stats();
+    run_rate(2000.0, 0.5, 400, +1, +1, sign_l, sign_r, 0);
+    for (int p = 0; p < 8; p++) if (n_isr[p])
+        printf("%-15s %8lu %6lu %6lu %7.2f\n", path_name[p], n_isr[p], hist_min[p], hist_max[p], hist_sum[p] / n_isr[p]);
+    run_rate(2000.0, 0.5, 400, -1, -1, sign_l, sign_r, 0);
+    for (int p = 0; p < 8; p++) if (n_isr[p])
+        printf("%-15s %8lu %6lu %6lu %7.2f\n", path_name[p], n_isr[p], hist_min[p], hist_max[p], hist_sum[p] / n_isr[p]);
+    {   /* illegal path: both channels of both wheels jump two Gray steps at once */
+        reset_stats();
+        pos_l += 2; drive(0, pos_l); run_until(avr->cycle + 2000);
+        pos_r += 2; drive(1, pos_r); run_until(avr->cycle + 2000);
+        for (int p = 0; p < 8; p++) if (n_isr[p])
+            printf("%-15s %8lu %6lu %6lu %7.2f\n", path_name[p], n_isr[p], hist_min[p], hist_max[p], hist_sum[p] / n_isr[p]);
+    }
+
+    printf("\n# edge-rate sweep, both wheels at the same rate; phase = right-wheel offset in edge intervals\n");
+    printf("# (0.00 = both wheels' edges coincide: worst case)\n");
+    printf("%9s %6s %7s %7s %7s %7s %6s %6s %7s  %s\n", "edges/s", "phase", "exp_l", "got_l", "exp_r", "got_r",
+           "ill_l", "ill_r", "isr_cpu", "verdict");
+    static const double rates[] = {21700, 50000, 100000, 150000, 200000, 250000, 300000, 330000, 360000, 400000, 500000, 700000};
+    double max_ok_coincident = 0, max_ok_spread = 0;
+    int all_flagged = 1;
+    for (unsigned i = 0; i < sizeof rates / sizeof rates[0]; i++) {
+        for (int ph = 0; ph < 2; ph++) {
+            double phase = ph ? 0.37 : 0.0;
+            int ok = run_rate(rates[i] / 2.0, phase, 6000, +1, +1, sign_l, sign_r, 1);
+            if (ok) { if (ph) { if (rates[i] > max_ok_spread) max_ok_spread = rates[i]; } else if (rates[i] > max_ok_coincident) max_ok_coincident = rates[i]; }
+        }
+    }
+    (void)all_flagged;
+    /* fine search for the limit, coincident edges (worst case) */
+    double lo = max_ok_coincident, hi = lo * 2.0;
+    for (int it = 0; it < 12; it++) {
+        double mid = 0.5 * (lo + hi);
+        if (run_rate(mid / 2.0, 0.0, 6000, +1, +1, sign_l, sign_r, 0)) lo = mid; else hi = mid;
+    }
+    printf("\nmax lossless edge rate, both wheels together, coincident edges: %.0f edges/s\n", lo);
+    double lo2 = max_ok_spread, hi2 = lo2 * 2.0;
+    for (int it = 0; it < 12; it++) {
+        double mid = 0.5 * (lo2 + hi2);
+        if (run_rate(mid / 2.0, 0.37, 6000, +1, +1, sign_l, sign_r, 0)) lo2 = mid; else hi2 = mid;
+    }
+    printf("max lossless edge rate, both wheels together, edges spread (phase 0.37): %.0f edges/s\n", lo2);
+    return 0;
+}

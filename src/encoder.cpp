@@ -1,0 +1,58 @@
+#include "encoder.h"
+
+#include <avr/interrupt.h>
+#include <avr/io.h>
+
+namespace {
+EncRaw g_last;          // raw values at the previous snapshot
+EncSnapshot g_total;    // extended totals
+
+int32_t add_sat_i32(int32_t a, int16_t d) {
+    if (d > 0 && a > static_cast<int32_t>(0x7FFFFFFFL) - d) return 0x7FFFFFFFL;
+    if (d < 0 && a < static_cast<int32_t>(-0x7FFFFFFFL - 1) - d) return -0x7FFFFFFFL - 1;
+    return a + d;
+}
+uint32_t add_sat_u32(uint32_t a, uint16_t d) {
+    return (a > 0xFFFFFFFFul - d) ? 0xFFFFFFFFul : a + d;
+}
+}  // namespace
+
+void enc_init() {
+    uint8_t sreg = SREG;
+    cli();
+    DDRD &= static_cast<uint8_t>(~0x0F);
+    PORTD |= 0x0F;                      // pull-ups (open-collector encoders read high when idle)
+    // ISCn = 01: any logical change, for INT0..INT3.
+    EICRA = _BV(ISC00) | _BV(ISC10) | _BV(ISC20) | _BV(ISC30);
+    GPIOR0 = PIND & 0x03;               // previous states, see src/encoder_isr.S
+    GPIOR1 = PIND & 0x0C;
+    enc_raw_l = enc_raw_r = 0;
+    enc_ill_l = enc_ill_r = 0;
+    g_last = EncRaw{0, 0, 0, 0};
+    g_total = EncSnapshot{0, 0, 0, 0};
+    EIFR = 0x0F;                        // drop edges seen while configuring
+    EIMSK |= 0x0F;
+    SREG = sreg;
+}
+
+EncRaw enc_read_raw() {
+    EncRaw r;
+    uint8_t sreg = SREG;
+    cli();
+    r.pos_l = enc_raw_l;
+    r.pos_r = enc_raw_r;
+    r.ill_l = enc_ill_l;
+    r.ill_r = enc_ill_r;
+    SREG = sreg;
+    return r;
+}
+
+EncSnapshot enc_snapshot() {
+    EncRaw r = enc_read_raw();
+    g_total.count_l = add_sat_i32(g_total.count_l, static_cast<int16_t>(r.pos_l - g_last.pos_l));
+    g_total.count_r = add_sat_i32(g_total.count_r, static_cast<int16_t>(r.pos_r - g_last.pos_r));
+    g_total.illegal_l = add_sat_u32(g_total.illegal_l, static_cast<uint16_t>(r.ill_l - g_last.ill_l));
+    g_total.illegal_r = add_sat_u32(g_total.illegal_r, static_cast<uint16_t>(r.ill_r - g_last.ill_r));
+    g_last = r;
+    return g_total;
+}
