@@ -160,9 +160,11 @@ CTL_INLINE int32_t mul32x16(int32_t a, int16_t b) {
   const uint16_t lo = static_cast<uint16_t>(a & 0xFFFF);
   const int32_t p_hi = mul_ss(hi, b);  // |p_hi| <= 2^30
   const int32_t p_lo = mul_us(lo, b);  // fits: 65535 * 32768 < 2^31
-  const int32_t lim = static_cast<int32_t>(1L << (14 + S));  // |p_hi << (16 - S)| < 2^30
-  if (p_hi >= lim) return INT32_MAX;
-  if (p_hi < -lim) return INT32_MIN;
+  if (S < 16) {  // p_hi * 2^(16-S) must fit int32: |p_hi| < 2^(15+S)
+    const int32_t lim = static_cast<int32_t>(1L << (S < 16 ? 15 + S : 0));
+    if (p_hi >= lim) return INT32_MAX;
+    if (p_hi < -lim) return INT32_MIN;
+  }
   return add_sat32(p_hi * static_cast<int32_t>(1L << (16 - S)), rshift_round<S>(p_lo));
 }
 
@@ -173,8 +175,8 @@ union Word32 {
   uint8_t b[4];
 };
 
-/// sin of a binary angle, Q15 (|error| <= 2.1e-5 incl. rounding: interpolation error
-/// (pi/512)^2/8 = 4.7e-6 plus 0.5 LSB table rounding and 0.5 LSB interpolation rounding).
+/// sin of a binary angle, Q15 (|error| <= 3.5e-5: interpolation error (pi/512)^2/8 = 4.7e-6
+/// plus 0.5 LSB (1.5e-5) table rounding plus 0.5 LSB interpolation rounding; measured 3.2e-5).
 static CTL_INLINE int16_t sin_q15(uint32_t a_b32) {
   Word32 w;
   w.u = a_b32;
