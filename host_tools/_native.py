@@ -8,8 +8,8 @@ implement any physics: everything here calls ``lib/slipmodel`` through its C ABI
 
 Public API
 ----------
-``library_path()``, ``build(force=False)``, ``effect_vocabulary()``, ``output_columns()``,
-``param_keys()`` and ``class Plant``.
+``library_path()``, ``build(force=False)``, ``library()``, ``effect_vocabulary()``,
+``output_columns()``, ``param_keys()`` and ``class Plant``.
 """
 from __future__ import annotations
 
@@ -137,6 +137,13 @@ def _load() -> ctypes.CDLL:
             fn.argtypes = args
         _lib = lib
         return lib
+
+
+def library() -> ctypes.CDLL:
+    """The loaded shared library (built first if missing or stale), for other bindings of the
+    same ``libddrobot.so`` (e.g. the lib/control C ABI). Set ``argtypes``/``restype`` on the
+    functions you use; the ``sm_*`` functions are already declared."""
+    return _load()
 
 
 def effect_vocabulary() -> dict[str, dict[str, float]]:

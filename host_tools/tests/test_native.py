@@ -35,6 +35,7 @@ def _const(t_end=2.0, dt=0.01, r=0.0, l=0.0):
 def test_library_builds_and_loads():
     path = _native.build()
     assert path == _native.library_path() and path.exists()
+    assert _native.library().sm_effect_count() == len(RUN_FORMAT_EFFECTS)
     assert path.parent.name == "host" and path.parent.parent.name == ".build"
 
 
