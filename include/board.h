@@ -4,8 +4,9 @@
 // Wiring decisions (see docs/firmware.md, "Pins"):
 //   encoders  left  A = pin 21 = PD0/INT0, B = pin 20 = PD1/INT1
 //             right A = pin 19 = PD2/INT2, B = pin 18 = PD3/INT3
-//   shield    channel A (PWM pin 3 = OC3C/PE5, DIR 12 = PB6, BRAKE 9 = PH6, sense A0)  -> LEFT wheel
-//             channel B (PWM pin 11 = OC1A/PB5, DIR 13 = PB7, BRAKE 8 = PH5, sense A1) -> RIGHT wheel
+//   shield    channel A (PWM pin 3 = OC3C/PE5, DIR 12 = PB6, BRAKE 9 = PH6, sense A0)  -> RIGHT wheel
+//             channel B (PWM pin 11 = OC1A/PB5, DIR 13 = PB7, BRAKE 8 = PH5, sense A1) -> LEFT wheel
+//             (A0 = right matches protocol/protocol.json's telemetry.current_r)
 //   XBee      USART2 (TX2 pin 16 = PH1, RX2 pin 17 = PH0)
 //   debug     USART0 (pins 0/1, the USB bridge): Unity output in the embedded tests
 #ifndef FW_BOARD_H

@@ -1,0 +1,24 @@
+// XBee link on USART2 (TX2 = pin 16, RX2 = pin 17), 8N1 at XBEE_BAUD (board.h).
+// Interrupt-driven rings: RX 128 bytes (RX ISR produces, main loop consumes), TX 256 bytes
+// (main loop produces, UDRE ISR consumes). Transmit never blocks: a frame that does not fit
+// whole is dropped and counted.
+#ifndef FW_XBEE_H
+#define FW_XBEE_H
+
+#include <stdint.h>
+
+struct XbeeCounters {
+    uint16_t rx_overflows;   // bytes lost because the RX ring was full (saturating)
+    uint16_t rx_errors;      // framing / data-overrun errors flagged by the USART (saturating)
+    uint16_t tx_drops;       // frames dropped because the TX ring was full (saturating)
+};
+
+void xbee_init();
+// Queues n bytes as one unit; false (nothing queued, tx_drops + 1) when they do not fit.
+bool xbee_write(const uint8_t* p, uint16_t n);
+// One received byte; false when none is waiting.
+bool xbee_read(uint8_t* b);
+XbeeCounters xbee_counters();
+uint16_t xbee_tx_free();
+
+#endif  // FW_XBEE_H

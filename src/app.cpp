@@ -1,0 +1,370 @@
+#include "app.h"
+
+#include <avr/io.h>
+#include <string.h>
+
+#include <control/cascade.h>
+#include <control/cascade_q.h>
+#include <control/odometry.h>
+#include <control/reference.h>
+#include <protocol/frame.h>
+#include <protocol/messages.h>
+#include <slipmodel/params.h>
+
+#include "board.h"
+#include "boot.h"
+#include "cycles.h"
+#include "encoder.h"
+#include "motor.h"
+#include "xbee.h"
+
+#ifndef FIRMWARE_ID
+#define FIRMWARE_ID 0UL
+#endif
+
+extern "C" {
+volatile uint8_t g_fault_hang;
+}
+
+namespace {
+
+const uint16_t kHostTimeoutMs = 500;
+
+void inner_task();
+void outer_task();
+void telemetry_task();
+
+// Constant task table (config) -- runtime data lives in sched.cpp. Periods and budgets come
+// from protocol/protocol.json (proto::k*), the one place the host also reads them from.
+const TaskConfig kTasks[] = {
+    {inner_task, static_cast<uint16_t>(proto::kInnerPeriodUs / 1000u), 0, proto::kInnerBudgetCycles},
+    {outer_task, static_cast<uint16_t>(proto::kOuterPeriodUs / 1000u), 0, proto::kOuterBudgetCycles},
+    {telemetry_task, static_cast<uint16_t>(proto::kTelemetryPeriodUs / 1000u), 5,
+     proto::kTelemetryBudgetCycles},
+};
+static_assert(sizeof kTasks / sizeof kTasks[0] == proto::kTaskCount, "task table vs protocol");
+
+// ---- configuration (changed only by commands, while idle) ----
+slip::RobotParams g_robot;
+const slip::MotorParams kMotor = slip::datasheet_motor();
+bool g_clamp_on = true;
+bool g_params_default = true;
+
+ctl::ControlConfig make_cfg() {
+    return ctl::make_control_config(g_robot, kMotor, ctl::default_gains(), g_clamp_on);
+}
+
+// ---- state ----
+ctl::ControllerQ* g_ctrl;          // points into g_ctrl_storage (no heap)
+alignas(ctl::ControllerQ) uint8_t g_ctrl_storage[sizeof(ctl::ControllerQ)];
+ctl::OdometryQ* g_idle_odo;        // odometry while no experiment runs
+alignas(ctl::OdometryQ) uint8_t g_idle_odo_storage[sizeof(ctl::OdometryQ)];
+ctl::ReferenceSpecQ g_ref{ctl::ReferenceSpec{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f}};
+
+bool g_running;
+uint8_t g_failsafe = proto::kFailsafeNone;
+uint32_t g_exp_start_ms;
+uint32_t g_exp_duration_ms;
+uint32_t g_last_host_ms;
+uint32_t g_last_inner_us;
+uint32_t g_illegal_at_start;
+EncSnapshot g_enc;                 // last snapshot (inner or telemetry task)
+
+// unwrapped heading for telemetry
+int32_t g_phi_turns;
+uint32_t g_phi_last_b32;
+
+proto::Decoder g_rx;
+uint16_t g_tx_seq;
+uint8_t g_frame[proto::kMaxWire];
+
+template <class T>
+T* place(uint8_t* storage, const T& v) {
+    T* p = reinterpret_cast<T*>(storage);
+    memcpy(storage, &v, sizeof(T));  // trivially copyable value types
+    return p;
+}
+
+void rebuild_controller() {
+    ctl::ControlConfigQ q(make_cfg());
+    g_ctrl = place(g_ctrl_storage, ctl::ControllerQ(q));
+    g_idle_odo = place(g_idle_odo_storage, ctl::OdometryQ(q.odo));
+}
+
+template <class Msg>
+void send_msg(const Msg& m) {
+    uint16_t n = proto::encode_message(m, g_tx_seq, g_frame, sizeof g_frame);
+    if (n != 0 && xbee_write(g_frame, n)) ++g_tx_seq;
+}
+
+void send_ack(uint16_t seq, uint8_t type, uint8_t result, uint8_t detail) {
+    proto::Ack a;
+    a.cmd_seq = seq;
+    a.cmd_type = type;
+    a.result = result;
+    a.detail = detail;
+    send_msg(a);
+}
+
+void send_params() {
+    proto::Params p;
+    p.mu_s = static_cast<float>(g_robot.mu_s);
+    p.mu_k = static_cast<float>(g_robot.mu_k);
+    p.b = static_cast<float>(g_robot.b);
+    p.e = static_cast<float>(g_robot.e);
+    p.d = static_cast<float>(g_robot.d);
+    p.g = static_cast<float>(g_robot.g);
+    p.h = static_cast<float>(g_robot.h);
+    p.m_r = static_cast<float>(g_robot.m_r);
+    p.I_rz = static_cast<float>(g_robot.I_rz);
+    p.I_wz = static_cast<float>(g_robot.I_wz);
+    p.I_wy = static_cast<float>(g_robot.I_wy);
+    p.r = static_cast<float>(g_robot.r);
+    p.m_w = static_cast<float>(g_robot.m_w);
+    p.supply_v = static_cast<float>(kMotor.supply_v);
+    p.no_load_rad_s = static_cast<float>(kMotor.no_load_rad_s);
+    p.stall_nm = static_cast<float>(kMotor.stall_nm);
+    p.encoder_ppr = ENC_COUNTS_PER_REV;
+    p.inner_period_us = proto::kInnerPeriodUs;
+    p.outer_period_us = proto::kOuterPeriodUs;
+    p.telemetry_period_us = proto::kTelemetryPeriodUs;
+    p.baud = proto::kBaud;
+    p.clamp_on = g_clamp_on ? 1 : 0;
+    p.firmware_id = FIRMWARE_ID;
+    send_msg(p);
+}
+
+void stop_motors(uint8_t why) {
+    motor_brake();
+    g_running = false;
+    g_failsafe = why;
+}
+
+// ---- commands ----
+// Every check happens before anything changes; a rejected command changes nothing.
+uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
+    proto::Start s = proto::Start();
+    if (!s.decode(pl, len)) return proto::kResultBadLength;
+    if (g_running) return proto::kResultBusy;
+    float r = static_cast<float>(g_robot.r);
+    float t_acc = s.get_accel_time();
+    ctl::ReferenceSpec spec = ctl::straight_profile(r, s.get_wheel_accel(), t_acc);
+    if (s.profile == proto::kProfileArc) spec.kind = ctl::PathKind::kArc;
+    if (s.profile == proto::kProfileFigureEight) spec.kind = ctl::PathKind::kFigureEight;
+    spec.radius_m = s.profile == proto::kProfileStraight ? 0.0f : s.get_radius();
+    if (!spec.valid()) {
+        // which field makes the reference invalid: the radius for paths, else the speed
+        *detail = (spec.kind != ctl::PathKind::kLine && !(spec.radius_m >= 0.05f || spec.radius_m <= -0.05f)) ? 4 : 1;
+        return proto::kResultOutOfRange;
+    }
+    ctl::ReferenceSpecQ q(spec);
+    if (!q.ok) {
+        *detail = 1;
+        return proto::kResultOutOfRange;
+    }
+    // accepted: apply
+    g_ref = q;
+    g_enc = enc_snapshot();
+    g_ctrl->reset(g_enc.count_r, g_enc.count_l, ctl::PoseQ{0, 0, 0});
+    g_phi_turns = 0;
+    g_phi_last_b32 = 0;
+    g_illegal_at_start = g_enc.illegal_l + g_enc.illegal_r;
+    g_exp_start_ms = sched_ms();
+    g_exp_duration_ms = s.duration;
+    g_last_inner_us = time_us();
+    g_failsafe = proto::kFailsafeNone;
+    g_running = true;
+    sched_reset_stats();
+    return proto::kResultOk;
+}
+
+void handle_frame(const proto::Frame& f) {
+    uint8_t detail = 255;
+    uint8_t res = proto::validate_command(f.type, f.payload, f.len, &detail);
+    if (res == proto::kResultOk) {
+        switch (f.type) {
+            case proto::kMsgStart:
+                res = cmd_start(f.payload, f.len, &detail);
+                break;
+            case proto::kMsgStop:
+                if (g_running || !motor_braking()) stop_motors(proto::kFailsafeStoppedByHost);
+                break;
+            case proto::kMsgSetClamp: {
+                proto::SetClamp c = proto::SetClamp();
+                c.decode(f.payload, f.len);  // length checked by validate_command
+                if (g_running) { res = proto::kResultBusy; break; }
+                g_clamp_on = c.on != 0;
+                rebuild_controller();
+                break;
+            }
+            case proto::kMsgSetMu: {
+                proto::SetMu m = proto::SetMu();
+                m.decode(f.payload, f.len);  // length checked by validate_command
+                if (g_running) { res = proto::kResultBusy; break; }
+                g_robot.mu_s = m.get_mu_s();
+                g_robot.mu_k = m.get_mu_k();
+                g_params_default = false;
+                rebuild_controller();
+                break;
+            }
+            case proto::kMsgRequestParams:
+            case proto::kMsgHeartbeat:
+            default:
+                break;
+        }
+    }
+    send_ack(f.seq, f.type, res, detail);
+    if (res == proto::kResultOk && f.type == proto::kMsgRequestParams) send_params();
+}
+
+// ---- tasks ----
+void inner_task() {
+    g_enc = enc_snapshot();
+    uint32_t now_us = time_us();
+    uint32_t dt_us = now_us - g_last_inner_us;
+    g_last_inner_us = now_us;
+    if (!g_running) {
+        g_idle_odo->update(g_enc.count_r, g_enc.count_l, dt_us);
+        return;
+    }
+    if (g_enc.illegal_l + g_enc.illegal_r != g_illegal_at_start) {
+        stop_motors(proto::kFailsafeEncoderFault);  // counts no longer trustworthy
+        return;
+    }
+    const ctl::InnerOutQ& o = g_ctrl->inner_step(g_enc.count_r, g_enc.count_l, dt_us);
+    motor_set_q15(kRight, o.pwm_r_q15);
+    motor_set_q15(kLeft, o.pwm_l_q15);
+    if (sched_ms() - g_exp_start_ms >= g_exp_duration_ms) stop_motors(proto::kFailsafeFinished);
+}
+
+void outer_task() {
+    if (!g_running) return;
+    ctl::RefSampleQ ref = ctl::reference_at_q(g_ref, sched_ms() - g_exp_start_ms);
+    g_ctrl->outer_step(ref);
+}
+
+int16_t sat16(int32_t v) {
+    return v > 32767 ? 32767 : (v < -32768 ? -32768 : static_cast<int16_t>(v));
+}
+uint16_t satu16(uint32_t v) { return v > 0xFFFFu ? 0xFFFFu : static_cast<uint16_t>(v); }
+// Q-format value -> telemetry raw units: v * num / 2^shift, rounded toward zero, saturated.
+int16_t q_to_raw16(int32_t v, int32_t num, uint8_t shift) {
+    return sat16(static_cast<int32_t>((static_cast<int64_t>(v) * num) >> shift));
+}
+int32_t q20_to_um(int32_t v_q20) {  // 1e6 / 2^20 = 15625 / 16384
+    return static_cast<int32_t>((static_cast<int64_t>(v_q20) * 15625) >> 14);
+}
+
+void telemetry_task() {
+    EncSnapshot e = enc_snapshot();
+    const ctl::OdometryQ& odo = g_running ? g_ctrl->odometry() : *g_idle_odo;
+    const ctl::InnerOutQ& in = g_ctrl->inner();
+    const ctl::KinematicOutQ& kin = g_ctrl->kinematic();
+    proto::Telemetry t;
+    memset(&t, 0, sizeof t);
+    t.t_us = time_us();
+    t.enc_r = e.count_r;
+    t.enc_l = e.count_l;
+    t.omega_r = q_to_raw16(odo.omega_r_q8(), 100, 8);
+    t.omega_l = q_to_raw16(odo.omega_l_q8(), 100, 8);
+    if (g_running) {
+        // wheel speed references from the kinematic loop's (v_d, omega_d): (v +- b w) / r
+        float v = kin.v_d_q12 / 4096.0f, w = kin.omega_d_q11 / 2048.0f;
+        float b = static_cast<float>(g_robot.b), r = static_cast<float>(g_robot.r);
+        t.set_omega_ref_r((v + b * w) / r);
+        t.set_omega_ref_l((v - b * w) / r);
+        t.tau_cmd_r = q_to_raw16(in.tau_r_q16, 10000, 16);
+        t.tau_cmd_l = q_to_raw16(in.tau_l_q16, 10000, 16);
+        if (g_clamp_on) {
+            int32_t m = in.tau_max_r_q16 < in.tau_max_l_q16 ? in.tau_max_r_q16 : in.tau_max_l_q16;
+            t.tau_max = q_to_raw16(m, 10000, 16);
+        }
+    }
+    t.pwm_r = q_to_raw16(motor_duty_q15(kRight), 10000, 15);
+    t.pwm_l = q_to_raw16(motor_duty_q15(kLeft), 10000, 15);
+    const ctl::PoseQ& p = odo.pose();
+    t.x_odo = q20_to_um(p.x_q20);
+    t.y_odo = q20_to_um(p.y_q20);
+    // unwrap the binary-angle heading: turns + signed fraction, in micro-radians
+    int32_t d = static_cast<int32_t>(p.phi_b32 - g_phi_last_b32);
+    uint32_t prev = g_phi_last_b32;
+    g_phi_last_b32 = p.phi_b32;
+    if (d > 0 && p.phi_b32 < prev) ++g_phi_turns;        // crossed 2^32 -> 0 going up
+    else if (d < 0 && p.phi_b32 > prev) --g_phi_turns;   // crossed 0 -> 2^32 going down
+    int64_t frac_urad = static_cast<int64_t>((static_cast<uint64_t>(p.phi_b32) * 6283185ull) >> 32);
+    int64_t urad = static_cast<int64_t>(g_phi_turns) * 6283185 + frac_urad;
+    if (urad > 0x7FFFFFFFLL) urad = 0x7FFFFFFFLL;
+    if (urad < -0x7FFFFFFFLL) urad = -0x7FFFFFFFLL;
+    t.phi_odo = static_cast<int32_t>(urad);
+    const TaskStats& si = sched_stats(proto::kTaskInner);
+    const TaskStats& so = sched_stats(proto::kTaskOuter);
+    const TaskStats& st = sched_stats(proto::kTaskTelemetry);
+    t.set_inner_last_cycles(si.last_cycles);
+    t.set_inner_max_cycles(si.max_cycles);
+    t.inner_overruns = si.overruns;
+    t.set_outer_last_cycles(so.last_cycles);
+    t.set_outer_max_cycles(so.max_cycles);
+    t.outer_overruns = so.overruns;
+    t.set_telemetry_last_cycles(st.last_cycles);
+    t.set_telemetry_max_cycles(st.max_cycles);
+    t.telemetry_overruns = st.overruns;
+    t.illegal_r = satu16(e.illegal_r);
+    t.illegal_l = satu16(e.illegal_l);
+    t.rx_crc_errors = g_rx.crc_errors();
+    t.rx_bad_frames = g_rx.bad_frames();
+    XbeeCounters xc = xbee_counters();
+    t.rx_overflows = xc.rx_overflows;
+    t.tx_drops = xc.tx_drops;
+    uint8_t status = 0;
+    if (g_running) status |= proto::kStatusRunning;
+    if (g_clamp_on) status |= proto::kStatusClampOn;
+    if (g_failsafe != proto::kFailsafeNone && g_failsafe != proto::kFailsafeFinished &&
+        g_failsafe != proto::kFailsafeStoppedByHost)
+        status |= proto::kStatusFailsafe;
+    if (!motor_braking()) status |= proto::kStatusMotorsEnabled;
+    if (g_params_default) status |= proto::kStatusParamsDefault;
+    t.status = status;
+    t.failsafe = g_failsafe;
+    t.reset_cause = boot_reset_cause();
+    t.current_r = motor_sense_raw(kRight);
+    t.current_l = motor_sense_raw(kLeft);
+    t.stack_hwm = stack_high_water();
+    motor_sense_start();  // next pair, ready for the next frame
+    send_msg(t);
+}
+
+}  // namespace
+
+void app_init() {
+    rebuild_controller();
+    g_enc = enc_snapshot();
+    g_idle_odo->reset(g_enc.count_r, g_enc.count_l, ctl::PoseQ{0, 0, 0});
+    g_ctrl->reset(g_enc.count_r, g_enc.count_l, ctl::PoseQ{0, 0, 0});
+    g_last_inner_us = time_us();
+    if (boot_reset_cause() & _BV(WDRF)) g_failsafe = proto::kFailsafeWatchdogReset;
+    send_params();
+}
+
+void app_poll() {
+    uint8_t b;
+    while (xbee_read(&b)) {
+        proto::Decoder::Status s = g_rx.feed(b);
+        if (s == proto::Decoder::kFrame) {
+            g_last_host_ms = sched_ms();
+            handle_frame(g_rx.frame());
+        } else if (s == proto::Decoder::kError && g_rx.error_has_header()) {
+            uint8_t res = g_rx.error() == proto::Decoder::kErrVersion ? proto::kResultBadVersion
+                                                                      : proto::kResultBadCrc;
+            send_ack(g_rx.error_seq(), g_rx.error_type(), res, 255);
+        }
+    }
+    if (g_running && sched_ms() - g_last_host_ms >= kHostTimeoutMs)
+        stop_motors(proto::kFailsafeHostTimeout);
+    if (g_fault_hang) {
+        for (;;) {
+        }
+    }
+}
+
+const TaskConfig* app_tasks() { return kTasks; }
+uint8_t app_task_count() { return sizeof kTasks / sizeof kTasks[0]; }

@@ -1,0 +1,61 @@
+#include "boot.h"
+
+#include <avr/io.h>
+#include <avr/wdt.h>
+
+namespace {
+const uint8_t kPaint = 0xC5;
+const uint8_t kStopRun = 8;  // consecutive paint bytes that end the scan
+}  // namespace
+
+extern "C" {
+extern uint8_t __heap_start;  // end of .data/.bss/.noinit (linker)
+uint8_t g_boot_mcusr __attribute__((section(".noinit")));
+uint8_t* g_stack_low __attribute__((section(".noinit")));
+void boot_early() __attribute__((naked, used, section(".init3")));
+}
+
+void boot_early() {
+    // Motor Shield pins safe: PWM D3 (PE5) and D11 (PB5) low, DIR D12/D13 (PB6/PB7) low,
+    // BRAKE D9/D8 (PH6/PH5) high.
+    PORTE &= static_cast<uint8_t>(~_BV(PE5));
+    DDRE |= _BV(PE5);
+    PORTB &= static_cast<uint8_t>(~(_BV(PB5) | _BV(PB6) | _BV(PB7)));
+    DDRB |= _BV(PB5) | _BV(PB6) | _BV(PB7);
+    PORTH |= _BV(PH5) | _BV(PH6);
+    DDRH |= _BV(PH5) | _BV(PH6);
+    g_boot_mcusr = MCUSR;
+    MCUSR = 0;
+    wdt_disable();
+    // Paint [__heap_start, SP]: SP = RAMEND here, nothing is on the stack yet.
+    uint8_t* p = &__heap_start;
+    uint8_t* top = reinterpret_cast<uint8_t*>(SP);
+    while (p <= top) *p++ = kPaint;
+    g_stack_low = top;  // nothing used yet
+}
+
+uint8_t boot_reset_cause() { return g_boot_mcusr; }
+
+void wdt_start() { wdt_enable(WDTO_250MS); }
+void wdt_kick() { wdt_reset(); }
+
+uint16_t stack_high_water() {
+    uint8_t* low = g_stack_low;
+    uint8_t* p = low;
+    uint8_t run = 0;
+    while (p > &__heap_start && run < kStopRun) {
+        --p;
+        if (*p != kPaint) {
+            low = p;
+            run = 0;
+        } else {
+            ++run;
+        }
+    }
+    g_stack_low = low;
+    return static_cast<uint16_t>(static_cast<uint16_t>(RAMEND) - reinterpret_cast<uint16_t>(low) + 1u);
+}
+
+uint16_t stack_region_bytes() {
+    return static_cast<uint16_t>(RAMEND + 1u - reinterpret_cast<uint16_t>(&__heap_start));
+}

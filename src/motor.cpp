@@ -1,0 +1,148 @@
+#include "motor.h"
+
+#include <avr/interrupt.h>
+#include <avr/io.h>
+
+#include "board.h"
+
+// Pin map (Arduino Mega 2560):
+//   ch A (right): PWM D3 = PE5 = OC3C, DIR D12 = PB6, BRAKE D9 = PH6, sense A0 = ADC0
+//   ch B (left):  PWM D11 = PB5 = OC1A, DIR D13 = PB7, BRAKE D8 = PH5, sense A1 = ADC1
+namespace {
+int16_t g_duty[2];
+bool g_braking = true;
+volatile uint16_t g_sense[2];
+volatile uint8_t g_sense_ch;
+
+const uint16_t kTop = MOTOR_PWM_TOP;
+
+void set_compare(Wheel w, uint16_t cmp) {
+    // cmp == 0: disconnect OCnx and hold the pin low (fast PWM would still emit a one-clock
+    // spike per period at OCR = 0). cmp > kTop: 100 %.
+    if (w == kRight) {
+        if (cmp == 0) {
+            TCCR3A &= static_cast<uint8_t>(~(_BV(COM3C1) | _BV(COM3C0)));
+            PORTE &= static_cast<uint8_t>(~_BV(PE5));
+            OCR3C = 0;
+        } else {
+            OCR3C = cmp;
+            TCCR3A |= _BV(COM3C1);
+        }
+    } else {
+        if (cmp == 0) {
+            TCCR1A &= static_cast<uint8_t>(~(_BV(COM1A1) | _BV(COM1A0)));
+            PORTB &= static_cast<uint8_t>(~_BV(PB5));
+            OCR1A = 0;
+        } else {
+            OCR1A = cmp;
+            TCCR1A |= _BV(COM1A1);
+        }
+    }
+}
+
+void set_dir(Wheel w, bool forward) {
+    bool level = w == kRight ? (forward == (MOTOR_RIGHT_DIR_FORWARD_LEVEL != 0))
+                             : (forward == (MOTOR_LEFT_DIR_FORWARD_LEVEL != 0));
+    uint8_t bit = w == kRight ? _BV(PB6) : _BV(PB7);
+    if (level) PORTB |= bit;
+    else PORTB &= static_cast<uint8_t>(~bit);
+}
+
+void set_brake(bool on) {
+    if (on) PORTH |= _BV(PH5) | _BV(PH6);
+    else PORTH &= static_cast<uint8_t>(~(_BV(PH5) | _BV(PH6)));
+}
+}  // namespace
+
+void motor_init() {
+    // Safe levels first (boot.cpp already did this in .init3; repeated for clarity).
+    set_brake(true);
+    DDRH |= _BV(PH5) | _BV(PH6);
+    PORTB &= static_cast<uint8_t>(~(_BV(PB5) | _BV(PB6) | _BV(PB7)));
+    DDRB |= _BV(PB5) | _BV(PB6) | _BV(PB7);
+    PORTE &= static_cast<uint8_t>(~_BV(PE5));
+    DDRE |= _BV(PE5);
+    // Timer3: fast PWM, WGM 14 (TOP = ICR3), clk/1 -> 16 MHz / 800 = 20 kHz. OC3C off until used.
+    TCCR3A = _BV(WGM31);
+    TCCR3B = _BV(WGM33) | _BV(WGM32) | _BV(CS30);
+    ICR3 = kTop;
+    OCR3C = 0;
+    // Timer1: same for OC1A.
+    TCCR1A = _BV(WGM11);
+    TCCR1B = _BV(WGM13) | _BV(WGM12) | _BV(CS10);
+    ICR1 = kTop;
+    OCR1A = 0;
+    g_duty[0] = g_duty[1] = 0;
+    g_braking = true;
+    // ADC: AVcc reference, clk/128 = 125 kHz (13 cycles = 104 us per conversion), interrupt.
+    ADMUX = _BV(REFS0);
+    ADCSRB = 0;
+    DIDR0 = _BV(ADC0D) | _BV(ADC1D);
+    ADCSRA = _BV(ADEN) | _BV(ADIE) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0);
+}
+
+void motor_set_q15(Wheel w, int16_t duty_q15) {
+    bool fwd = duty_q15 >= 0;
+    uint16_t mag = fwd ? static_cast<uint16_t>(duty_q15)
+                       : (duty_q15 == -32768 ? 32768u : static_cast<uint16_t>(-duty_q15));
+    // (TOP + 1) * |d| / 32768, rounded; 32767 maps to TOP (99.99 %), -32768 to TOP + 1 (100 %).
+    uint16_t cmp = static_cast<uint16_t>((static_cast<uint32_t>(kTop + 1u) * mag + 16384u) >> 15);
+    uint8_t sreg = SREG;
+    cli();  // 16-bit OCR writes and COM bit RMW
+    if (g_braking) {
+        set_brake(false);
+        g_braking = false;
+        set_compare(w == kRight ? kLeft : kRight, 0);  // the other wheel: off until set
+        g_duty[w == kRight ? 1 : 0] = 0;
+    }
+    set_dir(w, fwd);
+    set_compare(w, cmp);
+    SREG = sreg;
+    g_duty[w] = duty_q15;
+}
+
+void motor_brake() {
+    uint8_t sreg = SREG;
+    cli();
+    set_brake(true);
+    set_compare(kRight, kTop + 1u);  // enable high: with BRAKE high the shield shorts the motor
+    set_compare(kLeft, kTop + 1u);
+    SREG = sreg;
+    g_duty[0] = g_duty[1] = 0;
+    g_braking = true;
+}
+
+bool motor_braking() { return g_braking; }
+int16_t motor_duty_q15(Wheel w) { return g_duty[w]; }
+
+uint16_t motor_compare(Wheel w) {
+    if (w == kRight) return (TCCR3A & _BV(COM3C1)) ? OCR3C : 0;
+    return (TCCR1A & _BV(COM1A1)) ? OCR1A : 0;
+}
+
+void motor_sense_start() {
+    if (ADCSRA & _BV(ADSC)) return;  // previous pair still converting
+    g_sense_ch = 0;
+    ADMUX = _BV(REFS0) | 0;          // A0: channel A = right
+    ADCSRA |= _BV(ADSC);
+}
+
+uint16_t motor_sense_raw(Wheel w) {
+    uint8_t sreg = SREG;
+    cli();
+    uint16_t v = g_sense[w == kRight ? 0 : 1];
+    SREG = sreg;
+    return v;
+}
+
+ISR(ADC_vect) {
+    uint16_t v = ADC;
+    if (g_sense_ch == 0) {
+        g_sense[0] = v;
+        g_sense_ch = 1;
+        ADMUX = _BV(REFS0) | 1;      // A1: channel B = left
+        ADCSRA |= _BV(ADSC);
+    } else {
+        g_sense[1] = v;
+    }
+}

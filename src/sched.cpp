@@ -1,0 +1,94 @@
+#include "sched.h"
+
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <avr/sleep.h>
+
+#include "cycles.h"
+
+namespace {
+const TaskConfig* g_tasks;
+uint8_t g_n;
+uint32_t g_next_ms[kMaxTasks];
+TaskStats g_stats[kMaxTasks];
+volatile uint32_t g_ms;
+
+uint32_t now_ms() {
+    uint8_t sreg = SREG;
+    cli();
+    uint32_t t = g_ms;
+    SREG = sreg;
+    return t;
+}
+bool due(uint8_t i, uint32_t now) { return static_cast<int32_t>(now - g_next_ms[i]) >= 0; }
+void sat_inc(uint16_t* c) {
+    if (*c != 0xFFFFu) ++*c;
+}
+}  // namespace
+
+ISR(TIMER4_COMPA_vect) { g_ms = g_ms + 1; }
+
+void sched_init(const TaskConfig* tasks, uint8_t n) {
+    g_tasks = tasks;
+    g_n = n > kMaxTasks ? kMaxTasks : n;
+    uint8_t sreg = SREG;
+    cli();
+    g_ms = 0;
+    // Timer4 CTC (WGM 4, TOP = OCR4A), clk/64: 250 kHz, OCR4A = 249 -> 1 kHz.
+    TCCR4A = 0;
+    TCCR4B = _BV(WGM42) | _BV(CS41) | _BV(CS40);
+    OCR4A = 249;
+    TCNT4 = 0;
+    TIFR4 = _BV(OCF4A);
+    TIMSK4 = _BV(OCIE4A);
+    SREG = sreg;
+    for (uint8_t i = 0; i < g_n; ++i) g_next_ms[i] = g_tasks[i].phase_ms;
+    sched_reset_stats();
+}
+
+void sched_reset_stats() {
+    for (uint8_t i = 0; i < g_n; ++i) g_stats[i] = TaskStats{0, 0, 0, 0};
+}
+
+uint32_t sched_ms() { return now_ms(); }
+
+bool sched_run_one() {
+    uint32_t now = now_ms();
+    for (uint8_t i = 0; i < g_n; ++i) {
+        if (!due(i, now)) continue;
+        const TaskConfig& t = g_tasks[i];
+        uint32_t c0 = cycles_now();
+        t.run();
+        uint32_t dc = cycles_now() - c0;
+        TaskStats& s = g_stats[i];
+        s.last_cycles = dc;
+        if (dc > s.max_cycles) s.max_cycles = dc;
+        if (dc > t.budget_cycles) sat_inc(&s.overruns);
+        ++s.runs;
+        g_next_ms[i] += t.period_ms;
+        uint32_t after = now_ms();
+        if (due(i, after)) {  // already due again: a release was missed
+            sat_inc(&s.overruns);
+            g_next_ms[i] = after + t.period_ms;
+        }
+        return true;
+    }
+    return false;
+}
+
+void sched_idle() {
+    set_sleep_mode(SLEEP_MODE_IDLE);
+    cli();
+    uint32_t now = g_ms;
+    bool any = false;
+    for (uint8_t i = 0; i < g_n; ++i) any = any || due(i, now);
+    if (!any) {
+        sleep_enable();
+        sei();        // the instruction after SEI runs before any interrupt: no lost wake-up
+        sleep_cpu();
+        sleep_disable();
+    }
+    sei();
+}
+
+const TaskStats& sched_stats(uint8_t i) { return g_stats[i < g_n ? i : 0]; }
