@@ -123,9 +123,10 @@ cat > "$UNITY_DIR/library.json.new" <<'JSON'
   "name": "Unity",
   "version": "2.5.1",
   "description": "ThrowTheSwitch Unity 2.5.1, from Debian's ntpsec source package (tests/unity, MIT)",
-  "build": {"flags": ["-UAVR"]}
+  "build": {"flags": ["-UAVR"], "extraScript": "unity_extra_script.py"}
 }
 JSON
+cp "$ROOT/scripts/unity_extra_script.py" "$UNITY_DIR/unity_extra_script.py"
 if cmp -s "$UNITY_DIR/library.json.new" "$UNITY_DIR/library.json"; then
     rm "$UNITY_DIR/library.json.new"
 else
@@ -135,19 +136,8 @@ fi
 # ---------------------------------------------------------------------------------------------
 # 4. PlatformIO tool packages and the local dev-platforms, in PLATFORMIO_CORE_DIR
 # ---------------------------------------------------------------------------------------------
-tools_hash="$(hash_of "$deb_list" "$ROOT/scripts/setup.sh" "$ROOT/scripts/piopkg.py" "$ROOT/requirements.txt")"
-if ! stamp_ok tools "$tools_hash" || [[ ! -d "$PLATFORMIO_CORE_DIR/packages/tool-scons" ]]; then
-    say "assembling PlatformIO tool packages"
-    "$PY" "$ROOT/scripts/piopkg.py" assemble --deps "$DEPS" --deb-list "$deb_list"
-    for pkgdir in "$DEPS"/piopkgs/*/; do
-        name="$(basename "$pkgdir")"
-        say "installing $name"
-        "$PIO" pkg install -g --skip-dependencies -t "file://$pkgdir" >/dev/null
-        "$PY" "$ROOT/scripts/piopkg.py" mark-official --core-dir "$PLATFORMIO_CORE_DIR" --name "$name"
-    done
-    stamp_set tools "$tools_hash"
-fi
-
+# Platforms first: reinstalling a platform makes PlatformIO remove tool packages that no
+# installed platform uses at that moment, so the tool packages are (re)installed after it.
 plat_hash="$(find "$ROOT/platforms" -type f -print0 | sort -z | xargs -0 cat | sha256sum | cut -c1-16)"
 if ! stamp_ok platforms "$plat_hash" || [[ ! -d "$PLATFORMIO_CORE_DIR/platforms/atmelavr" ]]; then
     for plat in native atmelavr; do
@@ -155,6 +145,24 @@ if ! stamp_ok platforms "$plat_hash" || [[ ! -d "$PLATFORMIO_CORE_DIR/platforms/
         "$PIO" pkg install -g --skip-dependencies -p "file://$ROOT/platforms/$plat" -f >/dev/null
     done
     stamp_set platforms "$plat_hash"
+fi
+
+
+tools_hash="$(hash_of "$deb_list" "$ROOT/scripts/setup.sh" "$ROOT/scripts/piopkg.py" "$ROOT/requirements.txt")"
+tools_missing=0
+for name in toolchain-atmelavr tool-simavr tool-avrdude tool-scons; do
+    [[ -f "$PLATFORMIO_CORE_DIR/packages/$name/.piopm" ]] || tools_missing=1
+done
+if ! stamp_ok tools "$tools_hash" || [[ $tools_missing == 1 ]]; then
+    say "assembling PlatformIO tool packages"
+    "$PY" "$ROOT/scripts/piopkg.py" assemble --deps "$DEPS" --deb-list "$deb_list"
+    for pkgdir in "$DEPS"/piopkgs/*/; do
+        name="$(basename "$pkgdir")"
+        say "installing $name"
+        "$PIO" pkg install -g --skip-dependencies -f -t "file://$pkgdir" >/dev/null
+        "$PY" "$ROOT/scripts/piopkg.py" mark-official --core-dir "$PLATFORMIO_CORE_DIR" --name "$name"
+    done
+    stamp_set tools "$tools_hash"
 fi
 
 say "ready (PLATFORMIO_CORE_DIR=$PLATFORMIO_CORE_DIR)"

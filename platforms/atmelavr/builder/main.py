@@ -17,6 +17,10 @@ from SCons.Script import (  # pylint: disable=import-error
 env = DefaultEnvironment()
 board = env.BoardConfig()
 
+# firmware.elf / firmware.hex, as PlatformIO users expect (the build default is "program").
+if env.get("PROGNAME", "program") == "program":
+    env.Replace(PROGNAME="firmware")
+
 env.Replace(
     AR="avr-gcc-ar",
     AS="avr-as",
