@@ -66,7 +66,6 @@ env.Append(
 
 target_elf = env.BuildProgram()
 target_hex = env.ElfToHex(os.path.join("$BUILD_DIR", "${PROGNAME}"), target_elf)
-env.Depends(target_hex, "checkprogsize")
 
 AlwaysBuild(
     env.Alias(

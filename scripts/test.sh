@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# The project's test command (README, second command; CI runs exactly this).
+# Provisions what is missing, then runs every test suite and exits non-zero if any fails:
+#   1. native Unity tests (pio test -e native)
+#   2. embedded Unity tests on the simulated ATmega2560 (pio test -e simavr)
+#   3. the firmware build with its size check (pio run -e megaatmega2560)
+#   4. the Python tests of host_tools (pytest)
+set -uo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+bash scripts/setup.sh || { echo "test: setup failed" >&2; exit 1; }
+source scripts/env.sh
+
+failed=()
+step() {
+    local name="$1"; shift
+    echo
+    echo "=== test: $name: $*"
+    if "$@"; then
+        echo "=== test: $name: ok"
+    else
+        echo "=== test: $name: FAILED (exit $?)"
+        failed+=("$name")
+    fi
+}
+
+step native    pio test -e native
+step simavr    pio test -e simavr --without-uploading
+step firmware  pio run -e megaatmega2560
+step python    .venv/bin/python -m pytest -q host_tools/tests
+
+echo
+if ((${#failed[@]})); then
+    echo "=== test: FAILED steps: ${failed[*]}"
+    exit 1
+fi
+echo "=== test: all steps passed"
