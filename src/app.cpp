@@ -39,7 +39,8 @@ void telemetry_task();
 const TaskConfig kTasks[] = {
     {inner_task, static_cast<uint16_t>(proto::kInnerPeriodUs / 1000u), 0, proto::kInnerBudgetCycles},
     {outer_task, static_cast<uint16_t>(proto::kOuterPeriodUs / 1000u), 0, proto::kOuterBudgetCycles},
-    {telemetry_task, static_cast<uint16_t>(proto::kTelemetryPeriodUs / 1000u), 5,
+    // phase 2 ms: 2 + 20 k is never a multiple of 25, so telemetry never waits for the loops
+    {telemetry_task, static_cast<uint16_t>(proto::kTelemetryPeriodUs / 1000u), 2,
      proto::kTelemetryBudgetCycles},
 };
 static_assert(sizeof kTasks / sizeof kTasks[0] == proto::kTaskCount, "task table vs protocol");
@@ -247,12 +248,23 @@ int16_t sat16(int32_t v) {
     return v > 32767 ? 32767 : (v < -32768 ? -32768 : static_cast<int16_t>(v));
 }
 uint16_t satu16(uint32_t v) { return v > 0xFFFFu ? 0xFFFFu : static_cast<uint16_t>(v); }
-// Q-format value -> telemetry raw units: v * num / 2^shift, rounded toward zero, saturated.
-int16_t q_to_raw16(int32_t v, int32_t num, uint8_t shift) {
-    return sat16(static_cast<int32_t>((static_cast<int64_t>(v) * num) >> shift));
+// Q-format value -> telemetry raw units: v * num / 2^shift (num <= 10000, shift <= 16),
+// saturated to int16. v is clipped first to the range that saturates anyway, so the product
+// stays below 2^31 and no 64-bit arithmetic is needed.
+template <int32_t NUM, uint8_t SHIFT>
+int16_t q_to_raw16(int32_t v) {
+    static_assert(NUM > 0 && NUM <= 10000 && SHIFT <= 16, "range of the int32 product");
+    const int32_t lim = static_cast<int32_t>((static_cast<uint32_t>(32768) << SHIFT) / NUM) + 1;
+    if (v > lim) v = lim;
+    if (v < -lim) v = -lim;
+    return sat16((v * NUM) >> SHIFT);
 }
-int32_t q20_to_um(int32_t v_q20) {  // 1e6 / 2^20 = 15625 / 16384
-    return static_cast<int32_t>((static_cast<int64_t>(v_q20) * 15625) >> 14);
+// Q20 metres -> micrometres (1e6 / 2^20 = 15625 / 16384), split so that it fits int32:
+// |x_q20| < 2^31 gives |hi| <= 2^17 and hi * 15625 < 2^31.
+int32_t q20_to_um(int32_t v_q20) {
+    int32_t hi = v_q20 >> 14;
+    int32_t lo = v_q20 & 0x3FFF;
+    return hi * 15625 + ((lo * 15625) >> 14);
 }
 
 void telemetry_task() {
@@ -265,23 +277,23 @@ void telemetry_task() {
     t.t_us = time_us();
     t.enc_r = e.count_r;
     t.enc_l = e.count_l;
-    t.omega_r = q_to_raw16(odo.omega_r_q8(), 100, 8);
-    t.omega_l = q_to_raw16(odo.omega_l_q8(), 100, 8);
+    t.omega_r = q_to_raw16<100, 8>(odo.omega_r_q8());
+    t.omega_l = q_to_raw16<100, 8>(odo.omega_l_q8());
     if (g_running) {
         // wheel speed references from the kinematic loop's (v_d, omega_d): (v +- b w) / r
         float v = kin.v_d_q12 / 4096.0f, w = kin.omega_d_q11 / 2048.0f;
-        float b = static_cast<float>(g_robot.b), r = static_cast<float>(g_robot.r);
-        t.set_omega_ref_r((v + b * w) / r);
-        t.set_omega_ref_l((v - b * w) / r);
-        t.tau_cmd_r = q_to_raw16(in.tau_r_q16, 10000, 16);
-        t.tau_cmd_l = q_to_raw16(in.tau_l_q16, 10000, 16);
+        float b = static_cast<float>(g_robot.b), inv_r = 1.0f / static_cast<float>(g_robot.r);
+        t.set_omega_ref_r((v + b * w) * inv_r);
+        t.set_omega_ref_l((v - b * w) * inv_r);
+        t.tau_cmd_r = q_to_raw16<10000, 16>(in.tau_r_q16);
+        t.tau_cmd_l = q_to_raw16<10000, 16>(in.tau_l_q16);
         if (g_clamp_on) {
             int32_t m = in.tau_max_r_q16 < in.tau_max_l_q16 ? in.tau_max_r_q16 : in.tau_max_l_q16;
-            t.tau_max = q_to_raw16(m, 10000, 16);
+            t.tau_max = q_to_raw16<10000, 16>(m);
         }
     }
-    t.pwm_r = q_to_raw16(motor_duty_q15(kRight), 10000, 15);
-    t.pwm_l = q_to_raw16(motor_duty_q15(kLeft), 10000, 15);
+    t.pwm_r = q_to_raw16<10000, 15>(motor_duty_q15(kRight));
+    t.pwm_l = q_to_raw16<10000, 15>(motor_duty_q15(kLeft));
     const ctl::PoseQ& p = odo.pose();
     t.x_odo = q20_to_um(p.x_q20);
     t.y_odo = q20_to_um(p.y_q20);
@@ -291,11 +303,11 @@ void telemetry_task() {
     g_phi_last_b32 = p.phi_b32;
     if (d > 0 && p.phi_b32 < prev) ++g_phi_turns;        // crossed 2^32 -> 0 going up
     else if (d < 0 && p.phi_b32 > prev) --g_phi_turns;   // crossed 0 -> 2^32 going down
-    int64_t frac_urad = static_cast<int64_t>((static_cast<uint64_t>(p.phi_b32) * 6283185ull) >> 32);
-    int64_t urad = static_cast<int64_t>(g_phi_turns) * 6283185 + frac_urad;
-    if (urad > 0x7FFFFFFFLL) urad = 0x7FFFFFFFLL;
-    if (urad < -0x7FFFFFFFLL) urad = -0x7FFFFFFFLL;
-    t.phi_odo = static_cast<int32_t>(urad);
+    // fraction of a turn: float keeps 24 bits, 0.4 urad of resolution
+    int32_t frac_urad = static_cast<int32_t>(static_cast<float>(p.phi_b32 >> 8) * (6283185.307f / 16777216.0f));
+    int32_t turns = g_phi_turns > 340 ? 340 : (g_phi_turns < -340 ? -340 : g_phi_turns);
+    int32_t urad = turns * 6283185L + frac_urad;
+    t.phi_odo = urad;
     const TaskStats& si = sched_stats(proto::kTaskInner);
     const TaskStats& so = sched_stats(proto::kTaskOuter);
     const TaskStats& st = sched_stats(proto::kTaskTelemetry);

@@ -16,9 +16,9 @@ int main() {
     cycles_init();
     enc_init();
     xbee_init();
-    sched_init(app_tasks(), app_task_count());
     sei();
-    app_init();
+    app_init();  // builds the controller configuration (float, ~once): before the schedule starts
+    sched_init(app_tasks(), app_task_count());
     wdt_start();
     for (;;) {
         wdt_kick();

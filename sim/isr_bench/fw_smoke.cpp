@@ -1,0 +1,288 @@
+/*
+ * System check of the real firmware.elf in simavr (libsimavr): XBee link on USART2 through
+ * lib/protocol's codec (host build), encoder stimulus on PD0..PD3, per-ISR cycle accounting.
+ * Not the firmware-in-the-loop simulator (issue 6): the wheels turn at a fixed stimulus speed,
+ * there is no plant. It reports what the firmware measures about itself (task cycles, stack
+ * high-water mark) and checks commands, Acks, the host-timeout failsafe and the watchdog.
+ * Exit status 0 when every check passed.
+ * Usage: fw_smoke FIRMWARE.elf
+ */
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <math.h>
+
+#include <vector>
+
+extern "C" {
+#include <simavr/avr_ioport.h>
+#include <simavr/avr_uart.h>
+#include <simavr/sim_avr.h>
+#include <simavr/sim_elf.h>
+#include <simavr/sim_interrupts.h>
+}
+
+#include <protocol/frame.h>
+#include <protocol/messages.h>
+
+namespace {
+const double kF = 16000000.0;
+const unsigned kVecEnd = 0xE4;
+avr_t* avr;
+avr_irq_t* uart_in;
+avr_irq_t* pin_irq[4];
+proto::Decoder dec;
+uint16_t host_seq = 100;
+unsigned long tx_bytes;
+int failures;
+
+struct VecStat { unsigned long n; unsigned long max; double sum; };
+VecStat vstat[64];
+int in_isr = -1;
+avr_cycle_count_t isr_start;
+
+std::vector<proto::Telemetry> telem;
+std::vector<double> telem_t;
+std::vector<proto::Ack> acks;
+int params_frames;
+
+void on_uart_out(avr_irq_t*, uint32_t value, void*) {
+    ++tx_bytes;
+    proto::Decoder::Status s = dec.feed(static_cast<uint8_t>(value));
+    if (s != proto::Decoder::kFrame) return;
+    const proto::Frame& f = dec.frame();
+    if (f.type == proto::kMsgTelemetry) {
+        proto::Telemetry t;
+        if (t.decode(f.payload, f.len)) { telem.push_back(t); telem_t.push_back(avr->cycle / kF); }
+    } else if (f.type == proto::kMsgAck) {
+        proto::Ack a;
+        if (a.decode(f.payload, f.len)) acks.push_back(a);
+    } else if (f.type == proto::kMsgParams) {
+        ++params_frames;
+    }
+}
+
+double brake_seen_t = -1;  // first time both brake pins were seen high while watching
+bool watch_brake;
+
+void step() {
+    avr_flashaddr_t pc0 = avr->pc;
+    bool was_sleeping = avr->state == cpu_Sleeping;
+    uint16_t op = static_cast<uint16_t>(avr->flash[pc0] | (avr->flash[pc0 + 1] << 8));
+    avr_run(avr);
+    if (op == 0x9518 && in_isr >= 0) {
+        if (avr->interrupt_state < -1) avr->interrupt_state = -1;  // hardware: one instruction
+        unsigned long d = static_cast<unsigned long>(avr->cycle - isr_start);
+        VecStat& v = vstat[in_isr];
+        ++v.n; v.sum += d; if (d > v.max) v.max = d;
+        in_isr = -1;
+    }
+    if (in_isr < 0 && avr->pc < kVecEnd && avr->pc != 0 && pc0 >= kVecEnd) {
+        in_isr = static_cast<int>(avr->pc / 4);
+        isr_start = avr->cycle;
+        avr->cycle += was_sleeping ? 9 : 5;  // response simavr does not charge (+4 from sleep)
+    }
+    if (watch_brake && brake_seen_t < 0 && (avr->data[0x102] & 0x60) == 0x60) brake_seen_t = avr->cycle / kF;
+}
+
+// encoder stimulus: both wheels forward at `edges_per_s` each (0 = stopped)
+double enc_rate = 0, next_edge_l = 0, next_edge_r = 0;
+int pos_l, pos_r;
+const uint8_t gray[4] = {0, 1, 3, 2};
+void drive(int wheel, int pos) {
+    uint8_t s = gray[pos & 3];
+    avr_raise_irq(pin_irq[wheel * 2], s & 1);
+    avr_raise_irq(pin_irq[wheel * 2 + 1], (s >> 1) & 1);
+}
+
+void run_for(double seconds) {
+    avr_cycle_count_t end = avr->cycle + static_cast<avr_cycle_count_t>(seconds * kF);
+    while (avr->cycle < end) {
+        if (enc_rate > 0) {
+            double c = static_cast<double>(avr->cycle);
+            // forward: left wheel is wired B-before-A (ENC_LEFT_REVERSED), right A-before-B
+            if (c >= next_edge_l) { --pos_l; drive(0, pos_l); next_edge_l += kF / enc_rate; }
+            if (c >= next_edge_r) { ++pos_r; drive(1, pos_r); next_edge_r += kF / enc_rate; }
+        }
+        step();
+    }
+}
+
+void send_bytes(const uint8_t* p, uint16_t n) {
+    for (uint16_t i = 0; i < n; ++i) avr_raise_irq(uart_in, p[i]);
+}
+template <class M>
+void send(const M& m) {
+    uint8_t buf[proto::kMaxWire];
+    uint16_t n = proto::encode_message(m, host_seq++, buf, sizeof buf);
+    send_bytes(buf, n);
+}
+
+void check(bool ok, const char* what) {
+    printf("%s  %s\n", ok ? "PASS" : "FAIL", what);
+    if (!ok) ++failures;
+}
+
+bool last_ack_is(uint8_t type, uint8_t result) {
+    if (acks.empty()) return false;
+    const proto::Ack& a = acks.back();
+    return a.cmd_type == type && a.result == result;
+}
+
+uint32_t sym(const char* elf, const char* name) {
+    char cmd[512];
+    snprintf(cmd, sizeof cmd, "avr-nm '%s'", elf);
+    FILE* p = popen(cmd, "r");
+    char line[256];
+    uint32_t a = 0;
+    while (p && fgets(line, sizeof line, p)) {
+        unsigned long v; char t; char s[200];
+        if (sscanf(line, "%lx %c %199s", &v, &t, s) == 3 && strcmp(s, name) == 0) a = v & 0xFFFF;
+    }
+    if (p) pclose(p);
+    return a;
+}
+
+void print_timing(const proto::Telemetry& t) {
+    printf("  task cycles last/max/overruns: inner %u/%u/%u  outer %u/%u/%u  telemetry %u/%u/%u\n",
+           t.inner_last * 16, t.inner_max * 16, t.inner_overruns, t.outer_last * 16, t.outer_max * 16,
+           t.outer_overruns, t.telemetry_last * 16, t.telemetry_max * 16, t.telemetry_overruns);
+    printf("  stack high-water %u bytes, reset_cause 0x%02x, failsafe %u, status 0x%02x\n", t.stack_hwm,
+           t.reset_cause, t.failsafe, t.status);
+}
+}  // namespace
+
+int main(int argc, char** argv) {
+    if (argc < 2) { fprintf(stderr, "usage: %s firmware.elf\n", argv[0]); return 2; }
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof fw);
+    if (elf_read_firmware(argv[1], &fw)) return 2;
+    avr = avr_make_mcu_by_name("atmega2560");
+    avr_init(avr);
+    avr->frequency = static_cast<uint32_t>(kF);
+    avr_load_firmware(avr, &fw);
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('2'), &flags);
+    uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('2'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('2'), UART_IRQ_OUTPUT), on_uart_out, NULL);
+    for (int i = 0; i < 4; ++i) { pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), i); avr_raise_irq(pin_irq[i], 0); }
+    uint32_t a_hang = sym(argv[1], "g_fault_hang");
+
+    // 1. boot, idle
+    run_for(1.0);
+    check(params_frames == 1, "Params frame sent once after reset");
+    check(telem.size() >= 48 && telem.size() <= 51, "about 50 telemetry frames per second while idle");
+    bool seq_ok = telem.size() > 1;
+    double max_jit = 0;
+    for (size_t i = 1; i < telem.size(); ++i) {
+        double dt = (telem[i].t_us - telem[i - 1].t_us) * 1e-6;
+        if (dt < 0.0195 || dt > 0.0205) seq_ok = false;
+        if (fabs(dt - 0.02) > max_jit) max_jit = fabs(dt - 0.02);
+    }
+    printf("  telemetry period jitter: max |dt - 20 ms| = %.1f us\n", max_jit * 1e6);
+    check(seq_ok, "telemetry board time advances 20 ms per frame");
+    if (!seq_ok) for (size_t i = 1; i < telem.size() && i < 8; ++i) printf("    dt %u us\n", (unsigned)(telem[i].t_us - telem[i-1].t_us));
+    check(!telem.empty() && (telem.back().status & proto::kStatusMotorsEnabled) == 0, "motors off after reset");
+    printf("  telemetry bytes/s on the wire: %.0f (%.1f%% of %lu baud at 10 bits/byte)\n",
+           tx_bytes / 1.0, 100.0 * tx_bytes * 10.0 / proto::kBaud, (unsigned long)proto::kBaud);
+
+    // 2. commands and rejections
+    send(proto::RequestParams());
+    run_for(0.05);
+    check(params_frames == 2, "RequestParams answered with Params");
+    {   // bad CRC: flip a payload byte of a valid frame (COBS stays valid)
+        proto::SetClamp c; c.on = 1;
+        uint8_t buf[proto::kMaxWire];
+        uint16_t n = proto::encode_message(c, host_seq++, buf, sizeof buf);
+        // wire: 00 code ver type seq seq on crc crc 00 -- corrupt `on` (1 -> 0x41), COBS intact
+        buf[6] ^= 0x40;
+        send_bytes(buf, n);
+        run_for(0.05);
+        check(last_ack_is(proto::kMsgSetClamp, proto::kResultBadCrc), "corrupted frame -> Ack bad_crc");
+    }
+    {
+        uint8_t pl[1] = {0};
+        uint8_t buf[proto::kMaxWire];
+        uint16_t n = proto::encode_frame(0x55, host_seq++, pl, 1, buf, sizeof buf);
+        send_bytes(buf, n);
+        run_for(0.05);
+        check(last_ack_is(0x55, proto::kResultUnknownType), "unknown type -> Ack unknown_type");
+    }
+    {
+        proto::SetMu m; m.mu_s = 2000; m.mu_k = 3000;  // mu_k > mu_s
+        send(m);
+        run_for(0.05);
+        check(last_ack_is(proto::kMsgSetMu, proto::kResultOutOfRange), "SetMu mu_k > mu_s -> out_of_range");
+        check(!telem.empty() && (telem.back().status & proto::kStatusParamsDefault), "...and nothing changed");
+    }
+    {
+        proto::Start s; s.profile = 1; s.wheel_accel = 4800; s.accel_time = 500; s.duration = 2000; s.radius = 10;
+        send(s);
+        run_for(0.05);
+        check(last_ack_is(proto::kMsgStart, proto::kResultOutOfRange) && acks.back().detail == 4,
+              "arc with radius 0.01 m -> out_of_range, detail = radius field");
+        check((telem.back().status & proto::kStatusRunning) == 0, "...and no experiment started");
+    }
+
+    // 3. experiment: straight line 48 rad/s^2, wheels turning at 10 rad/s (stimulus)
+    enc_rate = 10.0 * 1856 / 6.283185307;
+    next_edge_l = next_edge_r = static_cast<double>(avr->cycle);
+    {
+        proto::Start s; s.profile = 0; s.wheel_accel = 4800; s.accel_time = 500; s.duration = 3000; s.radius = 0;
+        send(s);
+        size_t n0 = telem.size();
+        for (int i = 0; i < 10; ++i) { run_for(0.1); send(proto::Heartbeat()); }
+        check(last_ack_is(proto::kMsgHeartbeat, proto::kResultOk), "heartbeats acknowledged");
+        bool ran = false, moved = false;
+        for (size_t i = n0; i < telem.size(); ++i) {
+            if (telem[i].status & proto::kStatusRunning) ran = true;
+            if (telem[i].pwm_r != 0 && telem[i].tau_cmd_r != 0) moved = true;
+        }
+        check(ran && moved, "Start runs the control loops (torque and PWM reported)");
+        const proto::Telemetry& t = telem.back();
+        printf("  during run: enc_r %ld enc_l %ld omega_r %.2f omega_l %.2f tau_r %.4f pwm_r %.4f x %.3f\n",
+               (long)t.enc_r, (long)t.enc_l, t.omega_r * 0.01, t.omega_l * 0.01, t.tau_cmd_r * 1e-4,
+               t.pwm_r * 1e-4, t.x_odo * 1e-6);
+        check(t.enc_r > 0 && t.enc_l > 0 && t.omega_r > 900 && t.omega_r < 1100 && t.omega_l > 900,
+              "encoders count forward and omega ~ 10 rad/s on both wheels");
+        check(t.illegal_r == 0 && t.illegal_l == 0, "no illegal transitions");
+        print_timing(t);
+        // 4. host goes silent: brake within 500 ms
+        double silent_at = avr->cycle / kF + 11 * 10.0 / proto::kBaud;  // last byte received
+        watch_brake = true;
+        size_t n1 = telem.size();
+        run_for(0.7);
+        double brake_t = -1;
+        for (size_t i = n1; i < telem.size(); ++i)
+            if (telem[i].failsafe == proto::kFailsafeHostTimeout) { brake_t = telem_t[i]; break; }
+        check(brake_t > 0, "host silent -> failsafe host_timeout reported");
+        uint8_t porth = avr->data[0x102];  // PORTH
+        check((porth & 0x60) == 0x60, "brake pins D8/D9 high");
+        check(brake_seen_t > 0 && brake_seen_t - silent_at <= 0.5015,
+              "brake applied 500 ms (+ at most one 1 ms tick) after the last host frame");
+        if (brake_t > 0)
+            printf("  brake pins high %.2f ms after the last host byte; failsafe in telemetry at %.1f ms\n",
+                   (brake_seen_t - silent_at) * 1000, (brake_t - silent_at) * 1000);
+        print_timing(telem.back());
+    }
+    enc_rate = 0;
+
+    // 5. watchdog: hang the main loop
+    if (a_hang) {
+        avr->data[a_hang] = 1;
+        size_t n2 = telem.size();
+        run_for(0.6);
+        bool wd = false;
+        for (size_t i = n2; i < telem.size(); ++i)
+            if ((telem[i].reset_cause & proto::kResetCauseWatchdog) && telem[i].failsafe == proto::kFailsafeWatchdogReset) wd = true;
+        check(wd, "main-loop hang -> watchdog reset, reset_cause WDRF and failsafe watchdog_reset reported");
+        check(!telem.empty() && (telem.back().status & proto::kStatusMotorsEnabled) == 0, "motors off after the watchdog reset");
+    }
+
+    printf("\n# ISR cycles (hardware-corrected: +5 response), whole run\n%-8s %10s %6s %8s\n", "vector", "calls", "max", "mean");
+    for (int v = 0; v < 64; ++v)
+        if (vstat[v].n) printf("%-8d %10lu %6lu %8.1f\n", v, vstat[v].n, vstat[v].max, vstat[v].sum / vstat[v].n);
+    printf("\n%s (%d failures)\n", failures ? "FAILED" : "ALL PASSED", failures);
+    return failures ? 1 : 0;
+}
