@@ -1,0 +1,272 @@
+"""The main job: ``python -m host_tools demo --out OUT_DIR``.
+
+1. **Thesis reproduction (II.6)** under ``OUT_DIR/thesis/``: the open-loop torque steps
+   (II.6.1, slip plant against pure rolling), the 44/48/72 rad/s² profiles with the τmax clamp
+   off (II.6.2) and 72 rad/s² with the clamp on and off (II.6.3), as PNG figures and a Markdown
+   table against the numbers the thesis states. The physics is ``lib/slipmodel`` (through
+   ``host_tools._native.Plant``) and the controller is the firmware's ``lib/control`` (through
+   ``host_tools.truth.Controller``); Python only drives them and draws.
+2. **The analyzer on a concealed-effect dataset** under ``OUT_DIR/analyzer/``: runs made by the
+   independent truth simulator (``sim/truth``) with an effect the nominal model leaves out, then
+   ``host_tools analyze`` on them; its report and plots show the fit before and after.
+
+Exit codes: 0 done, 1 a step failed, 2 bad input.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+
+import numpy as np
+
+R_WHEEL = 0.0365
+THESIS = {
+    "tau_max_nm": 0.095,
+    "ii63_max_err_off_m": 0.30,
+    "ii63_max_err_on_m": 0.16,
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", required=True, help="output folder (created)")
+    parser.add_argument("--skip-thesis", action="store_true", help="skip part 1 (II.6)")
+    parser.add_argument("--skip-analyzer", action="store_true",
+                        help="skip part 2 (the analyzer on the concealed-effect dataset)")
+    parser.add_argument("--jobs", type=int, default=2, help="analyzer processes (default 2)")
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+# --------------------------------------------------------------------------- part 1: II.6
+
+def thesis_reproduction(out_dir: str, log=print) -> dict:
+    """Run II.6.1-II.6.3 on the nominal model; write figures, table and results.json."""
+    from host_tools import _native
+    from host_tools.truth import nominal_closed_loop
+    plt = _plt()
+    os.makedirs(out_dir, exist_ok=True)
+    res: dict = {}
+    plant = _native.Plant()
+    tau_max = plant.tau_max()[0]
+    res["tau_max_nm"] = tau_max
+
+    # ---- II.6.1: constant torque on both wheels, slip model vs pure rolling (mu -> large)
+    rolling = _native.Plant()
+    rolling.set("robot.mu_s", 100.0)
+    rolling.set("robot.mu_k", 100.0)
+    T1 = 2.0
+    t = np.round(np.arange(0.0, T1 + 1e-9, 0.005), 9)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), sharey=False)
+    res["ii61"] = []
+    for ax, tau in zip(axes, (0.09, 0.1, 0.3)):
+        u = np.full(t.size, tau)
+        s = plant.simulate(t, u, u, "torque")
+        p = rolling.simulate(t, u, u, "torque")
+        slipped = bool((s["slip_r"] > 0).any() or (s["slip_l"] > 0).any())
+        row = {"tau_nm": tau, "slip": slipped, "x_slip_m": float(s["x_m"][-1]),
+               "x_rolling_m": float(p["x_m"][-1]), "t_s": T1,
+               "wheel_path_m": float(R_WHEEL * 0.5 * (s["theta_r_rad"][-1] + s["theta_l_rad"][-1]))}
+        res["ii61"].append(row)
+        ax.plot(t, p["x_m"], "k--", label="pure rolling (mu = 100)")
+        ax.plot(t, s["x_m"], "C3", label="slip model")
+        ax.plot(t, R_WHEEL * 0.5 * (s["theta_r_rad"] + s["theta_l_rad"]), "C0:",
+                label="slip model: wheel path r*theta")
+        ax.set_title(f"tau = {tau} N m ({'slips' if slipped else 'no slip'})")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("x [m]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"II.6.1 torque steps (Figs. II.13-II.15); tau_max = {tau_max:.4f} N m")
+    fig.tight_layout()
+    fig.savefig(os.path.join(out_dir, "ii61_torque_steps.png"), dpi=110)
+    plt.close(fig)
+    log(f"  II.6.1 done: tau_max {tau_max:.4f} N m")
+
+    # ---- II.6.2: straight profiles, clamp off (closed loop, firmware controller, duty mode)
+    T2 = 3.0
+    fig, axes = plt.subplots(2, 3, figsize=(13, 6.5))
+    res["ii62"] = []
+    for j, alpha in enumerate((44.0, 48.0, 72.0)):
+        r = nominal_closed_loop("line", alpha * R_WHEEL, 0.5 * alpha * R_WHEEL, clamp=False,
+                                T_s=T2)
+        slip = bool(r["slip_fine"].any())
+        first = float(r["t_fine"][np.argmax(r["slip_fine"])]) if slip else None
+        odo_err = np.abs(r["x_odo_m"][:-1] - r["x_m"][:-1])
+        row = {"alpha_rad_s2": alpha, "slip": slip, "first_slip_s": first,
+               "max_tau_cmd_nm": float(np.nanmax(np.abs(r["tau_cmd_r"]))),
+               "slip_loss_m": float(odo_err.max()), "x_at_3s_m": float(r["x_m"][-1])}
+        res["ii62"].append(row)
+        ax = axes[0, j]
+        ax.plot(r["t_s"], r["dtheta_r_rad_s"], "C3", label="true wheel speed (right)")
+        ax.plot(r["t_s"], r["omega_r"], "C0--", label="board wheel speed (encoders)")
+        ax.plot(r["t_s"], r["v_m_s"] / R_WHEEL, "k:", label="body speed / r")
+        ax.set_title(f"{alpha:.0f} rad/s^2, clamp off: {'slips' if slip else 'no slip'}")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("rad/s")
+        ax.grid(alpha=0.3)
+        ax = axes[1, j]
+        ax.plot(r["t_s"], r["x_ref"], "k--", label="reference")
+        ax.plot(r["t_s"], r["x_m"], "C3", label="true x")
+        ax.plot(r["t_s"], r["x_odo_m"], "C0:", label="odometry x")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel("x [m]")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    axes[1, 0].legend(fontsize=7)
+    fig.suptitle("II.6.2 velocity profiles, clamp off (Figs. II.16-II.21; III.7-III.12)")
+    fig.tight_layout()
+    fig.savefig(os.path.join(out_dir, "ii62_profiles.png"), dpi=110)
+    plt.close(fig)
+    log("  II.6.2 done")
+
+    # ---- II.6.3: 72 rad/s^2, clamp on vs off
+    T3 = 8.0
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+    res["ii63"] = {}
+    for clamp, col in ((False, "C3"), (True, "C2")):
+        r = nominal_closed_loop("line", 72 * R_WHEEL, 36 * R_WHEEL, clamp=clamp, T_s=T3)
+        err = np.hypot(r["x_m"] - r["x_ref"], r["y_m"] - r["y_ref"])
+        name = "on" if clamp else "off"
+        res["ii63"][name] = {"slip": bool(r["slip_fine"].any()), "max_err_m": float(err.max()),
+                             "final_err_m": float(err[-1]), "T_s": T3,
+                             "odo_drift_m": float(np.abs(r["x_odo_m"][:-1] - r["x_m"][:-1]).max()),
+                             "max_tau_cmd_nm": float(np.nanmax(np.abs(r["tau_cmd_r"])))}
+        axes[0].plot(r["t_s"], err, col, label=f"clamp {name}")
+        axes[1].step(r["t_s"], r["tau_cmd_r"], col, where="post", label=f"clamp {name}")
+    axes[1].axhline(tau_max, color="k", ls=":", label="tau_max (II.51)")
+    axes[0].set_title("position error |p - p_ref| (Figs. II.23, II.25)")
+    axes[1].set_title("torque command, right wheel (Fig. II.24)")
+    for ax in axes:
+        ax.set_xlabel("t [s]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0].set_ylabel("m")
+    axes[1].set_ylabel("N m")
+    fig.suptitle("II.6.3 closed loop at 72 rad/s^2 with and without the tau_max clamp")
+    fig.tight_layout()
+    fig.savefig(os.path.join(out_dir, "ii63_clamp.png"), dpi=110)
+    plt.close(fig)
+    log("  II.6.3 done")
+
+    with open(os.path.join(out_dir, "results.json"), "w") as fh:
+        json.dump(res, fh, indent=2)
+    with open(os.path.join(out_dir, "README.md"), "w") as fh:
+        fh.write(_thesis_table(res))
+    return res
+
+
+def _yn(b: bool) -> str:
+    return "slips" if b else "no slip"
+
+
+def _thesis_table(res: dict) -> str:
+    L = ["# Thesis reproduction (II.6) on the nominal model", "",
+         "Physics: `lib/slipmodel` (Table II.2 parameters); controller: the firmware's "
+         "`lib/control` fixed-point cascade on the 25/50 ms schedule with quantised encoders.",
+         "", "| quantity | thesis | ours | agrees |", "|---|---|---|---|"]
+    tm = res["tau_max_nm"]
+    L.append(f"| τmax (II.51) | 0.095 N m | {tm:.4f} N m | "
+             f"{'yes' if abs(tm - 0.095) < 0.0005 else 'no (see lib/slipmodel/README.md: no assumption gives 0.095)'} |")
+    for row in res["ii61"]:
+        tau = row["tau_nm"]
+        thesis = "no slip, same as pure rolling" if tau < 0.095 else "slips, travels less than pure rolling"
+        ours = (f"{_yn(row['slip'])}; x({row['t_s']:.0f} s) = {row['x_slip_m']:.3f} m vs "
+                f"{row['x_rolling_m']:.3f} m rolling")
+        ok = (row["slip"] == (tau > 0.095)) and (row["slip"] == (row["x_slip_m"] < row["x_rolling_m"] - 1e-3))
+        L.append(f"| II.6.1 torque step {tau} N m | {thesis} | {ours} | {'yes' if ok else 'no'} |")
+    d01 = next(r for r in res["ii61"] if r["tau_nm"] == 0.1)["x_slip_m"]
+    d03 = next(r for r in res["ii61"] if r["tau_nm"] == 0.3)["x_slip_m"]
+    L.append(f"| II.6.1: distance once slipping, 0.3 vs 0.1 N m | similar | "
+             f"{d03:.3f} m vs {d01:.3f} m ({100 * (d03 / d01 - 1):+.0f} %) | "
+             f"{'yes' if abs(d03 / d01 - 1) < 0.25 else 'no'} |")
+    thesis_sim = {44.0: False, 48.0: True, 72.0: True}
+    thesis_exp = {44.0: False, 48.0: True, 72.0: True}
+    for row in res["ii62"]:
+        a = row["alpha_rad_s2"]
+        ours = (f"{_yn(row['slip'])}" + (f" (first at {row['first_slip_s']:.3f} s)" if row["slip"] else "")
+                + f"; max τ_cmd {row['max_tau_cmd_nm']:.3f} N m; lost to slip {100 * row['slip_loss_m']:.1f} cm")
+        ok = row["slip"] == thesis_sim[a]
+        L.append(f"| II.6.2 {a:.0f} rad/s², clamp off | simulation: {_yn(thesis_sim[a])}; "
+                 f"experiment (III.2.2): {_yn(thesis_exp[a])} | {ours} | {'yes' if ok else 'no'} |")
+    off, on = res["ii63"]["off"], res["ii63"]["on"]
+    L.append(f"| II.6.3 72 rad/s², max position error, clamp off | 0.30 m | {off['max_err_m']:.3f} m "
+             f"({_yn(off['slip'])}) | {'yes' if abs(off['max_err_m'] - 0.30) < 0.05 else 'no'} |")
+    L.append(f"| II.6.3 72 rad/s², max position error, clamp on | 0.16 m | {on['max_err_m']:.3f} m "
+             f"({_yn(on['slip'])}) | {'yes' if abs(on['max_err_m'] - 0.16) < 0.05 else 'no'} |")
+    L.append(f"| II.6.3 error at {off['T_s']:.0f} s, off / on | (not stated) | "
+             f"{off['final_err_m']:.3f} m / {on['final_err_m']:.3f} m | — |")
+    L.append(f"| II.6.3 odometry drift (slip unseen by encoders), off / on | (not stated) | "
+             f"{off['odo_drift_m']:.3f} m / {on['odo_drift_m']:.3f} m | — |")
+    L += ["", "Figures: `ii61_torque_steps.png`, `ii62_profiles.png`, `ii63_clamp.png`; "
+          "numbers: `results.json`.", "",
+          "Where we differ and why (details in `lib/slipmodel/README.md` and `lib/control/README.md`):",
+          "- τmax: Table II.2 gives 0.0924 N m; no single assumption reproduces the stated 0.095.",
+          "- 44 rad/s²: with Table II.2 the rolling inertia needs 0.099 N m for 44 rad/s² (no-slip "
+          "limit 41.0 rad/s²), so the model slips where the thesis says it does not; the thesis's "
+          "0.09 N m implies a smaller rolling inertia.",
+          "- II.6.3: the clamp removes slip and odometry drift, and the loop recovers the reference, "
+          "but the *maximum* error is not halved: μ_k ≈ μ_s, so slipping costs almost no "
+          "acceleration, and the 72 rad/s² profile ends at 98 % of the motor's no-load speed, "
+          "where the clamped (rolling) robot falls behind on the motor's torque-speed line. "
+          "Here the runs stop at 8 s (the demo's time budget); the clamped loop reaches zero error "
+          "by 20 s while the unclamped one keeps its slip loss (lib/control/README.md).", ""]
+    return "\n".join(L)
+
+
+# ----------------------------------------------------------------------- part 2: analyzer
+
+def analyzer_demo(out_dir: str, jobs: int = 2, log=print) -> dict:
+    """Generate the built-in concealed-effect dataset with the truth simulator and run the
+    analyzer on it."""
+    from host_tools.suite import cases as suite_cases
+    from host_tools.suite import generate
+    case = suite_cases.demo_case()
+    data_dir = os.path.join(out_dir, "dataset")
+    runs = generate.generate_case(case, data_dir, overwrite=True)
+    log(f"  dataset: {len(runs)} runs of case '{case.name}' under {data_dir} "
+        f"(labels: {os.path.join(out_dir, 'dataset_labels.json')})")
+    with open(os.path.join(out_dir, "dataset_labels.json"), "w") as fh:
+        json.dump(case.label(), fh, indent=2)
+    from host_tools.suite import bench
+    rep_dir = os.path.join(out_dir, "report")
+    rc, report = bench.run_analyzer(runs, rep_dir, jobs=jobs)
+    return {"rc": rc, "report_dir": rep_dir, "report": report, "case": case.label()}
+
+
+def main(args) -> int:
+    out = os.path.abspath(args.out)
+    os.makedirs(out, exist_ok=True)
+    t0 = time.time()
+    status = 0
+    if not args.skip_thesis:
+        print("part 1: thesis reproduction (II.6) on the nominal model", flush=True)
+        thesis_reproduction(os.path.join(out, "thesis"))
+        print(f"  -> {os.path.join(out, 'thesis', 'README.md')} ({time.time() - t0:.1f} s)",
+              flush=True)
+    if not args.skip_analyzer:
+        print("part 2: the analyzer on a concealed-effect dataset from the truth simulator",
+              flush=True)
+        try:
+            r = analyzer_demo(os.path.join(out, "analyzer"), jobs=args.jobs)
+        except Exception as exc:  # report, do not hide
+            print(f"  part 2 failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+            return 1
+        if r["rc"] != 0:
+            print(f"  analyzer exited with {r['rc']}", file=sys.stderr)
+            status = 1
+        rep = r["report"] or {}
+        print(f"  verdict: {rep.get('verdict')}; selected: "
+              f"{[s.get('effect') for s in rep.get('selected', [])]}; hidden truth: "
+              f"{r['case']['effects']}")
+        print(f"  -> report: {os.path.join(r['report_dir'], 'report.md')} and report.json")
+    print(f"done in {time.time() - t0:.1f} s; results under {out}")
+    return status

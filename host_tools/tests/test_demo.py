@@ -1,0 +1,40 @@
+"""The demo's part 1 (II.6 on the nominal model): facts that must hold, not figures copied in."""
+import json
+import os
+
+import pytest
+
+from host_tools import demo
+
+
+@pytest.fixture(scope="module")
+def thesis(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    res = demo.thesis_reproduction(str(out / "thesis"), log=lambda *a: None)
+    return out / "thesis", res
+
+
+def test_outputs_written(thesis):
+    d, _ = thesis
+    for f in ("ii61_torque_steps.png", "ii62_profiles.png", "ii63_clamp.png", "README.md",
+              "results.json"):
+        assert (d / f).stat().st_size > 1000, f
+    assert json.loads((d / "results.json").read_text())["tau_max_nm"] > 0
+    table = (d / "README.md").read_text()
+    assert "| τmax (II.51) | 0.095 N m | 0.0924 N m |" in table
+
+
+def test_ii61_slip_only_above_tau_max(thesis):
+    _, res = thesis
+    by = {r["tau_nm"]: r for r in res["ii61"]}
+    assert not by[0.09]["slip"] and abs(by[0.09]["x_slip_m"] - by[0.09]["x_rolling_m"]) < 1e-6
+    assert by[0.1]["slip"] and by[0.1]["x_slip_m"] < by[0.1]["x_rolling_m"] - 0.1
+    assert by[0.3]["slip"] and by[0.3]["x_slip_m"] < 0.5 * by[0.3]["x_rolling_m"]
+
+
+def test_ii63_clamp_removes_slip_and_drift(thesis):
+    _, res = thesis
+    off, on = res["ii63"]["off"], res["ii63"]["on"]
+    assert off["slip"] and not on["slip"]
+    assert off["odo_drift_m"] > 0.1 and on["odo_drift_m"] < 0.005
+    assert on["max_tau_cmd_nm"] <= res["tau_max_nm"] + 1e-4 < off["max_tau_cmd_nm"]
