@@ -14,6 +14,8 @@
 #include <control/cascade_q.h>
 #include <control/reference.h>
 
+#include "sequence.h"
+
 namespace {
 
 int uart_putchar(char c, FILE*) {
@@ -24,7 +26,7 @@ int uart_putchar(char c, FILE*) {
 }
 FILE uart_out;
 
-const uint8_t kRuns = 64;
+using bench::kRuns;
 
 struct Stat {
   uint32_t sum;
@@ -88,16 +90,16 @@ int main() {
 
   Stat in_q, out_q, ref_q, in_f, out_f, ref_f;
   in_q.reset(); out_q.reset(); ref_q.reset(); in_f.reset(); out_f.reset(); ref_f.reset();
-  int32_t enc_r = 0, enc_l = 0;
   ctl::RefSampleQ rq;
   ctl::RefSample rf;
+  uint32_t check = 0;
   for (uint8_t i = 0; i < kRuns; ++i) {
-    enc_r += 180 + (i & 7);
-    enc_l += 120 - (i & 3);
+    const int32_t enc_r = bench::enc_r_at(i), enc_l = bench::enc_l_at(i);
     const uint32_t t_ms = 25UL * i;
     TIME_IT(in_q, qc.inner_step(enc_r, enc_l, 25000UL));
     TIME_IT(ref_q, rq = ctl::reference_at_q(spec_q, t_ms));
     TIME_IT(out_q, qc.outer_step(rq));
+    check = bench::checksum_step(check, qc, rq);
     TIME_IT(in_f, fc.inner_step(enc_r, enc_l, 0.025f));
     TIME_IT(ref_f, rf = ctl::reference_at(spec, 0.025f * i));
     TIME_IT(out_f, fc.outer_step(rf));
@@ -116,6 +118,36 @@ int main() {
   printf("state bytes: ControllerQ %u, Controller %u\n", static_cast<unsigned>(sizeof(ctl::ControllerQ)),
          static_cast<unsigned>(sizeof(ctl::Controller)));
   printf("timer overflow: %s\n", overflowed ? "YES (figures invalid)" : "no");
+  printf("avr fixed-point checksum %08lx\n", static_cast<unsigned long>(check));
+  printf("avr config");
+  uint8_t field = 0;
+#define BENCH_PRINT(f) \
+  if (++field % 12 == 0) printf("\navr config"); \
+  printf(" %ld", static_cast<long>(cfg_q.f));
+  BENCH_CFG_FIELDS(BENCH_PRINT)
+  printf("\navr config");  // simavr splits long UART lines: keep them short
+#define BENCH_PRINT_REF(f) printf(" %ld", static_cast<long>(spec_q.f));
+  BENCH_REF_FIELDS(BENCH_PRINT_REF)
+  printf("\n");
+  // Self-test of the AVR-only arithmetic (inline-assembly multiplies, byte-move shifts).
+  uint32_t bad = 0, n = 0, x = 12345;
+  for (uint16_t k = 0; k < 3000; ++k) {
+    x = x * 1103515245UL + 12345UL;
+    const int16_t a = static_cast<int16_t>(x >> 16), b = static_cast<int16_t>(x);
+    const uint16_t ua = static_cast<uint16_t>(x >> 8);
+    const int32_t w = static_cast<int32_t>(x ^ (x << 7));
+    bad += ctl::fx::mul_ss(a, b) != static_cast<int32_t>(a) * static_cast<int32_t>(b);
+    bad += ctl::fx::mul_us(ua, b) != static_cast<int32_t>(static_cast<uint32_t>(ua)) * static_cast<int32_t>(b);
+    bad += ctl::fx::asr<1>(w) != (w >> 1);
+    bad += ctl::fx::asr<4>(w) != (w >> 4);
+    bad += ctl::fx::asr<8>(w) != (w >> 8);
+    bad += ctl::fx::asr<10>(w) != (w >> 10);
+    bad += ctl::fx::asr<12>(w) != (w >> 12);
+    bad += ctl::fx::asr<15>(w) != (w >> 15);
+    bad += ctl::fx::asr<16>(w) != (w >> 16);
+    n += 9;
+  }
+  printf("avr arithmetic self-test: %lu checks, %lu wrong\n", static_cast<unsigned long>(n), static_cast<unsigned long>(bad));
   printf("END\n");
   while (!(UCSR0A & (1 << TXC0))) {
   }

@@ -14,4 +14,25 @@ avr-size "$OUT/bench.elf" | sed 's/^/# /'
 # simavr prints UART0 lines itself (coloured); strip the escape codes and keep our table.
 simavr -m atmega2560 -f 16000000 "$OUT/bench.elf" 2>&1 \
   | sed -e 's/\x1b\[[0-9;]*m//g' -e 's/\.$//' \
-  | sed -n '/^BEGIN control_avr/,/^END/p'
+  | sed -n '/^BEGIN control_avr/,/^END/p' > "$OUT/table.txt"
+grep -v '^avr config' "$OUT/table.txt"
+# The same fixed-point sequence on the host: the checksums must agree.
+g++ -std=c++14 -O2 -Wall -Wextra -I"$ROOT/lib/control/src" -I"$ROOT/lib/slipmodel/src" \
+  "$ROOT/bench/control_avr/host_check.cpp" "$ROOT"/lib/control/src/control/*.cpp \
+  "$ROOT"/lib/slipmodel/src/slipmodel/*.cpp -o "$OUT/host_check"
+# shellcheck disable=SC2046
+HOST=$("$OUT/host_check" $(sed -n 's/^avr config//p' "$OUT/table.txt" | tr '\n' ' ') | awk '{print $NF}')
+AVR=$(awk '/avr fixed-point checksum/ {print $NF}' "$OUT/table.txt")
+if [ "$HOST" = "$AVR" ]; then echo "AVR and host fixed-point outputs identical (checksum $AVR)";
+else echo "MISMATCH: AVR checksum $AVR, host $HOST"; exit 1; fi
+grep -q "checks, 0 wrong" "$OUT/table.txt" || { echo "AVR arithmetic self-test FAILED"; exit 1; }
+# The fixed-point step functions must not call any soft-float routine (__*sf*).
+for fn in _ZN3ctl11ControllerQ10inner_stepEllm _ZN3ctl11ControllerQ10outer_stepERKNS_10RefSampleQE \
+          _ZN3ctl14reference_at_qERKNS_14ReferenceSpecQEm _ZN3ctl9OdometryQ6updateEllm \
+          _ZN3ctl15kinematic_law_qERKNS_14ControlConfigQERKNS_5PoseQERKNS_10RefSampleQE \
+          _ZN4slip11tau_max_q16ERKNS_9TractionQEl _ZN4slip17normal_forces_q16ERKNS_9TractionQEl; do
+  if avr-objdump -d "$OUT/bench.elf" | awk "/<$fn>:/,/^\$/" | grep -E 'call.*<__[a-z]*sf[0-9a-z]*>' >/dev/null; then
+    echo "FLOAT CALL in fixed-point function $fn"; exit 1
+  fi
+done
+echo "fixed-point step functions call no soft-float routine"

@@ -7,6 +7,11 @@ inline int32_t sub_sat32(int32_t a, int32_t b) {
   if (b == INT32_MIN) return a >= 0 ? INT32_MAX : a - b;
   return fx::add_sat32(a, -b);
 }
+// |x| < 2^19 (8 N m in Q16): Q16 -> Q12 rounded toward zero (no division: avr-gcc calls
+// __divmodsi4 for x / 16).
+inline int16_t q16_to_q12_toward_zero(int32_t x) {
+  return x >= 0 ? static_cast<int16_t>(fx::asr<4>(x)) : static_cast<int16_t>(-fx::asr<4>(-x));
+}
 inline int8_t sign32(int32_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
 // Q20 metres -> Q12 metres, saturated at +-8 m.
 inline int16_t q20_to_q12(int32_t x) { return fx::sat16(fx::rshift_round<8>(x)); }
@@ -73,29 +78,26 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   out_.odo = odo_.update(enc_r, enc_l, dt_us);
   const int16_t v = odo_.v_q12(), w = odo_.omega_q11();
 
-  // Velocity errors (int32: the difference of two int16).
-  const int16_t e_v = fx::sat16(static_cast<int32_t>(kin_.v_d_q12) - v);       // Q12
-  // |omega_d - omega| can reach 2 x 16 rad/s: kept in int32 Q11.
-  const int32_t e_w = static_cast<int32_t>(kin_.omega_d_q11) - w;              // Q11
+  // Velocity errors: e_v Q12 (|v_d| <= 1.4, |v| <= 2.3 m/s: fits), e_w Q10 (|omega_d - omega|
+  // can reach 2 x 16 rad/s, beyond Q11).
+  const int16_t e_v = fx::sat16(static_cast<int32_t>(kin_.v_d_q12) - v);
+  const int16_t e_w = fx::sat16(fx::asr<1>(static_cast<int32_t>(kin_.omega_d_q11) - w));
 
   // F (Q8 N) = m_eff dv_ff - m_t d w^2 + k_l e_v + I_v
-  const int32_t w2_q8 = fx::rshift_round<14>(static_cast<int32_t>(w) * w);     // Q22 -> Q8
-  int32_t force = fx::mul16<16>(dv_ff_q12_, cfg_.m_eff_q12);
-  force -= fx::mul32x16<16>(w2_q8, cfg_.mtd_q16);
-  force += fx::mul16<12>(e_v, cfg_.k_l_q8);
-  force = fx::add_sat32(force, fx::rshift_round<8>(i_v_q16_));
-  // M (Q12 N m) = I_eff dw_ff + m_t d w v + k_a e_w + I_w
-  const int32_t wv_q12 = fx::mul16<11>(w, v);                                  // Q23 -> Q12
-  int32_t moment = fx::mul16<15>(dw_ff_q11_, cfg_.I_eff_q16);
-  moment += fx::mul32x16<16>(wv_q12, cfg_.mtd_q16);
-  moment += fx::mul32x16<11>(e_w, cfg_.k_a_q12);
-  moment = fx::add_sat32(moment, fx::rshift_round<4>(i_w_q16_));
-  // Bound F and M so that everything downstream stays in range (|tau| <= 1.6e4 N m worth).
-  force = fx::clamp32(force, 0x3FFFFFL);    // 16384 N
-  moment = fx::clamp32(moment, 0x3FFFFFL);  // 1024 N m
+  const int16_t w2_q6 = static_cast<int16_t>(fx::asr<16>(fx::mul_ss(w, w)));   // <= 256 (rad/s)^2
+  int32_t force = fx::mul16<16>(dv_ff_q12_, cfg_.m_eff_q12) - fx::mul16<16>(w2_q6, cfg_.mtd_q18) +
+                  fx::mul16<12>(e_v, cfg_.k_l_q8) + fx::asr<8>(i_v_q16_ + 128);
+  // M (Q12 N m) = I_eff dw_ff + m_t d w v + k_a e_w + I_w, saturated at +-8 N m (int16): far
+  // beyond what the wheels can take (stall torque 0.77 N m is M = 4.4 N m with both wheels).
+  const int16_t wv_q7 = static_cast<int16_t>(fx::asr<16>(fx::mul_ss(w, v)));   // |w v| <= 128
+  const int16_t moment = fx::sat16(fx::mul16<16>(dw_ff_q11_, cfg_.I_eff_q17) +
+                                   fx::mul16<13>(wv_q7, cfg_.mtd_q18) + fx::mul16<10>(e_w, cfg_.k_a_q12) +
+                                   fx::asr<4>(i_w_q16_ + 8));
+  // |F| is bounded by its terms (< 2^22 Q8); keep it there explicitly.
+  force = fx::clamp32(force, 0x3FFFFFL);  // 16384 N
 
   // Split: tau = (r/2)(F +- M/b), Q16 N m.
-  const int32_t m_over_b_q8 = fx::mul32x16<12>(moment, cfg_.inv_b_q8);         // Q20 -> Q8 N
+  const int32_t m_over_b_q8 = fx::mul16<12>(moment, cfg_.inv_b_q8);  // Q20 -> Q8 N
   const int32_t tau_r = fx::mul32x16<8>(force + m_over_b_q8, cfg_.half_r_q16);
   const int32_t tau_l = fx::mul32x16<8>(force - m_over_b_q8, cfg_.half_r_q16);
 
@@ -106,12 +108,13 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   out_.clamped_r = out_.tau_r_q16 != tau_r;
   out_.clamped_l = out_.tau_l_q16 != tau_l;
 
-  // Duty u = tau/stall + dtheta/no_load (Q15), saturated. |tau| <= 10 stall here, so the
-  // Q16 torque fits the 32x16 multiply.
-  const int32_t u_r = fx::mul32x16<13>(out_.tau_r_q16, cfg_.inv_stall_q12) +
-                      fx::mul16<13>(odo_.omega_r_q8(), cfg_.inv_no_load_q20);
-  const int32_t u_l = fx::mul32x16<13>(out_.tau_l_q16, cfg_.inv_stall_q12) +
-                      fx::mul16<13>(odo_.omega_l_q8(), cfg_.inv_no_load_q20);
+  // Duty u = tau/stall + dtheta/no_load (Q15), saturated. |tau| <= 10 stall < 8 N m, so the
+  // torque fits Q12 int16; it is rounded toward zero so that a torque clamped at tau_max is
+  // never rounded above it.
+  const int16_t tr_q12 = q16_to_q12_toward_zero(out_.tau_r_q16);
+  const int16_t tl_q12 = q16_to_q12_toward_zero(out_.tau_l_q16);
+  const int32_t u_r = fx::mul16<10>(tr_q12, cfg_.inv_stall_q13) + fx::mul16<13>(odo_.omega_r_q8(), cfg_.inv_no_load_q20);
+  const int32_t u_l = fx::mul16<10>(tl_q12, cfg_.inv_stall_q13) + fx::mul16<13>(odo_.omega_l_q8(), cfg_.inv_no_load_q20);
   out_.pwm_r_q15 = static_cast<int16_t>(fx::clamp32(u_r, fx::kQ15One));
   out_.pwm_l_q15 = static_cast<int16_t>(fx::clamp32(u_l, fx::kQ15One));
   out_.sat_r = u_r >= fx::kQ15One || u_r <= -fx::kQ15One;
@@ -126,12 +129,12 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
     const bool block_v = (s_r * e_v > 0) || (s_l * e_v > 0);
     const bool block_w = (s_r * e_w > 0) || (-s_l * e_w > 0);
     if (!block_v) {
-      const int32_t rate_q20 = static_cast<int32_t>(e_v) * cfg_.k_il_q8;        // Q12*Q8, N/s
+      const int32_t rate_q20 = fx::mul_ss(e_v, cfg_.k_il_q8);                   // Q12*Q8, N/s
       const int32_t inc_q16 = fx::rshift_round<4>(fx::mul32x16<16>(rate_q20, dt_q16));
       i_v_q16_ = fx::clamp32(fx::add_sat32(i_v_q16_, inc_q16), cfg_.integ_max_v_q16);
     }
     if (!block_w) {
-      const int32_t rate_q22 = fx::mul32x16<1>(e_w, cfg_.k_ia_q12);            // Q11*Q12/2, N m/s
+      const int32_t rate_q22 = fx::mul_ss(e_w, cfg_.k_ia_q12);                  // Q10*Q12, N m/s
       const int32_t inc_q16 = fx::rshift_round<6>(fx::mul32x16<16>(rate_q22, dt_q16));
       i_w_q16_ = fx::clamp32(fx::add_sat32(i_w_q16_, inc_q16), cfg_.integ_max_w_q16);
     }

@@ -30,12 +30,13 @@ struct ControlConfigQ {
   int16_t k_il_q8;                   // N/m
   int16_t k_ia_q12;                  // N m
   int16_t m_eff_q12;                 // kg (< 8)
-  int16_t I_eff_q16;                 // kg m^2
+  int16_t I_eff_q17;                 // kg m^2 (< 0.25)
   int16_t m_t_q8;                    // kg
   int16_t mtd_q16;                   // m_t d, kg m
+  int16_t mtd_q18;                   // m_t d, kg m (< 0.125)
   int16_t inv_b_q8;                  // 1/b, 1/m
   int16_t half_r_q16;                // r/2, m
-  int16_t inv_stall_q12;             // 1/stall, 1/(N m)
+  int16_t inv_stall_q13;             // 1/stall, 1/(N m) (stall > 0.25 N m)
   int16_t inv_no_load_q20;           // 1/no_load, s/rad
   int16_t v_max_q12, omega_max_q11;
   int32_t integ_max_v_q16, integ_max_w_q16;
@@ -49,10 +50,11 @@ struct ControlConfigQ {
         k_x_q8(q16c(c.gains.k_x, 8)), k_y_q8(q16c(c.gains.k_y, 8)), k_phi_q8(q16c(c.gains.k_phi, 8)),
         k_l_q8(q16c(c.gains.k_l, 8)), k_a_q12(q16c(c.gains.k_a, 12)),
         k_il_q8(q16c(c.gains.k_il, 8)), k_ia_q12(q16c(c.gains.k_ia, 12)),
-        m_eff_q12(q16c(c.m_eff_kg, 12)), I_eff_q16(q16c(c.I_eff_kgm2, 16)),
+        m_eff_q12(q16c(c.m_eff_kg, 12)), I_eff_q17(q16c(c.I_eff_kgm2, 17)),
         m_t_q8(q16c(c.robot.m_t(), 8)), mtd_q16(q16c(c.robot.m_t() * c.robot.d, 16)),
+        mtd_q18(q16c(c.robot.m_t() * c.robot.d, 18)),
         inv_b_q8(q16c(1.0 / c.robot.b, 8)), half_r_q16(q16c(c.robot.r / 2.0, 16)),
-        inv_stall_q12(q16c(1.0 / c.motor.stall_nm, 12)),
+        inv_stall_q13(q16c(1.0 / c.motor.stall_nm, 13)),
         inv_no_load_q20(q16c(1.0 / c.motor.no_load_rad_s, 20)),
         v_max_q12(q16c(c.v_max_m_s, 12)), omega_max_q11(q16c(c.omega_max_rad_s, 11)),
         integ_max_v_q16(fx::q_const(c.integ_max_n, 16)), integ_max_w_q16(fx::q_const(c.integ_max_nm, 16)),
@@ -62,9 +64,9 @@ struct ControlConfigQ {
                                                     c.counts_per_rev}) &&
            fits16(c.gains.k_x, 8) && fits16(c.gains.k_y, 8) && fits16(c.gains.k_phi, 8) &&
            fits16(c.gains.k_l, 8) && fits16(c.gains.k_a, 12) && fits16(c.gains.k_il, 8) &&
-           fits16(c.gains.k_ia, 12) && fits16(c.m_eff_kg, 12) && fits16(c.I_eff_kgm2, 16) &&
-           fits16(c.robot.m_t() * c.robot.d, 16) && fits16(1.0 / c.robot.b, 8) &&
-           fits16(1.0 / c.motor.stall_nm, 12) && fits16(1.0 / c.motor.no_load_rad_s, 20) &&
+           fits16(c.gains.k_ia, 12) && fits16(c.m_eff_kg, 12) && fits16(c.I_eff_kgm2, 17) &&
+           fits16(c.robot.m_t() * c.robot.d, 18) && fits16(1.0 / c.robot.b, 8) &&
+           fits16(1.0 / c.motor.stall_nm, 13) && c.motor.stall_nm * 10.0 < 7.99 && fits16(1.0 / c.motor.no_load_rad_s, 20) &&
            fits16(c.v_max_m_s, 12) && fits16(c.omega_max_rad_s, 11) && c.gains.k_x >= 0 &&
            c.gains.k_y >= 0 && c.gains.k_phi >= 0 && c.gains.k_l >= 0 && c.gains.k_a >= 0 &&
            c.gains.k_il >= 0 && c.gains.k_ia >= 0) {}

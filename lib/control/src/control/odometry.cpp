@@ -101,35 +101,38 @@ OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
   last_l_ = enc_l;
 
   // Heading: dphi = (dn_r - dn_l) * K, K = r/(2b) 2pi/ppr as binary angle + 16-bit fraction.
-  // |nd| <= 32766 so nd * frac < 2^31, and the binary-angle part wraps modulo 2pi exactly.
-  const int32_t nd = dn_r - dn_l;
-  const int32_t acc = static_cast<int32_t>(phi_frac_) + nd * static_cast<int32_t>(cfg_.dphi_per_count_frac);
+  // |nd| <= 32766 fits int16; the binary-angle part wraps modulo 2pi exactly (uint32
+  // arithmetic), so it is formed from two 16x16 products: K = K_hi 2^16 + K_lo.
+  const int16_t nd = static_cast<int16_t>(dn_r - dn_l);
+  const int32_t acc = static_cast<int32_t>(phi_frac_) + fx::mul_us(cfg_.dphi_per_count_frac, nd);
   phi_frac_ = static_cast<uint16_t>(acc & 0xFFFF);
-  const uint32_t dphi = static_cast<uint32_t>(nd) * cfg_.dphi_per_count_b32 +
-                        static_cast<uint32_t>(acc >> 16);
+  const uint16_t k_hi = static_cast<uint16_t>(cfg_.dphi_per_count_b32 >> 16);
+  const uint16_t k_lo = static_cast<uint16_t>(cfg_.dphi_per_count_b32 & 0xFFFF);
+  const uint32_t dphi = (static_cast<uint32_t>(fx::mul_us(k_hi, nd)) << 16) +
+                        static_cast<uint32_t>(fx::mul_us(k_lo, nd)) + static_cast<uint32_t>(fx::asr<16>(acc));
 
   // Arc length of o, Q28 metres (|ds| <= 2.03 m for the clamped increments).
   const int16_t n_sum = static_cast<int16_t>(dn_r + dn_l);
-  const int32_t ds_q28 = fx::mul32x16<7>(cfg_.ds_per_count_q35, n_sum);
+  const int32_t ds_q28 = fx::mul32x16<16>(cfg_.ds_per_count_q44, n_sum);
 
-  // sinc(dphi/2) = 1 - a^2/6 + a^4/120, a = dphi/2 in rad (Q15), |a| clamped to 1 rad
-  // (truncation error a^6/5040 <= 2e-4 at the clamp, < 3e-9 for |a| < 0.16 = full-speed spin).
-  int16_t t = static_cast<int16_t>(static_cast<int32_t>(dphi) >> 16);  // 2pi/65536 units of dphi
+  // sinc(dphi/2) = 1 - a^2/6, a = dphi/2 in rad (Q15), |a| clamped to 1 rad. Truncation error
+  // a^4/120: <= 5.5e-6 for |a| <= 0.16 (a full-speed spin in 25 ms), 8e-3 at the clamp.
+  int16_t t = static_cast<int16_t>(fx::asr<16>(static_cast<int32_t>(dphi)));  // 2pi/65536 units of dphi
   if (t > 20860) t = 20860;
   if (t < -20860) t = -20860;
   const int16_t a_q15 = static_cast<int16_t>(fx::mul16<14>(t, 25736));  // t * pi/2 -> Q15 rad
   const int16_t a2 = static_cast<int16_t>(fx::mul16<15>(a_q15, a_q15));
-  const int16_t a4 = static_cast<int16_t>(fx::mul16<15>(a2, a2));
-  const int16_t one_minus_sinc_q15 =
-      static_cast<int16_t>(fx::mul16<15>(a2, 5461) - fx::mul16<15>(a4, 273));
-  const int32_t chord_q28 = ds_q28 - fx::mul32x16<15>(ds_q28, one_minus_sinc_q15);
+  // chord = ds sinc(a) (1 + 2^-15): the factor makes the table's cos(0) = 32767 act as exactly
+  // 1.0 in the products below; (1 - o)(1 + 2^-15) = 1 - (o - 2^-15) up to o 2^-15 < 1e-7.
+  const int16_t oms_q15 = static_cast<int16_t>(fx::mul16<15>(a2, 5461) - 1);
+  const int32_t chord_q28 = ds_q28 - fx::mul32x16<15>(ds_q28, oms_q15);
 
   // Position increments in Q28; the 8 bits below Q20 are carried in x_frac_/y_frac_ so that
   // rounding does not accumulate (a constant increment would otherwise bias the position by
   // up to 0.5 LSB of Q20 per step: 2 mm over 4,000 steps).
   const uint32_t mid = pose_.phi_b32 + static_cast<uint32_t>(static_cast<int32_t>(dphi) >> 1);
-  const int32_t dx_q28 = fx::mul_trig<15>(chord_q28, fx::cos_q15(mid));
-  const int32_t dy_q28 = fx::mul_trig<15>(chord_q28, fx::sin_q15(mid));
+  const int32_t dx_q28 = fx::mul32x16<15>(chord_q28, fx::cos_q15(mid));
+  const int32_t dy_q28 = fx::mul32x16<15>(chord_q28, fx::sin_q15(mid));
   const int16_t sx = static_cast<int16_t>(x_frac_ + (dx_q28 & 0xFF));
   const int16_t sy = static_cast<int16_t>(y_frac_ + (dy_q28 & 0xFF));
   x_frac_ = static_cast<uint8_t>(sx & 0xFF);
@@ -149,13 +152,21 @@ OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
       last_dt_us_ = dt_us;
       rate_per_count_q11_ = static_cast<int32_t>(static_cast<uint32_t>(cfg_.wheel_rate_q11) / dt_us);
     }
-    w_r_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, static_cast<int16_t>(dn_r)));
-    w_l_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, static_cast<int16_t>(dn_l)));
+    if (rate_per_count_q11_ < 131072L) {  // dt >= 13.5 ms: the rate fits 16 bits in Q10
+      const uint16_t rate_q10 = static_cast<uint16_t>((rate_per_count_q11_ + 1) >> 1);
+      w_r_q8_ = fx::sat16(fx::rshift_round<10>(fx::mul_us(rate_q10, static_cast<int16_t>(dn_r))));
+      w_l_q8_ = fx::sat16(fx::rshift_round<10>(fx::mul_us(rate_q10, static_cast<int16_t>(dn_l))));
+    } else {
+      w_r_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, static_cast<int16_t>(dn_r)));
+      w_l_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, static_cast<int16_t>(dn_l)));
+    }
   }
-  const int32_t sum_q8 = static_cast<int32_t>(w_r_q8_) + w_l_q8_;
-  const int32_t diff_q8 = static_cast<int32_t>(w_r_q8_) - w_l_q8_;
-  v_q12_ = fx::sat16(fx::mul32x16<12>(sum_q8, cfg_.half_r_q16));     // Q8*Q16>>12
-  w_q11_ = fx::sat16(fx::mul32x16<12>(diff_q8, cfg_.r_over_2b_q15));  // Q8*Q15>>12
+  // v and omega from the wheel speeds; the sum and difference saturate at 128 rad/s (v at
+  // 2.3 m/s, omega beyond the Q11 range anyway), far above the motor's 36.65 rad/s.
+  const int16_t sum_q8 = fx::sat16(static_cast<int32_t>(w_r_q8_) + w_l_q8_);
+  const int16_t diff_q8 = fx::sat16(static_cast<int32_t>(w_r_q8_) - w_l_q8_);
+  v_q12_ = fx::sat16(fx::mul16<12>(sum_q8, cfg_.half_r_q16));     // Q8*Q16>>12
+  w_q11_ = fx::sat16(fx::mul16<12>(diff_q8, cfg_.r_over_2b_q15));  // Q8*Q15>>12
   return st;
 }
 

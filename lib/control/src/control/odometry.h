@@ -74,7 +74,7 @@ class Odometry {
 
 /// Fixed-point configuration, derived from OdometryConfig at compile time (constexpr).
 struct OdometryConfigQ {
-  int32_t ds_per_count_q35;    ///< r pi / ppr (metres per count of n_r + n_l), Q35
+  int32_t ds_per_count_q44;    ///< r pi / ppr (metres per count of n_r + n_l), Q44
   uint32_t dphi_per_count_b32; ///< r / (2b) * 2pi / ppr per count of n_r - n_l, binary angle
   uint16_t dphi_per_count_frac;///< ...its fraction below one binary-angle unit, Q16
   int32_t wheel_rate_q11;      ///< 2pi / ppr * 2^8 * 1e6, Q11 (to get rad/s Q8 from counts/us)
@@ -83,7 +83,7 @@ struct OdometryConfigQ {
   bool ok;                     ///< the float configuration was valid and representable
 
   constexpr explicit OdometryConfigQ(const OdometryConfig& c)
-      : ds_per_count_q35(c.valid() ? fx::q_const(c.wheel_radius_m * 3.14159265358979 / c.counts_per_rev, 35) : 0),
+      : ds_per_count_q44(ok_range(c) ? fx::q_const(c.wheel_radius_m * 3.14159265358979 / c.counts_per_rev, 44) : 0),
         dphi_per_count_b32(static_cast<uint32_t>(dphi_b32(c))),
         dphi_per_count_frac(static_cast<uint16_t>((dphi_b32(c) - static_cast<double>(
                                                        static_cast<uint32_t>(dphi_b32(c)))) * 65536.0)),
@@ -97,10 +97,11 @@ struct OdometryConfigQ {
   static constexpr double dphi_b32(const OdometryConfig& c) {
     return ok_range(c) ? c.wheel_radius_m / (2.0 * c.half_track_m) / c.counts_per_rev * 4294967296.0 : 0.0;
   }
-  /// Valid and representable: r < 0.5 m, r/(2b) < 0.99, ppr >= 1600 (wheel_rate_q11 fits).
+  /// Valid and representable: r pi/ppr < 2^-13 m (Q44 fits int32; r < 7.2 cm at 1856 ppr),
+  /// r/(2b) < 0.99, ppr >= 1600 (wheel_rate_q11 fits).
   static constexpr bool ok_range(const OdometryConfig& c) {
-    return c.valid() && c.wheel_radius_m < 0.5f && c.wheel_radius_m / (2.0 * c.half_track_m) < 0.99 &&
-           c.counts_per_rev >= 1600;
+    return c.valid() && c.wheel_radius_m * 3.14159265358979 / c.counts_per_rev < 1.2207e-4 &&
+           c.wheel_radius_m / (2.0 * c.half_track_m) < 0.99 && c.counts_per_rev >= 1600;
   }
 };
 

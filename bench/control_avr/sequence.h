@@ -1,0 +1,56 @@
+// The fixed-point call sequence timed by bench.cpp, shared with host_check.cpp so that the
+// AVR build (inline-assembly multiplies, byte-move shifts) and the host build (plain C) can be
+// compared output for output: both print a checksum of every fixed-point output.
+#ifndef BENCH_CONTROL_AVR_SEQUENCE_H
+#define BENCH_CONTROL_AVR_SEQUENCE_H
+
+#include <stdint.h>
+
+#include <control/cascade_q.h>
+#include <control/reference.h>
+
+namespace bench {
+
+static const uint8_t kRuns = 64;
+
+inline int32_t enc_r_at(uint8_t i) { return static_cast<int32_t>(i) * 180 + (i & 7) * 3; }
+inline int32_t enc_l_at(uint8_t i) { return static_cast<int32_t>(i) * 120 - (i & 3) * 5; }
+
+inline uint32_t mix(uint32_t h, uint32_t v) { return (h ^ v) * 16777619UL + 0x9E3779B9UL; }
+
+inline uint32_t checksum_step(uint32_t h, const ctl::ControllerQ& q, const ctl::RefSampleQ& r) {
+  const ctl::InnerOutQ& o = q.inner();
+  h = mix(h, static_cast<uint16_t>(o.pwm_r_q15));
+  h = mix(h, static_cast<uint16_t>(o.pwm_l_q15));
+  h = mix(h, static_cast<uint32_t>(o.tau_r_q16));
+  h = mix(h, static_cast<uint32_t>(o.tau_l_q16));
+  h = mix(h, static_cast<uint32_t>(o.tau_max_r_q16));
+  h = mix(h, static_cast<uint32_t>(q.odometry().pose().x_q20));
+  h = mix(h, static_cast<uint32_t>(q.odometry().pose().y_q20));
+  h = mix(h, q.odometry().pose().phi_b32);
+  h = mix(h, static_cast<uint16_t>(q.kinematic().v_d_q12));
+  h = mix(h, static_cast<uint16_t>(q.kinematic().omega_d_q11));
+  h = mix(h, static_cast<uint32_t>(r.x_q20));
+  h = mix(h, r.phi_b32);
+  h = mix(h, static_cast<uint32_t>(q.integ_v_q16()));
+  return h;
+}
+
+// Every field of the fixed configuration, in order, as int32 (the AVR builds its configuration
+// in 32-bit float at start-up, the host in double, so the constants may differ by an LSB; the
+// host replay therefore uses the AVR's values).
+#define BENCH_CFG_FIELDS(X)                                                                     \
+  X(odo.ds_per_count_q44) X(odo.dphi_per_count_b32) X(odo.dphi_per_count_frac)                  \
+  X(odo.wheel_rate_q11) X(odo.half_r_q16) X(odo.r_over_2b_q15) X(odo.ok)                        \
+  X(traction.n_wheel0_q16) X(traction.n_wheels_q16) X(traction.n_c_q16)                         \
+  X(traction.lat_gain_q24) X(traction.k_tau_q24) X(k_x_q8) X(k_y_q8) X(k_phi_q8) X(k_l_q8)      \
+  X(k_a_q12) X(k_il_q8) X(k_ia_q12) X(m_eff_q12) X(I_eff_q17) X(m_t_q8) X(mtd_q16) X(mtd_q18)   \
+  X(inv_b_q8) X(half_r_q16) X(inv_stall_q13) X(inv_no_load_q20) X(v_max_q12) X(omega_max_q11)   \
+  X(integ_max_v_q16) X(integ_max_w_q16) X(tau_big_q16) X(clamp_enabled) X(ok)
+#define BENCH_REF_FIELDS(X)                                                                     \
+  X(kind) X(accel_q24) X(cruise_q28) X(t_ramp_q16) X(s_ramp_q20) X(radius_q20)                  \
+  X(curv_b32_per_q20) X(curv_q12) X(period_q20) X(ok)
+
+}  // namespace bench
+
+#endif
