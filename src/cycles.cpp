@@ -21,7 +21,9 @@ inline void read_pair(uint32_t* ovf, uint16_t* cnt) {
 }
 }  // namespace
 
-ISR(TIMER5_OVF_vect) { g_t5_ovf = g_t5_ovf + 1; }
+// NOBLOCK: encoder edges may interrupt this ISR (TOV5 is cleared on entry). read_pair() runs
+// with interrupts off, so it never sees a half-updated count.
+ISR(TIMER5_OVF_vect, ISR_NOBLOCK) { g_t5_ovf = g_t5_ovf + 1; }
 
 void cycles_init() {
     TCCR5A = 0;

@@ -135,7 +135,9 @@ uint16_t motor_sense_raw(Wheel w) {
     return v;
 }
 
-ISR(ADC_vect) {
+// NOBLOCK: encoder edges may interrupt it (ADIF is cleared on entry; the next conversion
+// it starts takes 104 us, so it cannot re-enter itself).
+ISR(ADC_vect, ISR_NOBLOCK) {
     uint16_t v = ADC;
     if (g_sense_ch == 0) {
         g_sense[0] = v;

@@ -10,6 +10,7 @@ namespace {
 const TaskConfig* g_tasks;
 uint8_t g_n;
 uint32_t g_next_ms[kMaxTasks];
+uint32_t g_next_due_ms;  // min of g_next_ms: lets sched_idle() decide in a few cycles
 TaskStats g_stats[kMaxTasks];
 volatile uint32_t g_ms;
 
@@ -26,7 +27,18 @@ void sat_inc(uint16_t* c) {
 }
 }  // namespace
 
-ISR(TIMER4_COMPA_vect) { g_ms = g_ms + 1; }
+// NOBLOCK: interrupts are re-enabled at once, so an encoder edge waits only for the few
+// cycles of the prologue (OCF4A is cleared on entry; the ISR cannot re-enter itself).
+ISR(TIMER4_COMPA_vect, ISR_NOBLOCK) { g_ms = g_ms + 1; }
+
+namespace {
+void update_next_due() {
+    uint32_t m = g_next_ms[0];
+    for (uint8_t i = 1; i < g_n; ++i)
+        if (static_cast<int32_t>(g_next_ms[i] - m) < 0) m = g_next_ms[i];
+    g_next_due_ms = m;
+}
+}  // namespace
 
 void sched_init(const TaskConfig* tasks, uint8_t n) {
     g_tasks = tasks;
@@ -43,6 +55,7 @@ void sched_init(const TaskConfig* tasks, uint8_t n) {
     TIMSK4 = _BV(OCIE4A);
     SREG = sreg;
     for (uint8_t i = 0; i < g_n; ++i) g_next_ms[i] = g_tasks[i].phase_ms;
+    update_next_due();
     sched_reset_stats();
 }
 
@@ -71,6 +84,7 @@ bool sched_run_one() {
             sat_inc(&s.overruns);
             g_next_ms[i] = after + t.period_ms;
         }
+        update_next_due();
         return true;
     }
     return false;
@@ -78,11 +92,10 @@ bool sched_run_one() {
 
 void sched_idle() {
     set_sleep_mode(SLEEP_MODE_IDLE);
-    cli();
+    uint32_t next = g_next_due_ms;
+    cli();  // ~12 cycles: read the tick, compare, sleep
     uint32_t now = g_ms;
-    bool any = false;
-    for (uint8_t i = 0; i < g_n; ++i) any = any || due(i, now);
-    if (!any) {
+    if (static_cast<int32_t>(now - next) < 0) {
         sleep_enable();
         sei();        // the instruction after SEI runs before any interrupt: no lost wake-up
         sleep_cpu();

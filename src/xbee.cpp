@@ -16,7 +16,8 @@ uint16_t g_tx_drops;  // main loop only
 
 ISR(USART2_RX_vect) {
     uint8_t st = UCSR2A;
-    uint8_t b = UDR2;
+    uint8_t b = UDR2;  // reading UDR2 clears RXC2: this ISR cannot re-enter (next byte in 87 us)
+    sei();             // so encoder edges may interrupt the rest of it
     if ((st & (_BV(FE2) | _BV(DOR2))) && g_rx_errors != 0xFFFFu) g_rx_errors = g_rx_errors + 1;
     if (!g_rx.push(b) && g_rx_overflows != 0xFFFFu) g_rx_overflows = g_rx_overflows + 1;
 }
