@@ -219,6 +219,10 @@ void test_wheel_speed_III_1() {
   // Another dt (50 ms) recomputes the cached reciprocal.
   oq.update(200, -74, 50000);
   CHECK_NEAR(2 * kPi * 100 / (kPpr * 0.05), oq.omega_r_q8() / 256.0, 1.0 / 256, "fixed w_r, 50 ms");
+  // 10 ms takes the 32-bit path (the per-count rate no longer fits 16 bits).
+  oq.update(240, -84, 10000);
+  CHECK_NEAR(2 * kPi * 40 / (kPpr * 0.01), oq.omega_r_q8() / 256.0, 1.0 / 256, "fixed w_r, 10 ms");
+  CHECK_NEAR(2 * kPi * -10 / (kPpr * 0.01), oq.omega_l_q8() / 256.0, 1.0 / 256, "fixed w_l, 10 ms");
 }
 
 void test_bad_input_is_reported_and_finite() {
