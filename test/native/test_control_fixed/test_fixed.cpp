@@ -209,6 +209,36 @@ void test_inner_step_range_and_saturation() {
   TEST_ASSERT_TRUE(n_sat > 1000 && n_clamp > 1000);
 }
 
+// Integrators at 25 ms (cached 16-bit k dt) and at 50 ms (k_il dt = 1.5 does not fit Q15: the
+// 32-bit path) agree with the float path.
+void test_integrators_both_paths() {
+  const ControlConfig fc = config(true);
+  const ControlConfigQ qc(fc);
+  const uint32_t dts[] = {25000, 50000};
+  for (uint32_t dt : dts) {
+    Controller f(fc);
+    ControllerQ q(qc);
+    const RefSample rf{0.02f, 0.01f, 0.05f, 0.3f, 0.2f, 0, 0};
+    const RefSampleQ rq{static_cast<int32_t>(0.02 * 1048576), static_cast<int32_t>(0.01 * 1048576), to_b32(0.05),
+                        static_cast<int16_t>(0.3 * 4096), static_cast<int16_t>(0.2 * 2048), 0, 0};
+    int32_t er = 0, el = 0;
+    for (int k = 0; k < 20; ++k) {
+      er += 20;
+      el += 15;
+      f.inner_step(er, el, dt * 1e-6f);
+      q.inner_step(er, el, dt);
+      f.outer_step(rf);
+      q.outer_step(rq);
+    }
+    printf("integrators after 20 steps of %lu us: I_v float %.5f fixed %.5f N; I_w float %.6f fixed %.6f N m\n",
+           static_cast<unsigned long>(dt), f.integ_v_n(), q.integ_v_q16() / 65536.0, f.integ_w_nm(),
+           q.integ_w_q16() / 65536.0);
+    TEST_ASSERT_TRUE(fabs(f.integ_v_n()) > 0.05);  // the integrators did work
+    CHECK_NEAR(f.integ_v_n(), q.integ_v_q16() / 65536.0, 2e-3 + 1e-3 * fabs(f.integ_v_n()), "I_v");
+    CHECK_NEAR(f.integ_w_nm(), q.integ_w_q16() / 65536.0, 1e-4 + 1e-3 * fabs(f.integ_w_nm()), "I_w");
+  }
+}
+
 int main() {
   UNITY_BEGIN();
   RUN_TEST(test_config_converts);
@@ -217,6 +247,7 @@ int main() {
   RUN_TEST(test_fixed_closed_loop_converges);
   RUN_TEST(test_fixed_ii63_at_72);
   RUN_TEST(test_inner_step_range_and_saturation);
+  RUN_TEST(test_integrators_both_paths);
   return UNITY_END();
 }
 

@@ -51,6 +51,9 @@ void ControllerQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
   out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
   dv_ff_q12_ = dw_ff_q11_ = 0;
   i_v_q16_ = i_w_q16_ = 0;
+  kdt_dt_us_ = 0;
+  kdt_fast_ = false;
+  kdt_v_q15_ = kdt_w_q18_ = dt_q16_ = 0;
 }
 
 const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
@@ -96,10 +99,13 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   // |F| is bounded by its terms (< 2^22 Q8); keep it there explicitly.
   force = fx::clamp32(force, 0x3FFFFFL);  // 16384 N
 
-  // Split: tau = (r/2)(F +- M/b), Q16 N m.
+  // Split: tau = (r/2)(F +- M/b), Q16 N m. F +- M/b is taken in Q7 N, saturated at +-256 N
+  // (4.7 N m of wheel torque, six times the stall torque: the duty saturates long before).
   const int32_t m_over_b_q8 = fx::mul16<12>(moment, cfg_.inv_b_q8);  // Q20 -> Q8 N
-  const int32_t tau_r = fx::mul32x16<8>(force + m_over_b_q8, cfg_.half_r_q16);
-  const int32_t tau_l = fx::mul32x16<8>(force - m_over_b_q8, cfg_.half_r_q16);
+  const int16_t sum_r_q7 = fx::sat16(fx::rshift_round<1>(force + m_over_b_q8));
+  const int16_t sum_l_q7 = fx::sat16(fx::rshift_round<1>(force - m_over_b_q8));
+  const int32_t tau_r = fx::mul16<7>(sum_r_q7, cfg_.half_r_q16);
+  const int32_t tau_l = fx::mul16<7>(sum_l_q7, cfg_.half_r_q16);
 
   const int32_t lim_r = cfg_.clamp_enabled ? out_.tau_max_r_q16 : cfg_.tau_big_q16;
   const int32_t lim_l = cfg_.clamp_enabled ? out_.tau_max_l_q16 : cfg_.tau_big_q16;
@@ -123,19 +129,31 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   // Anti-windup by conditional integration (same rule as the float path).
   const int8_t s_r = (out_.clamped_r || out_.sat_r) ? sign32(tau_r) : 0;
   const int8_t s_l = (out_.clamped_l || out_.sat_l) ? sign32(tau_l) : 0;
-  if (dt_us > 0 && dt_us < 1000000UL) {
-    // dt in Q16 s: dt_us * 65536 / 1e6 = dt_us * 4295 / 65536 (error 8e-6 relative).
-    const int16_t dt_q16 = static_cast<int16_t>((dt_us * 4295UL) >> 16);
+  if (dt_us > 0 && dt_us < 500000UL) {  // integrate only for 0 < dt < 0.5 s
+    if (dt_us != kdt_dt_us_) {
+      // k dt per step, cached: dt in Q16 s = dt_us * 4295 / 65536 (error 8e-6 relative);
+      // k_il dt in Q15 (N s/m), k_ia dt in Q18 (N m s); the fast path needs both in int16.
+      kdt_dt_us_ = dt_us;
+      const int16_t dt_q16 = static_cast<int16_t>((dt_us * 4295UL) >> 16);
+      const int32_t kv = fx::rshift_round<9>(fx::mul_ss(cfg_.k_il_q8, dt_q16));   // Q24 -> Q15
+      const int32_t kw = fx::rshift_round<10>(fx::mul_ss(cfg_.k_ia_q12, dt_q16)); // Q28 -> Q18
+      kdt_fast_ = kv <= INT16_MAX && kw <= INT16_MAX;
+      kdt_v_q15_ = static_cast<int16_t>(kdt_fast_ ? kv : 0);
+      kdt_w_q18_ = static_cast<int16_t>(kdt_fast_ ? kw : 0);
+      dt_q16_ = dt_q16;
+    }
     const bool block_v = (s_r * e_v > 0) || (s_l * e_v > 0);
     const bool block_w = (s_r * e_w > 0) || (-s_l * e_w > 0);
     if (!block_v) {
-      const int32_t rate_q20 = fx::mul_ss(e_v, cfg_.k_il_q8);                   // Q12*Q8, N/s
-      const int32_t inc_q16 = fx::rshift_round<4>(fx::mul32x16<16>(rate_q20, dt_q16));
+      const int32_t inc_q16 = kdt_fast_
+          ? fx::rshift_round<11>(fx::mul_ss(e_v, kdt_v_q15_))                     // Q12*Q15 -> Q16
+          : fx::rshift_round<4>(fx::mul32x16<16>(fx::mul_ss(e_v, cfg_.k_il_q8), dt_q16_));
       i_v_q16_ = fx::clamp32(fx::add_sat32(i_v_q16_, inc_q16), cfg_.integ_max_v_q16);
     }
     if (!block_w) {
-      const int32_t rate_q22 = fx::mul_ss(e_w, cfg_.k_ia_q12);                  // Q10*Q12, N m/s
-      const int32_t inc_q16 = fx::rshift_round<6>(fx::mul32x16<16>(rate_q22, dt_q16));
+      const int32_t inc_q16 = kdt_fast_
+          ? fx::rshift_round<12>(fx::mul_ss(e_w, kdt_w_q18_))                     // Q10*Q18 -> Q16
+          : fx::rshift_round<6>(fx::mul32x16<16>(fx::mul_ss(e_w, cfg_.k_ia_q12), dt_q16_));
       i_w_q16_ = fx::clamp32(fx::add_sat32(i_w_q16_, inc_q16), cfg_.integ_max_w_q16);
     }
   }

@@ -119,6 +119,10 @@ class ControllerQ {
   InnerOutQ out_;
   int16_t dv_ff_q12_, dw_ff_q11_;
   int32_t i_v_q16_, i_w_q16_;
+  uint32_t kdt_dt_us_;             // dt the cached integrator gains belong to
+  int16_t kdt_v_q15_, kdt_w_q18_;  // k_il dt, k_ia dt
+  int16_t dt_q16_;
+  bool kdt_fast_;
 };
 
 }  // namespace ctl
