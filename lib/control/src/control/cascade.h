@@ -112,7 +112,7 @@ struct InnerOut {
   OdoStatus odo;
 };
 
-/// The whole cascade with its state (float path). No heap; about 120 bytes of state.
+/// The whole cascade with its state (float path). No heap; 250 bytes on the AVR.
 class Controller {
  public:
   explicit Controller(const ControlConfig& cfg);

@@ -3,7 +3,7 @@
 //   positions Q20 m (int32), heading binary angle (uint32), position errors Q12 m (int16, +-8 m)
 //   v Q12 m/s, omega Q11 rad/s, wheel speeds Q8 rad/s (int16)
 //   dv_ff Q12 m/s^2, domega_ff Q11 rad/s^2 (int16)
-//   force F Q8 N, moment M Q12 N m (int32); integrators Q16 (int32)
+//   force F Q8 N (int32), moment M Q12 N m (int16, +-8 N m), F +- M/b Q7 N (int16); integrators Q16
 //   wheel torques and tau_max Q16 N m (int32, the format of slip::tau_max_q16); duty Q15 (int16)
 // Every intermediate is saturated; no input in range can overflow (see test_control_fixed).
 #ifndef CONTROL_CASCADE_Q_H
