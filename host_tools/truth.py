@@ -179,3 +179,216 @@ def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_
     refs = np.array([ctl.reference(t) for t in t_ticks])
     res["x_ref"], res["y_ref"] = refs[:, 0], refs[:, 1]
     return res
+
+
+# ------------------------------------------------------------- the truth simulator (sim/truth)
+
+
+TRUTH_BUILD = ROOT / ".build" / "truth"
+TRUTH_LIB = TRUTH_BUILD / "libtruth.so"
+_truth_lib: ctypes.CDLL | None = None
+
+#: vocabulary effects whose parameters are plain true-robot values in the truth simulator
+_PARAM_EFFECTS = {("friction_coefficient", "mu_s"): "robot.mu_s",
+                  ("friction_coefficient", "mu_k"): "robot.mu_k",
+                  ("wheel_radius", "r_eff"): "robot.r",
+                  ("track_width", "b_eff"): "robot.b"}
+#: effects the truth simulator has that run-format.md's vocabulary does not
+EXTRA_EFFECTS = {"eccentric_wheel": ("eps", "phase_r", "phase_l"),
+                 "battery_sag": ("r_int", "v_per_as"),
+                 "friction_patch": ("x0", "x1", "factor")}
+
+
+def _truth_sources() -> list[Path]:
+    srcs = sorted((ROOT / "sim" / "truth").glob("*.cpp"))
+    srcs += sorted((ROOT / "lib" / "control" / "src").rglob("*.cpp"))
+    srcs += sorted((ROOT / "lib" / "slipmodel" / "src").rglob("*.cpp"))
+    return srcs
+
+
+def build_truth(force: bool = False) -> Path:
+    """Compile ``sim/truth`` with the firmware's lib/control (and the lib/slipmodel parameter
+    code it uses) into ``.build/truth/libtruth.so`` when missing or stale."""
+    TRUTH_BUILD.mkdir(parents=True, exist_ok=True)
+    inputs = _truth_sources() + sorted((ROOT / "sim" / "truth").glob("*.h"))
+    for sub in ("control", "slipmodel"):
+        inputs += sorted((ROOT / "lib" / sub / "src").rglob("*.h"))
+    with open(TRUTH_BUILD / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if (not force and TRUTH_LIB.exists()
+                and all(f.stat().st_mtime <= TRUTH_LIB.stat().st_mtime for f in inputs)):
+            return TRUTH_LIB
+        tmp = TRUTH_BUILD / f".libtruth.{os.getpid()}.tmp"
+        cmd = ["g++", "-std=c++14", "-O2", "-shared", "-fPIC", "-Wall", "-Wextra",
+               f"-I{ROOT / 'lib' / 'control' / 'src'}", f"-I{ROOT / 'lib' / 'slipmodel' / 'src'}"]
+        cmd += [str(s) for s in _truth_sources()] + ["-o", str(tmp)]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            tmp.unlink(missing_ok=True)
+            raise _native.NativeBuildError(f"building {TRUTH_LIB} failed:\n{' '.join(cmd)}\n"
+                                           f"{proc.stderr}")
+        os.replace(tmp, TRUTH_LIB)
+    return TRUTH_LIB
+
+
+def _tlib() -> ctypes.CDLL:
+    global _truth_lib
+    if _truth_lib is None:
+        lib = ctypes.CDLL(str(build_truth()))
+        dp = ctypes.POINTER(ctypes.c_double)
+        ip = ctypes.POINTER(ctypes.c_int)
+        for name, res, args in (
+                ("tr_new", ctypes.c_void_p, []), ("tr_free", None, [ctypes.c_void_p]),
+                ("tr_last_error", ctypes.c_char_p, [ctypes.c_void_p]),
+                ("tr_key_count", ctypes.c_int, []), ("tr_key_name", ctypes.c_char_p, [ctypes.c_int]),
+                ("tr_set", ctypes.c_int, [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_double]),
+                ("tr_get", ctypes.c_int, [ctypes.c_void_p, ctypes.c_char_p, dp]),
+                ("tr_tel_cols", ctypes.c_int, []), ("tr_tel_col_name", ctypes.c_char_p, [ctypes.c_int]),
+                ("tr_cam_cols", ctypes.c_int, []), ("tr_cam_col_name", ctypes.c_char_p, [ctypes.c_int]),
+                ("tr_run", ctypes.c_int, [ctypes.c_void_p, ctypes.c_int, dp, ip, ctypes.c_int, dp, ip])):
+            fn = getattr(lib, name)
+            fn.restype, fn.argtypes = res, args
+        _truth_lib = lib
+    return _truth_lib
+
+
+class TruthSim:
+    """One configured truth simulator. Keys: :meth:`keys` (``robot.*``/``motor.*`` = the TRUE
+    robot, ``ctl.*`` = the controller's nominal configuration, ``ref.*``, ``sim.*``, effects)."""
+
+    def __init__(self):
+        self._lib = _tlib()
+        self._h = self._lib.tr_new()
+
+    def __del__(self):
+        if getattr(self, "_h", None):
+            self._lib.tr_free(self._h)
+            self._h = None
+
+    def keys(self) -> list[str]:
+        return [self._lib.tr_key_name(i).decode() for i in range(self._lib.tr_key_count())]
+
+    def set(self, key: str, value: float) -> None:
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{key}: {value!r} is not a number") from None
+        rc = self._lib.tr_set(self._h, key.encode(), v)
+        if rc != 0:
+            raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}")
+
+    def get(self, key: str) -> float:
+        out = ctypes.c_double()
+        if self._lib.tr_get(self._h, key.encode(), ctypes.byref(out)) != 0:
+            raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}")
+        return out.value
+
+    def set_effect(self, name: str, **params: float) -> None:
+        """Switch on a vocabulary effect (run-format.md names) or one of :data:`EXTRA_EFFECTS`."""
+        vocab = _native.effect_vocabulary()
+        if name in vocab:
+            allowed = set(vocab[name])
+        elif name in EXTRA_EFFECTS:
+            allowed = set(EXTRA_EFFECTS[name])
+        else:
+            raise ValueError(f"unknown effect '{name}'; known: {sorted(vocab) + sorted(EXTRA_EFFECTS)}")
+        bad = set(params) - allowed
+        if bad:
+            raise ValueError(f"effect '{name}' has no parameter(s) {sorted(bad)}; it has {sorted(allowed)}")
+        if name == "stribeck":
+            params = {"mu_k0": params.get("mu_k0", self.get("robot.mu_k")),
+                      "v_s": params.get("v_s", 0.01)}
+        for p, v in params.items():
+            self.set(_PARAM_EFFECTS.get((name, p), f"{name}.{p}"), v)
+
+    def run(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """Simulate; returns (telemetry columns incl. hidden ``true_*``, camera true poses)."""
+        T = self.get("sim.duration")
+        n_tel = int(T / self.get("sim.tel_period")) + 3
+        n_cam = int(T / self.get("sim.cam_period")) + 3
+        tc, cc = self._lib.tr_tel_cols(), self._lib.tr_cam_cols()
+        tel = np.zeros((n_tel, tc))
+        cam = np.zeros((n_cam, cc))
+        nt, nc = ctypes.c_int(), ctypes.c_int()
+        dp = ctypes.POINTER(ctypes.c_double)
+        rc = self._lib.tr_run(self._h, n_tel, tel.ctypes.data_as(dp), ctypes.byref(nt), n_cam,
+                              cam.ctypes.data_as(dp), ctypes.byref(nc))
+        if rc != 0:
+            raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}")
+        tnames = [self._lib.tr_tel_col_name(i).decode() for i in range(tc)]
+        cnames = [self._lib.tr_cam_col_name(i).decode() for i in range(cc)]
+        nt, nc = nt.value, nc.value
+        return ({c: tel[:nt, i].copy() for i, c in enumerate(tnames)},
+                {c: cam[:nc, i].copy() for i, c in enumerate(cnames)})
+
+
+NOMINAL_META_ROBOT = {"mu_s": 0.241, "mu_k": 0.239, "b": 0.105, "e": 0.095, "d": 0.055,
+                      "g": 9.81, "h": 0.0216, "m_r": 1.5, "I_rz": 0.009753, "I_wz": 0.000584,
+                      "I_wy": 0.001168, "r": 0.0365, "m_w": 0.064}
+NOMINAL_META_MOTOR = {"supply_v": 12.0, "no_load_rad_s": 36.65, "stall_nm": 0.77}
+TELEMETRY_SPEC_COLUMNS = ("t_s", "enc_r", "enc_l", "omega_r", "omega_l", "tau_cmd_r", "tau_cmd_l",
+                          "pwm_r", "pwm_l", "x_odo_m", "y_odo_m", "phi_odo_rad")
+
+
+def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping | None = None,
+                 clamp: bool = True, duration_s: float = 2.0, seed: int = 0,
+                 cam_noise_m: float = 1e-3, cam_noise_rad: float = 0.01, cam_dropout: float = 0.05,
+                 experiment: str | None = None, hidden_dir: str | os.PathLike | None = None,
+                 overwrite: bool = False) -> str:
+    """Simulate one closed-loop run with the truth simulator and write it as a ``ddrun/1`` run
+    folder at ``path`` (meta.json with the NOMINAL parameters, telemetry.csv with the spec
+    columns, groundtruth.csv from a noisy camera with dropouts). The true state (``true_*``
+    columns) goes to ``hidden_dir/<run name>.truth.csv`` when ``hidden_dir`` is given — never
+    into the run folder.
+
+    ``reference``: ``{"kind": "line"|"arc"|"figure_eight", "accel": m/s², "cruise": m/s,
+    "radius": m}``; ``effects``: ``{name: {param: value}}`` (vocabulary or EXTRA_EFFECTS)."""
+    from host_tools import runfmt
+    rng = np.random.default_rng(seed)
+    sim = TruthSim()
+    kind = reference.get("kind", "line")
+    if kind not in _REF_KINDS:
+        raise ValueError(f"reference kind must be one of {list(_REF_KINDS)}, got {kind!r}")
+    sim.set("ref.kind", _REF_KINDS[kind])
+    sim.set("ref.accel", reference.get("accel", 0.5))
+    sim.set("ref.cruise", reference.get("cruise", 0.5))
+    sim.set("ref.radius", reference.get("radius", 1.0))
+    sim.set("ctl.clamp", 1.0 if clamp else 0.0)
+    sim.set("sim.duration", duration_s)
+    # the board's telemetry phase against its 25 ms tick, and the camera's own clock
+    sim.set("sim.tel_phase", float(rng.choice([0.002, 0.004, 0.006, 0.008, 0.012])))
+    sim.set("sim.cam_phase", float(rng.uniform(0.0, 1.0 / 30.0)))
+    for name, params in (effects or {}).items():
+        sim.set_effect(name, **dict(params))
+    tel, cam = sim.run()
+    # camera: noise and dropouts (independent drops plus one short burst)
+    keep = rng.random(cam["t_s"].size) > cam_dropout
+    if cam["t_s"].size > 20:
+        b0 = int(rng.integers(5, cam["t_s"].size - 10))
+        keep[b0:b0 + int(rng.integers(2, 6))] = False
+    gt = {"t_s": np.round(cam["t_s"][keep], 6),
+          "x_m": cam["x_m"][keep] + rng.normal(0, cam_noise_m, keep.sum()),
+          "y_m": cam["y_m"][keep] + rng.normal(0, cam_noise_m, keep.sum()),
+          "phi_rad": cam["phi_rad"][keep] + rng.normal(0, cam_noise_rad, keep.sum())}
+    ref_desc = (f"{kind}, accel {reference.get('accel', 0.5)} m/s^2, cruise "
+                f"{reference.get('cruise', 0.5)} m/s" +
+                (f", radius {reference.get('radius')} m" if kind != "line" else ""))
+    meta = {"format": "ddrun/1", "experiment": experiment or f"closed loop: {ref_desc}",
+            "source": "simulator", "torque_clamp": bool(clamp),
+            "robot": dict(NOMINAL_META_ROBOT), "motor": dict(NOMINAL_META_MOTOR),
+            "encoder_ppr": PPR, "periods_s": {"inner": INNER_S, "outer": 0.05, "telemetry": 0.02},
+            "reference": {"kind": kind, **{k: float(v) for k, v in reference.items() if k != "kind"}},
+            "duration_s": duration_s}
+    telemetry = {c: tel[c] for c in TELEMETRY_SPEC_COLUMNS}
+    telemetry["t_s"] = np.round(telemetry["t_s"], 6)
+    for c in ("enc_r", "enc_l"):
+        telemetry[c] = telemetry[c].astype(np.int64)
+    runfmt.write_run(path, meta, telemetry, gt, overwrite=overwrite)
+    if hidden_dir is not None:
+        os.makedirs(hidden_dir, exist_ok=True)
+        name = Path(path).name
+        cols = ["t_s"] + [c for c in tel if c.startswith("true_") or c == "clamped"]
+        np.savetxt(os.path.join(hidden_dir, f"{name}.truth.csv"),
+                   np.column_stack([tel[c] for c in cols]), delimiter=",",
+                   header=",".join(cols), comments="", fmt="%.9g")
+    return os.fspath(path)

@@ -1,0 +1,508 @@
+// The independent truth simulator — the one deliberate second implementation of the robot's
+// physics (see truth.h for why and how it differs from lib/slipmodel). Host only.
+#include "truth.h"
+
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+
+#include <control/cascade.h>
+#include <control/cascade_q.h>
+#include <control/reference.h>
+#include <slipmodel/params.h>  // parameter structs for the firmware controller's configuration
+
+namespace {
+
+const double kPi = 3.14159265358979323846;
+
+struct KeyDef {
+  const char* name;
+  double def;
+  double lo, hi;  // accepted range (inclusive)
+};
+
+// Every setting. robot.* / motor.*: the TRUE robot; ctl.*: what the firmware's controller is
+// configured with (the nominal values written to meta.json). Effect keys use run-format.md's
+// names; the out-of-vocabulary ones are eccentric_wheel, battery_sag and friction_patch.
+const KeyDef kKeys[] = {
+    {"robot.mu_s", 0.241, 1e-3, 100},      {"robot.mu_k", 0.239, 1e-3, 100},
+    {"robot.b", 0.105, 0.01, 1},           {"robot.e", 0.095, 0, 1},
+    {"robot.d", 0.055, 0, 1},              {"robot.g", 9.81, 0.1, 100},
+    {"robot.h", 0.0216, 0, 1},             {"robot.m_r", 1.5, 0.01, 100},
+    {"robot.I_rz", 0.009753, 1e-6, 10},    {"robot.I_wz", 0.000584, 0, 1},
+    {"robot.I_wy", 0.001168, 1e-6, 1},     {"robot.r", 0.0365, 0.005, 0.5},
+    {"robot.m_w", 0.064, 0, 10},           {"motor.supply_v", 12.0, 0.1, 100},
+    {"motor.no_load_rad_s", 36.65, 0.1, 1e4}, {"motor.stall_nm", 0.77, 1e-3, 100},
+    {"ctl.mu_s", 0.241, 1e-3, 100},        {"ctl.mu_k", 0.239, 1e-3, 100},
+    {"ctl.b", 0.105, 0.01, 1},             {"ctl.e", 0.095, 0, 1},
+    {"ctl.d", 0.055, 0, 1},                {"ctl.g", 9.81, 0.1, 100},
+    {"ctl.h", 0.0216, 0, 1},               {"ctl.m_r", 1.5, 0.01, 100},
+    {"ctl.I_rz", 0.009753, 1e-6, 10},      {"ctl.I_wz", 0.000584, 0, 1},
+    {"ctl.I_wy", 0.001168, 1e-6, 1},       {"ctl.r", 0.0365, 0.005, 0.5},
+    {"ctl.m_w", 0.064, 0, 10},             {"ctl.supply_v", 12.0, 0.1, 100},
+    {"ctl.no_load_rad_s", 36.65, 0.1, 1e4}, {"ctl.stall_nm", 0.77, 1e-3, 100},
+    {"ctl.clamp", 1, 0, 1},                {"ctl.fixed", 1, 0, 1},
+    {"ref.kind", 0, 0, 2},                 {"ref.accel", 0.5, 1e-3, 20},
+    {"ref.cruise", 0.5, 0, 4},             {"ref.radius", 1.0, -100, 100},
+    {"sim.duration", 2.0, 0.01, 600},      {"sim.dt", 2e-4, 1e-5, 1e-3},
+    {"sim.inner_period", 0.025, 1e-3, 1},  {"sim.tel_period", 0.02, 1e-3, 1},
+    {"sim.tel_phase", 0.002, 0, 1},        {"sim.cam_period", 1.0 / 30.0, 1e-3, 10},
+    {"sim.cam_phase", 0.01, 0, 10},
+    {"sim.open_loop", 0, 0, 1},              // 1: constant duties sim.u_r, sim.u_l (no controller)
+    {"sim.u_r", 0, -1, 1},                   {"sim.u_l", 0, -1, 1},
+    {"motor_back_emf.ke_ratio", 1.0, 0.1, 10},
+    {"driver_voltage_drop.volts", 0.0, 0, 50},
+    {"actuation_delay.delay_s", 0.0, 0, 1},
+    {"motor_lag.tau_s", 0.0, 0, 10},
+    {"axle_viscous.c", 0.0, 0, 1},
+    {"axle_coulomb.torque", 0.0, 0, 1},
+    {"caster_drag.mu", 0.0, 0, 2},
+    {"load_transfer.h", 0.0, 0, 1},          // 0: no longitudinal load transfer
+    {"stribeck.mu_k0", -1.0, -1, 10},        // < 0: off
+    {"stribeck.v_s", 0.01, 1e-5, 10},
+    {"deadband.volts", 0.0, 0, 50},
+    {"motor_gain_asymmetry.ratio", 1.0, 0.1, 10},
+    {"floor_slope.rad", 0.0, -0.5, 0.5},
+    {"eccentric_wheel.eps", 0.0, 0, 0.3},    // r(theta) = r (1 + eps cos(theta + phase))
+    {"eccentric_wheel.phase_r", 0.0, -10, 10},
+    {"eccentric_wheel.phase_l", 1.3, -10, 10},
+    {"battery_sag.r_int", 0.0, 0, 100},      // ohm, shared by both motors
+    {"battery_sag.v_per_as", 0.0, 0, 100},   // volts lost per ampere-second drawn
+    {"friction_patch.x0", 0.0, -100, 100},   // world x range where mu is scaled
+    {"friction_patch.x1", 0.0, -100, 100},
+    {"friction_patch.factor", 1.0, 0.01, 10},
+};
+const int kKeyCount = static_cast<int>(sizeof(kKeys) / sizeof(kKeys[0]));
+
+const char* const kTelCols[] = {
+    "t_s", "enc_r", "enc_l", "omega_r", "omega_l", "tau_cmd_r", "tau_cmd_l", "pwm_r", "pwm_l",
+    "x_odo_m", "y_odo_m", "phi_odo_rad",
+    // hidden truth (never written to telemetry.csv)
+    "true_x_m", "true_y_m", "true_phi_rad", "true_dtheta_r", "true_dtheta_l", "true_slip_r",
+    "true_slip_l", "true_tau_r_nm", "true_tau_l_nm", "true_N_r", "true_N_l", "true_N_c",
+    "true_v_batt", "clamped"};
+const int kTelColCount = static_cast<int>(sizeof(kTelCols) / sizeof(kTelCols[0]));
+const char* const kCamCols[] = {"t_s", "x_m", "y_m", "phi_rad"};
+const int kCamColCount = 4;
+
+struct Handle {
+  double v[sizeof(kKeys) / sizeof(kKeys[0])];
+  char err[256];
+  Handle() {
+    for (int i = 0; i < kKeyCount; ++i) v[i] = kKeys[i].def;
+    err[0] = '\0';
+  }
+  double operator()(const char* k) const {
+    for (int i = 0; i < kKeyCount; ++i)
+      if (strcmp(kKeys[i].name, k) == 0) return v[i];
+    return NAN;  // programming error: every name used below is in kKeys
+  }
+};
+
+int find_key(const char* k) {
+  for (int i = 0; i < kKeyCount; ++i)
+    if (strcmp(kKeys[i].name, k) == 0) return i;
+  return -1;
+}
+
+// ---------------------------------------------------------------- contact (velocity level)
+// Generalised velocity q = (Vx, Vy, omega, W_r, W_l): c's world velocity, yaw rate, wheel spins.
+const int kN = 5;
+
+struct Contact {
+  int dim;              // 1 or 2 rows
+  double J[2][kN];      // rows of the Jacobian
+  double Kinv[2][2];    // inverse of J M^-1 J^T
+  double limit;         // impulse bound (friction disc radius), N s
+  double P[2];          // accumulated impulse
+};
+
+void prepare(Contact& c, const double* Minv) {
+  double K[2][2] = {{0, 0}, {0, 0}};
+  for (int a = 0; a < c.dim; ++a)
+    for (int b = 0; b < c.dim; ++b)
+      for (int k = 0; k < kN; ++k) K[a][b] += c.J[a][k] * c.J[b][k] * Minv[k];
+  if (c.dim == 1) {
+    c.Kinv[0][0] = 1.0 / K[0][0];
+  } else {
+    const double det = K[0][0] * K[1][1] - K[0][1] * K[1][0];
+    c.Kinv[0][0] = K[1][1] / det;
+    c.Kinv[1][1] = K[0][0] / det;
+    c.Kinv[0][1] = -K[0][1] / det;
+    c.Kinv[1][0] = -K[1][0] / det;
+  }
+  c.P[0] = c.P[1] = 0.0;
+}
+
+void rel_vel(const Contact& c, const double* q, double* s) {
+  for (int a = 0; a < c.dim; ++a) {
+    s[a] = 0.0;
+    for (int k = 0; k < kN; ++k) s[a] += c.J[a][k] * q[k];
+  }
+}
+
+// Projected Gauss-Seidel: each contact in turn takes the impulse that stops its relative
+// velocity, projected onto its friction disc. Returns the last sweep's largest impulse change.
+double pgs(Contact* cs, int n, double* q, const double* Minv, int max_iter) {
+  double last = 0.0;
+  for (int it = 0; it < max_iter; ++it) {
+    last = 0.0;
+    for (int i = 0; i < n; ++i) {
+      Contact& c = cs[i];
+      double s[2];
+      rel_vel(c, q, s);
+      double Pn[2] = {c.P[0], c.P[1]};
+      for (int a = 0; a < c.dim; ++a)
+        for (int b = 0; b < c.dim; ++b) Pn[a] -= c.Kinv[a][b] * s[b];
+      const double mag = c.dim == 1 ? fabs(Pn[0]) : hypot(Pn[0], Pn[1]);
+      if (mag > c.limit) {
+        // Coulomb: a sliding contact's impulse opposes its relative velocity (not the
+        // K-metric projection of the stopping impulse, which would tilt the force sideways
+        // wherever the contact's effective mass couples the directions).
+        const double sm = c.dim == 1 ? fabs(s[0]) : hypot(s[0], s[1]);
+        if (sm > 1e-12) {
+          Pn[0] = -c.limit * s[0] / sm;
+          Pn[1] = c.dim == 2 ? -c.limit * s[1] / sm : 0.0;
+        } else {
+          const double f = c.limit / mag;
+          Pn[0] *= f;
+          Pn[1] *= f;
+        }
+      }
+      const double d0 = Pn[0] - c.P[0], d1 = c.dim == 2 ? Pn[1] - c.P[1] : 0.0;
+      for (int k = 0; k < kN; ++k) q[k] += Minv[k] * (c.J[0][k] * d0 + (c.dim == 2 ? c.J[1][k] * d1 : 0.0));
+      c.P[0] = Pn[0];
+      if (c.dim == 2) c.P[1] = Pn[1];
+      last = fmax(last, fmax(fabs(d0), fabs(d1)));
+    }
+    if (last < 1e-13) break;
+  }
+  return last;
+}
+
+uint32_t to_b32(double rad) {
+  const double turns = rad / (2.0 * kPi);
+  return static_cast<uint32_t>(static_cast<int64_t>(llround((turns - floor(turns)) * 4294967296.0)));
+}
+
+int32_t counts(double theta) { return static_cast<int32_t>(floor(theta * slip::kEncoderPpr / (2.0 * kPi))); }
+
+struct CtlIO {  // what the board reports after an inner step
+  double omega_r = 0, omega_l = 0, tau_r = 0, tau_l = 0, pwm_r = 0, pwm_l = 0;
+  double x = 0, y = 0, phi = 0;
+  int clamped = 0;
+};
+
+}  // namespace
+
+extern "C" {
+
+void* tr_new(void) { return new Handle(); }
+void tr_free(void* h) { delete static_cast<Handle*>(h); }
+const char* tr_last_error(void* h) { return h ? static_cast<Handle*>(h)->err : "null handle"; }
+int tr_key_count(void) { return kKeyCount; }
+const char* tr_key_name(int i) { return (i >= 0 && i < kKeyCount) ? kKeys[i].name : nullptr; }
+int tr_tel_cols(void) { return kTelColCount; }
+const char* tr_tel_col_name(int i) { return (i >= 0 && i < kTelColCount) ? kTelCols[i] : nullptr; }
+int tr_cam_cols(void) { return kCamColCount; }
+const char* tr_cam_col_name(int i) { return (i >= 0 && i < kCamColCount) ? kCamCols[i] : nullptr; }
+
+int tr_set(void* p, const char* key, double value) {
+  if (!p || !key) return -3;
+  Handle* h = static_cast<Handle*>(p);
+  const int i = find_key(key);
+  if (i < 0) {
+    snprintf(h->err, sizeof h->err, "unknown key '%s'", key);
+    return -1;
+  }
+  if (!isfinite(value) || value < kKeys[i].lo || value > kKeys[i].hi) {
+    snprintf(h->err, sizeof h->err, "%s = %g is outside [%g, %g]", key, value, kKeys[i].lo, kKeys[i].hi);
+    return -2;
+  }
+  h->v[i] = value;
+  return 0;
+}
+
+int tr_get(void* p, const char* key, double* out) {
+  if (!p || !key || !out) return -3;
+  Handle* h = static_cast<Handle*>(p);
+  const int i = find_key(key);
+  if (i < 0) {
+    snprintf(h->err, sizeof h->err, "unknown key '%s'", key);
+    return -1;
+  }
+  *out = h->v[i];
+  return 0;
+}
+
+int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* cam, int* n_cam) {
+  if (!p || !tel || !n_tel || !cam || !n_cam || max_tel < 1 || max_cam < 1) return -3;
+  Handle& H = *static_cast<Handle*>(p);
+  // ---- true parameters
+  const double mu_s = H("robot.mu_s"), mu_k = fmin(H("robot.mu_k"), mu_s);
+  const double b = H("robot.b"), e = H("robot.e"), d = H("robot.d"), g = H("robot.g");
+  const double h_lat = H("robot.h");
+  const double m = H("robot.m_r") + 2.0 * H("robot.m_w");
+  const double Ic = H("robot.I_rz") + 2.0 * (H("robot.I_wz") + H("robot.m_w") * b * b);
+  const double Iw = H("robot.I_wy"), r0 = H("robot.r");
+  const double V0 = H("motor.supply_v"), w0 = H("motor.no_load_rad_s"), stall = H("motor.stall_nm");
+  const double k_t = V0 / w0;  // SI motor constant (torque per ampere = volts per rad/s)
+  const double ke_ratio = H("motor_back_emf.ke_ratio"), v_drop = H("driver_voltage_drop.volts");
+  const double delay = H("actuation_delay.delay_s"), lag = H("motor_lag.tau_s");
+  const double c_visc = H("axle_viscous.c"), T_coul = H("axle_coulomb.torque");
+  const double mu_caster = H("caster_drag.mu"), h_pitch = H("load_transfer.h");
+  const double mu_k0 = H("stribeck.mu_k0"), v_s = H("stribeck.v_s");
+  const double v_dead = H("deadband.volts"), asym = H("motor_gain_asymmetry.ratio");
+  const double slope = H("floor_slope.rad");
+  const double ecc = H("eccentric_wheel.eps"), ph_r = H("eccentric_wheel.phase_r"), ph_l = H("eccentric_wheel.phase_l");
+  const double r_int = H("battery_sag.r_int"), v_per_as = H("battery_sag.v_per_as");
+  const double px0 = H("friction_patch.x0"), px1 = H("friction_patch.x1"), pfac = H("friction_patch.factor");
+  // ---- timing (all events on the step grid)
+  const double dt = H("sim.dt");
+  const long n_steps = lround(H("sim.duration") / dt);
+  const long inner_n = lround(H("sim.inner_period") / dt), tel_n = lround(H("sim.tel_period") / dt);
+  const long tel_0 = lround(H("sim.tel_phase") / dt);
+  if (inner_n < 1 || tel_n < 1 || fabs(inner_n * dt - H("sim.inner_period")) > 1e-9 ||
+      fabs(tel_n * dt - H("sim.tel_period")) > 1e-9) {
+    snprintf(H.err, sizeof H.err, "sim.dt must divide the inner and telemetry periods");
+    return -2;
+  }
+  // ---- the firmware's controller, configured with the nominal (ctl.*) values
+  slip::RobotParams cr;
+  cr.mu_s = H("ctl.mu_s"); cr.mu_k = H("ctl.mu_k"); cr.b = H("ctl.b"); cr.e = H("ctl.e");
+  cr.d = H("ctl.d"); cr.g = H("ctl.g"); cr.h = H("ctl.h"); cr.m_r = H("ctl.m_r");
+  cr.I_rz = H("ctl.I_rz"); cr.I_wz = H("ctl.I_wz"); cr.I_wy = H("ctl.I_wy"); cr.r = H("ctl.r");
+  cr.m_w = H("ctl.m_w");
+  slip::MotorParams cm;
+  cm.supply_v = H("ctl.supply_v"); cm.no_load_rad_s = H("ctl.no_load_rad_s"); cm.stall_nm = H("ctl.stall_nm");
+  const bool fixed = H("ctl.fixed") != 0.0;
+  const ctl::ControlConfig cfg = ctl::make_control_config(cr, cm, ctl::default_gains(), H("ctl.clamp") != 0.0);
+  const ctl::ControlConfigQ cfg_q(cfg);
+  if (fixed && !cfg_q.ok) {
+    snprintf(H.err, sizeof H.err, "controller configuration does not fit the fixed-point formats");
+    return -2;
+  }
+  const ctl::ReferenceSpec ref{static_cast<ctl::PathKind>(lround(H("ref.kind"))), static_cast<float>(H("ref.accel")),
+                               static_cast<float>(H("ref.cruise")), static_cast<float>(H("ref.radius"))};
+  if (!ref.valid()) {
+    snprintf(H.err, sizeof H.err, "invalid reference (accel in (0,20], cruise in [0,4], |R| in [0.05,100])");
+    return -2;
+  }
+  const ctl::ReferenceSpecQ ref_q(ref);
+  ctl::Controller fc(cfg);
+  ctl::ControllerQ qc(cfg_q);
+  fc.reset(0, 0, ctl::Pose{0.0f, 0.0f, 0.0f});
+  qc.reset(0, 0, ctl::PoseQ{0, 0, 0});
+
+  // ---- state: c in world coordinates; the robot starts at rest with o at the origin, facing +x
+  double X = d, Y = 0.0, phi = 0.0;
+  double q[kN] = {0, 0, 0, 0, 0};
+  double th_r = 0.0, th_l = 0.0;
+  const double Minv[kN] = {1.0 / m, 1.0 / m, 1.0 / Ic, 1.0 / Iw, 1.0 / Iw};
+  bool stuck_r = true, stuck_l = true;
+  double tau_del_r = 0.0, tau_del_l = 0.0;  // delivered torques (after the lag)
+  double lat_prev = 0.0, ax_prev = 0.0;     // body-frame lateral friction force, forward accel of c
+  double charge_as = 0.0, v_batt = V0, N_r = 0, N_l = 0, N_c = 0;
+  // command history for the actuation delay (commands change only at ticks)
+  const int kHist = 4096;
+  static thread_local double hist_t[4096], hist_r[4096], hist_l[4096];
+  int hist_n = 0;
+  CtlIO io;
+  double phi_odo_unwrapped = 0.0;
+  uint32_t phi_odo_last = 0;
+  int nt = 0, nc = 0;
+  long next_cam_j = 0;
+  const double cam_T = H("sim.cam_period"), cam_0 = H("sim.cam_phase");
+  double last_tau_r = 0, last_tau_l = 0;
+
+  for (long n = 0; n <= n_steps; ++n) {
+    const double t = n * dt;
+    // axle centre and its pose
+    const double ct = cos(phi), st = sin(phi);
+    // ---- board: inner tick (and outer every other tick), then telemetry
+    if (n % inner_n == 0) {
+      const long k = n / inner_n;
+      const int32_t er = counts(th_r), el = counts(th_l);
+      uint32_t phi_b32;
+      if (fixed) {
+        const ctl::InnerOutQ& o = qc.inner_step(er, el, static_cast<uint32_t>(llround(inner_n * dt * 1e6)));
+        if (k % 2 == 0) qc.outer_step(ctl::reference_at_q(ref_q, static_cast<uint32_t>(llround(k * inner_n * dt * 1000.0))));
+        io.pwm_r = o.pwm_r_q15 / 32768.0; io.pwm_l = o.pwm_l_q15 / 32768.0;
+        io.tau_r = o.tau_r_q16 / 65536.0; io.tau_l = o.tau_l_q16 / 65536.0;
+        io.clamped = (o.clamped_r ? 1 : 0) + (o.clamped_l ? 2 : 0);
+        io.omega_r = qc.odometry().omega_r_q8() / 256.0; io.omega_l = qc.odometry().omega_l_q8() / 256.0;
+        io.x = qc.odometry().pose().x_q20 / 1048576.0; io.y = qc.odometry().pose().y_q20 / 1048576.0;
+        phi_b32 = qc.odometry().pose().phi_b32;
+      } else {
+        const ctl::InnerOut& o = fc.inner_step(er, el, static_cast<float>(inner_n * dt));
+        if (k % 2 == 0) fc.outer_step(ctl::reference_at(ref, static_cast<float>(k * inner_n * dt)));
+        io.pwm_r = o.pwm_r; io.pwm_l = o.pwm_l; io.tau_r = o.tau_r_nm; io.tau_l = o.tau_l_nm;
+        io.clamped = (o.clamped_r ? 1 : 0) + (o.clamped_l ? 2 : 0);
+        io.omega_r = fc.odometry().omega_r_rad_s(); io.omega_l = fc.odometry().omega_l_rad_s();
+        io.x = fc.odometry().pose().x_m; io.y = fc.odometry().pose().y_m;
+        phi_b32 = to_b32(fc.odometry().pose().phi_rad);
+      }
+      phi_odo_unwrapped += static_cast<int32_t>(phi_b32 - phi_odo_last) * (2.0 * kPi / 4294967296.0);
+      phi_odo_last = phi_b32;
+      io.phi = phi_odo_unwrapped;
+      if (hist_n >= kHist) {
+        snprintf(H.err, sizeof H.err, "run too long for the command history (%d ticks)", kHist);
+        return -2;
+      }
+      if (H("sim.open_loop") != 0.0) { io.pwm_r = H("sim.u_r"); io.pwm_l = H("sim.u_l"); }
+      hist_t[hist_n] = t; hist_r[hist_n] = io.pwm_r; hist_l[hist_n] = io.pwm_l; ++hist_n;
+    }
+    const double xo = X - d * ct, yo = Y - d * st;
+    if (n >= tel_0 && (n - tel_0) % tel_n == 0) {
+      if (nt >= max_tel) { snprintf(H.err, sizeof H.err, "telemetry buffer too small"); return -3; }
+      double* row = tel + static_cast<long>(nt) * kTelColCount;
+      const double vals[] = {t, double(counts(th_r)), double(counts(th_l)), io.omega_r, io.omega_l, io.tau_r, io.tau_l,
+                             io.pwm_r, io.pwm_l, io.x, io.y, io.phi, xo, yo, phi, q[3], q[4],
+                             stuck_r ? 0.0 : 1.0, stuck_l ? 0.0 : 1.0, last_tau_r, last_tau_l, N_r, N_l, N_c,
+                             v_batt, double(io.clamped)};
+      memcpy(row, vals, sizeof vals);
+      ++nt;
+    }
+    while (lround((cam_0 + next_cam_j * cam_T) / dt) <= n) {
+      if (lround((cam_0 + next_cam_j * cam_T) / dt) == n) {
+        if (nc >= max_cam) { snprintf(H.err, sizeof H.err, "camera buffer too small"); return -3; }
+        double* row = cam + static_cast<long>(nc) * kCamColCount;
+        row[0] = t; row[1] = xo; row[2] = yo; row[3] = phi;
+        ++nc;
+      }
+      ++next_cam_j;
+    }
+    if (n == n_steps) break;
+
+    // ---- drive: delayed duty -> voltage (battery, driver drop, deadband) -> motor -> lag
+    double u_r = 0.0, u_l = 0.0;
+    for (int i = hist_n - 1; i >= 0; --i)
+      if (hist_t[i] <= t - delay + 1e-12) { u_r = hist_r[i]; u_l = hist_l[i]; break; }
+    u_r = fmax(-1.0, fmin(1.0, u_r));
+    u_l = fmax(-1.0, fmin(1.0, u_l));
+    const double i_draw = (fabs(tau_del_r) + fabs(tau_del_l)) / k_t;
+    charge_as += i_draw * dt;
+    v_batt = V0 - r_int * i_draw - v_per_as * charge_as;
+    const double v_avail = fmax(0.0, v_batt - v_drop);
+    double tau_cmd[2];
+    const double uu[2] = {u_r, u_l}, ww[2] = {q[3], q[4]};
+    for (int i = 0; i < 2; ++i) {
+      double V = uu[i] * v_avail;
+      V = (V > 0 ? 1.0 : -1.0) * fmax(fabs(V) - v_dead, 0.0);
+      // armature: I = (V - k_e' W)/R, tau = k_t I, with k_t/R = stall/V0 and k_e' = ke_ratio V0/w0
+      double tau = stall * (V - ke_ratio * (V0 / w0) * ww[i]) / V0;
+      tau = fmax(-stall, fmin(stall, tau));
+      tau_cmd[i] = tau;
+    }
+    tau_cmd[0] *= sqrt(asym);
+    tau_cmd[1] /= sqrt(asym);
+    if (lag > 0.0) {
+      const double a = 1.0 - exp(-dt / lag);
+      tau_del_r += a * (tau_cmd[0] - tau_del_r);
+      tau_del_l += a * (tau_cmd[1] - tau_del_l);
+    } else {
+      tau_del_r = tau_cmd[0];
+      tau_del_l = tau_cmd[1];
+    }
+    last_tau_r = tau_del_r;
+    last_tau_l = tau_del_l;
+
+    // ---- normal forces: caster from pitch balance about the axle line, wheels from roll balance
+    const double Wn = m * g * cos(slope);
+    N_c = fmax(0.0, (Wn * d - m * ax_prev * h_pitch) / (d + e));
+    const double Nw = Wn - N_c;
+    const double dN = h_lat * lat_prev / b;  // a left lateral force loads the right wheel
+    N_r = fmax(0.0, 0.5 * (Nw + dN));
+    N_l = fmax(0.0, 0.5 * (Nw - dN));
+    if (N_r == 0.0) N_l = Nw;
+    if (N_l == 0.0) N_r = Nw;
+
+    // ---- free velocity update: gravity along the slope, motor torque, implicit axle viscous
+    const double q_old0 = q[0], q_old1 = q[1];
+    q[0] += dt * (-m * g * sin(slope)) / m;
+    q[3] = (Iw * q[3] + dt * tau_del_r) / (Iw + dt * c_visc);
+    q[4] = (Iw * q[4] + dt * tau_del_l) / (Iw + dt * c_visc);
+
+    // ---- contacts
+    const double r_r = r0 * (1.0 + ecc * cos(th_r + ph_r));
+    const double r_l = r0 * (1.0 + ecc * cos(th_l + ph_l));
+    Contact cs[5];
+    int ncs = 0;
+    const double nx = -st, ny = ct;  // body y axis (left) in world
+    const double rho[2][2] = {{-d * ct + b * st, -d * st - b * ct},   // right contact - c
+                              {-d * ct - b * st, -d * st + b * ct}};  // left contact - c
+    const double rw[2] = {r_r, r_l};
+    const bool stuck[2] = {stuck_r, stuck_l};
+    const double Nwheel[2] = {N_r, N_l};
+    double s_pre[2];
+    for (int i = 0; i < 2; ++i) {
+      Contact& c = cs[ncs++];
+      c.dim = 2;
+      memset(c.J, 0, sizeof c.J);
+      c.J[0][0] = 1.0; c.J[0][2] = -rho[i][1]; c.J[0][3 + i] = -rw[i] * ct;
+      c.J[1][1] = 1.0; c.J[1][2] = rho[i][0];  c.J[1][3 + i] = -rw[i] * st;
+      double s[2];
+      rel_vel(c, q, s);
+      s_pre[i] = hypot(s[0], s[1]);
+      double mu;
+      if (stuck[i]) {
+        mu = mu_s;
+      } else {
+        mu = mu_k;
+        if (mu_k0 >= 0.0) mu = fmin(mu_s, mu_k + (mu_k0 - mu_k) * exp(-(s_pre[i] / v_s) * (s_pre[i] / v_s)));
+      }
+      const double xc = X + rho[i][0];
+      if (px1 > px0 && xc >= px0 && xc <= px1) mu *= pfac;
+      c.limit = mu * Nwheel[i] * dt;
+      prepare(c, Minv);
+    }
+    if (mu_caster > 0.0) {
+      Contact& c = cs[ncs++];
+      c.dim = 2;
+      memset(c.J, 0, sizeof c.J);
+      const double rx = e * ct, ry = e * st;
+      c.J[0][0] = 1.0; c.J[0][2] = -ry;
+      c.J[1][1] = 1.0; c.J[1][2] = rx;
+      c.limit = mu_caster * N_c * dt;
+      prepare(c, Minv);
+    }
+    if (T_coul > 0.0) {
+      for (int i = 0; i < 2; ++i) {
+        Contact& c = cs[ncs++];
+        c.dim = 1;
+        memset(c.J, 0, sizeof c.J);
+        c.J[0][3 + i] = 1.0;
+        c.limit = T_coul * dt;
+        prepare(c, Minv);
+      }
+    }
+    pgs(cs, ncs, q, Minv, 200);
+    for (int i = 0; i < 2; ++i) {
+      double s[2];
+      rel_vel(cs[i], q, s);
+      const bool at_limit = hypot(cs[i].P[0], cs[i].P[1]) >= cs[i].limit * (1.0 - 1e-9);
+      const bool st_now = !(at_limit && hypot(s[0], s[1]) > 1e-7);
+      if (i == 0) stuck_r = st_now; else stuck_l = st_now;
+    }
+    // lateral friction force (body frame) of both wheels, for the next step's roll balance
+    lat_prev = ((cs[0].P[0] + cs[1].P[0]) * nx + (cs[0].P[1] + cs[1].P[1]) * ny) / dt;
+    ax_prev = ((q[0] - q_old0) * ct + (q[1] - q_old1) * st) / dt;
+
+    // ---- positions (symplectic Euler: new velocities)
+    X += dt * q[0];
+    Y += dt * q[1];
+    phi += dt * q[2];
+    th_r += dt * q[3];
+    th_l += dt * q[4];
+    if (!isfinite(X) || !isfinite(Y) || !isfinite(phi)) {
+      snprintf(H.err, sizeof H.err, "state diverged at t = %g s", t);
+      return -2;
+    }
+  }
+  *n_tel = nt;
+  *n_cam = nc;
+  return 0;
+}
+
+}  // extern "C"

@@ -1,0 +1,61 @@
+// The independent truth simulator: THE ONE DELIBERATE SECOND IMPLEMENTATION OF THE ROBOT'S
+// PHYSICS in this project (docs/ARCHITECTURE.md, "The physics has one home").
+//
+// Why a second implementation: the mismatch analyzer fits lib/slipmodel's plant to recordings.
+// If its test recordings came from that same plant, a passing test would only show that the
+// fitter can invert its own model. This simulator is written independently, with a different
+// formulation, so that the analyzer is tested against physics it does not share code with:
+//
+//   * state: the centre of mass c in WORLD coordinates (X, Y, phi; Vx, Vy, omega) plus the two
+//     wheel spins; the mass matrix is diagonal (m, m, I_c, I_wy, I_wy) — lib/slipmodel uses
+//     body-frame velocities of the axle centre with a coupled mass matrix;
+//   * contacts: velocity-level (impulse-based) Coulomb friction solved by projected
+//     Gauss-Seidel over all contacts (two wheels, the caster when it drags, each axle's Coulomb
+//     friction), each impulse projected onto its friction disc mu*N*h — lib/slipmodel uses an
+//     explicit force law with a direct stick solve and a breakaway rule;
+//   * its own integrator (symplectic Euler on the impulse-corrected velocities) and step size
+//     (0.2 ms by default; the nominal plant uses 0.5 ms); axle viscous friction implicit.
+//   * effects beyond the run-format vocabulary: an eccentric wheel (rolling radius varying with
+//     the wheel angle), battery sag (supply voltage falling with the current and the charge
+//     drawn), and a floor patch of different friction.
+//
+// The closed loop is the firmware's: lib/control's ControllerQ (fixed point) is linked in and
+// driven like the firmware, inner step every 25 ms with the quantised encoder counts, outer step
+// every 50 ms after the inner step. lib/control uses lib/slipmodel's parameters, tau_max and
+// motor inverse — that is the firmware's code, not the truth's physics; nothing in truth.cpp
+// calls lib/slipmodel's plant, traction or motor functions.
+//
+// Sensors: encoder counts floor(theta*ppr/2pi) read live at each tick and telemetry frame;
+// 50 Hz telemetry (phase 2 ms as in src/app.cpp); the camera's exact poses at its own times
+// (host_tools/truth.py adds the camera noise and dropouts).
+//
+// C ABI (ctypes, host_tools/truth.py). Keys: see tr_key_count()/tr_key_name(); negative return
+// codes: -1 unknown key, -2 bad value, -3 bad argument; tr_last_error() says why.
+#ifndef SIM_TRUTH_TRUTH_H
+#define SIM_TRUTH_TRUTH_H
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+void* tr_new(void);
+void tr_free(void* h);
+const char* tr_last_error(void* h);
+int tr_key_count(void);
+const char* tr_key_name(int i);
+int tr_set(void* h, const char* key, double value);
+int tr_get(void* h, const char* key, double* out);
+/// Telemetry columns (tr_tel_cols) and camera/true-pose columns (tr_cam_cols).
+int tr_tel_cols(void);
+const char* tr_tel_col_name(int i);
+int tr_cam_cols(void);
+const char* tr_cam_col_name(int i);
+/// Run for sim.duration seconds. Fills tel (max_tel rows x tr_tel_cols) and cam (max_cam rows x
+/// tr_cam_cols), row-major; *n_tel and *n_cam get the row counts. Returns 0 or a negative code.
+int tr_run(void* h, int max_tel, double* tel, int* n_tel, int max_cam, double* cam, int* n_cam);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif  // SIM_TRUTH_TRUTH_H
