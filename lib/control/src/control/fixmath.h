@@ -146,10 +146,17 @@ CTL_INLINE int32_t rshift_round(int32_t x) {
   return asr<S>(x + half);
 }
 
+/// Rounded x >> S without the overflow check, for |x| <= 2^31 - 2^(S-1) - 1 (products of two
+/// 16-bit values: |x| <= 2^30).
+template <uint8_t S>
+CTL_INLINE int32_t rshift_round_nc(int32_t x) {
+  return asr<S>(x + static_cast<int32_t>(1L << (S - 1)));
+}
+
 /// (a * b) >> S, rounded; a 16x16->32 multiply (cheap on the AVR). S in 1..30.
 template <uint8_t S>
 CTL_INLINE int32_t mul16(int16_t a, int16_t b) {
-  return rshift_round<S>(mul_ss(a, b));
+  return rshift_round_nc<S>(mul_ss(a, b));  // |a b| <= 2^30
 }
 
 /// (a * b) >> S with a 32-bit a and a 16-bit b, S in 1..16, rounded and saturated to int32.
@@ -165,7 +172,8 @@ CTL_INLINE int32_t mul32x16(int32_t a, int16_t b) {
     if (p_hi >= lim) return INT32_MAX;
     if (p_hi < -lim) return INT32_MIN;
   }
-  return add_sat32(p_hi * static_cast<int32_t>(1L << (16 - S)), rshift_round<S>(p_lo));
+  // p_lo + 2^(S-1) <= 65535 * 32767 + 2^15 < 2^31: no overflow check needed.
+  return add_sat32(p_hi * static_cast<int32_t>(1L << (16 - S)), rshift_round_nc<S>(p_lo));
 }
 
 /// The bytes of a 32-bit word (little-endian on both the AVR and x86 hosts; the byte moves
