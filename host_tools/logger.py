@@ -1,0 +1,714 @@
+"""Telemetry logger: ``python -m host_tools log --port PORT --out RUN_DIR [...]``.
+
+Opens the XBee serial port (any pyserial URL: a device or pty path, ``socket://host:port``,
+``loop://``), asks the robot for its parameters, optionally sets the clamp / friction
+coefficients and starts an experiment (keeping it alive with heartbeats), decodes every frame
+and writes a ``ddrun/1`` run folder (shared/spec/run-format.md) through host_tools.runfmt:
+
+    meta.json      parameters the robot reported (or the defaults, said so), the commands sent,
+                   and a "logger" section with the link statistics and the end reason
+    telemetry.csv  the spec columns + seq, host_t_s and every other telemetry field
+    raw.bin        every byte received, unmodified (nothing is lost, even undecodable bytes)
+    events.jsonl   one JSON object per event: rejected blocks (with their offset in raw.bin),
+                   sequence gaps, duplicates, robot resets, disconnects, commands and acks
+
+Files are flushed as they are written; the folder is complete and readable after Ctrl-C, a
+pulled cable (the logger waits for the port to come back and carries on) or a robot power loss
+(a board reset is detected and the board time is kept increasing).
+
+``--attach-groundtruth TRACKER.csv`` (without ``--port``) adds an external tracker's CSV
+(columns t_s, x_m, y_m, optional phi_rad, on the tracker's own clock) to a recorded run as
+groundtruth.csv, shifting its time by ``--gt-offset`` or by an offset estimated by
+cross-correlating the speed from odometry with the speed from the tracker.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from host_tools import protocol as P
+from host_tools import runfmt
+
+HEARTBEAT_S = 0.2
+ACK_TIMEOUT_S = 0.4
+ACK_RETRIES = 3
+RECONNECT_POLL_S = 0.5
+STATUS_EVERY_S = 0.5
+FLUSH_EVERY_S = 0.2
+
+
+class LoggerError(Exception):
+    """A problem that ends the recording; ``code`` is the exit code (1 failed, 2 bad input)."""
+
+    def __init__(self, message: str, code: int = 1):
+        super().__init__(message)
+        self.code = code
+
+
+def _f32(v: float) -> float:
+    """A float32 from the robot as the shortest decimal that reads back as the same float32."""
+    return float(f"{v:.7g}") if float(np.float32(f"{v:.7g}")) == float(np.float32(v)) else float(f"{v:.9g}")
+
+
+def _decimals(scale: float) -> int:
+    return max(0, int(math.ceil(-math.log10(scale))) + 1) if scale < 1 else 0
+
+
+class TelemetryColumns:
+    """Column layout of telemetry.csv derived from the protocol definition."""
+
+    def __init__(self, d: P.Definition):
+        self.msg = d.by_name["Telemetry"]
+        self.fields = [f for f in self.msg.fields if f.name != "t_us"]
+        required = list(runfmt.TELEMETRY_COLUMNS)
+        have = {f.column for f in self.msg.fields}
+        missing = [c for c in required if c not in have]
+        if missing:  # the definition must carry every spec column
+            raise LoggerError(f"{d.path}: Telemetry lacks spec column(s) {missing}", 2)
+        rest = [f.column for f in self.fields if f.column not in required]
+        self.columns = required + ["seq", "host_t_s"] + rest
+        self.index = {f.name: i for i, f in enumerate(self.msg.fields)}
+        self._conv = []
+        for i, f in enumerate(self.msg.fields):
+            if f.name == "t_us":
+                continue
+            if f.scale is None:
+                self._conv.append((f.column, i, None, 0))
+            else:
+                self._conv.append((f.column, i, f.scale, _decimals(f.scale)))
+
+    def row(self, raws: tuple, t_s: float, seq: int, host_t: float) -> dict[str, Any]:
+        out: dict[str, Any] = {"t_s": round(t_s, 6), "seq": seq, "host_t_s": round(host_t, 4)}
+        for col, i, scale, nd in self._conv:
+            r = raws[i]
+            out[col] = r if scale is None else (r * scale if scale >= 1 else round(r * scale, nd))
+        return out
+
+
+def describe_experiment(cmd: dict) -> str:
+    p, a, ta, T = cmd["profile"], cmd["wheel_accel"], cmd["accel_time"], cmd["duration"]
+    base = f"{a:g} rad/s^2 wheel acceleration for {ta:g} s, then hold; {T:g} s in all"
+    if p == "straight":
+        return "straight line, " + base
+    if p == "arc":
+        return f"arc of radius {cmd['radius']:g} m, " + base
+    return f"figure eight of loop radius {cmd['radius']:g} m, " + base
+
+
+class Logger:
+    """One recording session.  ``open_port`` returns a pyserial-like object (read, write,
+    in_waiting, close) or raises; it is called again to reconnect."""
+
+    def __init__(self, out_dir: str, open_port: Callable[[], Any], port_name: str, baud: int,
+                 experiment: dict | None = None, clamp: bool | None = None,
+                 mu: tuple[float, float] | None = None, record_s: float | None = None,
+                 reconnect_timeout_s: float = 30.0, params_timeout_s: float = 1.0,
+                 status: bool = True, description: str | None = None,
+                 d: P.Definition | None = None, clock: Callable[[], float] = time.monotonic):
+        self.d = d or P.definition()
+        self.out = out_dir
+        self.open_port = open_port
+        self.port_name = port_name
+        self.baud = baud
+        self.experiment = experiment
+        self.clamp = clamp
+        self.mu = mu
+        self.record_s = record_s
+        self.reconnect_timeout_s = reconnect_timeout_s
+        self.params_timeout_s = params_timeout_s
+        self.show_status = status
+        self.description = description
+        self.clock = clock
+        self.cols = TelemetryColumns(self.d)
+        self.dec = P.StreamDecoder(self.d.version, self.d.max_payload)
+        self.port = None
+        self.tx_seq = 0
+        # statistics
+        self.stats = {"frames": 0, "telemetry_rows": 0, "gaps": 0, "lost_frames": 0,
+                      "duplicates": 0, "stale": 0, "robot_resets": 0, "disconnects": 0,
+                      "unknown_type": 0, "bad_length": 0, "bytes": 0}
+        self.last_seq: int | None = None
+        self.last_t_us: int | None = None
+        self.t_epoch = 0.0  # seconds added to the unwrapped board time (after resets)
+        self.t_wraps = 0
+        self.last_t_s: float | None = None
+        self.last_host_t: float | None = None
+        self.last_row: dict | None = None
+        self.params: dict | None = None
+        self.acks: dict[int, tuple[int, int]] = {}
+        self.commands: list[dict] = []
+        self.running = False
+        self._run_frames = 0
+        self._heartbeat = False
+        self._last_failsafe = 0
+        self.end_reason = ""
+        self._errors_logged = 0
+        self._t0 = 0.0
+        self._rate_mark = (0.0, 0)
+        self._fps = 0.0
+
+    # ------------------------------------------------------------------ files
+    def _meta(self) -> dict:
+        dflt = self.d.robot_defaults
+        meta: dict[str, Any] = {
+            "format": runfmt.FORMAT,
+            "experiment": self.description or (describe_experiment(self.experiment) if self.experiment
+                                               else "free recording (no experiment command sent)"),
+            "source": "robot",
+            "torque_clamp": bool(self.clamp) if self.clamp is not None else False,
+            "robot": dict(dflt["robot"]),
+            "motor": dict(dflt["motor"]),
+            "encoder_ppr": dflt["encoder_ppr"],
+            "periods_s": {t["name"]: round(t["period_us"] * 1e-6, 9) for t in self.d.tasks()},
+        }
+        if self.mu is not None:
+            meta["robot"]["mu_s"], meta["robot"]["mu_k"] = self.mu
+        p = self.params
+        if p is not None:
+            for k in meta["robot"]:
+                meta["robot"][k] = _f32(p[k])
+            for k in meta["motor"]:
+                meta["motor"][k] = _f32(p[k])
+            meta["encoder_ppr"] = int(p["encoder_ppr"])
+            meta["periods_s"] = {k: round(p[f"{k}_period_us"] * 1e-6, 9) for k in ("inner", "outer", "telemetry")}
+            if self.clamp is None:
+                meta["torque_clamp"] = bool(p["clamp_on"])
+        meta["commands"] = self.commands
+        self.stats["frames"] = self.dec.frames
+        meta["logger"] = dict(
+            self.stats, port=self.port_name, baud=self.baud, protocol_version=self.d.version,
+            crc_errors=self.dec.crc_errors, rejected_blocks=dict(self.dec.rejected),
+            params_source="robot" if p is not None else "defaults (the robot never reported Params)",
+            firmware_id=(f"{p['firmware_id']:08x}" if p is not None else None),
+            robot_baud=(p["baud"] if p is not None else None),
+            end_reason=self.end_reason or "recording")
+        return meta
+
+    def write_meta(self) -> None:
+        path = os.path.join(self.out, "meta.json")
+        meta = runfmt.validate_meta(self._meta(), path)
+        tmp = path + ".tmp"
+        with open(tmp, "w") as fh:
+            json.dump(meta, fh, indent=2)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+
+    def event(self, kind: str, **kw) -> None:
+        kw = {"host_t_s": round(self.clock() - self._t0, 4), "kind": kind, **kw}
+        self.events.write(json.dumps(kw) + "\n")
+
+    # ------------------------------------------------------------------ port
+    def _connect(self, first: bool) -> bool:
+        try:
+            self.port = self.open_port()
+            return True
+        except Exception as exc:  # pyserial raises SerialException / OSError / ValueError
+            self.port = None
+            if first:
+                raise LoggerError(f"cannot open port {self.port_name}: {exc}", 2) from None
+            return False
+
+    def _lost(self, exc: Exception) -> None:
+        self.stats["disconnects"] += 1
+        self.event("disconnect", error=str(exc), pending_bytes=self.dec.pending())
+        self._status(force=True, note=f"port lost ({exc}); waiting for it to return")
+        try:
+            self.port.close()
+        except Exception:
+            pass
+        self.port = None
+        self.write_meta()
+
+    def _reconnect(self) -> None:
+        t_lost = self.clock()
+        while True:
+            if self._connect(first=False):
+                self.event("reconnect", after_s=round(self.clock() - t_lost, 3))
+                self._status(force=True, note="port back")
+                return
+            if self.clock() - t_lost > self.reconnect_timeout_s:
+                raise LoggerError(f"port {self.port_name} did not return within "
+                                  f"{self.reconnect_timeout_s:g} s", 1)
+            if self._should_stop():
+                return
+            time.sleep(RECONNECT_POLL_S)
+
+    def send(self, name: str, values: dict | None = None) -> int:
+        """Send one command (validated against the definition). Returns its seq."""
+        seq = self.tx_seq
+        frame = self.d.encode(name, seq, values)  # ProtocolError on a bad value
+        self.tx_seq = (self.tx_seq + 1) & 0xFFFF
+        if self.port is not None:
+            try:
+                self.port.write(frame)
+            except Exception as exc:
+                self._lost(exc)
+        return seq
+
+    def command(self, name: str, values: dict | None = None) -> None:
+        """Send a command and wait for its Ack (retrying); LoggerError if rejected/unanswered."""
+        rec = {"command": name, "values": values or {}, "result": None}
+        self.commands.append(rec)
+        for attempt in range(ACK_RETRIES):
+            seq = self.send(name, values)
+            self.event("command", command=name, seq=seq, values=values or {}, attempt=attempt + 1)
+            if self.pump(lambda: seq in self.acks, ACK_TIMEOUT_S):
+                result, detail = self.acks.pop(seq)
+                rname = self.d.result_names.get(result, f"code {result}")
+                rec["result"] = rname
+                if rname != "ok":
+                    msg = self.d.by_name[name]
+                    where = (f" (field {msg.fields[detail].name})"
+                             if rname == "out_of_range" and detail < len(msg.fields) else "")
+                    self.write_meta()
+                    raise LoggerError(f"robot rejected {name}: {rname}{where}", 1)
+                self.write_meta()
+                return
+        rec["result"] = "no ack"
+        self.write_meta()
+        raise LoggerError(f"robot did not acknowledge {name} after {ACK_RETRIES} tries", 1)
+
+    # ------------------------------------------------------------------ receive
+    def pump(self, until: Callable[[], bool] | None = None, timeout: float | None = None) -> bool:
+        """Read and handle input until ``until()`` is true (returns True) or ``timeout`` passes
+        or the session should stop (returns False).  Handles disconnects and heartbeats."""
+        t_end = None if timeout is None else self.clock() + timeout
+        while True:
+            if until is not None and until():
+                return True
+            if self._should_stop() or (t_end is not None and self.clock() >= t_end):
+                return False
+            if self.port is None:
+                self._reconnect()
+                continue
+            try:
+                n = self.port.in_waiting
+                data = self.port.read(n if n > 0 else 1)
+            except Exception as exc:
+                self._lost(exc)
+                continue
+            if data:
+                self._receive(data)
+            now = self.clock()
+            if self._heartbeat and now - self._last_hb >= HEARTBEAT_S:
+                self._last_hb = now
+                self.send("Heartbeat")
+            if now - self._last_flush >= FLUSH_EVERY_S:
+                self._flush()
+            self._status()
+
+    def _receive(self, data: bytes) -> None:
+        self.raw.write(data)
+        self.stats["bytes"] += len(data)
+        frames = self.dec.feed(data)
+        if len(self.dec.errors) > self._errors_logged:
+            for off, n, reason in self.dec.errors[self._errors_logged:]:
+                self.event("rejected_block", raw_offset=off, length=n, reason=reason)
+            self._errors_logged = len(self.dec.errors)
+        for f in frames:
+            self._frame(f)
+
+    def _frame(self, f: P.Frame) -> None:
+        msg = self.d.by_type.get(f.type)
+        if msg is None or msg.dir != "robot_to_host":
+            self.stats["unknown_type"] += 1
+            self.event("unknown_type", type=f.type, seq=f.seq, raw_offset=f.offset)
+            return
+        if len(f.payload) != msg.size:
+            self.stats["bad_length"] += 1
+            self.event("bad_length", type=f.type, seq=f.seq, length=len(f.payload), raw_offset=f.offset)
+            return
+        raws = msg.struct.unpack(f.payload)
+        host_t = self.clock() - self._t0
+        if msg.name == "Telemetry":
+            self._telemetry(f, raws, host_t)
+            return
+        if self._sequence(f, host_t, t_us=None) == "drop":
+            return
+        if msg.name == "Ack":
+            cmd_seq, _cmd_type, result, detail = raws
+            self.acks[cmd_seq] = (result, detail)
+            self.event("ack", cmd_seq=cmd_seq, result=self.d.result_names.get(result, result), detail=detail)
+        elif msg.name == "Params":
+            self.params = dict(zip(msg.field_names(), raws))
+            self.event("params", **{k: (v if not isinstance(v, float) else _f32(v))
+                                    for k, v in self.params.items()})
+            self.write_meta()
+
+    def _sequence(self, f: P.Frame, host_t: float, t_us: int | None) -> str:
+        """Track the robot's frame counter.  Returns "ok", "reset" (the board restarted: seq
+        and clock start again) or "drop" (a duplicate or stale frame, recorded as an event)."""
+        if self.last_seq is None:
+            self.last_seq = f.seq
+            return "ok"
+        ahead = (f.seq - self.last_seq) & 0xFFFF
+        back_in_time = (t_us is not None and self.last_t_us is not None
+                        and ((t_us - self.last_t_us) & 0xFFFFFFFF) >= 0x80000000)
+        if ahead == 0 or ahead >= 0x8000 or back_in_time:
+            if ahead != 0 and self._is_reset(f, t_us):
+                self._reset(f, host_t, t_us)
+                self.last_seq = f.seq
+                return "reset"
+            kind = "duplicate" if ahead == 0 else "stale"
+            self.stats["duplicates" if ahead == 0 else "stale"] += 1
+            self.event(kind, seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
+            return "drop"
+        if ahead > 1:
+            self.stats["gaps"] += 1
+            self.stats["lost_frames"] += ahead - 1
+            self.event("gap", after_seq=self.last_seq, seq=f.seq, missing=ahead - 1, raw_offset=f.offset)
+        self.last_seq = f.seq
+        return "ok"
+
+    def _is_reset(self, f: P.Frame, t_us: int | None) -> bool:
+        # After a reset the robot counts from 0 again and its clock restarts near 0.
+        if t_us is None:
+            return f.seq < 16
+        return t_us < 5_000_000 and f.seq < 1000
+
+    def _reset(self, f: P.Frame, host_t: float, t_us: int | None) -> None:
+        self.stats["robot_resets"] += 1
+        if t_us is not None and self.last_t_s is not None:
+            # keep board time increasing: continue from the last frame + the host time elapsed
+            elapsed = max(host_t - (self.last_host_t or host_t), 1e-6)
+            self.t_epoch = self.last_t_s + elapsed - t_us * 1e-6
+            self.t_wraps = 0
+            self.last_t_us = None
+        self.event("robot_reset", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset,
+                   t_epoch_s=round(self.t_epoch, 6))
+
+    def _telemetry(self, f: P.Frame, raws: tuple, host_t: float) -> None:
+        t_us = raws[0]
+        if self._sequence(f, host_t, t_us) == "drop":
+            return
+        if self.last_t_us is not None and t_us < self.last_t_us:
+            self.t_wraps += 1  # accepted as forward in time: the u32 microsecond clock wrapped
+        t_s = self.t_epoch + (self.t_wraps * 2**32 + t_us) * 1e-6
+        if self.last_t_s is not None and not t_s > self.last_t_s:
+            self.stats["stale"] += 1
+            self.event("time_not_increasing", seq=f.seq, t_s=t_s, last_t_s=self.last_t_s)
+            return
+        row = self.cols.row(raws, t_s, f.seq, host_t)
+        self.writer.write_row(row)
+        self.stats["telemetry_rows"] += 1
+        self.last_t_us, self.last_t_s, self.last_host_t, self.last_row = t_us, t_s, host_t, row
+        status = raws[self.cols.index["status"]]
+        flags = self.d.flags["status"]
+        self.running = bool(status & (1 << flags["running"]))
+        if self.running:
+            self._run_frames += 1
+        failsafe = raws[self.cols.index["failsafe"]]
+        if failsafe != self._last_failsafe:
+            names = {v: k for k, v in self.d.enums["failsafe"].items()}
+            self.event("failsafe", seq=f.seq, reason=names.get(failsafe, failsafe))
+            self._last_failsafe = failsafe
+
+    # ------------------------------------------------------------------ status
+    def _flush(self) -> None:
+        self._last_flush = self.clock()
+        self.writer.flush()
+        self.raw.flush()
+        self.events.flush()
+
+    def _status(self, force: bool = False, note: str = "") -> None:
+        if not self.show_status:
+            return
+        now = self.clock()
+        if not force and now - self._last_status < STATUS_EVERY_S:
+            return
+        t_mark, n_mark = self._rate_mark
+        if now - t_mark >= 1.0:
+            self._fps = (self.stats["telemetry_rows"] - n_mark) / (now - t_mark)
+            self._rate_mark = (now, self.stats["telemetry_rows"])
+        self._last_status = now
+        r = self.last_row
+        if r is not None:
+            radius = (self.params or self.d.robot_defaults["robot"])["r"]
+            v = radius * (r["omega_r"] + r["omega_l"]) / 2
+            live = (f"t {r['t_s']:.2f} s  v {v:+.3f} m/s  w_r {r['omega_r']:+.2f} w_l {r['omega_l']:+.2f} rad/s"
+                    f"  {'RUN' if self.running else 'idle'}")
+        else:
+            live = "no telemetry yet"
+        line = (f"{self._fps:5.1f} frames/s  rows {self.stats['telemetry_rows']}  crc {self.dec.crc_errors}"
+                f"  bad {self.dec.bad_blocks - self.dec.crc_errors}  gaps {self.stats['gaps']}"
+                f" (lost {self.stats['lost_frames']})  dup {self.stats['duplicates']}  | {live}")
+        if note:
+            line += f"  [{note}]"
+        sys.stderr.write("\r" + line[:160].ljust(160) + ("\n" if note else ""))
+        sys.stderr.flush()
+
+    # ------------------------------------------------------------------ session
+    def _should_stop(self) -> bool:
+        if self._stop:
+            return True
+        if self.record_s is not None and self.clock() - self._t0 >= self.record_s:
+            self.end_reason = self.end_reason or f"recorded {self.record_s:g} s"
+            return True
+        return False
+
+    def run(self) -> int:
+        os.makedirs(self.out, exist_ok=True)
+        for f in ("telemetry.csv", "raw.bin", "events.jsonl"):
+            if os.path.exists(os.path.join(self.out, f)):
+                raise LoggerError(f"{os.path.join(self.out, f)} already exists; "
+                                  "refusing to overwrite a recorded run", 2)
+        self._stop = False
+        self._t0 = self.clock()
+        self._last_hb = self._last_flush = self._last_status = self._t0
+        self._rate_mark = (self._t0, 0)
+        self._connect(first=True)
+        self.writer = runfmt.RunWriter(self.out, self._meta_for_writer(), columns=self.cols.columns)
+        self.raw = open(os.path.join(self.out, "raw.bin"), "wb")
+        self.events = open(os.path.join(self.out, "events.jsonl"), "w")
+        code = 0
+        try:
+            self.event("start", port=self.port_name, baud=self.baud)
+            self.write_meta()
+            self.send("RequestParams")
+            if not self.pump(lambda: self.params is not None, self.params_timeout_s):
+                self.event("no_params", waited_s=self.params_timeout_s)
+            if self.clamp is not None:
+                self.command("SetClamp", {"on": int(self.clamp)})
+            if self.mu is not None:
+                self.command("SetMu", {"mu_s": self.mu[0], "mu_k": self.mu[1]})
+            if self.experiment is not None:
+                self._heartbeat = True  # from the Start on, so the failsafe never fires early
+                self.command("Start", self.experiment)
+                if self.pump(lambda: self._run_frames > 0 and not self.running):
+                    self._heartbeat = False
+                    self.end_reason = "experiment finished"
+                    self.pump(None, 0.3)  # the last frames after the end
+            else:
+                self.pump()
+        except KeyboardInterrupt:
+            self.end_reason = "interrupted (Ctrl-C)"
+            if self.experiment is not None:
+                try:
+                    self.send("Stop")
+                except Exception:
+                    pass
+        except LoggerError as exc:
+            self.end_reason = str(exc)
+            code = exc.code
+        finally:
+            self.close()
+        return code
+
+    def _meta_for_writer(self) -> dict:
+        return self._meta()
+
+    def close(self) -> None:
+        # Everything already received is on disk; the incomplete tail (if any) stays in raw.bin.
+        for name in ("writer", "raw", "events"):
+            obj = getattr(self, name, None)
+            if obj is None:
+                continue
+            try:
+                if name == "events":
+                    self.event("end", reason=self.end_reason or "stopped", pending_bytes=self.dec.pending())
+                obj.flush()
+                obj.close()
+            except Exception:
+                pass
+        try:
+            self.write_meta()
+        except Exception as exc:  # never lose the data over a meta problem
+            sys.stderr.write(f"\nwarning: could not rewrite meta.json: {exc}\n")
+        if self.port is not None:
+            try:
+                self.port.close()
+            except Exception:
+                pass
+        self._status(force=True, note=self.end_reason or "stopped")
+
+    def stop(self) -> None:
+        self._stop = True
+
+
+# ======================================================================= ground truth
+
+
+def estimate_offset(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarray,
+                    t_trk: np.ndarray, x_trk: np.ndarray, y_trk: np.ndarray,
+                    max_offset_s: float = 10.0, dt: float = 0.01) -> tuple[float, float]:
+    """Offset (s) such that t_board = t_tracker + offset, by cross-correlating the speed along
+    the path from odometry with that from the tracker.  Returns (offset, peak correlation)."""
+    def speed(t, x, y):
+        g = np.arange(t[0], t[-1], dt)
+        if g.size < 4:
+            raise LoggerError("too few samples to estimate the clock offset; pass --gt-offset", 2)
+        xi, yi = np.interp(g, t, x), np.interp(g, t, y)
+        s = np.hypot(np.gradient(xi, dt), np.gradient(yi, dt))
+        k = max(1, int(round(0.05 / dt)))  # 50 ms moving average against tracker noise
+        s = np.convolve(s, np.ones(k) / k, mode="same")
+        # tracker dropouts: no speed where the original samples are further apart than 0.25 s
+        idx = np.searchsorted(t, g)
+        idx = np.clip(idx, 1, len(t) - 1)
+        gap = (t[idx] - t[idx - 1]) > 0.25
+        s[gap] = np.nan
+        return g, s
+
+    g_a, s_a = speed(t_tel, x_odo, y_odo)
+    g_b, s_b = speed(t_trk, x_trk, y_trk)
+    lags = np.arange(-max_offset_s, max_offset_s + dt / 2, dt)
+    best = (-2.0, 0.0)
+    scores = np.full(lags.size, np.nan)
+    for i, lag in enumerate(lags):
+        # tracker sample at tracker time tt is board time tt + lag
+        b = np.interp(g_a - lag, g_b, s_b, left=np.nan, right=np.nan)
+        ok = np.isfinite(b) & np.isfinite(s_a)
+        if ok.sum() < max(20, 0.2 * s_a.size):
+            continue
+        a_, b_ = s_a[ok] - s_a[ok].mean(), b[ok] - b[ok].mean()
+        den = math.sqrt(float(a_ @ a_) * float(b_ @ b_))
+        if den <= 0:
+            continue
+        scores[i] = float(a_ @ b_) / den
+        if scores[i] > best[0]:
+            best = (scores[i], lag)
+    peak, lag = best
+    if peak <= -2.0:
+        raise LoggerError("the tracker and the telemetry do not overlap in time within "
+                          f"+-{max_offset_s:g} s; pass --gt-offset", 1)
+    i = int(np.nanargmax(scores))
+    if 0 < i < lags.size - 1 and np.isfinite(scores[i - 1]) and np.isfinite(scores[i + 1]):
+        y0, y1, y2 = scores[i - 1], scores[i], scores[i + 1]
+        den = y0 - 2 * y1 + y2
+        if den < 0:
+            lag = lags[i] + 0.5 * (y0 - y2) / den * dt
+    return float(lag), float(peak)
+
+
+def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = None,
+                       max_offset_s: float = 10.0, min_correlation: float = 0.5,
+                       overwrite: bool = False) -> dict:
+    try:
+        run = runfmt.load_run(run_dir, check_units=False)
+        trk = runfmt._read_csv(csv_path, runfmt.GROUNDTRUTH_REQUIRED, may_be_empty=("phi_rad",))
+        runfmt._check_time(trk["t_s"], csv_path)
+    except runfmt.RunFormatError as exc:
+        raise LoggerError(str(exc), 2) from None
+    info: dict[str, Any] = {"file": os.path.basename(csv_path), "rows": int(trk["t_s"].size)}
+    if offset_s is None:
+        tel = run.telemetry
+        lag, peak = estimate_offset(tel["t_s"], tel["x_odo_m"], tel["y_odo_m"],
+                                    trk["t_s"], trk["x_m"], trk["y_m"], max_offset_s)
+        info.update(method="speed cross-correlation (odometry vs tracker)",
+                    offset_s=round(lag, 4), peak_correlation=round(peak, 4))
+        if peak < min_correlation:
+            raise LoggerError(f"clock offset estimate is unreliable (peak correlation {peak:.2f} < "
+                              f"{min_correlation}); pass --gt-offset", 1)
+        offset_s = lag
+    else:
+        info.update(method="given", offset_s=offset_s)
+    phi = trk.get("phi_rad")
+    try:
+        runfmt.write_groundtruth(run_dir, trk["t_s"] + offset_s, trk["x_m"], trk["y_m"], phi,
+                                 overwrite=overwrite)
+    except runfmt.RunFormatError as exc:
+        raise LoggerError(str(exc), 2) from None
+    mpath = os.path.join(run_dir, "meta.json")
+    with open(mpath) as fh:
+        meta = json.load(fh)
+    meta["groundtruth"] = info
+    tmp = mpath + ".tmp"
+    with open(tmp, "w") as fh:
+        json.dump(meta, fh, indent=2)
+        fh.write("\n")
+    os.replace(tmp, mpath)
+    return info
+
+
+# ================================================================================ CLI
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    d = P.definition()
+    p.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder to write (or to attach to)")
+    p.add_argument("--port", help="serial device, pty path or pyserial URL (socket://h:p, loop://)")
+    p.add_argument("--baud", type=int, default=d.baud, help=f"default {d.baud} (protocol.json link.baud)")
+    p.add_argument("--experiment", choices=sorted(d.enums["profile"]), help="send Start with this profile")
+    p.add_argument("--accel", type=float, default=48.0, help="wheel acceleration, rad/s^2 (default 48)")
+    p.add_argument("--accel-time", type=float, default=0.5, help="acceleration phase, s (default 0.5)")
+    p.add_argument("--duration", type=float, default=3.0, help="experiment length, s (default 3)")
+    p.add_argument("--radius", type=float, default=0.0, help="arc / figure-eight radius, m (+ = left)")
+    p.add_argument("--clamp", choices=["on", "off"], help="send SetClamp before starting")
+    p.add_argument("--mu-s", type=float, help="send SetMu (with --mu-k)")
+    p.add_argument("--mu-k", type=float)
+    p.add_argument("--description", help="meta.json 'experiment' text (default: from the command)")
+    p.add_argument("--record-s", type=float, help="stop after this many seconds (default: until the "
+                   "experiment ends, or Ctrl-C)")
+    p.add_argument("--reconnect-timeout", type=float, default=30.0,
+                   help="give up when a lost port has not returned after this many s (default 30)")
+    p.add_argument("--params-timeout", type=float, default=1.0, help="wait for Params, s (default 1)")
+    p.add_argument("--quiet", action="store_true", help="no live status line")
+    p.add_argument("--attach-groundtruth", metavar="TRACKER_CSV",
+                   help="add an external tracker CSV (t_s,x_m,y_m[,phi_rad]) to the run in --out")
+    p.add_argument("--gt-offset", type=float, help="tracker clock offset, s (t_board = t_tracker + offset); "
+                   "estimated by speed cross-correlation when omitted")
+    p.add_argument("--gt-max-offset", type=float, default=10.0, help="search window, s (default 10)")
+
+
+def main(args: argparse.Namespace) -> int:
+    if args.attach_groundtruth:
+        try:
+            info = attach_groundtruth(args.out, args.attach_groundtruth, args.gt_offset, args.gt_max_offset)
+        except LoggerError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return exc.code
+        print(f"groundtruth.csv written: offset {info['offset_s']} s ({info['method']}"
+              + (f", peak correlation {info['peak_correlation']}" if "peak_correlation" in info else "") + ")")
+        return 0
+    if not args.port:
+        print("error: --port is required (or --attach-groundtruth)", file=sys.stderr)
+        return 2
+    d = P.definition()
+    experiment = None
+    try:
+        if args.experiment:
+            experiment = {"profile": args.experiment, "wheel_accel": args.accel,
+                          "accel_time": args.accel_time, "duration": args.duration, "radius": args.radius}
+            d.raw_values("Start", experiment)
+        mu = None
+        if (args.mu_s is None) != (args.mu_k is None):
+            raise P.ProtocolError("--mu-s and --mu-k go together")
+        if args.mu_s is not None:
+            mu = (args.mu_s, args.mu_k)
+            d.raw_values("SetMu", {"mu_s": mu[0], "mu_k": mu[1]})
+    except P.ProtocolError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    record_s = args.record_s
+    if record_s is None and experiment is not None:
+        record_s = args.duration + 5.0  # safety net if the end of the run is never reported
+
+    def open_port():
+        import serial
+        return serial.serial_for_url(args.port, baudrate=args.baud, timeout=0.05, write_timeout=0.5)
+
+    lg = Logger(args.out, open_port, args.port, args.baud, experiment=experiment,
+                clamp=None if args.clamp is None else args.clamp == "on", mu=mu, record_s=record_s,
+                reconnect_timeout_s=args.reconnect_timeout, params_timeout_s=args.params_timeout,
+                status=not args.quiet, description=args.description, d=d)
+    try:
+        code = lg.run()
+    except LoggerError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.code
+    s = lg.stats
+    print(f"\n{args.out}: {s['telemetry_rows']} rows, {lg.dec.crc_errors} CRC errors, "
+          f"{lg.dec.bad_blocks - lg.dec.crc_errors} other bad blocks, {s['gaps']} gaps "
+          f"({s['lost_frames']} frames lost), {s['duplicates']} duplicates, {s['robot_resets']} resets, "
+          f"{s['disconnects']} disconnects; end: {lg.end_reason}", file=sys.stderr)
+    if code:
+        print(f"error: {lg.end_reason}", file=sys.stderr)
+    return code

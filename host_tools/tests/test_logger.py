@@ -1,0 +1,542 @@
+"""The telemetry logger over pyserial loop://, a pty pair and socket:// with a simulated robot:
+corruption, drops, duplication, a robot reset, a pulled cable, Ctrl-C, commands and acks, and
+attaching external ground truth."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import pty
+import socket
+import threading
+import time
+import tty
+
+import numpy as np
+import pytest
+import serial
+
+from host_tools import logger as L
+from host_tools import protocol as P
+from host_tools import runfmt
+
+D = P.definition()
+TEL = D.by_name["Telemetry"]
+NAMES = TEL.field_names()
+RUNNING = 1 << D.flags["status"]["running"]
+
+
+def telemetry(seq: int, t_us: int, omega: float = 10.0, running: bool = False, x: float = 0.0,
+              failsafe: int = 0) -> bytes:
+    vals = dict.fromkeys(NAMES, 0)
+    vals.update(t_us=t_us, enc_r=seq * 3, enc_l=seq * 3, omega_r=int(omega * 100), omega_l=int(omega * 100),
+                x_odo=int(x * 1e6), status=RUNNING if running else 0, inner_max=150, stack_hwm=700, failsafe=failsafe)
+    return D.encode_raw("Telemetry", seq, [vals[n] for n in NAMES])
+
+
+def params_frame(seq: int) -> bytes:
+    p = dict(D.robot_defaults["robot"], **D.robot_defaults["motor"])
+    p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
+             baud=115200, clamp_on=1, firmware_id=0xDEADBEEF)
+    p["mu_s"] = 0.3
+    return D.encode_raw("Params", seq, [p[f.name] for f in D.by_name["Params"].fields])
+
+
+def rows(run_dir):
+    return runfmt.load_run(run_dir, check_units=False)
+
+
+def events(run_dir):
+    with open(os.path.join(run_dir, "events.jsonl")) as fh:
+        return [json.loads(line) for line in fh]
+
+
+# --------------------------------------------------------------------- loop://
+
+
+def test_loop_corruption_drops_and_duplicates(tmp_path):
+    port = serial.serial_for_url("loop://", timeout=0.02)
+    frames = [telemetry(i, 1_000_000 + 20_000 * i) for i in range(40)]
+    stream = bytearray()
+    for i, fr in enumerate(frames):
+        if i == 5:
+            stream += b"\x12\x34\x56garbage"            # garbage between frames
+        if i == 10:
+            bad = bytearray(fr)
+            bad[30] ^= 0x04                            # CRC error
+            stream += bad
+            continue
+        if i in (15, 16, 17):                          # dropped frames: a gap of 3
+            continue
+        if i == 20:
+            stream += fr[:37]                          # cut short (robot lost power mid-frame)
+            continue
+        stream += fr
+        if i == 25:
+            stream += fr                               # duplicated by the radio
+    port.write(bytes(stream))
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: port, "loop://", 115200, record_s=0.6, params_timeout_s=0.05,
+                  status=False)
+    assert lg.run() == 0
+    run = rows(out)
+    expect = [i for i in range(40) if i not in (10, 15, 16, 17, 20)]
+    assert run.telemetry["seq"].astype(int).tolist() == expect
+    assert np.allclose(run.telemetry["t_s"], [1.0 + 0.02 * i for i in expect])
+    assert np.allclose(run.telemetry["omega_r"], 10.0)
+    meta = json.load(open(out / "meta.json"))
+    lg_stats = meta["logger"]
+    # garbage, the flipped bit and the truncated frame: three rejected blocks, >= 1 by CRC
+    assert sum(lg_stats["rejected_blocks"].values()) == 3
+    assert lg_stats["crc_errors"] >= 1
+    assert lg_stats["duplicates"] == 1
+    assert lg_stats["lost_frames"] == 5 and lg_stats["gaps"] == 3  # 10, 15-17, 20
+    assert meta["logger"]["params_source"].startswith("defaults")
+    ev = events(out)
+    kinds = [e["kind"] for e in ev]
+    assert "duplicate" in kinds and kinds.count("gap") == 3
+    # raw.bin holds every byte received: the robot's stream (plus our own looped-back frames)
+    raw = (out / "raw.bin").read_bytes()
+    assert raw.startswith(bytes(stream))
+    rej = [e for e in ev if e["kind"] == "rejected_block"]
+    assert {e["reason"] for e in rej} >= {"crc"}
+    for e in rej:  # offsets point into raw.bin
+        assert 0 <= e["raw_offset"] < len(raw)
+
+
+# ----------------------------------------------------------------- a fake robot
+
+
+class FakeRobot(threading.Thread):
+    """Robot side of the protocol: answers commands with Acks, sends Params on request and
+    telemetry every ``period`` s (board time in 20 ms steps), runs experiments, brakes when no
+    host frame arrived for 500 ms of wall time.  ``tamper(seq, frame) -> bytes`` can corrupt/drop/duplicate."""
+
+    def __init__(self, write, read, period=0.004, reject=None, tamper=None):
+        super().__init__(daemon=True)
+        self.write, self.read = write, read
+        self.period = period
+        self.reject = reject or {}
+        self.tamper = tamper
+        self.seq = 0
+        self.t_us = 0
+        self.running_until = None
+        self.last_host = None
+        self.received: list[str] = []
+        self.dec = P.StreamDecoder()
+        self.stop_flag = threading.Event()
+        self.failsafe = 0
+        self.lock = threading.Lock()
+
+    def next_seq(self):
+        s = self.seq
+        self.seq = (self.seq + 1) & 0xFFFF
+        return s
+
+    def send(self, data):
+        try:
+            self.write(data)
+        except OSError:
+            pass
+
+    def handle(self, data):
+        for f in self.dec.feed(data):
+            msg = D.by_type.get(f.type)
+            self.last_host = time.monotonic()
+            name = msg.name if msg else f"type{f.type}"
+            self.received.append(name)
+            result = self.reject.get(name, "ok")
+            if result == "ok" and msg is not None:
+                if name == "Start":
+                    _, raws = D.unpack(f)
+                    self.running_until = self.t_us + raws[3] * 1000  # duration ms -> us
+                    self.failsafe = 0
+                elif name == "Stop":
+                    self.running_until = None
+            self.send(D.encode_raw("Ack", self.next_seq(), (f.seq, f.type, D.enums["result"][result], 255)))
+            if name == "RequestParams" and result == "ok":
+                self.send(params_frame(self.next_seq()))
+
+    def step(self):
+        running = self.running_until is not None and self.t_us < self.running_until
+        # failsafe on host (wall) time: this robot's board clock runs faster than real time
+        if running and self.last_host is not None and time.monotonic() - self.last_host > 0.5:
+            self.running_until, running, self.failsafe = None, False, 1
+        if self.running_until is not None and not running:
+            self.running_until = None
+        seq = self.next_seq()
+        fr = telemetry(seq, self.t_us, omega=20.0 if running else 0.0, running=running,
+                       failsafe=self.failsafe)
+        if self.tamper:
+            fr = self.tamper(seq, fr)
+        self.send(fr)
+        self.t_us += 20_000
+
+    def run(self):
+        while not self.stop_flag.is_set():
+            data = self.read()
+            if data:
+                self.handle(data)
+            with self.lock:
+                self.step()
+            time.sleep(self.period)
+
+
+def pty_pair():
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    os.set_blocking(master, False)
+    return master, os.ttyname(slave), slave
+
+
+def robot_on_pty(**kw):
+    master, path, slave = pty_pair()
+
+    def read():
+        try:
+            return os.read(master, 4096)
+        except BlockingIOError:
+            return b""
+        except OSError:
+            return b""
+    robot = FakeRobot(lambda b: os.write(master, b), read, **kw)
+    robot.start()
+    return robot, path, (master, slave)
+
+
+def test_pty_experiment_with_params_commands_and_heartbeats(tmp_path):
+    robot, path, fds = robot_on_pty(period=0.004)
+    out = tmp_path / "run"
+    try:
+        rc = L.main(_args(["--port", path, "--out", str(out), "--experiment", "straight", "--accel", "48",
+                           "--accel-time", "0.5", "--duration", "1.0", "--clamp", "on", "--mu-s", "0.3",
+                           "--mu-k", "0.25", "--quiet", "--record-s", "20"]))
+    finally:
+        robot.stop_flag.set()
+        robot.join(2)
+    assert rc == 0
+    meta = json.load(open(out / "meta.json"))
+    assert meta["experiment"].startswith("straight line, 48 rad/s^2 wheel acceleration for 0.5 s")
+    assert meta["robot"]["mu_s"] == pytest.approx(0.3)          # from the robot's Params
+    assert meta["torque_clamp"] is True
+    assert meta["logger"]["params_source"] == "robot"
+    assert meta["logger"]["firmware_id"] == "deadbeef"
+    assert meta["logger"]["end_reason"] == "experiment finished"
+    assert [c["command"] for c in meta["commands"]] == ["SetClamp", "SetMu", "Start"]
+    assert all(c["result"] == "ok" for c in meta["commands"])
+    assert robot.received[:4] == ["RequestParams", "SetClamp", "SetMu", "Start"]
+    # 1 s of board time at 20 ms per frame took ~0.2 s of host time; heartbeats kept it alive
+    assert robot.failsafe == 0
+    run = rows(out)
+    st = run.telemetry["status"].astype(int)
+    assert (st & RUNNING).sum() >= 45
+    assert run.telemetry["t_s"].size > 50
+    for fd in fds:
+        os.close(fd)
+
+
+def test_failsafe_without_heartbeats_is_recorded(tmp_path):
+    """A robot running an experiment that stops hearing the host brakes (failsafe
+    host_timeout); the logger, recording freely (so sending no heartbeats), records why."""
+    robot, path, fds = robot_on_pty(period=0.004)
+    with robot.lock:
+        robot.last_host = time.monotonic()
+        robot.running_until = 10**9
+    out = tmp_path / "run"
+    try:
+        lg = L.Logger(str(out), lambda: serial.serial_for_url(path, timeout=0.02), path, 115200,
+                      record_s=1.0, params_timeout_s=0.2, status=False)
+        assert lg.run() == 0
+    finally:
+        robot.stop_flag.set()
+        robot.join(2)
+    fs = [e for e in events(out) if e["kind"] == "failsafe"]
+    assert fs and fs[0]["reason"] == "host_timeout"
+    st = rows(out).telemetry["status"].astype(int)
+    assert st[0] & RUNNING and not st[-1] & RUNNING
+    for fd in fds:
+        os.close(fd)
+
+
+def test_rejected_command_exits_1_and_keeps_the_run(tmp_path, capsys):
+    robot, path, fds = robot_on_pty(reject={"Start": "busy"})
+    out = tmp_path / "run"
+    try:
+        rc = L.main(_args(["--port", path, "--out", str(out), "--experiment", "arc", "--radius", "0.5",
+                           "--quiet"]))
+    finally:
+        robot.stop_flag.set()
+        robot.join(2)
+    assert rc == 1
+    assert "robot rejected Start: busy" in capsys.readouterr().err
+    meta = json.load(open(out / "meta.json"))
+    assert meta["commands"][-1]["result"] == "busy"
+    assert meta["logger"]["end_reason"] == "robot rejected Start: busy"
+    runfmt.load_meta(out)
+    for fd in fds:
+        os.close(fd)
+
+
+def test_bad_input_exit_2(tmp_path, capsys):
+    rc = L.main(_args(["--port", "loop://", "--out", str(tmp_path / "r"), "--experiment", "straight",
+                       "--accel", "500"]))
+    assert rc == 2
+    assert "Start.wheel_accel: 500.0 rad/s^2 is out of range [0.01, 200]" in capsys.readouterr().err
+    rc = L.main(_args(["--port", str(tmp_path / "no-such-tty"), "--out", str(tmp_path / "r2")]))
+    assert rc == 2
+    assert "cannot open port" in capsys.readouterr().err
+    rc = L.main(_args(["--port", "loop://", "--out", str(tmp_path / "r3"), "--mu-s", "0.3"]))
+    assert rc == 2
+
+
+# ---------------------------------------------------------- socket: pulled cable
+
+
+class SocketRobot:
+    """TCP server carrying the fake robot; ``pull()`` closes the connection and the listening
+    socket (the port disappears), ``plug()`` brings it back."""
+
+    def __init__(self, **kw):
+        self.srv = None
+        self.conn = None
+        self.port = None
+        self.lock = threading.Lock()
+        self.plug()
+        self.robot = FakeRobot(self._write, self._read, **kw)
+        self.robot.start()
+
+    def plug(self):
+        s = socket.socket()
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind(("127.0.0.1", self.port or 0))
+        s.listen(1)
+        s.setblocking(False)
+        self.port = s.getsockname()[1]
+        self.srv = s
+
+    def pull(self):
+        with self.lock:
+            for s in (self.conn, self.srv):
+                if s is not None:
+                    s.close()
+            self.conn = self.srv = None
+
+    def _accept(self):
+        if self.conn is None and self.srv is not None:
+            try:
+                self.conn, _ = self.srv.accept()
+                self.conn.setblocking(False)
+            except (BlockingIOError, OSError):
+                pass
+
+    def _write(self, b):
+        with self.lock:
+            self._accept()
+            if self.conn is not None:
+                try:
+                    self.conn.sendall(b)
+                except OSError:
+                    pass
+            # while unplugged the robot's frames go nowhere (they are lost, as on a real cable)
+
+    def _read(self):
+        with self.lock:
+            self._accept()
+            if self.conn is None:
+                return b""
+            try:
+                return self.conn.recv(4096)
+            except (BlockingIOError, OSError):
+                return b""
+
+    def close(self):
+        self.robot.stop_flag.set()
+        self.robot.join(2)
+        self.pull()
+
+
+def test_pulled_cable_reconnects_and_resumes(tmp_path):
+    sr = SocketRobot(period=0.004)
+    out = tmp_path / "run"
+    url = f"socket://127.0.0.1:{sr.port}"
+    lg = L.Logger(str(out), lambda: serial.serial_for_url(url, timeout=0.02), url, 115200,
+                  record_s=2.5, params_timeout_s=0.3, reconnect_timeout_s=5, status=False)
+
+    def cable():
+        time.sleep(0.8)
+        sr.pull()
+        time.sleep(0.7)
+        sr.plug()
+    th = threading.Thread(target=cable, daemon=True)
+    th.start()
+    try:
+        assert lg.run() == 0
+    finally:
+        th.join()
+        sr.close()
+    ev = events(out)
+    kinds = [e["kind"] for e in ev]
+    assert "disconnect" in kinds and "reconnect" in kinds
+    i_dis, i_re = kinds.index("disconnect"), kinds.index("reconnect")
+    assert i_dis < i_re
+    run = rows(out)
+    t = run.telemetry["t_s"]
+    assert np.all(np.diff(t) > 0)
+    seq = run.telemetry["seq"].astype(int)
+    # frames before and after the outage; the outage itself shows as one gap
+    gap = [e for e in ev if e["kind"] == "gap"]
+    assert len(gap) >= 1 and max(g["missing"] for g in gap) > 50
+    assert seq.size > 100
+    meta = json.load(open(out / "meta.json"))
+    assert meta["logger"]["disconnects"] >= 1
+
+
+def test_port_never_returns_gives_complete_run(tmp_path):
+    sr = SocketRobot(period=0.004)
+    url = f"socket://127.0.0.1:{sr.port}"
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: serial.serial_for_url(url, timeout=0.02), url, 115200,
+                  record_s=30, params_timeout_s=0.3, reconnect_timeout_s=0.8, status=False)
+    threading.Timer(0.5, sr.pull).start()
+    try:
+        assert lg.run() == 1
+    finally:
+        sr.close()
+    meta = json.load(open(out / "meta.json"))
+    assert "did not return within 0.8 s" in meta["logger"]["end_reason"]
+    assert rows(out).telemetry["t_s"].size > 20
+
+
+def test_robot_power_loss_and_reset(tmp_path):
+    """The robot dies mid-frame and reboots: its seq and clock restart; the logger records a
+    reset and keeps t_s increasing."""
+    port = serial.serial_for_url("loop://", timeout=0.02)
+    # (pyserial's loop:// queue holds 4096 bytes: stay below it)
+    a = [telemetry(i, 5_000_000 + 20_000 * i) for i in range(20)]
+    b = [telemetry(i, 3000 + 20_000 * i) for i in range(20)]
+    port.write(b"".join(a) + a[0][:25] + b"".join(b))
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: port, "loop://", 115200, record_s=0.5, params_timeout_s=0.05,
+                  status=False)
+    assert lg.run() == 0
+    run = rows(out)
+    assert run.telemetry["t_s"].size == 40
+    assert np.all(np.diff(run.telemetry["t_s"]) > 0)
+    assert lg.stats["robot_resets"] == 1
+    assert [e for e in events(out) if e["kind"] == "robot_reset"]
+
+
+def test_clock_wrap_is_unwrapped(tmp_path):
+    port = serial.serial_for_url("loop://", timeout=0.02)
+    t0 = 2**32 - 60_000
+    port.write(b"".join(telemetry(i, (t0 + 20_000 * i) % 2**32) for i in range(8)))
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: port, "loop://", 115200, record_s=0.3, params_timeout_s=0.05,
+                  status=False)
+    assert lg.run() == 0
+    t = rows(out).telemetry["t_s"]
+    assert np.allclose(np.diff(t), 0.02)
+    assert lg.stats["robot_resets"] == 0
+
+
+def test_ctrl_c_leaves_a_complete_run(tmp_path):
+    port = serial.serial_for_url("loop://", timeout=0.02)
+    port.write(b"".join(telemetry(i, 20_000 * (i + 1)) for i in range(20)))
+    calls = {"n": 0}
+
+    class Interrupting:
+        def __init__(self, p):
+            self.p = p
+
+        @property
+        def in_waiting(self):
+            return self.p.in_waiting
+
+        def read(self, n):
+            calls["n"] += 1
+            if calls["n"] > 5:
+                raise KeyboardInterrupt
+            return self.p.read(min(n, 200))
+
+        def write(self, b):
+            return self.p.write(b)
+
+        def close(self):
+            self.p.close()
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: Interrupting(port), "loop://", 115200, params_timeout_s=5,
+                  status=False)
+    assert lg.run() == 0
+    meta = json.load(open(out / "meta.json"))
+    assert meta["logger"]["end_reason"] == "interrupted (Ctrl-C)"
+    assert rows(out).telemetry["t_s"].size >= 5
+    assert events(out)[-1]["kind"] == "end"
+
+
+def test_refuses_to_overwrite(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "telemetry.csv").write_text("x\n")
+    rc = L.main(_args(["--port", "loop://", "--out", str(out), "--quiet"]))
+    assert rc == 2
+
+
+# ---------------------------------------------------------------- ground truth
+
+
+def _make_run(path, offset, noise=0.002, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, 6, 0.02)
+    # accelerate for 0.5 s, hold, brake at 4 s
+    v = np.clip(np.minimum(t / 0.5, 1.0) * 0.6 - np.clip((t - 4) / 0.5, 0, 1) * 0.6, 0, None)
+    v[t < 1.0] = 0
+    v[(t >= 1.0) & (t < 1.5)] = (t[(t >= 1.0) & (t < 1.5)] - 1.0) / 0.5 * 0.6
+    x = np.cumsum(v) * 0.02
+    with runfmt.RunWriter(path, {"experiment": "test"}) as w:
+        for i in range(t.size):
+            w.write_row({"t_s": t[i], "enc_r": 0, "enc_l": 0, "omega_r": 0, "omega_l": 0, "tau_cmd_r": 0,
+                         "tau_cmd_l": 0, "pwm_r": 0, "pwm_l": 0, "x_odo_m": x[i], "y_odo_m": 0.0,
+                         "phi_odo_rad": 0.0})
+    # tracker at 30 Hz on its own clock: t_tracker = t_board - offset, with noise and a dropout
+    tt = np.arange(0, 6, 1 / 30)
+    xt = np.interp(tt, t, x) * 1.05 + rng.normal(0, noise, tt.size)  # slip: 5 % further
+    keep = ~((tt > 3.0) & (tt < 3.4))
+    return tt[keep] - offset, xt[keep], rng.normal(0, noise, keep.sum())
+
+
+def test_groundtruth_offset_is_estimated(tmp_path):
+    run = tmp_path / "run"
+    tt, xt, yt = _make_run(str(run), offset=2.37)
+    csv = tmp_path / "tracker.csv"
+    with open(csv, "w") as fh:
+        fh.write("t_s,x_m,y_m,phi_rad\n")
+        for a, b, c in zip(tt, xt, yt):
+            fh.write(f"{a:.4f},{b:.5f},{c:.5f},\n")
+    rc = L.main(_args(["--out", str(run), "--attach-groundtruth", str(csv)]))
+    assert rc == 0
+    meta = json.load(open(run / "meta.json"))
+    assert meta["groundtruth"]["offset_s"] == pytest.approx(2.37, abs=0.02)
+    r = runfmt.load_run(run, check_units=False)
+    assert r.groundtruth["t_s"][0] == pytest.approx(tt[0] + 2.37, abs=0.02)
+
+
+def test_groundtruth_given_offset_and_bad_csv(tmp_path, capsys):
+    run = tmp_path / "run"
+    tt, xt, yt = _make_run(str(run), offset=0.0)
+    csv = tmp_path / "tracker.csv"
+    csv.write_text("t_s,x_m\n0,1\n")
+    assert L.main(_args(["--out", str(run), "--attach-groundtruth", str(csv)])) == 2
+    assert "column 'y_m'" in capsys.readouterr().err
+    csv.write_text("t_s,x_m,y_m\n0,0,0\n0.1,nan,0\n")
+    assert L.main(_args(["--out", str(run), "--attach-groundtruth", str(csv), "--gt-offset", "1"])) == 2
+    assert "row 2" in capsys.readouterr().err
+    csv.write_text("t_s,x_m,y_m\n" + "".join(f"{a},{b},{c}\n" for a, b, c in zip(tt, xt, yt)))
+    assert L.main(_args(["--out", str(run), "--attach-groundtruth", str(csv), "--gt-offset", "0.5"])) == 0
+    assert json.load(open(run / "meta.json"))["groundtruth"]["method"] == "given"
+
+
+def _args(argv):
+    import argparse
+    p = argparse.ArgumentParser()
+    L.add_arguments(p)
+    return p.parse_args(argv)
