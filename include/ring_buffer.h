@@ -6,6 +6,7 @@
 #define FW_RING_BUFFER_H
 
 #include <stdint.h>
+#include <string.h>
 
 template <uint16_t N>
 class RingBuffer {
@@ -25,6 +26,19 @@ public:
         buf_[h] = b;
         __asm__ __volatile__("" ::: "memory");  // the byte is stored before it is published
         head_ = next;
+        return true;
+    }
+    // Producer side: n bytes as one unit (at most two memcpy, one publication). False (nothing
+    // written) when they do not all fit.
+    bool push_block(const uint8_t* p, uint16_t n) {
+        if (n > free_slots()) return false;
+        uint8_t h = head_;
+        uint16_t first = static_cast<uint16_t>(N - h);
+        if (first > n) first = n;
+        memcpy(&buf_[h], p, first);
+        memcpy(&buf_[0], p + first, n - first);
+        __asm__ __volatile__("" ::: "memory");  // the bytes are stored before they are published
+        head_ = static_cast<uint8_t>((h + n) & kMask);
         return true;
     }
     // Producer side: free slots (a lower bound while the consumer runs).

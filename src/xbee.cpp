@@ -36,11 +36,10 @@ void xbee_init() {
 }
 
 bool xbee_write(const uint8_t* p, uint16_t n) {
-    if (n > g_tx.free_slots()) {
+    if (!g_tx.push_block(p, n)) {
         if (g_tx_drops != 0xFFFFu) ++g_tx_drops;
         return false;
     }
-    for (uint16_t i = 0; i < n; ++i) g_tx.push(p[i]);
     uint8_t sreg = SREG;
     cli();  // UCSR2B is also written by the UDRE ISR
     UCSR2B |= _BV(UDRIE2);

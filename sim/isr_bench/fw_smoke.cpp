@@ -13,6 +13,7 @@
 #include <string.h>
 #include <math.h>
 
+#include <algorithm>
 #include <vector>
 
 extern "C" {
@@ -66,11 +67,15 @@ void on_uart_out(avr_irq_t*, uint32_t value, void*) {
 double brake_seen_t = -1;  // first time both brake pins were seen high while watching
 bool watch_brake;
 
+std::vector<unsigned long long> pc_cycles;  // --profile: cycles spent per flash address
+
 void step() {
     avr_flashaddr_t pc0 = avr->pc;
+    avr_cycle_count_t cyc0 = avr->cycle;
     bool was_sleeping = avr->state == cpu_Sleeping;
     uint16_t op = static_cast<uint16_t>(avr->flash[pc0] | (avr->flash[pc0 + 1] << 8));
     avr_run(avr);
+    if (!pc_cycles.empty() && avr->state == cpu_Running) pc_cycles[pc0] += avr->cycle - cyc0;
     if (op == 0x9518 && in_isr >= 0) {
         if (avr->interrupt_state < -1) avr->interrupt_state = -1;  // hardware: one instruction
         unsigned long d = static_cast<unsigned long>(avr->cycle - isr_start);
@@ -168,6 +173,8 @@ int main(int argc, char** argv) {
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('2'), UART_IRQ_OUTPUT), on_uart_out, NULL);
     for (int i = 0; i < 4; ++i) { pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), i); avr_raise_irq(pin_irq[i], 0); }
     uint32_t a_hang = sym(argv[1], "g_fault_hang");
+    bool profile = argc > 2 && strcmp(argv[2], "--profile") == 0;
+    if (profile) pc_cycles.assign(256 * 1024, 0);
 
     // 1. boot, idle
     run_for(1.0);
@@ -283,6 +290,26 @@ int main(int argc, char** argv) {
     printf("\n# ISR cycles (hardware-corrected: +5 response), whole run\n%-8s %10s %6s %8s\n", "vector", "calls", "max", "mean");
     for (int v = 0; v < 64; ++v)
         if (vstat[v].n) printf("%-8d %10lu %6lu %8.1f\n", v, vstat[v].n, vstat[v].max, vstat[v].sum / vstat[v].n);
+    if (profile) {  // cycles per function over the whole run (avr-nm -S for the ranges)
+        char cmd[512];
+        snprintf(cmd, sizeof cmd, "avr-nm -S -C --size-sort '%s'", argv[1]);
+        FILE* p = popen(cmd, "r");
+        char line[512];
+        struct F { unsigned long long c; char name[200]; };
+        std::vector<F> fs;
+        while (p && fgets(line, sizeof line, p)) {
+            unsigned long a, n; char t;
+            char name[200];
+            if (sscanf(line, "%lx %lx %c %199[^\n]", &a, &n, &t, name) != 4 || (t != 'T' && t != 't')) continue;
+            unsigned long long c = 0;
+            for (unsigned long i = a; i < a + n && i < pc_cycles.size(); ++i) c += pc_cycles[i];
+            if (c) { F f; f.c = c; snprintf(f.name, sizeof f.name, "%s", name); fs.push_back(f); }
+        }
+        if (p) pclose(p);
+        std::sort(fs.begin(), fs.end(), [](const F& x, const F& y) { return x.c > y.c; });
+        printf("\n# profile: cycles per function, whole run (top 25)\n");
+        for (size_t i = 0; i < fs.size() && i < 25; ++i) printf("%12llu  %s\n", fs[i].c, fs[i].name);
+    }
     printf("\n%s (%d failures)\n", failures ? "FAILED" : "ALL PASSED", failures);
     return failures ? 1 : 0;
 }

@@ -62,6 +62,25 @@ static void test_sizes_2_and_256() {
     TEST_ASSERT_TRUE(big.empty());
 }
 
+static void test_push_block_wraps_and_is_all_or_nothing() {
+    RingBuffer<16> rb;
+    uint8_t b;
+    for (uint8_t i = 0; i < 11; ++i) rb.push(i);
+    for (uint8_t i = 0; i < 11; ++i) rb.pop(&b);  // head and tail at 11: a block must wrap
+    uint8_t blk[15];
+    for (uint8_t i = 0; i < sizeof blk; ++i) blk[i] = static_cast<uint8_t>(100 + i);
+    TEST_ASSERT_FALSE(rb.push_block(blk, 16));  // more than the capacity: nothing written
+    TEST_ASSERT_TRUE(rb.empty());
+    TEST_ASSERT_TRUE(rb.push_block(blk, 10));
+    TEST_ASSERT_FALSE(rb.push_block(blk, 6));   // 5 free: all or nothing
+    TEST_ASSERT_EQUAL_UINT16(10, rb.used());
+    for (uint8_t i = 0; i < 10; ++i) {
+        TEST_ASSERT_TRUE(rb.pop(&b));
+        TEST_ASSERT_EQUAL_UINT8(100 + i, b);
+    }
+    TEST_ASSERT_FALSE(rb.pop(&b));
+}
+
 // ---- ISR as producer (like USART RX) and as consumer (like UDRE) ----
 static RingBuffer<16> g_to_main;
 static RingBuffer<16> g_to_isr;
@@ -136,6 +155,7 @@ int main() {
     RUN_TEST(test_fifo_order_and_capacity);
     RUN_TEST(test_wrap_around_many_times);
     RUN_TEST(test_sizes_2_and_256);
+    RUN_TEST(test_push_block_wraps_and_is_all_or_nothing);
     RUN_TEST(test_spsc_against_a_preempting_isr);
     RUN_TEST(test_xbee_write_drops_whole_frames_and_never_blocks);
     UNITY_END();
