@@ -77,3 +77,32 @@ def test_python_codec_uses_the_same_layout():
     for m in defn["messages"]:
         assert pd.by_name[m["name"]].size == gen.payload_size(m)
         assert pd.by_name[m["name"]].type == m["type"]
+
+
+def _golden(text: str, label: str) -> bytes:
+    import re
+
+    m = re.search(r"// GOLDEN " + re.escape(label) + r"\n[^{]*\{([^}]*)\}", text)
+    assert m, f"golden vector {label!r} not found"
+    return bytes(int(x, 16) for x in re.findall(r"0x([0-9a-fA-F]{2})", m.group(1)))
+
+
+def test_embedded_golden_vectors():
+    """test/embedded/test_protocol compares the AVR's frames with golden vectors; they must be
+    what the host codec produces today for the same values (else the AVR test checks a stale
+    protocol)."""
+    from host_tools import protocol
+
+    d = protocol.Definition()
+    text = (ROOT / "test" / "embedded" / "test_protocol" / "test_protocol.cpp").read_text()
+    names = d.by_name["Telemetry"].field_names()
+    v = dict.fromkeys(names, 0)
+    v.update(t_us=4294967000, enc_r=-123456, enc_l=2147483647, omega_r=3665, omega_l=-1250,
+             tau_cmd_r=950, tau_cmd_l=-7700, pwm_r=10000, pwm_l=-2500, x_odo=1234567, y_odo=-500000,
+             phi_odo=6500000, inner_last=771, inner_max=65535, inner_overruns=3, illegal_l=7, status=3,
+             failsafe=1, reset_cause=8, current_r=1023, stack_hwm=812)
+    assert _golden(text, "Telemetry seq=65535") == d.encode_raw("Telemetry", 65535, [v[n] for n in names])
+    p = dict(d.robot_defaults["robot"], **d.robot_defaults["motor"])
+    p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
+             baud=115200, clamp_on=1, firmware_id=0x12345678)
+    assert _golden(text, "Params seq=7") == d.encode_raw("Params", 7, [p[f.name] for f in d.by_name["Params"].fields])
