@@ -17,7 +17,7 @@ from host_tools.analyzer import effects as fx
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit import (Candidate, Problem, evaluate_candidate, judge, params_for)
 from host_tools.analyzer.replay import (CHANNELS, CUMULATIVE, FIT_CHANNELS, ClosedLoopReplay,
-                                        OpenLoopReplay, PreparedRun, channels, prepare,
+                                        OpenLoopReplay, PreparedRun, channels, prepare_best,
                                         state_table)
 
 REPORT_FORMAT = "mismatch-report/1"
@@ -236,10 +236,10 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
         vocab_fit = {e: vocab[e] for e in effects}
     else:
         vocab_fit = vocab
-    preps = [prepare(r) for r in runs]
     notes: list[str] = []
     duty = OpenLoopReplay("duty", dt_s=dt_s)
     torque = OpenLoopReplay("torque", dt_s=dt_s)
+    preps = [prepare_best(r, duty) for r in runs]
     nominal = [channels(p, duty.simulate(p, {}), "duty") for p in preps]
     nominal_t = [channels(p, torque.simulate(p, {}), "torque") for p in preps]
     ok, why = ClosedLoopReplay.available()

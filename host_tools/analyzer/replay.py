@@ -24,13 +24,16 @@ FIT_CHANNELS = ("omega_r", "omega_l", "x_m", "y_m", "phi_rad")
 CUMULATIVE = ("enc_r", "enc_l", "x_odo_m", "y_odo_m", "phi_odo_rad")
 
 
-def reconstruct_input_times(t: np.ndarray, values: list[np.ndarray], period: float
-                            ) -> np.ndarray:
+def reconstruct_input_times(t: np.ndarray, values: list[np.ndarray], period: float,
+                            arc_position: float = 0.5) -> np.ndarray:
     """When the recorded inputs change between two telemetry frames, the change happened at a
     tick of the loop that sets them (period ``period``), somewhere in (t[k-1], t[k]].  Find the
     tick phase that puts one tick in every such interval and return, per frame, the time the
     value it reports took effect.  Falls back to the frame times when no phase fits (e.g. the
-    loop is not periodic, or faster than telemetry)."""
+    loop is not periodic, or faster than telemetry).
+
+    The data pin the phase down to an arc of feasible phases (5 ms wide for a 25 ms loop seen
+    at 50 Hz); ``arc_position`` picks the phase along it (0 start, 0.5 centre, 1 end)."""
     t = np.asarray(t, float)
     n = t.size
     eff = t.copy()
@@ -60,15 +63,16 @@ def reconstruct_input_times(t: np.ndarray, values: list[np.ndarray], period: flo
         return eff
     start = int(np.flatnonzero(~feasible)[0])
     rolled = np.roll(feasible, -start)
-    best_len, best_mid, run_start = 0, 0, None
+    best_len, best_start, run_start = 0, 0, None
     for j, f in enumerate(np.append(rolled, False)):
         if f and run_start is None:
             run_start = j
         elif not f and run_start is not None:
             if j - run_start > best_len:
-                best_len, best_mid = j - run_start, (run_start + j - 1) / 2.0
+                best_len, best_start = j - run_start, run_start
             run_start = None
-    best_phase = ((best_mid + start) % phases.size) * period / phases.size
+    pos = best_start + float(np.clip(arc_position, 0.0, 1.0)) * (best_len - 1)
+    best_phase = ((pos + start) % phases.size) * period / phases.size
     tick = best_phase + np.floor((t[ks] - best_phase) / period + 1e-9) * period
     ok = tick > t[ks - 1] + 1e-9
     eff[ks[ok]] = tick[ok]
@@ -96,12 +100,13 @@ class PreparedRun:
         return self.run.name
 
 
-def prepare(run: Run) -> PreparedRun:
+def prepare(run: Run, arc_position: float = 0.5) -> PreparedRun:
     tel = run.telemetry
     t = tel["t_s"]
     period = float(run.meta["periods_s"]["inner"])
-    t_in = reconstruct_input_times(t, [tel["pwm_r"], tel["pwm_l"]], period)
-    t_in_tau = reconstruct_input_times(t, [tel["tau_cmd_r"], tel["tau_cmd_l"]], period)
+    t_in = reconstruct_input_times(t, [tel["pwm_r"], tel["pwm_l"]], period, arc_position)
+    t_in_tau = reconstruct_input_times(t, [tel["tau_cmd_r"], tel["tau_cmd_l"]], period,
+                                       arc_position)
     # the input takes effect at t_in[k] and holds until the next one; the simulation is sampled
     # at the union of input times and telemetry times, from the first frame on
     grid = np.unique(np.concatenate([t, t_in, t_in_tau]))
@@ -109,7 +114,23 @@ def prepare(run: Run) -> PreparedRun:
                        duty=(tel["pwm_r"], tel["pwm_l"]),
                        torque=(tel["tau_cmd_r"], tel["tau_cmd_l"]),
                        t_grid=grid, robot=dict(run.meta["robot"]), motor=dict(run.meta["motor"]),
-                       start_pose=run.start_pose, ppr=int(run.meta["encoder_ppr"]))
+                       start_pose=run.start_pose, ppr=int(run.meta["encoder_ppr"]),
+                       extras={"arc_position": arc_position})
+
+
+def prepare_best(run: Run, replay: "OpenLoopReplay", positions=(0.0, 0.25, 0.5, 0.75, 1.0)
+                 ) -> PreparedRun:
+    """:func:`prepare`, with the input-timing phase chosen along its feasible arc by the
+    nominal duty replay's wheel-speed error (a nuisance parameter of the recording, fitted
+    once per run before anything else)."""
+    best, best_c = None, np.inf
+    for pos in positions:
+        prep = prepare(run, pos)
+        ch = channels(prep, replay.simulate(prep, {}), "duty")
+        c = float(sum(np.sum(ch[k].resid ** 2) for k in ("omega_r", "omega_l")))
+        if c < best_c:
+            best, best_c = prep, c
+    return best
 
 
 def _zoh(t_in: np.ndarray, v: np.ndarray, grid: np.ndarray) -> np.ndarray:

@@ -38,21 +38,24 @@ def _odometry(th_r, th_l, r, b):
 def make_run(path: str | os.PathLike, profile: str, effects: Mapping[str, Mapping[str, float]]
              | None = None, duration_s: float = 1.5, seed: int = 0, meta: Mapping | None = None,
              gt_noise_m: float = 1e-3, gt_noise_rad: float = 0.01, gt_rate_hz: float = 30.0,
-             dropout: float = 0.05, plant_factory=None) -> str:
+             dropout: float = 0.05, plant_factory=None, tick_phase: float | None = None) -> str:
     from host_tools import _native
     rng = np.random.default_rng(seed)
     full = runfmt.validate_meta(dict(meta or {}, experiment=f"synthetic {profile}",
                                      source="synthetic (nominal plant + effects)"))
     per = full["periods_s"]
     t_tel = np.round(np.arange(0.0, duration_s + 1e-9, per["telemetry"]), 9)
-    ticks = np.round(np.arange(0.0, duration_s + 1e-9, per["inner"]), 9)
+    # the inner loop's ticks have their own phase against the telemetry frames
+    phase = float(rng.uniform(0.0, per["inner"])) if tick_phase is None else float(tick_phase)
+    ticks = np.round(phase + np.arange(0.0, duration_s + 1e-9, per["inner"]), 9)
     t_gt = np.round(np.arange(0.5 / gt_rate_hz, duration_s, 1.0 / gt_rate_hz), 9)
     keep = rng.random(t_gt.size) > dropout
     t_gt = t_gt[keep]
     grid = np.unique(np.concatenate([t_tel, ticks, t_gt]))
     u_r_t, u_l_t = PROFILES[profile](ticks)
     idx = np.searchsorted(ticks, grid, side="right") - 1
-    u_r, u_l = u_r_t[idx], u_l_t[idx]
+    u_r = np.where(idx >= 0, u_r_t[np.maximum(idx, 0)], 0.0)
+    u_l = np.where(idx >= 0, u_l_t[np.maximum(idx, 0)], 0.0)
     factory = plant_factory or _native.Plant.from_meta
     truth = factory(full)
     for name, params in (effects or {}).items():
@@ -63,8 +66,8 @@ def make_run(path: str | os.PathLike, profile: str, effects: Mapping[str, Mappin
     # the torque command is set with the duty, at the inner-loop ticks
     at_tick = np.searchsorted(grid, ticks)
     tick_of = np.searchsorted(ticks, grid, side="right") - 1
-    tau_r = nom["tau_r_nm"][at_tick][tick_of]
-    tau_l = nom["tau_l_nm"][at_tick][tick_of]
+    tau_r = np.where(tick_of >= 0, nom["tau_r_nm"][at_tick][np.maximum(tick_of, 0)], 0.0)
+    tau_l = np.where(tick_of >= 0, nom["tau_l_nm"][at_tick][np.maximum(tick_of, 0)], 0.0)
     at_tel = np.searchsorted(grid, t_tel)
     at_gt = np.searchsorted(grid, t_gt)
     ppr = full["encoder_ppr"]
