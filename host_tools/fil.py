@@ -1,0 +1,273 @@
+"""Firmware in the loop (issue 6): record runs from the real firmware.elf in simavr.
+
+``python -m host_tools.fil record --out RUN_DIR [--accel 48 --clamp off ...] [sim options]``
+builds the simulator (``sim/fil/build.sh``) and, unless ``--elf`` is given, the firmware
+(``pio run -e megaatmega2560``), starts ``.build/fil/fil`` (which prints the pty of the
+simulated XBee link) and records through that pty with the telemetry logger
+(:mod:`host_tools.logger`), exactly as from the radio.  The run folder then holds the logger's
+files (meta.json, telemetry.csv, raw.bin, events.jsonl) and the simulator's (groundtruth.csv,
+plant.csv, encoder_samples.csv, fil.json).  ``meta.json`` gets ``"source": "fil"`` and a
+``"fil"`` section (simulator options, plant keys).  ``bench`` prints simulated seconds per
+wall-clock second.  Usage and the file contents: docs/fil.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from host_tools import logger as L
+from host_tools import protocol as P
+
+ROOT = Path(__file__).resolve().parents[1]
+BUILD = ROOT / ".build" / "fil"
+SIM = BUILD / "fil"
+PIO_ELF = ROOT / ".pio" / "build" / "megaatmega2560" / "firmware.elf"
+
+
+class FilError(Exception):
+    """The simulator or the firmware could not be built or run."""
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env.setdefault("PLATFORMIO_CORE_DIR", str(ROOT / ".platformio"))
+    env.setdefault("PLATFORMIO_DISABLE_UPGRADE_CHECK", "true")
+    env.setdefault("PLATFORMIO_SETTING_ENABLE_TELEMETRY", "no")
+    venv_bin = str(ROOT / ".venv" / "bin")
+    if venv_bin not in env.get("PATH", "").split(os.pathsep):
+        env["PATH"] = venv_bin + os.pathsep + env.get("PATH", "")
+    return env
+
+
+def build_sim() -> Path:
+    """Builds .build/fil/fil (no-op when up to date). FilError with the compiler output."""
+    r = subprocess.run(["sh", str(ROOT / "sim" / "fil" / "build.sh")], capture_output=True, text=True,
+                       env=_env(), cwd=ROOT)
+    if r.returncode != 0:
+        raise FilError(f"sim/fil/build.sh failed:\n{r.stdout}{r.stderr}")
+    return SIM
+
+
+def build_firmware() -> Path:
+    """Builds the megaatmega2560 firmware and returns a private copy of its ELF
+    (.build/fil/firmware.elf: other builds of the shared tree cannot change it mid-run)."""
+    pio = shutil.which("pio", path=_env()["PATH"])
+    if pio is None:
+        raise FilError("PlatformIO (pio) not found: run scripts/setup.sh, then source scripts/env.sh")
+    r = subprocess.run([pio, "run", "-e", "megaatmega2560"], capture_output=True, text=True, env=_env(), cwd=ROOT)
+    if r.returncode != 0 or not PIO_ELF.exists():
+        raise FilError(f"pio run -e megaatmega2560 failed:\n{(r.stdout + r.stderr)[-3000:]}")
+    BUILD.mkdir(parents=True, exist_ok=True)
+    dst = BUILD / "firmware.elf"
+    shutil.copyfile(PIO_ELF, dst)
+    return dst
+
+
+class Sim:
+    """One simulator process. ``args``: extra command-line options of .build/fil/fil."""
+
+    def __init__(self, elf: str | Path, run_dir: str | Path, args: list[str] | None = None,
+                 sim: str | Path = SIM, start_timeout_s: float = 10.0):
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.log_path = self.run_dir / "fil.log"
+        self._log = open(self.log_path, "w")
+        self.cmd = [str(sim), str(elf), "--run-dir", str(self.run_dir)] + [str(a) for a in (args or [])]
+        self.proc = subprocess.Popen(self.cmd, stdout=subprocess.PIPE, stderr=self._log, text=True)
+        self.pty = self._read_pty(start_timeout_s)
+
+    def _read_pty(self, timeout: float) -> str:
+        found: list[str] = []
+
+        def reader():
+            for line in self.proc.stdout:
+                if line.startswith("PTY "):
+                    found.append(line.split(None, 1)[1].strip())
+                    return
+
+        t = threading.Thread(target=reader, daemon=True)
+        t.start()
+        t.join(timeout)
+        if not found:
+            self.kill()
+            raise FilError(f"simulator did not report its pty; {self.cmd}\n{self.log()}")
+        # keep draining stdout (simavr prints to it) so the process never blocks on a full pipe
+        threading.Thread(target=lambda: [None for _ in self.proc.stdout], daemon=True).start()
+        return found[0]
+
+    def log(self) -> str:
+        self._log.flush()
+        return self.log_path.read_text()
+
+    def wait(self, timeout: float = 30.0) -> int:
+        try:
+            code = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.kill()
+            raise FilError(f"simulator still running after {timeout} s; killed\n{self.log()}") from None
+        self._log.close()
+        if code != 0:
+            raise FilError(f"simulator exited with {code}\n{self.log()}")
+        return code
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+    def summary(self) -> dict:
+        with open(self.run_dir / "fil.json") as fh:
+            return json.load(fh)
+
+
+class FilLogger(L.Logger):
+    """The telemetry logger, with the simulator's description added to meta.json."""
+
+    def __init__(self, *a, fil_meta: dict | None = None, **kw):
+        super().__init__(*a, **kw)
+        self.fil_meta = fil_meta or {}
+
+    def _meta(self) -> dict:
+        meta = super()._meta()
+        meta["source"] = "fil"
+        meta["fil"] = self.fil_meta
+        return meta
+
+
+def sim_args(keys: dict[str, float] | None = None, **opts: Any) -> list[str]:
+    """Command-line options of the simulator: keys -> --set K=V; opts name=value -> --name value
+    (underscores become dashes; True -> a bare flag; None/False -> left out)."""
+    out: list[str] = []
+    for k, v in (keys or {}).items():
+        out += ["--set", f"{k}={v!r}"]
+    for k, v in opts.items():
+        if v is None or v is False:
+            continue
+        flag = "--" + k.replace("_", "-")
+        out += [flag] if v is True else [flag, str(v)]
+    return out
+
+
+def record(out: str | Path, elf: str | Path, experiment: dict | None = None, clamp: bool | None = None,
+           mu: tuple[float, float] | None = None, args: list[str] | None = None,
+           record_s: float | None = None, timeout_s: float = 60.0) -> tuple[int, L.Logger, dict]:
+    """Runs the simulator and records through its pty with the logger.
+    Returns (logger exit code, logger, fil.json)."""
+    out = Path(out)
+    for f in ("telemetry.csv", "groundtruth.csv"):
+        if (out / f).exists():
+            raise FilError(f"{out / f} already exists; refusing to overwrite a recorded run")
+    sim = Sim(elf, out, args)
+    d = P.definition()
+
+    def open_port():
+        import serial
+        return serial.serial_for_url(sim.pty, baudrate=d.baud, timeout=0.05, write_timeout=0.5)
+
+    if record_s is None:
+        record_s = (experiment["duration"] + 5.0) if experiment else 5.0
+    lg = FilLogger(str(out), open_port, sim.pty, d.baud, experiment=experiment, clamp=clamp, mu=mu,
+                   record_s=record_s, status=False, d=d,
+                   fil_meta={"command": sim.cmd[1:], "elf": str(elf)})
+    try:
+        code = lg.run()
+    finally:
+        try:
+            sim.wait(timeout_s)
+        except FilError:
+            sim.kill()
+            raise
+    summary = sim.summary()
+    # the summary (speed, ISR cycles, ...) also in meta.json, for a reader of the run alone
+    lg.fil_meta["summary"] = {k: summary[k] for k in ("sim_s_per_wall_s", "encoder_isr", "tasks",
+                                                     "encoder_check", "slip", "link") if k in summary}
+    lg.write_meta()
+    return code, lg, summary
+
+
+# ================================================================================ CLI
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="fil_cmd", metavar="SUBCOMMAND")
+    r = sub.add_parser("record", help="run the firmware in the simulator and record a run")
+    r.add_argument("--out", required=True, metavar="RUN_DIR")
+    r.add_argument("--elf", help="firmware ELF (default: build megaatmega2560)")
+    r.add_argument("--experiment", default="straight", choices=sorted(P.definition().enums["profile"]) + ["none"])
+    r.add_argument("--accel", type=float, default=48.0, help="wheel acceleration, rad/s^2 (default 48)")
+    r.add_argument("--accel-time", type=float, default=0.5)
+    r.add_argument("--duration", type=float, default=2.0, help="experiment length, s (default 2)")
+    r.add_argument("--radius", type=float, default=0.0)
+    r.add_argument("--clamp", choices=["on", "off"])
+    r.add_argument("--mu-s", type=float)
+    r.add_argument("--mu-k", type=float)
+    r.add_argument("--record-s", type=float, help="free recording length (with --experiment none)")
+    r.add_argument("sim_options", nargs=argparse.REMAINDER,
+                   help="after '--': options of .build/fil/fil (see .build/fil/fil --help)")
+    b = sub.add_parser("bench", help="print simulated seconds per wall-clock second")
+    b.add_argument("--elf")
+    b.add_argument("--accel", type=float, default=48.0)
+    b.add_argument("--duration", type=float, default=2.0)
+
+
+def _elf(a: argparse.Namespace) -> Path:
+    return Path(a.elf) if a.elf else build_firmware()
+
+
+def main(a: argparse.Namespace) -> int:
+    if getattr(a, "fil_cmd", None) is None:
+        print("error: give a subcommand: record or bench", file=sys.stderr)
+        return 2
+    try:
+        build_sim()
+        elf = _elf(a)
+        if a.fil_cmd == "record":
+            opts = [o for o in a.sim_options if o != "--"]
+            exp = None
+            if a.experiment != "none":
+                exp = {"profile": a.experiment, "wheel_accel": a.accel, "accel_time": a.accel_time,
+                       "duration": a.duration, "radius": a.radius}
+                P.definition().raw_values("Start", exp)
+            if (a.mu_s is None) != (a.mu_k is None):
+                raise P.ProtocolError("--mu-s and --mu-k go together")
+            mu = (a.mu_s, a.mu_k) if a.mu_s is not None else None
+            clamp = None if a.clamp is None else a.clamp == "on"
+            code, lg, s = record(a.out, elf, exp, clamp, mu, opts, record_s=a.record_s)
+            print(f"{a.out}: {lg.stats['telemetry_rows']} telemetry rows, {s['groundtruth']['rows']} ground-truth "
+                  f"rows; {s['sim_s']:.2f} simulated s at {s['sim_s_per_wall_s']:.2f} simulated s per wall s; "
+                  f"logger: {lg.end_reason}")
+            return code
+        # bench: free running (no pacing); the logger's heartbeats keep the experiment alive as
+        # long as the simulator is slower than 2.5x real time
+        import tempfile
+        with tempfile.TemporaryDirectory() as tmp:
+            exp = {"profile": "straight", "wheel_accel": a.accel, "accel_time": 0.5, "duration": a.duration,
+                   "radius": 0.0}
+            t0 = time.monotonic()
+            code, lg, s = record(Path(tmp) / "run", elf, exp, False, None, ["--realtime", "0"])
+            wall = time.monotonic() - t0
+        print(f"simulated {s['sim_s']:.3f} s (straight line {a.accel:g} rad/s^2, clamp off) in "
+              f"{s['wall_s'] - s['wall_waiting_for_host_s']:.3f} s of simulator wall time: "
+              f"{s['sim_s_per_wall_s']:.3f} simulated s per wall s "
+              f"(whole recording incl. start-up {wall:.2f} s wall)")
+        print(f"encoder ISR {s['encoder_isr']['mean_cycles']:.1f} cycles mean, {s['encoder_isr']['max_cycles']} max, "
+              f"{s['encoder_isr']['calls']} calls; task max cycles during the experiment: "
+              + ", ".join(f"{k} {v['experiment_max_cycles']}" for k, v in s["tasks"].items() if isinstance(v, dict)))
+        return code
+    except (FilError, P.ProtocolError, L.LoggerError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(prog="python -m host_tools.fil", description=__doc__.split("\n\n")[0])
+    add_arguments(ap)
+    sys.exit(main(ap.parse_args()))
