@@ -81,11 +81,17 @@ AlwaysBuild(
 
 def _upload_port(*_args, **_kwargs):
     """Use upload_port if given, else the first USB serial port; with none, /dev/ttyACM0,
-    so that avrdude itself reports that no board is attached."""
-    if env.subst("$UPLOAD_PORT"):
-        return
-    ports = sorted(glob.glob("/dev/ttyACM*")) + sorted(glob.glob("/dev/ttyUSB*"))
-    env.Replace(UPLOAD_PORT=ports[0] if ports else "/dev/ttyACM0")
+    so that avrdude itself reports that no board is attached.
+
+    avrdude 7.1's `wiring` programmer ignores a failed open of the port and then retries
+    forever; when the port does not exist, the upload runs as plain `stk500v2` (the same
+    protocol without the reset pulse), which reports the missing port and exits at once."""
+    if not env.subst("$UPLOAD_PORT"):
+        ports = sorted(glob.glob("/dev/ttyACM*")) + sorted(glob.glob("/dev/ttyUSB*"))
+        env.Replace(UPLOAD_PORT=ports[0] if ports else "/dev/ttyACM0")
+    port = env.subst("$UPLOAD_PORT")
+    if env.subst("$UPLOAD_PROTOCOL") == "wiring" and port.startswith("/") and not os.path.exists(port):
+        env.Replace(UPLOAD_PROTOCOL="stk500v2")
 
 
 env.Replace(
