@@ -26,14 +26,14 @@ STD = [(LINE, True, 3.0),
        ({"kind": "arc", "accel": 1.2, "cruise": 0.6, "radius": -0.7}, True, 3.0)]
 SLIP = [({"kind": "line", "accel": 72 * R, "cruise": 36 * R}, False, 2.0),
         ({"kind": "line", "accel": 48 * R, "cruise": 24 * R}, False, 2.0),
-        ({"kind": "arc", "accel": 1.5, "cruise": 0.7, "radius": 0.6}, True, 2.0),
+        ({"kind": "arc", "accel": 1.0, "cruise": 0.5, "radius": 0.6}, True, 2.0),
         ({"kind": "line", "accel": 1.0, "cruise": 0.6}, True, 2.0)]
 SLOW = [({"kind": "line", "accel": 0.3, "cruise": 0.15}, True, 2.5),
         ({"kind": "arc", "accel": 0.3, "cruise": 0.2, "radius": 0.4}, True, 2.5),
         ({"kind": "line", "accel": 0.6, "cruise": 0.5}, True, 2.0)]
-EIGHT = [({"kind": "figure_eight", "accel": 1.0, "cruise": 0.6, "radius": 0.5}, True, 3.0),
+EIGHT = [({"kind": "figure_eight", "accel": 1.0, "cruise": 0.5, "radius": 0.5}, True, 3.0),
          (LINE, True, 2.0),
-         ({"kind": "arc", "accel": 1.0, "cruise": 0.6, "radius": -0.5}, True, 2.0)]
+         ({"kind": "arc", "accel": 1.0, "cruise": 0.5, "radius": -0.5}, True, 2.0)]
 # one fast run among slow ones: a speed-dependent effect shows in one run only
 FAST_ONE = [SLOW[0][:2] + (2.0,), SLOW[1], ({"kind": "line", "accel": 1.2, "cruise": 0.9}, True, 2.0)]
 
