@@ -67,7 +67,9 @@ void on_uart_out(avr_irq_t*, uint32_t value, void*) {
 double brake_seen_t = -1;  // first time both brake pins were seen high while watching
 bool watch_brake;
 
-std::vector<unsigned long long> pc_cycles;  // --profile: cycles spent per flash address
+std::vector<unsigned long long> pc_cycles;
+uint32_t kick_pc;                       // address of wdt_kick(): main-loop iterations
+avr_cycle_count_t last_kick, max_kick_gap;  // --profile: cycles spent per flash address
 
 void step() {
     avr_flashaddr_t pc0 = avr->pc;
@@ -76,6 +78,10 @@ void step() {
     uint16_t op = static_cast<uint16_t>(avr->flash[pc0] | (avr->flash[pc0 + 1] << 8));
     avr_run(avr);
     if (!pc_cycles.empty() && avr->state == cpu_Running) pc_cycles[pc0] += avr->cycle - cyc0;
+    if (kick_pc && avr->pc == kick_pc) {
+        if (last_kick && avr->cycle - last_kick > max_kick_gap) max_kick_gap = avr->cycle - last_kick;
+        last_kick = avr->cycle;
+    }
     if (op == 0x9518 && in_isr >= 0) {
         if (avr->interrupt_state < -1) avr->interrupt_state = -1;  // hardware: one instruction
         unsigned long d = static_cast<unsigned long>(avr->cycle - isr_start);
@@ -114,8 +120,10 @@ void run_for(double seconds) {
     }
 }
 
+double last_send_end;  // when the last byte sent to the robot has been received (s)
 void send_bytes(const uint8_t* p, uint16_t n) {
     for (uint16_t i = 0; i < n; ++i) avr_raise_irq(uart_in, p[i]);
+    last_send_end = avr->cycle / kF + n * 10.0 / proto::kBaud;
 }
 template <class M>
 void send(const M& m) {
@@ -133,6 +141,20 @@ bool last_ack_is(uint8_t type, uint8_t result) {
     if (acks.empty()) return false;
     const proto::Ack& a = acks.back();
     return a.cmd_type == type && a.result == result;
+}
+
+uint32_t sym_text(const char* elf, const char* name) {
+    char cmd[512];
+    snprintf(cmd, sizeof cmd, "avr-nm '%s'", elf);
+    FILE* p = popen(cmd, "r");
+    char line[256];
+    uint32_t a = 0;
+    while (p && fgets(line, sizeof line, p)) {
+        unsigned long v; char t; char s[200];
+        if (sscanf(line, "%lx %c %199s", &v, &t, s) == 3 && strcmp(s, name) == 0) a = v;
+    }
+    if (p) pclose(p);
+    return a;
 }
 
 uint32_t sym(const char* elf, const char* name) {
@@ -173,6 +195,7 @@ int main(int argc, char** argv) {
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('2'), UART_IRQ_OUTPUT), on_uart_out, NULL);
     for (int i = 0; i < 4; ++i) { pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), i); avr_raise_irq(pin_irq[i], 0); }
     uint32_t a_hang = sym(argv[1], "g_fault_hang");
+    kick_pc = sym_text(argv[1], "_Z8wdt_kickv");
     bool profile = argc > 2 && strcmp(argv[2], "--profile") == 0;
     if (profile) pc_cycles.assign(256 * 1024, 0);
 
@@ -232,12 +255,28 @@ int main(int argc, char** argv) {
         check((telem.back().status & proto::kStatusRunning) == 0, "...and no experiment started");
     }
 
+    {   // valid settings while idle: acknowledged and applied (rebuilds the controller config)
+        max_kick_gap = 0;
+        proto::SetMu m; m.mu_s = 2410; m.mu_k = 2390;
+        send(m);
+        run_for(0.05);
+        check(last_ack_is(proto::kMsgSetMu, proto::kResultOk), "SetMu while idle -> ok");
+        check((telem.back().status & proto::kStatusParamsDefault) == 0, "...and the parameters changed");
+        proto::SetClamp c; c.on = 1;
+        send(c);
+        run_for(0.05);
+        check(last_ack_is(proto::kMsgSetClamp, proto::kResultOk), "SetClamp while idle -> ok");
+        printf("  longest main-loop iteration around SetMu/SetClamp (controller rebuild): %.2f ms\n",
+               max_kick_gap / kF * 1e3);
+    }
+
     // 3. experiment: straight line 48 rad/s^2, wheels turning at 10 rad/s (stimulus)
     enc_rate = 10.0 * 1856 / 6.283185307;
     next_edge_l = next_edge_r = static_cast<double>(avr->cycle);
     {
         proto::Start s; s.profile = 0; s.wheel_accel = 4800; s.accel_time = 500; s.duration = 3000; s.radius = 0;
         send(s);
+        max_kick_gap = 0;
         size_t n0 = telem.size();
         for (int i = 0; i < 10; ++i) { run_for(0.1); send(proto::Heartbeat()); }
         check(last_ack_is(proto::kMsgHeartbeat, proto::kResultOk), "heartbeats acknowledged");
@@ -254,9 +293,18 @@ int main(int argc, char** argv) {
         check(t.enc_r > 0 && t.enc_l > 0 && t.omega_r > 900 && t.omega_r < 1100 && t.omega_l > 900,
               "encoders count forward and omega ~ 10 rad/s on both wheels");
         check(t.illegal_r == 0 && t.illegal_l == 0, "no illegal transitions");
+        {
+            proto::SetMu m; m.mu_s = 3000; m.mu_k = 2000;
+            send(m);
+            run_for(0.03);
+            check(last_ack_is(proto::kMsgSetMu, proto::kResultBusy), "SetMu while running -> busy");
+            send(proto::Heartbeat());
+            run_for(0.01);
+        }
         print_timing(t);
+        printf("  longest main-loop iteration during the run: %.2f ms (watchdog 250 ms)\n", max_kick_gap / kF * 1e3);
         // 4. host goes silent: brake within 500 ms
-        double silent_at = avr->cycle / kF + 11 * 10.0 / proto::kBaud;  // last byte received
+        double silent_at = last_send_end;  // the last host frame has been received
         watch_brake = true;
         size_t n1 = telem.size();
         run_for(0.7);
@@ -266,8 +314,8 @@ int main(int argc, char** argv) {
         check(brake_t > 0, "host silent -> failsafe host_timeout reported");
         uint8_t porth = avr->data[0x102];  // PORTH
         check((porth & 0x60) == 0x60, "brake pins D8/D9 high");
-        check(brake_seen_t > 0 && brake_seen_t - silent_at <= 0.5015,
-              "brake applied 500 ms (+ at most one 1 ms tick) after the last host frame");
+        check(brake_seen_t > 0 && brake_seen_t - silent_at <= 0.5015 && brake_seen_t - silent_at >= 0.499,
+              "brake applied 500 ms (+ at most one 1 ms tick) after the last host frame, not earlier");
         if (brake_t > 0)
             printf("  brake pins high %.2f ms after the last host byte; failsafe in telemetry at %.1f ms\n",
                    (brake_seen_t - silent_at) * 1000, (brake_t - silent_at) * 1000);
