@@ -297,6 +297,7 @@ class Logger:
                 self._lost(exc)
                 continue
             if data:
+                self._last_rx = self.clock()
                 self._receive(data)
             now = self.clock()
             if self._heartbeat and now - self._last_hb >= HEARTBEAT_S:
@@ -346,28 +347,54 @@ class Logger:
 
     def _sequence(self, f: P.Frame, host_t: float, t_us: int | None) -> str:
         """Track the robot's frame counter.  Returns "ok", "reset" (the board restarted: seq
-        and clock start again) or "drop" (a duplicate or stale frame, recorded as an event)."""
+        and clock start again) or "drop" (a duplicate or stale frame, recorded as an event).
+
+        Telemetry frames carry the board time, which decides: later than the last frame means
+        new (a seq jump is a gap, however long the outage), not later means a duplicate, a stale
+        frame or, with a small seq and clock, a reset.  Other frames only drop exact repeats."""
         if self.last_seq is None:
             self.last_seq = f.seq
             return "ok"
         ahead = (f.seq - self.last_seq) & 0xFFFF
-        back_in_time = (t_us is not None and self.last_t_us is not None
-                        and ((t_us - self.last_t_us) & 0xFFFFFFFF) >= 0x80000000)
-        if ahead == 0 or ahead >= 0x8000 or back_in_time:
-            if ahead != 0 and self._is_reset(f, t_us):
-                self._reset(f, host_t, t_us)
+        if t_us is None:  # Ack / Params
+            if ahead == 0:
+                self.stats["duplicates"] += 1
+                self.event("duplicate", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
+                return "drop"
+            if ahead < 0x8000:
+                self._count_gap(f, ahead - 1)
                 self.last_seq = f.seq
-                return "reset"
-            kind = "duplicate" if ahead == 0 else "stale"
-            self.stats["duplicates" if ahead == 0 else "stale"] += 1
-            self.event(kind, seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
-            return "drop"
-        if ahead > 1:
+            return "ok"
+        if self.last_t_us is None:  # first telemetry frame (or the first after a reset)
+            if 0 < ahead < 0x8000:
+                self._count_gap(f, ahead - 1)
+            self.last_seq = f.seq
+            return "ok"
+        dt = (t_us - self.last_t_us) & 0xFFFFFFFF
+        if 0 < dt < 0x80000000:
+            if ahead >= 0x8000 or ahead == 0:
+                # the 16-bit counter is ambiguous after a long outage: count from the board time
+                period = self.d.by_name["Telemetry"].spec.get("rate_hz", 50)
+                missing = max(0, int(round(dt * 1e-6 * period)) - 1)
+            else:
+                missing = ahead - 1
+            self._count_gap(f, missing)
+            self.last_seq = f.seq
+            return "ok"
+        if ahead != 0 and self._is_reset(f, t_us):
+            self._reset(f, host_t, t_us)
+            self.last_seq = f.seq
+            return "reset"
+        kind = "duplicate" if ahead == 0 else "stale"
+        self.stats["duplicates" if ahead == 0 else "stale"] += 1
+        self.event(kind, seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
+        return "drop"
+
+    def _count_gap(self, f: P.Frame, missing: int) -> None:
+        if missing > 0:
             self.stats["gaps"] += 1
-            self.stats["lost_frames"] += ahead - 1
-            self.event("gap", after_seq=self.last_seq, seq=f.seq, missing=ahead - 1, raw_offset=f.offset)
-        self.last_seq = f.seq
-        return "ok"
+            self.stats["lost_frames"] += missing
+            self.event("gap", after_seq=self.last_seq, seq=f.seq, missing=missing, raw_offset=f.offset)
 
     def _is_reset(self, f: P.Frame, t_us: int | None) -> bool:
         # After a reset the robot counts from 0 again and its clock restarts near 0.
@@ -431,7 +458,10 @@ class Logger:
             self._rate_mark = (now, self.stats["telemetry_rows"])
         self._last_status = now
         r = self.last_row
-        if r is not None:
+        quiet = now - self._last_rx
+        if quiet > 1.0:
+            live = f"NO DATA for {quiet:.0f} s (robot off? out of range?)"
+        elif r is not None:
             radius = (self.params or self.d.robot_defaults["robot"])["r"]
             v = radius * (r["omega_r"] + r["omega_l"]) / 2
             live = (f"t {r['t_s']:.2f} s  v {v:+.3f} m/s  w_r {r['omega_r']:+.2f} w_l {r['omega_l']:+.2f} rad/s"
@@ -463,7 +493,7 @@ class Logger:
                                   "refusing to overwrite a recorded run", 2)
         self._stop = False
         self._t0 = self.clock()
-        self._last_hb = self._last_flush = self._last_status = self._t0
+        self._last_hb = self._last_flush = self._last_status = self._last_rx = self._t0
         self._rate_mark = (self._t0, 0)
         self._connect(first=True)
         self.writer = runfmt.RunWriter(self.out, self._meta_for_writer(), columns=self.cols.columns)

@@ -540,3 +540,18 @@ def _args(argv):
     p = argparse.ArgumentParser()
     L.add_arguments(p)
     return p.parse_args(argv)
+
+
+def test_long_outage_with_seq_wrap_is_a_gap_not_stale(tmp_path):
+    """40 000 frames (13 min) lost: the 16-bit seq is ambiguous, the board time decides."""
+    port = serial.serial_for_url("loop://", timeout=0.02)
+    a = [telemetry(i, 1_000_000 + 20_000 * i) for i in range(10)]
+    b = [telemetry((i + 40_010) & 0xFFFF, 1_000_000 + 20_000 * (i + 40_010)) for i in range(10)]
+    port.write(b"".join(a + b))
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: port, "loop://", 115200, record_s=0.4, params_timeout_s=0.05,
+                  status=False)
+    assert lg.run() == 0
+    assert rows(out).telemetry["t_s"].size == 20
+    assert lg.stats["lost_frames"] == 40_000 and lg.stats["gaps"] == 1
+    assert lg.stats["stale"] == 0 and lg.stats["robot_resets"] == 0
