@@ -628,11 +628,6 @@ avr_cycle_count_t plant_cb(avr_t*, avr_cycle_count_t when, void*) {
     if (((avr->data[kPIND] ^ pins_driven) & 0x0F) && edges[0].empty() && edges[1].empty()) ++pin_conflicts;
     duty[0] = channel_duty(0);
     duty[1] = channel_duty(1);
-    bool br = (avr->data[kPORTH] & 0x60) == 0x60;
-    if (br != braking) {
-        (br ? brake_on_t : brake_off_t).push_back(board_now());
-        braking = br;
-    }
     const slip::PlantState& s = plant.state();
     double s0r = s.theta_r_rad * counts_per_rad(), s0l = s.theta_l_rad * counts_per_rad();
     double t0 = board_t(when);
@@ -651,8 +646,9 @@ avr_cycle_count_t plant_cb(avr_t*, avr_cycle_count_t when, void*) {
     arm_edges(1);
     if (s1.slipping_r) ++steps_slipping[0];
     if (s1.slipping_l) ++steps_slipping[1];
-    double vs[2] = {s1.dtheta_r_rad_s * plant.robot().r - (s1.v_m_s - plant.robot().b * s1.omega_rad_s),
-                    s1.dtheta_l_rad_s * plant.robot().r - (s1.v_m_s + plant.robot().b * s1.omega_rad_s)};
+    // longitudinal slip speed of each contact point: r theta_dot - (v +- b omega), right at -b y
+    double vs[2] = {s1.dtheta_r_rad_s * plant.robot().r - (s1.v_m_s + plant.robot().b * s1.omega_rad_s),
+                    s1.dtheta_l_rad_s * plant.robot().r - (s1.v_m_s - plant.robot().b * s1.omega_rad_s)};
     for (double v : vs)
         if (fabs(v) > max_slip_speed) max_slip_speed = fabs(v);
     if (board_origin_set) {
@@ -894,6 +890,11 @@ int main(int argc, char** argv) {
         if (avr->state == cpu_Crashed || avr->state == cpu_Done) {
             stop_reason = avr->state == cpu_Crashed ? "firmware crashed (simavr cpu_Crashed)" : "firmware stopped";
             break;
+        }
+        bool br = (avr->data[kPORTH] & 0x60) == 0x60;  // both BRAKE pins high, at the exact cycle
+        if (br != braking) {
+            (br ? brake_on_t : brake_off_t).push_back(board_now());
+            braking = br;
         }
         bool t5 = avr->data[kTCCR5B] != 0;
         if (t5 && !board_running) {

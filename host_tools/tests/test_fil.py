@@ -1,0 +1,300 @@
+"""Firmware in the loop (issue 6): the real megaatmega2560 firmware.elf in simavr against
+lib/slipmodel's plant, recorded through the simulated XBee pty by the telemetry logger.
+
+Skips (with the reason) only when the firmware cannot be built here; a simulator that does not
+build or run is a failure.  Figures (ISR cycles per edge, task cycles, speed) are printed
+(pytest -s) and stored in each run's fil.json; nothing here is timed.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from host_tools import fil
+from host_tools import protocol as P
+from host_tools import runfmt
+
+D = P.definition()
+BUDGET = {t["name"]: t["budget_cycles"] for t in D.tasks()}
+ENC_BUDGET = next(i["budget_cycles_per_event"] for i in json.loads(Path(D.path).read_text())["timing"]["isr"]
+                  if i["name"] == "encoder")
+RUNNING = 1 << D.flags["status"]["running"]
+FAILSAFE = D.enums["failsafe"]
+
+
+@pytest.fixture(scope="module")
+def elf():
+    try:
+        return fil.build_firmware()
+    except fil.FilError as exc:
+        pytest.skip(f"firmware cannot be built here, so there is nothing to run in the loop: {exc}")
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return fil.build_sim()  # failure to build the simulator is a test failure, not a skip
+
+
+def straight(accel: float, duration: float) -> dict:
+    return {"profile": "straight", "wheel_accel": accel, "accel_time": 0.5, "duration": duration, "radius": 0.0}
+
+
+def csv(path: Path) -> dict[str, np.ndarray]:
+    a = np.genfromtxt(path, delimiter=",", names=True)
+    return {n: a[n] for n in a.dtype.names}
+
+
+@pytest.fixture(scope="module")
+def run48(elf, sim, tmp_path_factory):
+    out = tmp_path_factory.mktemp("fil") / "straight48"
+    code, lg, s = fil.record(out, elf, straight(48.0, 1.5), clamp=False)
+    assert code == 0, lg.end_reason
+    return out, lg, s
+
+
+@pytest.fixture(scope="module")
+def run72_clamped(elf, sim, tmp_path_factory):
+    out = tmp_path_factory.mktemp("fil") / "straight72_clamp"
+    code, lg, s = fil.record(out, elf, straight(72.0, 1.5), clamp=True)
+    assert code == 0, lg.end_reason
+    return out, lg, s
+
+
+def test_recording_is_a_run_with_groundtruth_on_the_board_clock(run48):
+    out, lg, s = run48
+    run = runfmt.load_run(out)
+    tel, gt = run.telemetry, run.groundtruth
+    assert run.meta["source"] == "fil" and run.meta["torque_clamp"] is False
+    assert lg.end_reason == "experiment finished"
+    assert tel["t_s"].size > 60 and gt is not None and gt["t_s"].size > 100
+    assert set(runfmt.GROUNDTRUTH_COLUMNS) <= set(gt)
+
+
+def test_groundtruth_and_telemetry_share_the_board_clock(run72_clamped):
+    # no slip (clamp on): the odometry of each frame is the true position at most one inner
+    # period (25 ms, its last update) before the frame's time stamp
+    out, _, _ = run72_clamped
+    run = runfmt.load_run(out)
+    tel, gt = run.telemetry, run.groundtruth
+    running = (tel["status"].astype(int) & RUNNING) != 0
+    moving = running & (tel["x_odo_m"] > 0.01)
+    t, x = tel["t_s"][moving], tel["x_odo_m"][moving]
+    assert t.size > 30
+    tol = 0.001
+    early = np.interp(t - 0.026, gt["t_s"], gt["x_m"]) - tol
+    late = np.interp(t, gt["t_s"], gt["x_m"]) + tol
+    assert np.all((x >= early) & (x <= late)), float(np.max(np.maximum(early - x, x - late)))
+
+
+def test_encoder_counts_equal_plant_wheel_angles(run48):
+    out, _, s = run48
+    tel = csv(out / "telemetry.csv")
+    smp = csv(out / "encoder_samples.csv")
+    smp_t = smp["t_s"][smp["boot"] == 1]
+    n_checked = 0
+    worst = 0.0
+    for w in ("r", "l"):
+        true = smp[f"counts_true_{w}"][smp["boot"] == 1]
+        # each frame's counts were sampled by the frame's own enc_snapshot() call: the last one
+        # before its time stamp (t_us is read right after it)
+        i = np.searchsorted(smp_t, tel["t_s"] + 1e-6) - 1
+        ok = (i >= 0) & (tel["t_s"] - smp_t[np.clip(i, 0, None)] < 0.005)
+        err = tel[f"enc_{w}"][ok] - true[i[ok]]
+        worst = max(worst, float(np.abs(err).max()))
+        assert np.all(np.abs(err) <= 1.0), f"{w}: max |counts - plant angle| = {np.abs(err).max():.3f} counts"
+        n_checked += int(ok.sum())
+        assert tel[f"enc_{w}"].max() > 5000  # the wheels really turned (> 2.7 turns)
+    assert n_checked >= 120
+    assert s["encoder_check"]["frames"] >= 60 and max(s["encoder_check"]["max_abs_err_counts_r"],
+                                                     s["encoder_check"]["max_abs_err_counts_l"]) <= 1.0
+    assert s["encoder_check"]["illegal_max_r"] == 0 and s["encoder_check"]["illegal_max_l"] == 0
+    print(f"\nencoder: {n_checked} frame counts vs plant angle, worst {worst:.3f} counts")
+
+
+def test_no_task_overran_and_cycles_reported(run48):
+    out, _, s = run48
+    tel = csv(out / "telemetry.csv")
+    run = (tel["status"].astype(int) & RUNNING) != 0
+    assert run.sum() > 50
+    for task in ("inner", "outer", "telemetry"):
+        over = tel[f"{task}_overruns"][run]
+        mx = tel[f"{task}_max_cyc"][run]
+        assert over.max() == 0, f"{task} overran its budget during the experiment"
+        assert 0 < mx.max() <= BUDGET[task], f"{task}: {mx.max()} cycles, budget {BUDGET[task]}"
+        print(f"\n{task}: max {mx.max():.0f} cycles during the experiment (budget {BUDGET[task]})"
+              f"; whole run incl. boot: max {s['tasks'][task]['max_cycles']}, overruns {s['tasks'][task]['overruns']}",
+              end="")
+    e = s["encoder_isr"]
+    assert e["calls"] > 10000 and e["max_cycles"] <= ENC_BUDGET
+    print(f"\nencoder ISR: {e['mean_cycles']:.2f} cycles per edge mean, {e['max_cycles']} max "
+          f"({e['calls']} calls, budget {ENC_BUDGET}); simulator speed {s['sim_s_per_wall_s']:.3f} simulated s per wall s")
+
+
+def test_clamp_off_48_slips_clamp_on_72_does_not(run48, run72_clamped):
+    _, _, s48 = run48
+    out, lg, s72 = run72_clamped
+    # without the clamp, 48 rad/s^2 exceeds what friction allows: the plant reports slip
+    assert s48["slip"]["steps_slipping_r"] > 100 and s48["slip"]["steps_slipping_l"] > 100
+    assert s48["slip"]["max_slip_speed_m_s"] > 0.1
+    # with the clamp, 72 rad/s^2 is commanded, the robot moves, and no wheel slips while the
+    # controller drives (from the release of the brake to the end of the experiment, when the
+    # firmware brakes: see the braking figure printed below)
+    pl = csv(out / "plant.csv")
+    assert lg.end_reason == "experiment finished"
+    t_on, t_off = s72["brake_off_t_s"][0], s72["brake_on_t_s"][-1]
+    assert t_off - t_on > 1.4
+    drive = (pl["t_s"] >= t_on) & (pl["t_s"] <= t_off)
+    assert pl["x_m"][drive][-1] > 0.5
+    r, b = run_r(out), 0.105
+    slip_r = pl["dtheta_r_rad_s"] * r - (pl["v_m_s"] + b * pl["omega_rad_s"])
+    slip_l = pl["dtheta_l_rad_s"] * r - (pl["v_m_s"] - b * pl["omega_rad_s"])
+    dt = float(np.median(np.diff(pl["t_s"])))
+    v_slip = np.maximum(np.abs(slip_r), np.abs(slip_l))[drive]
+    slid_m = float(np.sum(v_slip) * dt)
+    # The clamp holds the torque exactly at the nominal tau_max (zero margin): from rest the
+    # plant's contact sits on the friction limit and flags "slipping" for a few steps at
+    # micrometre-per-second slip speeds. Not slipping = the contact points do not move
+    # measurably (clamp off at 48 rad/s^2 they slide at ~0.5 m/s, checked above).
+    assert v_slip.max() < 1e-3, f"slip speed {v_slip.max():.4f} m/s while driving"
+    assert slid_m < 1e-4, f"wheels slid {slid_m * 1000:.3f} mm while driving"
+    assert abs(pl["w_m_s"][drive]).max() < 1e-6
+    flagged = int(((pl["slipping_r"] > 0) | (pl["slipping_l"] > 0))[drive].sum())
+    after = pl["t_s"] > t_off
+    print(f"\nclamp on, 72 rad/s^2, while driving ({drive.sum()} plant steps, x {pl['x_m'][drive][-1]:.3f} m): "
+          f"max slip speed {v_slip.max() * 1000:.4f} mm/s, slid {slid_m * 1e6:.2f} um, {flagged} steps flagged at the "
+          f"friction limit; clamp off at 48: max slip speed {s48['slip']['max_slip_speed_m_s']:.3f} m/s. "
+          f"After the firmware brakes at {t_off:.3f} s: {(pl['slipping_r'][after] > 0).sum()} of {after.sum()} "
+          f"plant steps slipping")
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["torque_clamp"] is True
+
+
+def run_r(out: Path) -> float:
+    return float(json.loads((out / "meta.json").read_text())["robot"]["r"])
+
+
+def test_host_silent_motors_stop_within_500ms(elf, sim, tmp_path):
+    out = tmp_path / "silent"
+    code, lg, s = fil.record(out, elf, straight(48.0, 3.0), clamp=True, args=["--host-silent-at", "0.6"])
+    link = s["link"]
+    assert link["down_silenced"] > 0  # the logger kept sending; nothing reached the robot
+    last = link["last_down_frame_t_s"]
+    assert 0.15 < last <= 0.6
+    stops = [t for t in s["brake_on_t_s"] if t > last]
+    assert stops, "motors never stopped after the host went silent"
+    dt = stops[0] - last
+    print(f"\nhost silent: last host frame at {last:.4f} s, brake at {stops[0]:.4f} s: {dt * 1000:.1f} ms")
+    assert dt <= 0.5
+    assert any(e["code"] == FAILSAFE["host_timeout"] for e in s["failsafe_events"])
+    pl = csv(out / "plant.csv")
+    after = pl["t_s"] > stops[0] + 0.001
+    assert np.all(pl["duty_r"][after] == 0) and np.all(pl["duty_l"][after] == 0)
+
+
+def test_hang_in_main_loop_triggers_watchdog(elf, sim, tmp_path):
+    out = tmp_path / "hang"
+    code, lg, s = fil.record(out, elf, straight(48.0, 3.0), clamp=True, args=["--hang-at", "0.5"])
+    hang = s["hang"]["set_t_s"]
+    assert hang >= 0.5
+    assert s["reset_t_s"], "no reset after the hang"
+    dt = s["reset_t_s"][0] - hang
+    print(f"\nhang at {hang:.4f} s, watchdog reset {dt * 1000:.1f} ms later")
+    assert 0.1 < dt < 0.5  # WDTO_250MS: nominally 250 ms (the oscillator's tolerance aside)
+    assert len(s["boot_t_s"]) == 2
+    causes = s["reset_causes"]
+    assert len(causes) == 2 and causes[1]["mcusr"] & (1 << D.flags["reset_cause"]["watchdog"])
+    assert any(e["code"] == FAILSAFE["watchdog_reset"] and e["boot"] == 2 for e in s["failsafe_events"])
+    assert lg.stats["robot_resets"] == 1
+    # motors off from the reset on (boot code makes the pins safe before main)
+    pl = csv(out / "plant.csv")
+    after = pl["t_s"] > s["reset_t_s"][0] + 0.001
+    assert after.sum() > 10 and np.all(pl["duty_r"][after] == 0) and np.all(pl["duty_l"][after] == 0)
+
+
+def test_corrupted_command_bytes_are_rejected(elf, sim, tmp_path):
+    import serial
+    out = tmp_path / "corrupt"
+    sm = fil.Sim(elf, out, ["--link-dir", "down", "--link-ber", "0.06", "--seed", "7", "--t-end", "5"])
+    port = serial.serial_for_url(sm.pty, baudrate=D.baud, timeout=0.05)
+    dec = P.StreamDecoder(D.version, D.max_payload)
+    acks: dict[int, int] = {}
+    telem = []
+    sent = []
+    try:
+        for seq in range(1, 61):
+            port.write(D.encode("SetMu", seq, {"mu_s": 0.30, "mu_k": 0.28}))
+            sent.append(seq)
+            t_end = time.monotonic() + 0.03
+            while time.monotonic() < t_end:
+                for f in dec.feed(port.read(256)):
+                    msg, raws = D.unpack(f)
+                    if msg.name == "Ack":
+                        acks[raws[0]] = raws[2]
+                    elif msg.name == "Telemetry":
+                        telem.append(D.physical(msg, raws))
+        t_end = time.monotonic() + 0.5
+        while time.monotonic() < t_end:
+            for f in dec.feed(port.read(256)):
+                msg, raws = D.unpack(f)
+                if msg.name == "Ack":
+                    acks[raws[0]] = raws[2]
+                elif msg.name == "Telemetry":
+                    telem.append(D.physical(msg, raws))
+    finally:
+        port.close()
+        sm.wait(30)
+    s = sm.summary()
+    bad = set(s["link"]["down_corrupted_seqs"])
+    ok = {q for q, r in acks.items() if D.result_names.get(r) == "ok"}
+    assert s["link"]["down_frames"] == len(sent)
+    assert len(bad) >= 10 and len(bad) <= len(sent) - 10, "want both corrupted and intact frames"
+    assert not (ok & bad), f"corrupted frames accepted: {sorted(ok & bad)}"
+    assert ok, "no intact command was accepted"
+    rejected = {q for q, r in acks.items() if D.result_names.get(r) != "ok"}
+    assert rejected & bad, "no corrupted frame was answered with a rejection"
+    assert telem and telem[-1]["rx_crc_errors"] + telem[-1]["rx_bad_frames"] > 0
+    print(f"\ncorruption: {len(sent)} SetMu sent, {len(bad)} corrupted on the link, {len(ok)} accepted (all intact), "
+          f"{len(rejected & bad)} corrupted answered with a rejection, the rest dropped silently")
+
+
+def test_camera_rate_noise_and_dropout(elf, sim, tmp_path):
+    import subprocess
+    out = tmp_path / "cam"
+    r = subprocess.run([str(sim), str(elf), "--run-dir", str(out), "--no-wait-host", "--realtime", "0",
+                        "--t-end", "0.5", "--cam-rate", "50", "--cam-noise-xy", "0.002", "--cam-noise-phi", "0.01",
+                        "--cam-dropout", "0.2", "--seed", "5"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    gt = csv(out / "groundtruth.csv")
+    s = json.loads((out / "fil.json").read_text())
+    n = gt["t_s"].size + s["groundtruth"]["missing"]
+    assert n == 25  # 50 Hz over 0.5 s
+    assert 0 < s["groundtruth"]["missing"] < 12 and gt["t_s"].size == s["groundtruth"]["rows"]
+    k = gt["t_s"] / 0.02
+    assert np.allclose(k, np.round(k), atol=1e-4)  # samples on the 50 Hz grid of the board clock
+    # the robot stands still at the origin: what is there is the noise
+    assert 0.0005 < np.std(gt["x_m"]) < 0.005 and 0.002 < np.std(gt["phi_rad"]) < 0.03
+
+
+@pytest.mark.parametrize("bad, message", [
+    (["--set", "robot.mu_s=-1"], "bad value for 'robot.mu_s'"),
+    (["--set", "effect.nope=1"], "unknown plant key 'effect.nope'"),
+    (["--link-ber", "1.5"], "not a probability"),
+    (["--plant-dt", "0.00000001"], "--plant-dt"),
+    (["--frobnicate"], "unknown option --frobnicate"),
+])
+def test_bad_options_are_refused_clearly(elf, sim, tmp_path, bad, message):
+    import subprocess
+    r = subprocess.run([str(sim), str(elf), "--run-dir", str(tmp_path / "x")] + bad, capture_output=True,
+                       text=True, timeout=30)
+    assert r.returncode == 2 and message in r.stderr, r.stderr
+
+
+def test_missing_elf_is_refused_clearly(sim, tmp_path):
+    import subprocess
+    r = subprocess.run([str(sim), str(tmp_path / "none.elf"), "--run-dir", str(tmp_path / "x")],
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and "cannot read" in r.stderr
