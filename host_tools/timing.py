@@ -19,6 +19,10 @@ generated from.  Measurements come from
                    "telemetry": {"max_cycles": 6000}},
          "other_isr": [{"name": "uart3_udre", "cycles_per_event": 45, "events_per_s": 4600}]}
 
+A run folder recorded through the firmware-in-the-loop simulator (sim/fil) also holds
+``fil.json``; its ``encoder_isr.max_cycles`` (corrected like sim/isr_bench) and per-task
+``max_cycles`` are then used as a simavr source automatically (``--no-fil`` to skip).
+
 What is checked (exit 1 when any check fails, 2 on bad input):
 * every ISR: measured cycles per event <= its budget;
 * the ISR load U at the maximum encoder edge rate (both wheels at the motors' no-load speed:
@@ -98,6 +102,25 @@ def load_sim(path: str) -> dict:
     return sim
 
 
+def sim_from_fil(path: str) -> dict:
+    """The ddtiming/1 view of a firmware-in-the-loop fil.json (sim/fil/fil.cpp)."""
+    try:
+        with open(path) as fh:
+            fil = json.load(fh)
+    except (OSError, json.JSONDecodeError) as exc:
+        raise TimingInputError(f"{path}: cannot read fil.json: {exc}") from None
+    try:
+        sim = {"format": "ddtiming/1", "source": "fil.json",
+               "isr": {"encoder": {"cycles_per_event": fil["encoder_isr"]["max_cycles"]}},
+               "tasks": {k: {"max_cycles": v["max_cycles"]} for k, v in fil["tasks"].items()
+                         if isinstance(v, dict) and "max_cycles" in v}}
+    except (KeyError, TypeError) as exc:
+        raise TimingInputError(f"{path}: fil.json lacks {exc} (encoder_isr.max_cycles, tasks.*.max_cycles)") from None
+    if not fil["encoder_isr"].get("calls"):
+        del sim["isr"]  # no edge was driven: no ISR measurement
+    return sim
+
+
 def load_run_timing(run_dir: str, d: P.Definition) -> tuple[dict, dict]:
     """Per task {max_cycles, last_max, overruns_delta, overruns_total, saturated} and meta."""
     from host_tools import runfmt
@@ -137,7 +160,7 @@ def load_run_timing(run_dir: str, d: P.Definition) -> tuple[dict, dict]:
 
 
 def check(d: P.Definition, runs: list[str], sims: list[str], edge_rate: float | None = None,
-          isr_cycles: float | None = None) -> tuple[list[Row], list[str]]:
+          isr_cycles: float | None = None, use_fil: bool = True) -> tuple[list[Row], list[str]]:
     tim = d.timing
     f_cpu = float(tim["f_cpu_hz"])
     tasks = {t["name"]: t for t in d.tasks()}
@@ -147,7 +170,11 @@ def check(d: P.Definition, runs: list[str], sims: list[str], edge_rate: float | 
     run_data = []
     for r in runs:
         tm, meta = load_run_timing(r, d)
-        run_data.append((os.path.basename(os.path.normpath(r)), tm, meta))
+        name = os.path.basename(os.path.normpath(r))
+        run_data.append((name, tm, meta))
+        fil = os.path.join(r, "fil.json")
+        if use_fil and os.path.isfile(fil):
+            sim_data.append((f"{name}/fil.json", sim_from_fil(fil)))
     if not sim_data and not run_data:
         raise TimingInputError("nothing to check: give --run RUN_DIR and/or --sim SIM.json")
 
@@ -260,13 +287,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--edge-rate", type=float, help="encoder edges/s for the ISR load (default: both wheels "
                    "at the no-load speed, from meta.json or protocol.json)")
     p.add_argument("--isr-cycles", type=float, help="encoder ISR cycles per edge, when no --sim gives it")
+    p.add_argument("--no-fil", action="store_true", help="ignore fil.json in --run folders")
     p.add_argument("--json", metavar="OUT", help="also write the rows as JSON")
 
 
 def main(args: argparse.Namespace) -> int:
     d = P.definition()
     try:
-        rows, notes = check(d, args.run, args.sim, args.edge_rate, args.isr_cycles)
+        rows, notes = check(d, args.run, args.sim, args.edge_rate, args.isr_cycles, not args.no_fil)
     except TimingInputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -145,3 +145,16 @@ def test_cli_through_dispatcher(tmp_path):
     assert r.returncode == 1, r.stderr
     rows = json.loads((tmp_path / "o.json").read_text())["rows"]
     assert any(row["check"] == "isr encoder per edge" and not row["ok"] for row in rows)
+
+
+def test_fil_json_in_the_run_folder_is_used(tmp_path, capsys):
+    r = run_dir(tmp_path)
+    fil = {"encoder_isr": {"edges_driven": 1000, "calls": 1000, "max_cycles": 64, "mean_cycles": 55.0},
+           "tasks": {"inner": {"max_cycles": 9000, "overruns": 0}, "outer": {"max_cycles": 20000, "overruns": 0},
+                     "telemetry": {"max_cycles": 19000, "overruns": 0}, "running_frames": 10}}
+    (Path(r) / "fil.json").write_text(json.dumps(fil))
+    assert T.main(args(run=[r])) == 1  # 64 cycles per edge > 60
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if ln.startswith("isr encoder per edge"))
+    assert "run/fil.json" in line and "OVER BUDGET" in line
+    assert T.main(args(run=[r], no_fil=True)) == 0
