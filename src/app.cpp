@@ -137,6 +137,11 @@ void send_params() {
 
 void stop_motors(uint8_t why) {
     motor_brake();
+    if (g_running) {
+        // the idle odometry continues from the run's last pose and counts, so telemetry keeps
+        // reporting where the robot ended up
+        g_idle_odo->reset(g_enc.count_r, g_enc.count_l, g_ctrl->odometry().pose());
+    }
     g_running = false;
     g_failsafe = why;
 }

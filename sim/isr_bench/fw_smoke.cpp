@@ -273,6 +273,9 @@ int main(int argc, char** argv) {
     // 3. experiment: straight line 48 rad/s^2, wheels turning at 10 rad/s (stimulus)
     enc_rate = 10.0 * 1856 / 6.283185307;
     next_edge_l = next_edge_r = static_cast<double>(avr->cycle);
+    run_for(0.3);  // the wheels already turn before the Start (0.11 m of idle odometry)
+    send(proto::Heartbeat());
+    run_for(0.01);
     {
         proto::Start s; s.profile = 0; s.wheel_accel = 4800; s.accel_time = 500; s.duration = 3000; s.radius = 0;
         send(s);
@@ -312,6 +315,15 @@ int main(int argc, char** argv) {
         for (size_t i = n1; i < telem.size(); ++i)
             if (telem[i].failsafe == proto::kFailsafeHostTimeout) { brake_t = telem_t[i]; break; }
         check(brake_t > 0, "host silent -> failsafe host_timeout reported");
+        {   // odometry continues from the run's pose after the stop (the wheels still turn)
+            const proto::Telemetry& a = telem[n1 > 0 ? n1 - 1 : 0];
+            const proto::Telemetry& b = telem.back();
+            // 0.7 s at 10 rad/s * 0.0365 m = 0.256 m more; a restart from the idle odometry
+            // of before the Start would add its 0.11 m too
+            long dx = static_cast<long>(b.x_odo) - static_cast<long>(a.x_odo);
+            printf("  x before the silence %.3f m, 0.7 s later %.3f m\n", a.x_odo * 1e-6, b.x_odo * 1e-6);
+            check(dx > 200000 && dx < 300000, "after the stop, odometry continues from the run's last pose");
+        }
         uint8_t porth = avr->data[0x102];  // PORTH
         check((porth & 0x60) == 0x60, "brake pins D8/D9 high");
         check(brake_seen_t > 0 && brake_seen_t - silent_at <= 0.5015 && brake_seen_t - silent_at >= 0.499,
