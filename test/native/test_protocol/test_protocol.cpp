@@ -344,6 +344,84 @@ void test_task_table() {
     TEST_ASSERT_EQUAL_UINT32(0, task_period_us(kTaskCount));
 }
 
+// Deterministic random fuzz: streams of valid frames with random edits (bit flips, byte
+// substitutions, deletions, insertions, duplicated spans). Nothing may crash or overrun, and
+// every frame the decoder returns must be byte-identical to one that was sent.
+static uint32_t rng_state = 0x12345678u;
+static uint32_t rnd() {
+    rng_state ^= rng_state << 13;
+    rng_state ^= rng_state >> 17;
+    rng_state ^= rng_state << 5;
+    return rng_state;
+}
+
+void test_random_corruption_fuzz() {
+    static uint8_t sent[8][kMaxWire];
+    static uint16_t sent_n[8];
+    static uint8_t stream[2048], edited[2600];
+    long accepted = 0, accepted_wrong = 0;
+    for (int iter = 0; iter < 20000; ++iter) {
+        uint16_t n = 0;
+        int frames = 1 + static_cast<int>(rnd() % 8);
+        for (int k = 0; k < frames; ++k) {
+            uint8_t payload[kMaxPayload];
+            uint8_t len = static_cast<uint8_t>(rnd() % (kMaxPayload + 1));
+            for (uint8_t i = 0; i < len; ++i) payload[i] = static_cast<uint8_t>(rnd() % 3 == 0 ? 0 : rnd());
+            sent_n[k] = encode_frame(static_cast<uint8_t>(rnd()), static_cast<uint16_t>(rnd()), payload, len,
+                                     sent[k], kMaxWire);
+            memcpy(stream + n, sent[k], sent_n[k]);
+            n = static_cast<uint16_t>(n + sent_n[k]);
+        }
+        uint16_t m = n;
+        memcpy(edited, stream, n);
+        int edits = static_cast<int>(rnd() % 6);
+        for (int e = 0; e < edits && m > 0; ++e) {
+            uint16_t at = static_cast<uint16_t>(rnd() % m);
+            switch (rnd() % 5) {
+                case 0: edited[at] ^= static_cast<uint8_t>(1u << (rnd() % 8)); break;
+                case 1: edited[at] = static_cast<uint8_t>(rnd()); break;
+                case 2: {  // delete up to 30 bytes
+                    uint16_t k = static_cast<uint16_t>(1 + rnd() % 30);
+                    if (at + k > m) k = static_cast<uint16_t>(m - at);
+                    memmove(edited + at, edited + at + k, m - at - k);
+                    m = static_cast<uint16_t>(m - k);
+                    break;
+                }
+                case 3: {  // insert up to 40 random bytes
+                    uint16_t k = static_cast<uint16_t>(1 + rnd() % 40);
+                    if (m + k > sizeof edited) break;
+                    memmove(edited + at + k, edited + at, m - at);
+                    for (uint16_t i = 0; i < k; ++i) edited[at + i] = static_cast<uint8_t>(rnd());
+                    m = static_cast<uint16_t>(m + k);
+                    break;
+                }
+                default: {  // duplicate a span of up to 120 bytes
+                    uint16_t k = static_cast<uint16_t>(1 + rnd() % 120);
+                    if (at + k > m) k = static_cast<uint16_t>(m - at);
+                    if (m + k > sizeof edited) break;
+                    memmove(edited + at + k, edited + at, m - at);
+                    m = static_cast<uint16_t>(m + k);
+                    break;
+                }
+            }
+        }
+        Decoder d;
+        for (uint16_t i = 0; i < m; ++i) {
+            if (d.feed(edited[i]) != Decoder::kFrame) continue;
+            ++accepted;
+            uint8_t again[kMaxWire];
+            const Frame& f = d.frame();
+            uint16_t w = encode_frame(f.type, f.seq, f.payload, f.len, again, sizeof again);
+            bool found = false;
+            for (int k = 0; k < frames && !found; ++k)
+                found = w == sent_n[k] && memcmp(again, sent[k], w) == 0;
+            if (!found) ++accepted_wrong;
+        }
+    }
+    TEST_ASSERT_EQUAL(0, accepted_wrong);
+    TEST_ASSERT_TRUE(accepted > 20000);  // most frames survive: the test does exercise acceptance
+}
+
 int main() {
     UNITY_BEGIN();
     RUN_TEST(test_crc_check_value);
@@ -359,5 +437,6 @@ int main() {
     RUN_TEST(test_validate_command);
     RUN_TEST(test_saturating_setters);
     RUN_TEST(test_task_table);
+    RUN_TEST(test_random_corruption_fuzz);
     return UNITY_END();
 }
