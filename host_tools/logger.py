@@ -148,6 +148,9 @@ class Logger:
         self._run_frames = 0
         self._heartbeat = False
         self._last_failsafe = 0
+        self._params_count = 0
+        self._params_before_config = 0
+        self._config_sent = False
         self.end_reason = ""
         self._errors_logged = 0
         self._t0 = 0.0
@@ -162,23 +165,28 @@ class Logger:
             "experiment": self.description or (describe_experiment(self.experiment) if self.experiment
                                                else "free recording (no experiment command sent)"),
             "source": "robot",
-            "torque_clamp": bool(self.clamp) if self.clamp is not None else False,
             "robot": dict(dflt["robot"]),
             "motor": dict(dflt["motor"]),
             "encoder_ppr": dflt["encoder_ppr"],
             "periods_s": {t["name"]: round(t["period_us"] * 1e-6, 9) for t in self.d.tasks()},
         }
-        if self.mu is not None:
+        mu_ok = self.mu is not None and self._acked("SetMu")
+        clamp_ok = self.clamp is not None and self._acked("SetClamp")
+        if mu_ok:
             meta["robot"]["mu_s"], meta["robot"]["mu_k"] = self.mu
+        meta["torque_clamp"] = bool(self.clamp) if clamp_ok else False
         p = self.params
         if p is not None:
+            fresh = self._config_sent and self._params_count > self._params_before_config
             for k in meta["robot"]:
+                if k in ("mu_s", "mu_k") and mu_ok and not fresh:
+                    continue  # Params predate SetMu: the commanded (acknowledged) values apply
                 meta["robot"][k] = _f32(p[k])
             for k in meta["motor"]:
                 meta["motor"][k] = _f32(p[k])
             meta["encoder_ppr"] = int(p["encoder_ppr"])
             meta["periods_s"] = {k: round(p[f"{k}_period_us"] * 1e-6, 9) for k in ("inner", "outer", "telemetry")}
-            if self.clamp is None:
+            if fresh or not clamp_ok:
                 meta["torque_clamp"] = bool(p["clamp_on"])
         meta["commands"] = self.commands
         self.stats["frames"] = self.dec.frames
@@ -190,6 +198,9 @@ class Logger:
             robot_baud=(p["baud"] if p is not None else None),
             end_reason=self.end_reason or "recording")
         return meta
+
+    def _acked(self, name: str) -> bool:
+        return any(c["command"] == name and c["result"] == "ok" for c in self.commands)
 
     def write_meta(self) -> None:
         path = os.path.join(self.out, "meta.json")
@@ -341,9 +352,26 @@ class Logger:
             self.event("ack", cmd_seq=cmd_seq, result=self.d.result_names.get(result, result), detail=detail)
         elif msg.name == "Params":
             self.params = dict(zip(msg.field_names(), raws))
+            self._params_count += 1
             self.event("params", **{k: (v if not isinstance(v, float) else _f32(v))
                                     for k, v in self.params.items()})
+            self._check_params_vs_commands()
             self.write_meta()
+
+    def _check_params_vs_commands(self) -> None:
+        """After SetMu / SetClamp, the robot's own report must show the commanded values."""
+        if not self._config_sent:
+            return
+        p, bad = self.params, []
+        if self.mu is not None:
+            for k, v in zip(("mu_s", "mu_k"), self.mu):
+                if abs(p[k] - v) > 1e-4:
+                    bad.append(f"{k} {p[k]:.4f} (commanded {v})")
+        if self.clamp is not None and bool(p["clamp_on"]) != self.clamp:
+            bad.append(f"clamp_on {p['clamp_on']} (commanded {int(self.clamp)})")
+        if bad:
+            self.event("params_mismatch", detail=bad)
+            sys.stderr.write("\nwarning: the robot reports " + ", ".join(bad) + "\n")
 
     def _sequence(self, f: P.Frame, host_t: float, t_us: int | None) -> str:
         """Track the robot's frame counter.  Returns "ok", "reset" (the board restarted: seq
@@ -510,6 +538,13 @@ class Logger:
                 self.command("SetClamp", {"on": int(self.clamp)})
             if self.mu is not None:
                 self.command("SetMu", {"mu_s": self.mu[0], "mu_k": self.mu[1]})
+            if self.clamp is not None or self.mu is not None:
+                # meta.json records what the robot reports it now uses, not what we asked for
+                self._config_sent = True
+                n = self._params_before_config = self._params_count
+                self.send("RequestParams")
+                if not self.pump(lambda: self._params_count > n, self.params_timeout_s):
+                    self.event("no_params_after_config", waited_s=self.params_timeout_s)
             if self.experiment is not None:
                 self._heartbeat = True  # from the Start on, so the failsafe never fires early
                 self.command("Start", self.experiment)

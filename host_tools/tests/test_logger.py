@@ -34,11 +34,11 @@ def telemetry(seq: int, t_us: int, omega: float = 10.0, running: bool = False, x
     return D.encode_raw("Telemetry", seq, [vals[n] for n in NAMES])
 
 
-def params_frame(seq: int) -> bytes:
+def params_frame(seq: int, mu=(0.3, 0.239), clamp=1) -> bytes:
     p = dict(D.robot_defaults["robot"], **D.robot_defaults["motor"])
     p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
-             baud=115200, clamp_on=1, firmware_id=0xDEADBEEF)
-    p["mu_s"] = 0.3
+             baud=115200, clamp_on=clamp, firmware_id=0xDEADBEEF)
+    p["mu_s"], p["mu_k"] = mu
     return D.encode_raw("Params", seq, [p[f.name] for f in D.by_name["Params"].fields])
 
 
@@ -112,8 +112,9 @@ class FakeRobot(threading.Thread):
     telemetry every ``period`` s (board time in 20 ms steps), runs experiments, brakes when no
     host frame arrived for 500 ms of wall time.  ``tamper(seq, frame) -> bytes`` can corrupt/drop/duplicate."""
 
-    def __init__(self, write, read, period=0.004, reject=None, tamper=None):
+    def __init__(self, write, read, period=0.004, reject=None, tamper=None, ignore_config=False):
         super().__init__(daemon=True)
+        self.mu, self.clamp, self.ignore_config = (0.3, 0.239), 0, ignore_config
         self.write, self.read = write, read
         self.period = period
         self.reject = reject or {}
@@ -153,9 +154,14 @@ class FakeRobot(threading.Thread):
                     self.failsafe = 0
                 elif name == "Stop":
                     self.running_until = None
+                elif name == "SetMu" and not self.ignore_config:
+                    _, raws = D.unpack(f)
+                    self.mu = (raws[0] * 1e-4, raws[1] * 1e-4)
+                elif name == "SetClamp" and not self.ignore_config:
+                    self.clamp = D.unpack(f)[1][0]
             self.send(D.encode_raw("Ack", self.next_seq(), (f.seq, f.type, D.enums["result"][result], 255)))
             if name == "RequestParams" and result == "ok":
-                self.send(params_frame(self.next_seq()))
+                self.send(params_frame(self.next_seq(), self.mu, self.clamp))
 
     def step(self):
         running = self.running_until is not None and self.t_us < self.running_until
@@ -217,14 +223,16 @@ def test_pty_experiment_with_params_commands_and_heartbeats(tmp_path):
     assert rc == 0
     meta = json.load(open(out / "meta.json"))
     assert meta["experiment"].startswith("straight line, 48 rad/s^2 wheel acceleration for 0.5 s")
-    assert meta["robot"]["mu_s"] == pytest.approx(0.3)          # from the robot's Params
+    assert meta["robot"]["mu_s"] == pytest.approx(0.3)          # the robot's Params after SetMu
+    assert meta["robot"]["mu_k"] == pytest.approx(0.25)
     assert meta["torque_clamp"] is True
+    assert not [e for e in events(out) if e["kind"] == "params_mismatch"]
     assert meta["logger"]["params_source"] == "robot"
     assert meta["logger"]["firmware_id"] == "deadbeef"
     assert meta["logger"]["end_reason"] == "experiment finished"
     assert [c["command"] for c in meta["commands"]] == ["SetClamp", "SetMu", "Start"]
     assert all(c["result"] == "ok" for c in meta["commands"])
-    assert robot.received[:4] == ["RequestParams", "SetClamp", "SetMu", "Start"]
+    assert robot.received[:5] == ["RequestParams", "SetClamp", "SetMu", "RequestParams", "Start"]
     # 1 s of board time at 20 ms per frame took ~0.2 s of host time; heartbeats kept it alive
     assert robot.failsafe == 0
     run = rows(out)
@@ -555,3 +563,23 @@ def test_long_outage_with_seq_wrap_is_a_gap_not_stale(tmp_path):
     assert rows(out).telemetry["t_s"].size == 20
     assert lg.stats["lost_frames"] == 40_000 and lg.stats["gaps"] == 1
     assert lg.stats["stale"] == 0 and lg.stats["robot_resets"] == 0
+
+
+def test_robot_ignoring_set_mu_is_reported(tmp_path, capsys):
+    robot, path, fds = robot_on_pty(ignore_config=True)
+    out = tmp_path / "run"
+    try:
+        rc = L.main(_args(["--port", path, "--out", str(out), "--mu-s", "0.5", "--mu-k", "0.4", "--clamp", "off",
+                           "--quiet", "--record-s", "0.5"]))
+    finally:
+        robot.stop_flag.set()
+        robot.join(2)
+    assert rc == 0
+    assert "warning: the robot reports mu_s 0.3000 (commanded 0.5)" in capsys.readouterr().err
+    meta = json.load(open(out / "meta.json"))
+    assert meta["robot"]["mu_s"] == pytest.approx(0.3)  # what the robot says it uses
+    assert meta["torque_clamp"] is False
+    (ev,) = [e for e in events(out) if e["kind"] == "params_mismatch"]
+    assert len(ev["detail"]) == 2
+    for fd in fds:
+        os.close(fd)
