@@ -138,14 +138,11 @@ int main() {
     const int32_t w = static_cast<int32_t>(x ^ (x << 7));
     bad += ctl::fx::mul_ss(a, b) != static_cast<int32_t>(a) * static_cast<int32_t>(b);
     bad += ctl::fx::mul_us(ua, b) != static_cast<int32_t>(static_cast<uint32_t>(ua)) * static_cast<int32_t>(b);
-    bad += ctl::fx::asr<1>(w) != (w >> 1);
-    bad += ctl::fx::asr<4>(w) != (w >> 4);
-    bad += ctl::fx::asr<8>(w) != (w >> 8);
-    bad += ctl::fx::asr<10>(w) != (w >> 10);
-    bad += ctl::fx::asr<12>(w) != (w >> 12);
-    bad += ctl::fx::asr<15>(w) != (w >> 15);
-    bad += ctl::fx::asr<16>(w) != (w >> 16);
-    n += 9;
+#define ASR_CHECK(S) bad += ctl::fx::asr<S>(w) != (w >> S);
+    ASR_CHECK(1) ASR_CHECK(2) ASR_CHECK(3) ASR_CHECK(4) ASR_CHECK(5) ASR_CHECK(6) ASR_CHECK(7)
+    ASR_CHECK(8) ASR_CHECK(9) ASR_CHECK(10) ASR_CHECK(11) ASR_CHECK(12) ASR_CHECK(13)
+    ASR_CHECK(14) ASR_CHECK(15) ASR_CHECK(16) ASR_CHECK(17) ASR_CHECK(20)
+    n += 20;
   }
   printf("avr arithmetic self-test: %lu checks, %lu wrong\n", static_cast<unsigned long>(n), static_cast<unsigned long>(bad));
   printf("END\n");

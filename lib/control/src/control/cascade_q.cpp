@@ -78,7 +78,7 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
 
     return out_;
   }
-  out_.odo = odo_.update(enc_r, enc_l, dt_us);
+  out_.odo = odo_.update_deferred(enc_r, enc_l, dt_us);  // pose arc: in the outer step
   const int16_t v = odo_.v_q12(), w = odo_.omega_q11();
 
   // Velocity errors: e_v Q12 (|v_d| <= 1.4, |v| <= 2.3 m/s: fits), e_w Q10 (|omega_d - omega|

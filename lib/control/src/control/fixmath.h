@@ -112,27 +112,57 @@ static CTL_INLINE int32_t mul_us(uint16_t a, int16_t b) {
 #endif
 }
 
-/// Arithmetic x >> S for a constant S (floor). avr-gcc shifts a 32-bit value one bit per loop
-/// iteration (~5 cycles/bit); whole bytes are moved instead, and for S in 9..15 the result is
-/// assembled from the high word shifted left and the low word shifted right.
+#if defined(__AVR__)
+namespace sh {
+/// One-bit 32-bit shifts, unrolled by Sh<N> (avr-gcc emits a counted loop, ~6 cycles per bit,
+/// for a constant 32-bit shift of more than one bit; unrolled: 4 cycles per bit).
+static CTL_INLINE int32_t asr1(int32_t x) {
+  __asm__("asr %D0\n\tror %C0\n\tror %B0\n\tror %A0" : "+r"(x));
+  return x;
+}
+static CTL_INLINE int32_t lsl1(int32_t x) {
+  __asm__("lsl %A0\n\trol %B0\n\trol %C0\n\trol %D0" : "+r"(x));
+  return x;
+}
+template <uint8_t N>
+struct Sh {
+  static CTL_INLINE int32_t r(int32_t x) { return Sh<N - 1>::r(asr1(x)); }
+  static CTL_INLINE int32_t l(int32_t x) { return Sh<N - 1>::l(lsl1(x)); }
+};
+template <>
+struct Sh<0> {
+  static CTL_INLINE int32_t r(int32_t x) { return x; }
+  static CTL_INLINE int32_t l(int32_t x) { return x; }
+};
+/// x >> 8 by byte moves (sign-extended).
+static CTL_INLINE int32_t asr8(int32_t x) {
+  union { int32_t i; uint8_t b[4]; } u, v;
+  u.i = x;
+  v.b[0] = u.b[1]; v.b[1] = u.b[2]; v.b[2] = u.b[3];
+  v.b[3] = (u.b[3] & 0x80) ? 0xFF : 0;
+  return v.i;
+}
+}  // namespace sh
+#endif
+
+/// Arithmetic x >> S for a constant S (floor). On the AVR whole bytes are moved and the
+/// remaining bits shifted one at a time, unrolled (at most 4 one-bit steps: S = 5..7 and
+/// 13..15 shift the next-higher byte/word left instead).
 template <uint8_t S>
 CTL_INLINE int32_t asr(int32_t x) {
 #if defined(__AVR__)
   if (S == 0) return x;
-  if (S >= 16) return static_cast<int32_t>(static_cast<int16_t>(x >> 16) >> (S >= 16 ? S - 16 : 0));
-  if (S >= 9) {
-    const int32_t hi = static_cast<int32_t>(static_cast<int16_t>(x >> 16)) * (1L << (S >= 9 && S < 16 ? 16 - S : 0));
-    const uint16_t lo = static_cast<uint16_t>(static_cast<uint16_t>(x) >> (S >= 9 && S < 16 ? S : 0));
-    return hi | lo;
+  if (S <= 4) return sh::Sh<(S <= 4 ? S : 0)>::r(x);
+  if (S <= 7) {  // (x >> 8) << (8 - S) | (low byte >> S)
+    const uint8_t lo = static_cast<uint8_t>(static_cast<uint8_t>(x) >> (S <= 7 ? S : 0));
+    return sh::Sh<(S >= 5 && S <= 7 ? 8 - S : 0)>::l(sh::asr8(x)) | lo;
   }
-  if (S == 8) {
-    union { int32_t i; uint8_t b[4]; } u, v;
-    u.i = x;
-    v.b[0] = u.b[1]; v.b[1] = u.b[2]; v.b[2] = u.b[3];
-    v.b[3] = (u.b[3] & 0x80) ? 0xFF : 0;
-    return v.i;
+  if (S <= 12) return sh::Sh<(S >= 8 && S <= 12 ? S - 8 : 0)>::r(sh::asr8(x));
+  if (S <= 15) {  // (x >> 16) << (16 - S) | (low word >> S)
+    const uint16_t lo = static_cast<uint16_t>(static_cast<uint16_t>(x) >> (S <= 15 ? S : 0));
+    return sh::Sh<(S >= 13 && S <= 15 ? 16 - S : 0)>::l(static_cast<int32_t>(static_cast<int16_t>(x >> 16))) | lo;
   }
-  return x >> S;
+  return static_cast<int32_t>(static_cast<int16_t>(x >> 16) >> (S >= 16 ? S - 16 : 0));
 #else
   return x >> S;
 #endif

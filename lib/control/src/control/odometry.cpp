@@ -87,23 +87,40 @@ void OdometryQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
   pose_ = p;
   phi_frac_ = 0;
   x_frac_ = y_frac_ = 0;
+  n_pending_ = 0;
   last_dt_us_ = 0;
   rate_per_count_q11_ = 0;
   w_r_q8_ = w_l_q8_ = v_q12_ = w_q11_ = 0;
 }
 
 OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
-  if (!cfg_.ok) return OdoStatus::kBadConfig;
-  bool jumped = false;
-  const int32_t dn_r = count_step(enc_r, last_r_, &jumped);
-  const int32_t dn_l = count_step(enc_l, last_l_, &jumped);
-  last_r_ = enc_r;
-  last_l_ = enc_l;
+  const OdoStatus st = update_deferred(enc_r, enc_l, dt_us);
+  if (n_pending_ != 0) integrate_pending();
+  return st;
+}
 
+OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
+  if (!cfg_.ok) return OdoStatus::kBadConfig;
+  int16_t dn_r, dn_l;
+  const OdoStatus st = speeds(enc_r, enc_l, dt_us, &dn_r, &dn_l);
+  if (n_pending_ == kMaxPending) integrate_pending();  // nobody read the pose: catch up
+  pend_r_[n_pending_] = dn_r;
+  pend_l_[n_pending_] = dn_l;
+  ++n_pending_;
+  return st;
+}
+
+void OdometryQ::integrate_pending() const {
+  for (uint8_t i = 0; i < n_pending_; ++i) integrate_arc(pend_r_[i], pend_l_[i]);
+  n_pending_ = 0;
+}
+
+// One sample's exact arc (see the header): increments dn_r, dn_l, |dn| <= kMaxStepCounts.
+void OdometryQ::integrate_arc(int16_t dn_r, int16_t dn_l) const {
   // Heading: dphi = (dn_r - dn_l) * K, K = r/(2b) 2pi/ppr as binary angle + 16-bit fraction.
   // |nd| <= 32766 fits int16; the binary-angle part wraps modulo 2pi exactly (uint32
   // arithmetic), so it is formed from two 16x16 products: K = K_hi 2^16 + K_lo.
-  const int16_t nd = static_cast<int16_t>(dn_r - dn_l);
+  const int16_t nd = static_cast<int16_t>(dn_r - dn_l);  // |nd| <= 32766
   const int32_t acc = static_cast<int32_t>(phi_frac_) + fx::mul_us(cfg_.dphi_per_count_frac, nd);
   phi_frac_ = static_cast<uint16_t>(acc & 0xFFFF);
   const uint16_t k_hi = static_cast<uint16_t>(cfg_.dphi_per_count_b32 >> 16);
@@ -140,6 +157,17 @@ OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
   pose_.x_q20 = fx::add_sat32(pose_.x_q20, (dx_q28 >> 8) + (sx >> 8));
   pose_.y_q20 = fx::add_sat32(pose_.y_q20, (dy_q28 >> 8) + (sy >> 8));
   pose_.phi_b32 += dphi;
+}
+
+OdoStatus OdometryQ::speeds(int32_t enc_r, int32_t enc_l, uint32_t dt_us, int16_t* dn_r_out,
+                            int16_t* dn_l_out) {
+  bool jumped = false;
+  const int32_t dn_r = count_step(enc_r, last_r_, &jumped);
+  const int32_t dn_l = count_step(enc_l, last_l_, &jumped);
+  last_r_ = enc_r;
+  last_l_ = enc_l;
+  *dn_r_out = static_cast<int16_t>(dn_r);
+  *dn_l_out = static_cast<int16_t>(dn_l);
 
   // Wheel speeds, rad/s Q8: dn * (2pi/ppr 2^8 1e6 / dt_us). The reciprocal is cached: the
   // division (about 650 cycles on the AVR) only runs when dt changes.

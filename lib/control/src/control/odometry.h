@@ -113,25 +113,51 @@ struct PoseQ {
 };
 
 /// Fixed-point odometry (no float anywhere; AVR inner loop).
+///
+/// The pose integration (one exact arc per sample, with sine and cosine) can be deferred:
+/// update_deferred() computes the wheel speeds at once and queues the sample's count
+/// increments; the arcs are integrated, one per sample and in order, the next time the pose is
+/// read (pose(), or the controller's outer step). The result is bit-identical to integrating
+/// at every update -- only the moment the cycles are spent changes.
 class OdometryQ {
  public:
+  /// Samples whose arcs can wait (the outer step runs every second inner step); a further
+  /// update_deferred() integrates the oldest at once.
+  static const uint8_t kMaxPending = 2;
+
   explicit OdometryQ(const OdometryConfigQ& cfg);
   void reset(int32_t enc_r, int32_t enc_l, const PoseQ& p);
-  /// New cumulative counts after dt_us microseconds.
+  /// New cumulative counts after dt_us microseconds: wheel speeds and pose.
   OdoStatus update(int32_t enc_r, int32_t enc_l, uint32_t dt_us);
+  /// The same, but the pose arc of this sample is queued (integrated when the pose is read).
+  OdoStatus update_deferred(int32_t enc_r, int32_t enc_l, uint32_t dt_us);
 
-  const PoseQ& pose() const { return pose_; }
+  /// The pose after the latest update (integrates any queued arcs first: logically const).
+  const PoseQ& pose() const {
+    if (n_pending_ != 0) integrate_pending();
+    return pose_;
+  }
+  /// Number of queued (not yet integrated) samples.
+  uint8_t pending() const { return n_pending_; }
   int16_t omega_r_q8() const { return w_r_q8_; }   ///< rad/s, Q8 (saturated at +-128)
   int16_t omega_l_q8() const { return w_l_q8_; }
   int16_t v_q12() const { return v_q12_; }         ///< m/s, Q12
   int16_t omega_q11() const { return w_q11_; }     ///< rad/s, Q11
 
  private:
+  /// Count increments (clamped, int16) and wheel speeds, v, omega of one sample.
+  OdoStatus speeds(int32_t enc_r, int32_t enc_l, uint32_t dt_us, int16_t* dn_r, int16_t* dn_l);
+  void integrate_pending() const;
+  void integrate_arc(int16_t dn_r, int16_t dn_l) const;
+
   OdometryConfigQ cfg_;
   int32_t last_r_, last_l_;
-  PoseQ pose_;
-  uint16_t phi_frac_;
-  uint8_t x_frac_, y_frac_;  // position below Q20 (Q28 residue)
+  // The pose and its carried residues change only by integrating queued arcs (see pose()).
+  mutable PoseQ pose_;
+  mutable uint16_t phi_frac_;
+  mutable uint8_t x_frac_, y_frac_;  // position below Q20 (Q28 residue)
+  mutable uint8_t n_pending_;
+  int16_t pend_r_[kMaxPending], pend_l_[kMaxPending];  // queued count increments, oldest first
   uint32_t last_dt_us_;
   int32_t rate_per_count_q11_;  // cached wheel_rate_q11 / dt_us
   int16_t w_r_q8_, w_l_q8_, v_q12_, w_q11_;

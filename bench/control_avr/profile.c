@@ -1,0 +1,35 @@
+/* Cycle profile of the control benchmark (libsimavr): runs an ATmega2560 ELF to its end and
+ * prints, for every program address that executed, the CPU cycles spent there ("pc cycles",
+ * pc as a byte address in hex). bench/control_avr/profile.sh maps the addresses to source
+ * lines. simavr charges each instruction its datasheet cycle count; no interrupts are used by
+ * the benchmark, so no response-time correction is needed.
+ * Usage: profile bench.elf > pcs.txt */
+#include <stdio.h>
+#include <stdlib.h>
+
+#include <simavr/sim_avr.h>
+#include <simavr/sim_elf.h>
+
+int main(int argc, char **argv) {
+    if (argc < 2) { fprintf(stderr, "usage: %s firmware.elf\n", argv[0]); return 2; }
+    elf_firmware_t fw = {{0}};
+    if (elf_read_firmware(argv[1], &fw)) { fprintf(stderr, "cannot read %s\n", argv[1]); return 2; }
+    avr_t *avr = avr_make_mcu_by_name("atmega2560");
+    if (!avr) return 2;
+    avr_init(avr);
+    avr->frequency = 16000000;
+    avr_load_firmware(avr, &fw);
+    const size_t n = 256u * 1024u;
+    unsigned long long *cyc = calloc(n, sizeof *cyc);
+    if (!cyc) return 2;
+    for (;;) {
+        const avr_flashaddr_t pc = avr->pc;
+        const avr_cycle_count_t c0 = avr->cycle;
+        const int st = avr_run(avr);
+        if (pc < n) cyc[pc] += avr->cycle - c0;
+        if (st == cpu_Done || st == cpu_Crashed || avr->state == cpu_Sleeping) break;
+    }
+    for (size_t pc = 0; pc < n; ++pc)
+        if (cyc[pc]) printf("%zx %llu\n", pc, cyc[pc]);
+    return 0;
+}
