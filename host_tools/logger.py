@@ -655,7 +655,7 @@ def estimate_offset(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarray,
 
 def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = None,
                        max_offset_s: float = 10.0, min_correlation: float = 0.5,
-                       overwrite: bool = False) -> dict:
+                       overwrite: bool = False, set_start_pose: bool = False) -> dict:
     try:
         run = runfmt.load_run(run_dir, check_units=False)
         trk = runfmt._read_csv(csv_path, runfmt.GROUNDTRUTH_REQUIRED, may_be_empty=("phi_rad",))
@@ -676,6 +676,20 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
     else:
         info.update(method="given", offset_s=offset_s)
     phi = trk.get("phi_rad")
+    start_pose = None
+    if set_start_pose:
+        # the tracker's pose at the first telemetry frame, on the board clock
+        t0 = float(run.telemetry["t_s"][0])
+        tb = trk["t_s"] + offset_s
+        if not tb[0] <= t0 <= tb[-1]:
+            raise LoggerError(f"{csv_path}: the tracker does not cover the run start (board time {t0:.3f} s)", 1)
+        ok = np.isfinite(phi) if phi is not None else np.zeros(tb.shape, bool)
+        if ok.sum() < 2:
+            raise LoggerError(f"{csv_path}: --gt-start-pose needs the phi_rad column", 2)
+        ph = np.unwrap(phi[ok])
+        start_pose = [float(np.interp(t0, tb, trk["x_m"])), float(np.interp(t0, tb, trk["y_m"])),
+                      float(np.interp(t0, tb[ok], ph))]
+        info["start_pose_from"] = "tracker pose at the first telemetry frame"
     try:
         runfmt.write_groundtruth(run_dir, trk["t_s"] + offset_s, trk["x_m"], trk["y_m"], phi,
                                  overwrite=overwrite)
@@ -685,6 +699,8 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
     with open(mpath) as fh:
         meta = json.load(fh)
     meta["groundtruth"] = info
+    if start_pose is not None:
+        meta["start_pose"] = [round(v, 6) for v in start_pose]
     tmp = mpath + ".tmp"
     with open(tmp, "w") as fh:
         json.dump(meta, fh, indent=2)
@@ -721,12 +737,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gt-offset", type=float, help="tracker clock offset, s (t_board = t_tracker + offset); "
                    "estimated by speed cross-correlation when omitted")
     p.add_argument("--gt-max-offset", type=float, default=10.0, help="search window, s (default 10)")
+    p.add_argument("--gt-start-pose", action="store_true", help="set meta.json start_pose to the tracker's "
+                   "pose at the first telemetry frame (tracker in room coordinates; needs phi_rad)")
 
 
 def main(args: argparse.Namespace) -> int:
     if args.attach_groundtruth:
         try:
-            info = attach_groundtruth(args.out, args.attach_groundtruth, args.gt_offset, args.gt_max_offset)
+            info = attach_groundtruth(args.out, args.attach_groundtruth, args.gt_offset, args.gt_max_offset,
+                                      set_start_pose=args.gt_start_pose)
         except LoggerError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return exc.code

@@ -665,3 +665,26 @@ def test_fuzz_logger_sequence_logic(tmp_path_factory, case):
     assert np.all(np.diff(t) > 0)
     seqs = run.telemetry["seq"].astype(int)
     assert all(any(s == q for q, _ in sent) for s in seqs)
+
+
+def test_groundtruth_start_pose_from_tracker(tmp_path, capsys):
+    run = tmp_path / "run"
+    tt, xt, yt = _make_run(str(run), offset=0.0)
+    csv = tmp_path / "tracker.csv"
+    # room coordinates: the robot starts at (1.0, 2.0) heading 0.5 rad
+    with open(csv, "w") as fh:
+        fh.write("t_s,x_m,y_m,phi_rad\n")
+        for a, b, c in zip(tt, xt, yt):
+            fh.write(f"{a:.4f},{1.0 + b * math.cos(0.5):.5f},{2.0 + b * math.sin(0.5) + c:.5f},0.5\n")
+    assert L.main(_args(["--out", str(run), "--attach-groundtruth", str(csv), "--gt-offset", "0",
+                         "--gt-start-pose"])) == 0
+    sp = json.load(open(run / "meta.json"))["start_pose"]
+    assert sp == pytest.approx([1.0, 2.0, 0.5], abs=0.01)
+    assert runfmt.load_run(run, check_units=False).start_pose == pytest.approx(tuple(sp))
+    # without a heading column it is refused, with the reason
+    run2 = tmp_path / "run2"
+    _make_run(str(run2), offset=0.0)
+    csv.write_text("t_s,x_m,y_m\n" + "".join(f"{a},{b},{c}\n" for a, b, c in zip(tt, xt, yt)))
+    assert L.main(_args(["--out", str(run2), "--attach-groundtruth", str(csv), "--gt-offset", "0",
+                         "--gt-start-pose"])) == 2
+    assert "needs the phi_rad column" in capsys.readouterr().err
