@@ -173,6 +173,48 @@ def test_clamp_off_48_slips_clamp_on_72_does_not(run48, run72_clamped):
     assert meta["torque_clamp"] is True
 
 
+def test_plant_effects_reach_the_plant_slippery_floor_defeats_the_nominal_clamp(elf, sim, tmp_path):
+    # the firmware clamps at the nominal mu_s = 0.241; on a floor with mu_s = 0.12 the same
+    # clamp allows twice the torque the floor can take: the wheels slip although the clamp is on
+    out = tmp_path / "slippery"
+    keys = {"friction_coefficient.enabled": 1, "friction_coefficient.mu_s": 0.12, "friction_coefficient.mu_k": 0.11}
+    code, lg, s = fil.record(out, elf, straight(48.0, 1.0), clamp=True, args=fil.sim_args(keys))
+    assert code == 0, lg.end_reason
+    assert s["plant_keys"] == {k: float(v) for k, v in keys.items()}
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["torque_clamp"] is True and "--set" in meta["fil"]["command"]
+    assert s["slip"]["steps_slipping_r"] > 100 and s["slip"]["max_slip_speed_m_s"] > 0.05
+
+
+def test_encoder_noise_counted_exactly_or_detected(elf, sim, tmp_path):
+    # 3 us edge jitter and a 2 us bounce (one channel forth and back) on 2 % of the edges.
+    # A bounce that lands before the ISR of the previous edge has read the pins shows both
+    # channels changed: an illegal transition, which the firmware must flag and then stop the
+    # motors (failsafe encoder_fault). Invariant: while no illegal transition is reported the
+    # counts are within +-1 of the plant angle; after one, the motors stop.
+    out = tmp_path / "noisy"
+    code, lg, s = fil.record(out, elf, straight(48.0, 1.0), clamp=True,
+                             args=["--enc-jitter-us", "3", "--enc-glitch", "0.02", "--seed", "11"])
+    assert code == 0, lg.end_reason
+    tel = csv(out / "telemetry.csv")
+    smp = csv(out / "encoder_samples.csv")
+    i = np.searchsorted(smp["t_s"], tel["t_s"] + 1e-6) - 1
+    clean = (tel["illegal_r"] == 0) & (tel["illegal_l"] == 0) & (i >= 0)
+    for w in ("r", "l"):
+        err = tel[f"enc_{w}"][clean] - smp[f"counts_true_{w}"][i[clean]]
+        assert np.all(np.abs(err) <= 1.0), f"{w}: {np.abs(err).max():.3f} counts without an illegal transition"
+    assert tel["enc_r"][clean].max() > 200
+    assert s["encoder_isr"]["edges_driven"] > 2 * abs(tel["enc_r"][clean]).max()
+    detected = not clean[i >= 0].all()
+    if detected:
+        t_ill = tel["t_s"][~clean & (i >= 0)][0]
+        assert any(e["code"] == FAILSAFE["encoder_fault"] for e in s["failsafe_events"])
+        assert any(t_ill - 0.05 < t <= t_ill + 0.03 for t in s["brake_on_t_s"]), (t_ill, s["brake_on_t_s"])
+    print(f"\nencoder noise: {s['encoder_isr']['edges_driven']} edges driven; "
+          + (f"illegal transition reported at {t_ill:.3f} s -> encoder_fault, motors braked"
+             if detected else "all counted, within +-1 count"))
+
+
 def run_r(out: Path) -> float:
     return float(json.loads((out / "meta.json").read_text())["robot"]["r"])
 

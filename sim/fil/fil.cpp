@@ -24,6 +24,7 @@
 #include <fcntl.h>
 #include <math.h>
 #include <poll.h>
+#include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -236,7 +237,7 @@ std::uniform_real_distribution<double> uni(0.0, 1.0);
 std::normal_distribution<double> gauss(0.0, 1.0);
 avr_cycle_count_t plant_cycles;
 avr_cycle_count_t next_plant_at;  // cycle of the next plant step (timer re-armed after a reset)
-bool stop_now;
+volatile sig_atomic_t stop_now;
 std::string stop_reason = "t_end reached";
 
 // board clock: Timer5 start of the first boot
@@ -698,7 +699,10 @@ void step() {
     }
 }
 
-void no_sleep(avr_t*, avr_cycle_count_t) {}  // pacing is ours (pace()), not simavr's usleep
+void no_sleep(avr_t*, avr_cycle_count_t) {}
+
+volatile sig_atomic_t got_signal;
+void on_signal(int sig) { got_signal = sig; stop_now = 1; }  // pacing is ours (pace()), not simavr's usleep
 
 void open_pty() {
     pty_fd = posix_openpt(O_RDWR | O_NOCTTY);
@@ -881,6 +885,9 @@ int main(int argc, char** argv) {
     printf("PTY %s\n", pty_name.c_str());
     fflush(stdout);
 
+    signal(SIGINT, on_signal);
+    signal(SIGTERM, on_signal);
+    signal(SIGPIPE, SIG_IGN);
     clock_gettime(CLOCK_MONOTONIC, &wall0);
     next_plant_at = plant_cycles;
     avr_cycle_timer_register(avr, plant_cycles, plant_cb, nullptr);
@@ -919,7 +926,7 @@ int main(int argc, char** argv) {
             double w0 = wall_now();
             while (!host_seen) {
                 poll_host();
-                if (host_seen) break;
+                if (host_seen || stop_now) break;
                 if (wall_now() - w0 > opt.host_wait_s) {
                     stop_reason = "no host byte within --host-wait";
                     stop_now = true;
@@ -931,7 +938,10 @@ int main(int argc, char** argv) {
             sim_t_at_pace0 = board_now();
             wall_at_pace0 = wall_now();
         }
-        if (stop_now) break;
+        if (stop_now) {
+            if (got_signal) stop_reason = got_signal == SIGINT ? "interrupted (SIGINT)" : "terminated (SIGTERM)";
+            break;
+        }
         if (board_origin_set && board_now() >= opt.t_end) break;
     }
     double wall_s = wall_now();
