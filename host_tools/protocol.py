@@ -318,23 +318,20 @@ class StreamDecoder:
                 if n > max_enc:
                     self._reject(off, n, "long")
                 else:
-                    # COBS decode: every code byte after the first marks a zero in the body
-                    # (bodies are < 254 bytes, so a 0xFF code only occurs in garbage).
+                    # COBS decode: every code byte after the first marks a zero in the body.
+                    # Blocks are at most max_body + 1 < 255 bytes, so a 0xFF code (a 254-byte
+                    # run without zero) always overshoots the end and fails the j != n test.
                     code = seg[0]
                     if code == n:  # one block, no zero in the body (common fast path)
                         body = seg[1:]
                     else:
                         b = bytearray(seg)
                         j = code
-                        ok = code != 0xFF
-                        while ok and j < n:
+                        while j < n:
                             c = b[j]
-                            if c == 0xFF:
-                                ok = False
-                                break
                             b[j] = 0
                             j += c
-                        if not ok or j != n:
+                        if j != n:
                             self._reject(off, n, "cobs")
                             off += n + 1
                             continue

@@ -84,6 +84,8 @@ def main() -> int:
     stream, n = make_stream(int(a.mb * 1e6))
     d = P.definition()
     link = d.baud / d.bits_per_byte
+    la = os.getloadavg()
+    print(f"host: {os.cpu_count()} CPUs, load average {la[0]:.1f} (figures drop when the machine is busy)")
     print(f"stream: {len(stream) / 1e6:.1f} MB, {n} telemetry frames of {d.wire_size('Telemetry')} B, "
           f"feed() chunks of {a.chunk} B, best of {a.repeat}")
     labels = {1: "decode (COBS+CRC, verified frames)", 2: "decode + unpack fields",
