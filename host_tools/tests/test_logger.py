@@ -688,3 +688,39 @@ def test_groundtruth_start_pose_from_tracker(tmp_path, capsys):
     assert L.main(_args(["--out", str(run2), "--attach-groundtruth", str(csv), "--gt-offset", "0",
                          "--gt-start-pose"])) == 2
     assert "needs the phi_rad column" in capsys.readouterr().err
+
+
+def test_cli_sigint_end_to_end(tmp_path):
+    """python -m host_tools log in a subprocess, stopped with a real SIGINT (Ctrl-C)."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    robot, path, fds = robot_on_pty(period=0.01)
+    out = tmp_path / "run"
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.Popen([sys.executable, "-m", "host_tools", "log", "--port", path, "--out", str(out)],
+                            cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 20
+        tpath = out / "telemetry.csv"
+        while time.monotonic() < deadline:  # wait until rows are on disk (flushed as it goes)
+            if tpath.exists() and len(tpath.read_text().splitlines()) > 20:
+                break
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        robot.stop_flag.set()
+        robot.join(2)
+    assert proc.returncode == 0, err
+    assert "frames/s" in err  # the live status line
+    meta = json.load(open(out / "meta.json"))
+    assert meta["logger"]["end_reason"] == "interrupted (Ctrl-C)"
+    assert meta["logger"]["params_source"] == "robot"
+    assert rows(out).telemetry["t_s"].size > 20
+    for fd in fds:
+        os.close(fd)
