@@ -9,8 +9,11 @@ and writes a ``ddrun/1`` run folder (shared/spec/run-format.md) through host_too
                    and a "logger" section with the link statistics and the end reason
     telemetry.csv  the spec columns + seq, host_t_s and every other telemetry field
     raw.bin        every byte received, unmodified (nothing is lost, even undecodable bytes)
-    events.jsonl   one JSON object per event: rejected blocks (with their offset in raw.bin),
-                   sequence gaps, duplicates, robot resets, disconnects, commands and acks
+    events.jsonl   one JSON object per line, {"host_t_s", "kind", ...}; kinds: start, end,
+                   command, ack, params, params_mismatch, no_params, rejected_block (raw_offset
+                   into raw.bin, length, reason cobs/short/long/crc/version), gap (missing),
+                   duplicate, stale, time_not_increasing, robot_reset, failsafe (reason),
+                   unknown_type, bad_length, disconnect, reconnect
 
 Files are flushed as they are written; the folder is complete and readable after Ctrl-C, a
 pulled cable (the logger waits for the port to come back and carries on) or a robot power loss
