@@ -10,7 +10,8 @@ and writes a ``ddrun/1`` run folder (shared/spec/run-format.md) through host_too
     telemetry.csv  the spec columns + seq, host_t_s and every other telemetry field
     raw.bin        every byte received, unmodified (nothing is lost, even undecodable bytes)
     events.jsonl   one JSON object per line, {"host_t_s", "kind", ...}; kinds: start, end,
-                   command, ack, params, params_mismatch, no_params, rejected_block (raw_offset
+                   command, ack, params, params_mismatch, no_params, no_params_after_config,
+                   rejected_block (raw_offset
                    into raw.bin, length, reason cobs/short/long/crc/version), gap (missing),
                    duplicate, stale, time_not_increasing, robot_reset, failsafe (reason),
                    unknown_type, bad_length, disconnect, reconnect
