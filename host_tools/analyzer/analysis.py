@@ -21,6 +21,12 @@ from host_tools.analyzer.replay import (CHANNELS, CUMULATIVE, FIT_CHANNELS, Clos
                                         state_table)
 
 REPORT_FORMAT = "mismatch-report/1"
+
+# Decision thresholds (normalized residual = residual / noise floor over the fit channels).
+STRONG_WINDOW = 3.0      # a window whose RMS is this many floors is a mismatch on its own
+MISMATCH_RMS = 1.25      # otherwise the overall normalized RMS must exceed this
+EXPLAINED_RMS = 1.3      # after the update: explained when the normalized RMS is below this,
+EXPLAINED_RMS_WEAK = 1.6  # or below this with no strong window left
 MODEL_FORMAT = "ddmodel/1"
 
 
@@ -259,7 +265,13 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                                       states, tau_max)
     fit_chans = [c for c in FIT_CHANNELS if c in floors]
     sig_fit = [e for e in entries if e["channel"] in fit_chans]
-    mismatch_seen = bool(sig_fit)
+    problem = Problem(preps, floors, vocab, dt_s=dt_s, fit_channels=fit_chans)
+    runs_idx = list(range(len(preps)))
+    r0 = problem.residual({}, runs_idx)
+    rss0 = float(np.sum(r0 ** 2))
+    nrms0 = math.sqrt(rss0 / max(r0.size, 1))
+    strong0 = [e for e in sig_fit if e["rms"] >= STRONG_WINDOW * e["noise_floor"]]
+    mismatch_seen = bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
     sig_t = [e for e in entries_t if e["channel"] in fit_chans]
     if mismatch_seen and not sig_t:
         notes.append("the torque-driven replay agrees with the recording while the duty-driven "
@@ -271,10 +283,6 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     log(f"nominal replay: {len(entries)} significant window(s) "
         f"({len(sig_fit)} in fit channels {', '.join(fit_chans)})")
 
-    problem = Problem(preps, floors, vocab, dt_s=dt_s, fit_channels=fit_chans)
-    runs_idx = list(range(len(preps)))
-    r0 = problem.residual({}, runs_idx)
-    rss0 = float(np.sum(r0 ** 2))
     tasks = [([e], None, {}) for e in vocab_fit]
     log(f"fitting {len(tasks)} candidate effect(s) on {jobs} process(es)")
     cands = _run_tasks(problem, tasks, jobs, "candidate")
@@ -291,9 +299,8 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     if mismatch_seen:
         # is one effect enough?  try pairs when something significant remains
         remaining = _remaining_windows(problem, final_effects, fit_chans)
-        ex0 = rss0 / max(r0.size, 1)
-        ex1 = _excess(problem, final_effects)
-        if remaining and (ex1 - 1.0) > 0.1 * (ex0 - 1.0):
+        nrms1 = math.sqrt(_excess(problem, final_effects))
+        if not final_effects or remaining or nrms1 > EXPLAINED_RMS:
             ranked = [c.effects[0] for c in cands if c.checks.get("bic")][:pairs_top]
             if best_single is not None and best_single.effects[0] not in ranked:
                 ranked = [best_single.effects[0]] + ranked[:pairs_top - 1]
@@ -352,17 +359,17 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
         verdict = "no_mismatch"
         final_effects = {}
     else:
-        ex0 = rss0 / max(r0.size, 1)
-        ex1 = _excess(problem, final_effects)
+        nrms1 = math.sqrt(_excess(problem, final_effects))
         remaining = _remaining_windows(problem, final_effects, fit_chans)
-        explained = bool(selected) and (not remaining or (ex1 - 1.0) <= 0.25 * (ex0 - 1.0))
+        explained = bool(selected) and (nrms1 <= EXPLAINED_RMS or
+                                        (nrms1 <= EXPLAINED_RMS_WEAK and not remaining))
         verdict = "explained" if explained else "unexplained"
         if not explained:
             chans_after = [channels(p, duty.simulate(p, final_effects), "duty") for p in preps]
             hint = sparse_hint(preps, chans_after)
             if selected:
                 notes.append("the selected effects explain part of the mismatch only "
-                             f"(mean squared normalized residual {ex0:.3g} -> {ex1:.3g})")
+                             f"(normalized RMS residual {nrms0:.3g} -> {nrms1:.3g}, noise = 1)")
     if final_effects:
         updated = [channels(p, duty.simulate(p, final_effects), "duty") for p in preps]
     # error tables: fitting data and held-out
@@ -381,7 +388,9 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                  "heldout_rmse_after": {k: _r(v) for k, v in ha.items()},
                  "heldout_method": ("leave one run out" if len(preps) > 1 else
                                     f"time split at {problem.split_frac:.0%} of the run"),
-                 "noise_floor": {k: _r(v) for k, v in floors.items()}}
+                 "noise_floor": {k: _r(v) for k, v in floors.items()},
+                 "normalized_rms_before": _r(nrms0),
+                 "normalized_rms_after": _r(math.sqrt(_excess(problem, final_effects)))}
     model = updated_model(runs[0].meta, final_effects, [r.path for r in runs])
     all_c = cands + pair_cands
     all_c.sort(key=lambda c: c.delta_bic)
@@ -401,7 +410,9 @@ def _pair_bic(pair: Candidate, single: Candidate, problem: Problem) -> float:
                      len(pair.fit.values) - len(single.fit.values))
 
 
-def _remaining_windows(problem: Problem, effects: Mapping, fit_chans: Sequence[str]) -> int:
+def _remaining_windows(problem: Problem, effects: Mapping, fit_chans: Sequence[str],
+                       strong: float = STRONG_WINDOW) -> int:
+    """Number of significant windows left whose RMS is at least ``strong`` noise floors."""
     n = 0
     for prep, chans in zip(problem.preps, problem.sim_channels(effects,
                                                                range(len(problem.preps)))):
@@ -410,7 +421,7 @@ def _remaining_windows(problem: Problem, effects: Mapping, fit_chans: Sequence[s
             if ch is None:
                 continue
             w, _ = sg.significant_windows(ch.t, ch.resid, problem.floors[c])
-            n += len(w)
+            n += sum(1 for x in w if x.rms >= strong * problem.floors[c])
     return n
 
 

@@ -93,7 +93,7 @@ def test_effect_outside_the_fitted_set_is_unexplained_with_a_hint(tmp_path):
 
 
 def test_single_run_uses_a_time_split(tmp_path):
-    paths = _case(tmp_path, "one", {"wheel_radius": {"r_eff": 0.039}}, profiles=("ramp",),
+    paths = _case(tmp_path, "one", {"wheel_radius": {"r_eff": 0.039}}, profiles=("brake",),
                   seed=6)
     rc, rep = _analyze(paths, tmp_path / "out", extra=["--no-plots"])
     assert rc == 0
