@@ -10,7 +10,7 @@ and writes a ``ddrun/1`` run folder (shared/spec/run-format.md) through host_too
     telemetry.csv  the spec columns + seq, host_t_s and every other telemetry field
     raw.bin        every byte received, unmodified (nothing is lost, even undecodable bytes)
     events.jsonl   one JSON object per line, {"host_t_s", "kind", ...}; kinds: start, end,
-                   command, ack, params, params_mismatch, no_params, no_params_after_config,
+                   command, ack, params, bad_params, params_mismatch, no_params, no_params_after_config,
                    rejected_block (raw_offset
                    into raw.bin, length, reason cobs/short/long/crc/version), gap (missing),
                    duplicate, stale, time_not_increasing, robot_reset, failsafe (reason),
@@ -355,10 +355,19 @@ class Logger:
             self.acks[cmd_seq] = (result, detail)
             self.event("ack", cmd_seq=cmd_seq, result=self.d.result_names.get(result, result), detail=detail)
         elif msg.name == "Params":
-            self.params = dict(zip(msg.field_names(), raws))
+            new = dict(zip(msg.field_names(), raws))
+            shown = {k: (v if not isinstance(v, float) or not math.isfinite(v) else _f32(v)) for k, v in new.items()}
+            old, self.params = self.params, new
+            try:  # a robot reporting NaN or nonsense must not stop the recording
+                runfmt.validate_meta(self._meta(), "Params")
+            except runfmt.RunFormatError as exc:
+                self.params = old
+                self.event("bad_params", reason=str(exc), seq=f.seq,
+                           **{k: (v if not isinstance(v, float) or math.isfinite(v) else str(v)) for k, v in shown.items()})
+                sys.stderr.write(f"\nwarning: ignoring the robot's Params (seq {f.seq}): {exc}\n")
+                return
             self._params_count += 1
-            self.event("params", **{k: (v if not isinstance(v, float) else _f32(v))
-                                    for k, v in self.params.items()})
+            self.event("params", **shown)
             self._check_params_vs_commands()
             self.write_meta()
 

@@ -721,6 +721,24 @@ def test_cli_sigint_end_to_end(tmp_path):
     meta = json.load(open(out / "meta.json"))
     assert meta["logger"]["end_reason"] == "interrupted (Ctrl-C)"
     assert meta["logger"]["params_source"] == "robot"
-    assert rows(out).telemetry["t_s"].size > 20
+    assert rows(out).telemetry["t_s"].size >= 20
     for fd in fds:
         os.close(fd)
+
+
+def test_nan_params_are_refused_not_fatal(tmp_path, capsys):
+    p = dict(D.robot_defaults["robot"], **D.robot_defaults["motor"])
+    p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
+             baud=115200, clamp_on=0, firmware_id=1, mu_s=float("nan"))
+    bad = D.encode_raw("Params", 0, [p[f.name] for f in D.by_name["Params"].fields])
+    port = serial.serial_for_url("loop://", timeout=0.02)
+    port.write(bad + b"".join(telemetry(i + 1, 20_000 * (i + 1)) for i in range(10)))
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: port, "loop://", 115200, record_s=0.4, params_timeout_s=0.05, status=False)
+    assert lg.run() == 0
+    assert "ignoring the robot's Params (seq 0)" in capsys.readouterr().err
+    (ev,) = [e for e in events(out) if e["kind"] == "bad_params"]
+    assert "robot.mu_s" in ev["reason"] and ev["mu_s"] == "nan"
+    meta = json.load(open(out / "meta.json"))
+    assert meta["robot"]["mu_s"] == 0.241 and meta["logger"]["params_source"].startswith("defaults")
+    assert rows(out).telemetry["t_s"].size == 10
