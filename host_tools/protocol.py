@@ -146,6 +146,12 @@ class Definition:
             spec = json.loads(self.path.read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError) as exc:
             raise ProtocolError(f"{self.path}: cannot load the protocol definition: {exc}") from None
+        try:
+            self._build(spec)
+        except (KeyError, TypeError, ValueError, struct.error) as exc:
+            raise ProtocolError(f"{self.path}: malformed protocol definition: {type(exc).__name__} {exc}") from None
+
+    def _build(self, spec: dict) -> None:
         self.spec = spec
         self.version: int = spec["version"]
         self.baud: int = spec["link"]["baud"]

@@ -211,3 +211,17 @@ def test_fuzz_random_bytes(data):
     dec = P.StreamDecoder()
     for f in dec.feed(data):
         assert D.frame(f.type, f.seq, f.payload)[1:-1] == data[f.offset:f.offset + len(D.frame(f.type, f.seq, f.payload)) - 2]
+
+
+def test_malformed_definition_is_a_clear_error(tmp_path):
+    import json
+
+    d = json.loads(P.DEFINITION_PATH.read_text())
+    del d["messages"][0]["fields"][0]["type"]
+    p = tmp_path / "p.json"
+    p.write_text(json.dumps(d))
+    with pytest.raises(P.ProtocolError, match=r"malformed protocol definition: KeyError 'type'"):
+        P.Definition(p)
+    p.write_text("{")
+    with pytest.raises(P.ProtocolError, match="cannot load the protocol definition"):
+        P.Definition(p)
