@@ -30,10 +30,11 @@ using bench::kRuns;
 
 struct Stat {
   uint32_t sum;
-  uint16_t lo, hi;
-  void reset() { sum = 0; lo = 0xFFFF; hi = 0; }
+  uint16_t lo, hi, n;
+  void reset() { sum = 0; lo = 0xFFFF; hi = 0; n = 0; }
   void add(uint16_t c) {
     sum += c;
+    ++n;
     if (c < lo) lo = c;
     if (c > hi) hi = c;
   }
@@ -57,7 +58,7 @@ bool overflowed = false;
 volatile int32_t sink;
 
 void row(const char* name, const Stat& s) {
-  printf("%-34s %6u %6lu %6u\n", name, s.lo, static_cast<unsigned long>(s.sum / kRuns), s.hi);
+  printf("%-34s %6u %6lu %6u %4u\n", name, s.lo, static_cast<unsigned long>(s.sum / s.n), s.hi, s.n);
 }
 
 // Configuration (built once at start-up; the float conversion is not part of the steps).
@@ -68,6 +69,7 @@ const ctl::ReferenceSpec spec{ctl::PathKind::kArc, 0.5f, 0.4f, 0.6f};
 constexpr ctl::ReferenceSpecQ spec_q{ctl::ReferenceSpec{ctl::PathKind::kArc, 0.5f, 0.4f, 0.6f}};
 ctl::Controller fc(cfg);
 ctl::ControllerQ qc(cfg_q);
+ctl::ControllerQ qc_const(cfg_q);  // same sequence with a constant dt (cached reciprocal)
 
 }  // namespace
 
@@ -88,28 +90,37 @@ int main() {
     overhead = s.lo;
   }
 
-  Stat in_q, out_q, ref_q, in_f, out_f, ref_f;
-  in_q.reset(); out_q.reset(); ref_q.reset(); in_f.reset(); out_f.reset(); ref_f.reset();
-  ctl::RefSampleQ rq;
+  Stat in_q, in_q_const, out_q, ref_q, in_f, out_f, ref_f;
+  in_q.reset(); in_q_const.reset(); out_q.reset(); ref_q.reset(); in_f.reset(); out_f.reset(); ref_f.reset();
+  ctl::RefSampleQ rq{};
   ctl::RefSample rf;
   uint32_t check = 0;
+  uint8_t limited = 0;
   for (uint8_t i = 0; i < kRuns; ++i) {
     const int32_t enc_r = bench::enc_r_at(i), enc_l = bench::enc_l_at(i);
     const uint32_t t_ms = 25UL * i;
-    TIME_IT(in_q, qc.inner_step(enc_r, enc_l, 25000UL));
-    TIME_IT(ref_q, rq = ctl::reference_at_q(spec_q, t_ms));
-    TIME_IT(out_q, qc.outer_step(rq));
-    check = bench::checksum_step(check, qc, rq);
+    TIME_IT(in_q, qc.inner_step(enc_r, enc_l, bench::dt_us_at(i)));
+    TIME_IT(in_q_const, qc_const.inner_step(enc_r, enc_l, 25000UL));
+    if (bench::outer_due(i)) qc_const.outer_step(rq);  // rq: the previous sample (untimed)
+    if (bench::outer_due(i)) {
+      TIME_IT(ref_q, rq = ctl::reference_at_q(spec_q, t_ms));
+      TIME_IT(out_q, qc.outer_step(rq));
+    }
+    check = bench::checksum_step(check, qc, rq, i);
     TIME_IT(in_f, fc.inner_step(enc_r, enc_l, 0.025f));
-    TIME_IT(ref_f, rf = ctl::reference_at(spec, 0.025f * i));
-    TIME_IT(out_f, fc.outer_step(rf));
+    if (bench::outer_due(i)) {
+      TIME_IT(ref_f, rf = ctl::reference_at(spec, 0.025f * i));
+      TIME_IT(out_f, fc.outer_step(rf));
+    }
+    if (qc.inner().clamped_r || qc.inner().clamped_l || qc.inner().sat_r || qc.inner().sat_l) ++limited;
   }
   sink = qc.inner().pwm_r_q15 + static_cast<int32_t>(fc.inner().pwm_r * 1000.0f);
 
   printf("BEGIN control_avr cycles (ATmega2560, -Os, %u calls each, overhead %u subtracted)\n",
          static_cast<unsigned>(kRuns), overhead);
-  printf("%-34s %6s %6s %6s\n", "step", "min", "mean", "max");
-  row("fixed inner_step (25 ms)", in_q);
+  printf("%-34s %6s %6s %6s %4s\n", "step", "min", "mean", "max", "n");
+  row("fixed inner_step (25 ms, dt jitter)", in_q);
+  row("fixed inner_step (dt constant)", in_q_const);
   row("fixed outer_step (50 ms)", out_q);
   row("fixed reference_at_q", ref_q);
   row("float inner_step (25 ms)", in_f);
@@ -117,6 +128,7 @@ int main() {
   row("float reference_at", ref_f);
   printf("state bytes: ControllerQ %u, Controller %u\n", static_cast<unsigned>(sizeof(ctl::ControllerQ)),
          static_cast<unsigned>(sizeof(ctl::Controller)));
+  printf("fixed inner steps with the clamp or the duty limited: %u of %u\n", limited, static_cast<unsigned>(kRuns));
   printf("timer overflow: %s\n", overflowed ? "YES (figures invalid)" : "no");
   printf("avr fixed-point checksum %08lx\n", static_cast<unsigned long>(check));
   printf("avr config");
@@ -143,6 +155,11 @@ int main() {
     ASR_CHECK(8) ASR_CHECK(9) ASR_CHECK(10) ASR_CHECK(11) ASR_CHECK(12) ASR_CHECK(13)
     ASR_CHECK(14) ASR_CHECK(15) ASR_CHECK(16) ASR_CHECK(17) ASR_CHECK(20)
     n += 20;
+    // the short division: inside and outside its fast range
+    const uint32_t dd = (k & 1) ? 13000UL + (x >> 14) % 24000UL : 1UL + (x >> (k % 31));
+    const uint32_t nn = (k & 2) ? 1775000000UL + (x & 0xFFFFF) : x;
+    bad += ctl::fx::div_u32(nn, dd) != nn / dd;
+    ++n;
   }
   printf("avr arithmetic self-test: %lu checks, %lu wrong\n", static_cast<unsigned long>(n), static_cast<unsigned long>(bad));
   printf("END\n");

@@ -13,21 +13,51 @@ namespace bench {
 
 static const uint8_t kRuns = 64;
 
-inline int32_t enc_r_at(uint8_t i) { return static_cast<int32_t>(i) * 180 + (i & 7) * 3; }
-inline int32_t enc_l_at(uint8_t i) { return static_cast<int32_t>(i) * 120 - (i & 3) * 5; }
+// Encoder counts that follow the arc reference the benchmark tracks (0.5 m/s^2 ramp to
+// 0.4 m/s on R = 0.6 m: about 95 and 66 counts per 25 ms at cruise), with +-2 counts of jitter
+// and, at steps 40..43, a disturbance (the right wheel jumps ahead) that drives the clamp and
+// the duty into their limits. So both the integrating and the limited paths are timed.
+inline int16_t inc_r_at(uint8_t j) {
+  const int16_t base = static_cast<int16_t>(95 * (j < 32 ? j : 32) / 32);
+  return static_cast<int16_t>(base + ((j * 7) & 3) - 1 + (j >= 40 && j < 44 ? 120 : 0));
+}
+inline int16_t inc_l_at(uint8_t j) {
+  return static_cast<int16_t>(66 * (j < 32 ? j : 32) / 32 + ((j * 5) & 3) - 2);
+}
+inline int32_t enc_r_at(uint8_t i) {
+  int32_t c = 0;
+  for (uint8_t j = 1; j <= i; ++j) c += inc_r_at(j);
+  return c;
+}
+inline int32_t enc_l_at(uint8_t i) {
+  int32_t c = 0;
+  for (uint8_t j = 1; j <= i; ++j) c += inc_l_at(j);
+  return c;
+}
+/// The inner step's dt as the firmware measures it: 25 ms with microsecond jitter, so the
+/// cached wheel-rate reciprocal and integrator gains are recomputed on (nearly) every call.
+inline uint32_t dt_us_at(uint8_t i) { return 25000UL + ((i * 7U) % 9U) - 4U; }
+
+/// The outer step (and the reference sample) runs after every second inner step, as in the
+/// firmware (25/50 ms); the pose arcs of both inner steps are integrated in it.
+inline bool outer_due(uint8_t i) { return (i & 1) == 0; }
 
 inline uint32_t mix(uint32_t h, uint32_t v) { return (h ^ v) * 16777619UL + 0x9E3779B9UL; }
 
-inline uint32_t checksum_step(uint32_t h, const ctl::ControllerQ& q, const ctl::RefSampleQ& r) {
+// The pose is read only after an outer step (reading it integrates the queued arcs, which
+// would otherwise leave the timed outer step with fewer arcs than in the firmware).
+inline uint32_t checksum_step(uint32_t h, const ctl::ControllerQ& q, const ctl::RefSampleQ& r, uint8_t i) {
   const ctl::InnerOutQ& o = q.inner();
   h = mix(h, static_cast<uint16_t>(o.pwm_r_q15));
   h = mix(h, static_cast<uint16_t>(o.pwm_l_q15));
   h = mix(h, static_cast<uint32_t>(o.tau_r_q16));
   h = mix(h, static_cast<uint32_t>(o.tau_l_q16));
   h = mix(h, static_cast<uint32_t>(o.tau_max_r_q16));
-  h = mix(h, static_cast<uint32_t>(q.odometry().pose().x_q20));
-  h = mix(h, static_cast<uint32_t>(q.odometry().pose().y_q20));
-  h = mix(h, q.odometry().pose().phi_b32);
+  if (outer_due(i)) {
+    h = mix(h, static_cast<uint32_t>(q.odometry().pose().x_q20));
+    h = mix(h, static_cast<uint32_t>(q.odometry().pose().y_q20));
+    h = mix(h, q.odometry().pose().phi_b32);
+  }
   h = mix(h, static_cast<uint16_t>(q.kinematic().v_d_q12));
   h = mix(h, static_cast<uint16_t>(q.kinematic().omega_d_q11));
   h = mix(h, static_cast<uint32_t>(r.x_q20));

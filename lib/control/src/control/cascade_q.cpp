@@ -13,6 +13,15 @@ inline int16_t q16_to_q12_toward_zero(int32_t x) {
   return x >= 0 ? static_cast<int16_t>(fx::asr<4>(x)) : static_cast<int16_t>(-fx::asr<4>(-x));
 }
 inline int8_t sign32(int32_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
+inline int8_t sign16(int16_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
+// Duty Q15 from u (|u| < 2^31): clamped to +-32767, *sat when |u| >= 32767.
+inline int16_t duty_q15(int32_t u, bool* sat) {
+  const int16_t d = fx::sat16(u);
+  if (d >= fx::kQ15One) { *sat = true; return fx::kQ15One; }
+  if (d <= -fx::kQ15One) { *sat = true; return static_cast<int16_t>(-fx::kQ15One); }
+  *sat = false;
+  return d;
+}
 // Q20 metres -> Q12 metres, saturated at +-8 m.
 inline int16_t q20_to_q12(int32_t x) { return fx::sat16(fx::rshift_round<8>(x)); }
 }  // namespace
@@ -50,6 +59,7 @@ void ControllerQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
   out_.tau_max_r_q16 = slip::tau_max_q16(cfg_.traction, nf.N_r_q16);
   out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
   dv_ff_q12_ = dw_ff_q11_ = 0;
+  f_ff_q8_ = m_ff_q12_ = 0;
   i_v_q16_ = i_w_q16_ = 0;
   kdt_dt_us_ = 0;
   kdt_fast_ = false;
@@ -60,6 +70,9 @@ const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
   kin_ = kinematic_law_q(cfg_, odo_.pose(), ref);
   dv_ff_q12_ = ref.dv_q12;
   dw_ff_q11_ = ref.domega_q11;
+  // The feed-forward terms of F and M change only here.
+  f_ff_q8_ = static_cast<int16_t>(fx::mul16<16>(dv_ff_q12_, cfg_.m_eff_q12));   // |.| < 2^15
+  m_ff_q12_ = static_cast<int16_t>(fx::mul16<16>(dw_ff_q11_, cfg_.I_eff_q17));
   // Per-wheel tau_max, refreshed at the outer rate (the load transfer changes slowly):
   // lateral force m_t (v w + d dw_ff), Q16 N, from the latest measured v, w.
   const int16_t v = odo_.v_q12(), w = odo_.omega_q11();
@@ -70,6 +83,21 @@ const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
   out_.tau_max_r_q16 = slip::tau_max_q16(cfg_.traction, nf.N_r_q16);
   out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
   return kin_;
+}
+
+// k dt per step, cached: dt in Q16 s = dt_us * 4295 / 65536 (error 8e-6 relative);
+// k_il dt in Q15 (N s/m), k_ia dt in Q18 (N m s); the fast path needs both in int16.
+void ControllerQ::update_kdt(uint32_t dt_us) {
+  kdt_dt_us_ = dt_us;
+  // dt < 65536 us: a 16x16 product (dt * 4295 < 2^31) instead of a 32-bit one.
+  const int16_t dt_q16 = dt_us < 65536UL ? fx::hi16(fx::mul_us(static_cast<uint16_t>(dt_us), 4295))
+                                         : static_cast<int16_t>((dt_us * 4295UL) >> 16);
+  const int32_t kv = fx::rshift_round<9>(fx::mul_ss(cfg_.k_il_q8, dt_q16));   // Q24 -> Q15
+  const int32_t kw = fx::rshift_round<10>(fx::mul_ss(cfg_.k_ia_q12, dt_q16)); // Q28 -> Q18
+  kdt_fast_ = kv <= INT16_MAX && kw <= INT16_MAX;
+  kdt_v_q15_ = static_cast<int16_t>(kdt_fast_ ? kv : 0);
+  kdt_w_q18_ = static_cast<int16_t>(kdt_fast_ ? kw : 0);
+  dt_q16_ = dt_q16;
 }
 
 const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
@@ -83,27 +111,27 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
 
   // Velocity errors: e_v Q12 (|v_d| <= 1.4, |v| <= 2.3 m/s: fits), e_w Q10 (|omega_d - omega|
   // can reach 2 x 16 rad/s, beyond Q11).
-  const int16_t e_v = fx::sat16(static_cast<int32_t>(kin_.v_d_q12) - v);
-  const int16_t e_w = fx::sat16(fx::asr<1>(static_cast<int32_t>(kin_.omega_d_q11) - w));
+  const int16_t e_v = fx::sub_sat16(kin_.v_d_q12, v);
+  const int16_t e_w = fx::half_diff16(kin_.omega_d_q11, w);
 
-  // F (Q8 N) = m_eff dv_ff - m_t d w^2 + k_l e_v + I_v
-  const int16_t w2_q6 = static_cast<int16_t>(fx::asr<16>(fx::mul_ss(w, w)));   // <= 256 (rad/s)^2
-  int32_t force = fx::mul16<16>(dv_ff_q12_, cfg_.m_eff_q12) - fx::mul16<16>(w2_q6, cfg_.mtd_q18) +
+  // F (Q8 N) = m_eff dv_ff - m_t d w^2 + k_l e_v + I_v   (m_eff dv_ff from the outer step)
+  const int16_t w2_q6 = fx::hi16(fx::mul_ss(w, w));   // <= 256 (rad/s)^2
+  int32_t force = static_cast<int32_t>(f_ff_q8_) - fx::mul16<16>(w2_q6, cfg_.mtd_q18) +
                   fx::mul16<12>(e_v, cfg_.k_l_q8) + fx::asr<8>(i_v_q16_ + 128);
   // M (Q12 N m) = I_eff dw_ff + m_t d w v + k_a e_w + I_w, saturated at +-8 N m (int16): far
   // beyond what the wheels can take (stall torque 0.77 N m is M = 4.4 N m with both wheels).
-  const int16_t wv_q7 = static_cast<int16_t>(fx::asr<16>(fx::mul_ss(w, v)));   // |w v| <= 128
-  const int16_t moment = fx::sat16(fx::mul16<16>(dw_ff_q11_, cfg_.I_eff_q17) +
-                                   fx::mul16<13>(wv_q7, cfg_.mtd_q18) + fx::mul16<10>(e_w, cfg_.k_a_q12) +
-                                   fx::asr<4>(i_w_q16_ + 8));
+  const int16_t wv_q7 = fx::hi16(fx::mul_ss(w, v));   // |w v| <= 128
+  const int16_t moment = fx::sat16(static_cast<int32_t>(m_ff_q12_) + fx::mul16<13>(wv_q7, cfg_.mtd_q18) +
+                                   fx::mul16<10>(e_w, cfg_.k_a_q12) + fx::asr<4>(i_w_q16_ + 8));
   // |F| is bounded by its terms (< 2^22 Q8); keep it there explicitly.
   force = fx::clamp32(force, 0x3FFFFFL);  // 16384 N
 
   // Split: tau = (r/2)(F +- M/b), Q16 N m. F +- M/b is taken in Q7 N, saturated at +-256 N
   // (4.7 N m of wheel torque, six times the stall torque: the duty saturates long before).
+  // |F| < 2^22 and |M/b| < 2^18 (Q8): the sums and their rounding cannot overflow.
   const int32_t m_over_b_q8 = fx::mul16<12>(moment, cfg_.inv_b_q8);  // Q20 -> Q8 N
-  const int16_t sum_r_q7 = fx::sat16(fx::rshift_round<1>(force + m_over_b_q8));
-  const int16_t sum_l_q7 = fx::sat16(fx::rshift_round<1>(force - m_over_b_q8));
+  const int16_t sum_r_q7 = fx::sat16(fx::rshift_round_nc<1>(force + m_over_b_q8));
+  const int16_t sum_l_q7 = fx::sat16(fx::rshift_round_nc<1>(force - m_over_b_q8));
   const int32_t tau_r = fx::mul16<7>(sum_r_q7, cfg_.half_r_q16);
   const int32_t tau_l = fx::mul16<7>(sum_l_q7, cfg_.half_r_q16);
 
@@ -121,38 +149,27 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   const int16_t tl_q12 = q16_to_q12_toward_zero(out_.tau_l_q16);
   const int32_t u_r = fx::mul16<10>(tr_q12, cfg_.inv_stall_q13) + fx::mul16<13>(odo_.omega_r_q8(), cfg_.inv_no_load_q20);
   const int32_t u_l = fx::mul16<10>(tl_q12, cfg_.inv_stall_q13) + fx::mul16<13>(odo_.omega_l_q8(), cfg_.inv_no_load_q20);
-  out_.pwm_r_q15 = static_cast<int16_t>(fx::clamp32(u_r, fx::kQ15One));
-  out_.pwm_l_q15 = static_cast<int16_t>(fx::clamp32(u_l, fx::kQ15One));
-  out_.sat_r = u_r >= fx::kQ15One || u_r <= -fx::kQ15One;
-  out_.sat_l = u_l >= fx::kQ15One || u_l <= -fx::kQ15One;
+  out_.pwm_r_q15 = duty_q15(u_r, &out_.sat_r);
+  out_.pwm_l_q15 = duty_q15(u_l, &out_.sat_l);
 
-  // Anti-windup by conditional integration (same rule as the float path).
+  // Anti-windup by conditional integration (same rule as the float path): an integrator stops
+  // while a limited wheel it drives would be pushed further into the limit (s_i e > 0).
   const int8_t s_r = (out_.clamped_r || out_.sat_r) ? sign32(tau_r) : 0;
   const int8_t s_l = (out_.clamped_l || out_.sat_l) ? sign32(tau_l) : 0;
   if (dt_us > 0 && dt_us < 500000UL) {  // integrate only for 0 < dt < 0.5 s
-    if (dt_us != kdt_dt_us_) {
-      // k dt per step, cached: dt in Q16 s = dt_us * 4295 / 65536 (error 8e-6 relative);
-      // k_il dt in Q15 (N s/m), k_ia dt in Q18 (N m s); the fast path needs both in int16.
-      kdt_dt_us_ = dt_us;
-      const int16_t dt_q16 = static_cast<int16_t>((dt_us * 4295UL) >> 16);
-      const int32_t kv = fx::rshift_round<9>(fx::mul_ss(cfg_.k_il_q8, dt_q16));   // Q24 -> Q15
-      const int32_t kw = fx::rshift_round<10>(fx::mul_ss(cfg_.k_ia_q12, dt_q16)); // Q28 -> Q18
-      kdt_fast_ = kv <= INT16_MAX && kw <= INT16_MAX;
-      kdt_v_q15_ = static_cast<int16_t>(kdt_fast_ ? kv : 0);
-      kdt_w_q18_ = static_cast<int16_t>(kdt_fast_ ? kw : 0);
-      dt_q16_ = dt_q16;
-    }
-    const bool block_v = (s_r * e_v > 0) || (s_l * e_v > 0);
-    const bool block_w = (s_r * e_w > 0) || (-s_l * e_w > 0);
+    if (dt_us != kdt_dt_us_) update_kdt(dt_us);
+    const int8_t sv = sign16(e_v), sw = sign16(e_w);
+    const bool block_v = (s_r != 0 && s_r == sv) || (s_l != 0 && s_l == sv);
+    const bool block_w = (s_r != 0 && s_r == sw) || (s_l != 0 && s_l == -sw);
     if (!block_v) {
       const int32_t inc_q16 = kdt_fast_
-          ? fx::rshift_round<11>(fx::mul_ss(e_v, kdt_v_q15_))                     // Q12*Q15 -> Q16
+          ? fx::rshift_round_nc<11>(fx::mul_ss(e_v, kdt_v_q15_))                  // Q12*Q15 -> Q16
           : fx::rshift_round<4>(fx::mul32x16<16>(fx::mul_ss(e_v, cfg_.k_il_q8), dt_q16_));
       i_v_q16_ = fx::clamp32(fx::add_sat32(i_v_q16_, inc_q16), cfg_.integ_max_v_q16);
     }
     if (!block_w) {
       const int32_t inc_q16 = kdt_fast_
-          ? fx::rshift_round<12>(fx::mul_ss(e_w, kdt_w_q18_))                     // Q10*Q18 -> Q16
+          ? fx::rshift_round_nc<12>(fx::mul_ss(e_w, kdt_w_q18_))                  // Q10*Q18 -> Q16
           : fx::rshift_round<6>(fx::mul32x16<16>(fx::mul_ss(e_w, cfg_.k_ia_q12), dt_q16_));
       i_w_q16_ = fx::clamp32(fx::add_sat32(i_w_q16_, inc_q16), cfg_.integ_max_w_q16);
     }

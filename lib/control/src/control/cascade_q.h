@@ -117,7 +117,10 @@ class ControllerQ {
   OdometryQ odo_;
   KinematicOutQ kin_;
   InnerOutQ out_;
+  void update_kdt(uint32_t dt_us);
+
   int16_t dv_ff_q12_, dw_ff_q11_;
+  int16_t f_ff_q8_, m_ff_q12_;     // m_eff dv_ff (N, Q8), I_eff dw_ff (N m, Q12)
   int32_t i_v_q16_, i_w_q16_;
   uint32_t kdt_dt_us_;             // dt the cached integrator gains belong to
   int16_t kdt_v_q15_, kdt_w_q18_;  // k_il dt, k_ia dt

@@ -37,7 +37,87 @@ constexpr int32_t q_const(double v, int shift) {
 
 /// Saturate an int32 to int16.
 static CTL_INLINE int16_t sat16(int32_t x) {
+#if defined(__AVR__)
+  // In range iff the high word is the sign extension of the low word (one 16-bit compare
+  // instead of two 32-bit ones).
+  const int16_t lo = static_cast<int16_t>(x);
+  const int16_t hi = static_cast<int16_t>(static_cast<uint32_t>(x) >> 16);
+  if (hi != (lo < 0 ? -1 : 0)) return hi < 0 ? INT16_MIN : INT16_MAX;
+  return lo;
+#else
   return x > INT16_MAX ? INT16_MAX : (x < INT16_MIN ? INT16_MIN : static_cast<int16_t>(x));
+#endif
+}
+
+/// Saturating int16 a + b and a - b (= sat16 of the exact int32 result).
+static CTL_INLINE int16_t add_sat16(int16_t a, int16_t b) {
+  int16_t s;
+  if (__builtin_add_overflow(a, b, &s)) return a < 0 ? INT16_MIN : INT16_MAX;
+  return s;
+}
+static CTL_INLINE int16_t sub_sat16(int16_t a, int16_t b) {
+  int16_t s;
+  if (__builtin_sub_overflow(a, b, &s)) return a < 0 ? INT16_MIN : INT16_MAX;
+  return s;
+}
+
+/// floor((a - b) / 2) for int16 a, b, computed in 16 bits (always fits int16).
+static CTL_INLINE int16_t half_diff16(int16_t a, int16_t b) {
+  return static_cast<int16_t>((a >> 1) - (b >> 1) - ((b & ~a) & 1));
+}
+
+/// The high word of an int32 (x >> 16, floor), by a register move on the AVR.
+static CTL_INLINE int16_t hi16(int32_t x) { return static_cast<int16_t>(static_cast<uint32_t>(x) >> 16); }
+
+/// floor(n / d), d > 0. On the AVR, when n / 2^17 < d < 2^15 (a quotient of at most 17 bits;
+/// the control loop's 25 ms sample in microseconds is inside) a restoring division on a 16-bit
+/// remainder, about 220 cycles instead of avr-libc's ~600 for 32 bits; otherwise n / d.
+static inline uint32_t div_u32(uint32_t n, uint32_t d) {
+#if defined(__AVR__)
+  const uint16_t n_hi = static_cast<uint16_t>(n >> 16);
+  if (d >= 32768UL || (n_hi >> 1) >= static_cast<uint16_t>(d)) return n / d;
+  // Step 0: rem = n >> 16 (< 2d) gives quotient bit 16; then 16 steps shift the low word of n
+  // into the remainder while the (inverted) quotient bits enter the low word from below.
+  uint16_t rem = n_hi, lo = static_cast<uint16_t>(n);
+  const uint16_t d16 = static_cast<uint16_t>(d);
+  uint8_t cnt, q16;
+  __asm__(
+      "cp %A[rem], %A[d]\n\t"
+      "cpc %B[rem], %B[d]\n\t"
+      "brcs 1f\n\t"
+      "sub %A[rem], %A[d]\n\t"
+      "sbc %B[rem], %B[d]\n"
+      "1:\n\t"
+      "ldi %[cnt], 16\n"
+      "2:\n\t"
+      "rol %A[lo]\n\t"
+      "rol %B[lo]\n\t"
+      "rol %A[rem]\n\t"
+      "rol %B[rem]\n\t"
+      "cp %A[rem], %A[d]\n\t"
+      "cpc %B[rem], %B[d]\n\t"
+      "brcs 3f\n\t"
+      "sub %A[rem], %A[d]\n\t"
+      "sbc %B[rem], %B[d]\n"
+      "3:\n\t"
+      "dec %[cnt]\n\t"
+      "brne 2b\n\t"
+      "rol %A[lo]\n\t"
+      "rol %B[lo]\n\t"
+      "sbc %[q16], %[q16]\n\t"  // carry = inverted quotient bit 16
+      "inc %[q16]\n\t"
+      "com %A[lo]\n\t"
+      "com %B[lo]\n\t"
+      : [rem] "+r"(rem), [lo] "+r"(lo), [cnt] "=&d"(cnt), [q16] "=&r"(q16)
+      : [d] "r"(d16));
+  (void)rem;
+  union { uint32_t u; uint16_t w[2]; } q;
+  q.w[0] = lo;
+  q.w[1] = q16;
+  return q.u;
+#else
+  return n / d;
+#endif
 }
 
 /// Clamp x to [-lim, lim] (lim >= 0).

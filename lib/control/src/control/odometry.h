@@ -160,6 +160,7 @@ class OdometryQ {
   int16_t pend_r_[kMaxPending], pend_l_[kMaxPending];  // queued count increments, oldest first
   uint32_t last_dt_us_;
   int32_t rate_per_count_q11_;  // cached wheel_rate_q11 / dt_us
+  uint16_t rate_q10_;           // the same in Q10 when it fits 16 bits, else 0
   int16_t w_r_q8_, w_l_q8_, v_q12_, w_q11_;
 };
 
