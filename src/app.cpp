@@ -28,7 +28,10 @@ volatile uint8_t g_fault_hang;
 
 namespace {
 
-const uint16_t kHostTimeoutMs = 500;
+// Host timeout: the brake must be on within 500 ms of the last valid frame. The check runs
+// every main-loop iteration, which can wait up to ~1.5 ms behind the tasks, so it fires at
+// 498.5 ms of silence (board time in us, not the 1 ms tick).
+const uint32_t kHostTimeoutUs = 498500ul;
 
 void inner_task();
 void outer_task();
@@ -66,7 +69,7 @@ bool g_running;
 uint8_t g_failsafe = proto::kFailsafeNone;
 uint32_t g_exp_start_ms;
 uint32_t g_exp_duration_ms;
-uint32_t g_last_host_ms;
+uint32_t g_last_host_us;
 uint32_t g_last_inner_us;
 uint32_t g_illegal_at_start;
 EncSnapshot g_enc;                 // last snapshot (inner or telemetry task)
@@ -359,6 +362,7 @@ void app_init() {
     g_ctrl->reset(g_enc.count_r, g_enc.count_l, ctl::PoseQ{0, 0, 0});
     g_last_inner_us = time_us();
     if (boot_reset_cause() & _BV(WDRF)) g_failsafe = proto::kFailsafeWatchdogReset;
+    (void)stack_high_water();  // first scan (the whole stack in use so far) before the schedule
     send_params();
 }
 
@@ -367,7 +371,7 @@ void app_poll() {
     while (xbee_read(&b)) {
         proto::Decoder::Status s = g_rx.feed(b);
         if (s == proto::Decoder::kFrame) {
-            g_last_host_ms = sched_ms();
+            g_last_host_us = time_us();
             handle_frame(g_rx.frame());
         } else if (s == proto::Decoder::kError && g_rx.error_has_header()) {
             uint8_t res = g_rx.error() == proto::Decoder::kErrVersion ? proto::kResultBadVersion
@@ -375,7 +379,7 @@ void app_poll() {
             send_ack(g_rx.error_seq(), g_rx.error_type(), res, 255);
         }
     }
-    if (g_running && sched_ms() - g_last_host_ms >= kHostTimeoutMs)
+    if (g_running && time_us() - g_last_host_us >= kHostTimeoutUs)
         stop_motors(proto::kFailsafeHostTimeout);
     if (g_fault_hang) {
         for (;;) {

@@ -20,8 +20,15 @@ int main() {
     app_init();  // builds the controller configuration (float, ~once): before the schedule starts
     sched_init(app_tasks(), app_task_count());
     wdt_start();
+    uint32_t kicked_ms = sched_ms();
     for (;;) {
-        wdt_kick();
+        // Kick only while the 1 kHz tick advances: a hung task, a hung main loop or a dead
+        // tick (no task would ever run again) all end in a watchdog reset within 250 ms.
+        uint32_t now_ms = sched_ms();
+        if (now_ms != kicked_ms) {
+            wdt_kick();
+            kicked_ms = now_ms;
+        }
         if (!sched_run_one()) {
             app_poll();
             sched_idle();

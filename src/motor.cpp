@@ -63,15 +63,21 @@ void motor_init() {
     PORTE &= static_cast<uint8_t>(~_BV(PE5));
     DDRE |= _BV(PE5);
     // Timer3: fast PWM, WGM 14 (TOP = ICR3), clk/1 -> 16 MHz / 800 = 20 kHz. OC3C off until used.
+    // TOP and compare are written before the clock starts (TCCRnB last): simavr 1.6 takes TOP
+    // from ICRn only when the mode is set, and on the hardware nothing runs half-configured.
+    TCCR3B = 0;
     TCCR3A = _BV(WGM31);
-    TCCR3B = _BV(WGM33) | _BV(WGM32) | _BV(CS30);
     ICR3 = kTop;
     OCR3C = 0;
+    TCNT3 = 0;
+    TCCR3B = _BV(WGM33) | _BV(WGM32) | _BV(CS30);
     // Timer1: same for OC1A.
+    TCCR1B = 0;
     TCCR1A = _BV(WGM11);
-    TCCR1B = _BV(WGM13) | _BV(WGM12) | _BV(CS10);
     ICR1 = kTop;
     OCR1A = 0;
+    TCNT1 = 0;
+    TCCR1B = _BV(WGM13) | _BV(WGM12) | _BV(CS10);
     g_duty[0] = g_duty[1] = 0;
     g_braking = true;
     // ADC: AVcc reference, clk/128 = 125 kHz (13 cycles = 104 us per conversion), interrupt.

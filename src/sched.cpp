@@ -47,10 +47,11 @@ void sched_init(const TaskConfig* tasks, uint8_t n) {
     cli();
     g_ms = 0;
     // Timer4 CTC (WGM 4, TOP = OCR4A), clk/64: 250 kHz, OCR4A = 249 -> 1 kHz.
+    TCCR4B = 0;  // configure with the clock stopped, start it last
     TCCR4A = 0;
-    TCCR4B = _BV(WGM42) | _BV(CS41) | _BV(CS40);
     OCR4A = 249;
     TCNT4 = 0;
+    TCCR4B = _BV(WGM42) | _BV(CS41) | _BV(CS40);
     TIFR4 = _BV(OCF4A);
     TIMSK4 = _BV(OCIE4A);
     SREG = sreg;
