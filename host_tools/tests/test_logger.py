@@ -742,3 +742,76 @@ def test_nan_params_are_refused_not_fatal(tmp_path, capsys):
     meta = json.load(open(out / "meta.json"))
     assert meta["robot"]["mu_s"] == 0.241 and meta["logger"]["params_source"].startswith("defaults")
     assert rows(out).telemetry["t_s"].size == 10
+
+
+def test_pulled_usb_cable_on_a_tty_device(tmp_path):
+    """A real tty (pty) behind a stable device path, as /dev/ttyUSB0 for a USB-serial XBee:
+    the device vanishes (reads fail with EIO, the path is gone), then comes back as a new tty
+    under the same path. The logger must notice, wait, reopen and keep recording."""
+    dev = tmp_path / "ttyXBEE"
+    state = {"master": None, "slave": None}
+    lock = threading.Lock()
+
+    def plug():
+        master, slave = pty.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        with lock:
+            state["master"], state["slave"] = master, slave
+        os.symlink(os.ttyname(slave), dev)
+
+    def unplug():
+        os.unlink(dev)
+        with lock:
+            m, s = state["master"], state["slave"]
+            state["master"] = state["slave"] = None
+        os.close(s)
+        os.close(m)
+
+    def write(b):
+        with lock:
+            if state["master"] is not None:
+                try:
+                    os.write(state["master"], b)
+                except OSError:
+                    pass
+
+    def read():
+        with lock:
+            if state["master"] is None:
+                return b""
+            try:
+                return os.read(state["master"], 4096)
+            except (BlockingIOError, OSError):
+                return b""
+
+    plug()
+    robot = FakeRobot(write, read, period=0.004)
+    robot.start()
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: serial.serial_for_url(str(dev), timeout=0.02), str(dev), 115200,
+                  record_s=2.5, params_timeout_s=0.3, reconnect_timeout_s=5, status=False)
+
+    def cable():
+        time.sleep(0.8)
+        unplug()
+        time.sleep(0.6)
+        plug()
+    th = threading.Thread(target=cable, daemon=True)
+    th.start()
+    try:
+        assert lg.run() == 0
+    finally:
+        th.join()
+        robot.stop_flag.set()
+        robot.join(2)
+        if state["master"] is not None:
+            unplug()
+    kinds = [e["kind"] for e in events(out)]
+    assert "disconnect" in kinds and "reconnect" in kinds
+    assert kinds.index("disconnect") < kinds.index("reconnect")
+    run = rows(out)
+    t = run.telemetry["t_s"]
+    assert np.all(np.diff(t) > 0)
+    host_t = run.telemetry["host_t_s"]
+    assert (host_t < 0.8).sum() > 20 and (host_t > 1.5).sum() > 20  # rows before and after
