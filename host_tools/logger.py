@@ -22,8 +22,9 @@ pulled cable (the logger waits for the port to come back and carries on) or a ro
 
 ``--attach-groundtruth TRACKER.csv`` (without ``--port``) adds an external tracker's CSV
 (columns t_s, x_m, y_m, optional phi_rad, on the tracker's own clock) to a recorded run as
-groundtruth.csv, shifting its time by ``--gt-offset`` or by an offset estimated by
-cross-correlating the speed from odometry with the speed from the tracker.
+groundtruth.csv, shifting its time by ``--gt-offset``, by an offset estimated by
+cross-correlating the speed from odometry with the speed from the tracker, or (``--gt-unix-time``,
+a tracker stamped by a PC clock) through the logger's own host clock recorded in meta.json.
 """
 from __future__ import annotations
 
@@ -196,6 +197,7 @@ class Logger:
         self.stats["frames"] = self.dec.frames
         meta["logger"] = dict(
             self.stats, port=self.port_name, baud=self.baud, protocol_version=self.d.version,
+            host_t0_unix_s=round(getattr(self, "_t0_unix", 0.0), 6),
             crc_errors=self.dec.crc_errors, rejected_blocks=dict(self.dec.rejected),
             params_source="robot" if p is not None else "defaults (the robot never reported Params)",
             firmware_id=(f"{p['firmware_id']:08x}" if p is not None else None),
@@ -534,6 +536,7 @@ class Logger:
                                   "refusing to overwrite a recorded run", 2)
         self._stop = False
         self._t0 = self.clock()
+        self._t0_unix = time.time()  # host_t_s = 0 in Unix time, for trackers stamped by a PC clock
         self._last_hb = self._last_flush = self._last_status = self._last_rx = self._t0
         self._rate_mark = (self._t0, 0)
         self._connect(first=True)
@@ -668,7 +671,7 @@ def estimate_offset(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarray,
 
 def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = None,
                        max_offset_s: float = 10.0, min_correlation: float = 0.5,
-                       overwrite: bool = False, set_start_pose: bool = False) -> dict:
+                       overwrite: bool = False, set_start_pose: bool = False, unix_time: bool = False) -> dict:
     try:
         run = runfmt.load_run(run_dir, check_units=False)
         trk = runfmt._read_csv(csv_path, runfmt.GROUNDTRUTH_REQUIRED, may_be_empty=("phi_rad",))
@@ -676,7 +679,20 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
     except runfmt.RunFormatError as exc:
         raise LoggerError(str(exc), 2) from None
     info: dict[str, Any] = {"file": os.path.basename(csv_path), "rows": int(trk["t_s"].size)}
-    if offset_s is None:
+    if unix_time:
+        # tracker stamped by a PC clock (Unix seconds): map through the logger's host clock
+        t0 = (run.meta.get("logger") or {}).get("host_t0_unix_s")
+        if not t0 or "host_t_s" not in run.telemetry:
+            raise LoggerError(f"{run_dir}: --gt-unix-time needs a run recorded by this logger "
+                              "(meta.json logger.host_t0_unix_s and the host_t_s column)", 2)
+        tel = run.telemetry
+        # board time - host reception time: reception latency only lowers it, so take a high
+        # percentile (the least delayed frames) rather than the maximum (robust to outliers)
+        lag = tel["t_s"] - (t0 + tel["host_t_s"])
+        offset_s = float(np.percentile(lag, 95))
+        info.update(method="unix time via the logger's host clock (host_t0_unix_s + host_t_s)",
+                    offset_s=round(offset_s, 4), host_board_spread_s=round(float(lag.max() - lag.min()), 4))
+    elif offset_s is None:
         tel = run.telemetry
         lag, peak = estimate_offset(tel["t_s"], tel["x_odo_m"], tel["y_odo_m"],
                                     trk["t_s"], trk["x_m"], trk["y_m"], max_offset_s)
@@ -750,6 +766,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gt-offset", type=float, help="tracker clock offset, s (t_board = t_tracker + offset); "
                    "estimated by speed cross-correlation when omitted")
     p.add_argument("--gt-max-offset", type=float, default=10.0, help="search window, s (default 10)")
+    p.add_argument("--gt-unix-time", action="store_true", help="the tracker's t_s is Unix time from a PC clock: "
+                   "align through the logger's host clock instead of estimating")
     p.add_argument("--gt-start-pose", action="store_true", help="set meta.json start_pose to the tracker's "
                    "pose at the first telemetry frame (tracker in room coordinates; needs phi_rad)")
 
@@ -758,7 +776,7 @@ def main(args: argparse.Namespace) -> int:
     if args.attach_groundtruth:
         try:
             info = attach_groundtruth(args.out, args.attach_groundtruth, args.gt_offset, args.gt_max_offset,
-                                      set_start_pose=args.gt_start_pose)
+                                      set_start_pose=args.gt_start_pose, unix_time=args.gt_unix_time)
         except LoggerError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return exc.code

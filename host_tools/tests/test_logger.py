@@ -815,3 +815,22 @@ def test_pulled_usb_cable_on_a_tty_device(tmp_path):
     assert np.all(np.diff(t) > 0)
     host_t = run.telemetry["host_t_s"]
     assert (host_t < 0.8).sum() > 20 and (host_t > 1.5).sum() > 20  # rows before and after
+
+
+def test_groundtruth_with_unix_timestamps(tmp_path):
+    """A tracker stamped with a PC's Unix time is aligned through the logger's host clock."""
+    run = tmp_path / "run"
+    t0_unix, board_minus_host = 1_700_000_000.25, 12.5  # robot booted 12.5 s before the logger
+    rng = np.random.default_rng(3)
+    with runfmt.RunWriter(str(run), {"experiment": "t", "logger": {"host_t0_unix_s": t0_unix}}) as w:
+        for i in range(200):
+            host_t = 0.5 + 0.02 * i
+            w.write_row({**{c: 0 for c in runfmt.TELEMETRY_COLUMNS}, "t_s": host_t + board_minus_host,
+                         "host_t_s": host_t + abs(rng.normal(0, 0.004))})  # radio/USB latency
+    csv = tmp_path / "tracker.csv"
+    csv.write_text("t_s,x_m,y_m\n" + "".join(f"{t0_unix + 0.5 + k / 30:.4f},0,0\n" for k in range(100)))
+    assert L.main(_args(["--out", str(run), "--attach-groundtruth", str(csv), "--gt-unix-time"])) == 0
+    info = json.load(open(run / "meta.json"))["groundtruth"]
+    assert info["offset_s"] == pytest.approx(board_minus_host - t0_unix, abs=0.005)
+    gt = runfmt.load_run(run, check_units=False).groundtruth
+    assert gt["t_s"][0] == pytest.approx(0.5 + board_minus_host, abs=0.005)
