@@ -11,7 +11,8 @@ def main(argv=None) -> int:
     sub = ap.add_subparsers(dest="cmd", required=True)
     for name, help_ in (("list", "list the cases"), ("generate", "write the runs and hidden labels"),
                         ("bench", "generate, run the analyzer on every case, score"),
-                        ("conceal", "how much each case differs from the nominal truth, per channel")):
+                        ("conceal", "how much each case differs from the nominal truth, per channel"),
+                        ("score", "summarize the scores of earlier bench runs (no analysis)")):
         p = sub.add_parser(name, help=help_)
         p.add_argument("--fast", action="store_true", help="only the fast subset (CI)")
         p.add_argument("--cases", default=None, help="comma-separated case names")
@@ -52,6 +53,17 @@ def main(argv=None) -> int:
         print("track/null: max tracking error |p_true - p_ref| (mm) of the case and of the nominal "
               "truth with the same experiments (camera noise 1 mm), over the whole run and over its last 40 %; then max differences from the "
               "nominal truth: odometry (mm), board wheel speed (rad/s), duty")
+        return 0
+    if a.cmd == "score":
+        from host_tools.suite.bench import collect, summarize
+        try:
+            res = collect(a.out, sel)
+        except FileNotFoundError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        text, _ = summarize(res, sum(r.get("case_s", 0.0) for r in res))
+        print(text)
+        print("(total time = sum of the cases' analysis and generation times)")
         return 0
     from host_tools.suite.bench import bench
     _, m, text = bench(a.out, sel, jobs=a.jobs, regenerate=not a.reuse,

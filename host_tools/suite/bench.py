@@ -62,6 +62,8 @@ def _fitted_param(report: dict, effect: str, param: str) -> tuple[float | None, 
 
 def score_case(label: dict, rc: int, report: dict | None) -> dict:
     res = {"case": label["case"], "expect": label["expect"], "rc": rc,
+           "true": "+".join(label["true_effects"]) or
+           ("+".join(label["effects"]) if label["effects"] else "null"),
            "verdict": report.get("verdict") if report else f"error (exit {rc})",
            "selected": [s.get("effect") for s in (report or {}).get("selected", [])],
            "named": sorted(_named(report)) if report else []}
@@ -92,6 +94,18 @@ def score_case(label: dict, rc: int, report: dict | None) -> dict:
     return res
 
 
+def collect(data_dir: str, case_list: list) -> list[dict]:
+    """The scores of earlier bench runs (reports/<case>/score.json) for these cases."""
+    out = []
+    for c in case_list:
+        p = os.path.join(data_dir, "reports", c.name, "score.json")
+        if not os.path.isfile(p):
+            raise FileNotFoundError(f"{p}: case {c.name} was not benchmarked yet")
+        with open(p) as fh:
+            out.append(json.load(fh))
+    return out
+
+
 def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
     L = []
     nulls = [r for r in results if r["expect"] == "no_mismatch"]
@@ -109,10 +123,11 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
     # compact matrix over effect names
     labels = sorted({e for r in effs for e in r.get("named", [])} | {"no_mismatch", "unexplained"})
     L.append("")
-    L.append("effect cases: true effect row, counts of what was named (selected or equivalent)")
+    L.append("confusion matrix: true effect(s) -> counts of what the analyzer named (selected or "
+             "equivalent; the verdict when nothing is named)")
     by_true: dict[str, dict[str, int]] = {}
     for r in results:
-        t = r["case"].rsplit("_", 1)[0] if r["expect"] == "explained" else r["expect"]
+        t = r.get("true") or r["case"]
         row = by_true.setdefault(t, {})
         keys = r.get("named") or [r["verdict"]]
         if r["verdict"] in ("no_mismatch", "unexplained"):
@@ -166,7 +181,7 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
 
 
 def bench(data_dir: str, case_list: list, jobs: int = 2, regenerate: bool = True,
-          out=print) -> tuple[list[dict], dict]:
+          out=print) -> tuple[list[dict], dict, str]:
     t0 = time.time()
     results = []
     for i, case in enumerate(case_list):
@@ -184,6 +199,8 @@ def bench(data_dir: str, case_list: list, jobs: int = 2, regenerate: bool = True
             rc, report = run_analyzer(runs, rep_dir, jobs=jobs, log=log)
         r = score_case(label, rc, report)
         r["case_s"] = time.time() - tc
+        with open(os.path.join(rep_dir, "score.json"), "w") as fh:
+            json.dump(r, fh, indent=2)
         results.append(r)
         out(f"[{i + 1}/{len(case_list)}] {case.name}: {'OK' if r['ok'] else 'MISS'} "
             f"verdict {r['verdict']} named {r['named']} ({r['case_s']:.0f} s)")
