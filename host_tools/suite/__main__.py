@@ -18,6 +18,9 @@ def main(argv=None) -> int:
         p.add_argument("--cases", default=None, help="comma-separated case names")
         if name != "list":
             p.add_argument("--out", default="out/suite", help="data folder (default out/suite)")
+        if name == "score":
+            p.add_argument("--rescore", action="store_true",
+                           help="score again from the stored reports and labels")
         if name == "bench":
             p.add_argument("--jobs", type=int, default=2, help="analyzer processes (default 2)")
             p.add_argument("--reuse", action="store_true", help="reuse runs already generated")
@@ -57,7 +60,7 @@ def main(argv=None) -> int:
     if a.cmd == "score":
         from host_tools.suite.bench import collect, summarize
         try:
-            res = collect(a.out, sel)
+            res = collect(a.out, sel, rescore=a.rescore)
         except FileNotFoundError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
