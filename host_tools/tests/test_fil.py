@@ -203,7 +203,7 @@ def test_encoder_noise_counted_exactly_or_detected(elf, sim, tmp_path):
     for w in ("r", "l"):
         err = tel[f"enc_{w}"][clean] - smp[f"counts_true_{w}"][i[clean]]
         assert np.all(np.abs(err) <= 1.0), f"{w}: {np.abs(err).max():.3f} counts without an illegal transition"
-    assert tel["enc_r"][clean].max() > 200
+    assert tel["enc_r"][clean].max() > 20  # the wheels turned before any detection
     assert s["encoder_isr"]["edges_driven"] > 2 * abs(tel["enc_r"][clean]).max()
     detected = not clean[i >= 0].all()
     if detected:
@@ -221,11 +221,11 @@ def run_r(out: Path) -> float:
 
 def test_host_silent_motors_stop_within_500ms(elf, sim, tmp_path):
     out = tmp_path / "silent"
-    code, lg, s = fil.record(out, elf, straight(48.0, 3.0), clamp=True, args=["--host-silent-at", "0.6"])
+    code, lg, s = fil.record(out, elf, straight(48.0, 3.0), clamp=True, args=["--host-silent-after-start", "0.4"])
     link = s["link"]
     assert link["down_silenced"] > 0  # the logger kept sending; nothing reached the robot
-    last = link["last_down_frame_t_s"]
-    assert 0.15 < last <= 0.6
+    last, t0 = link["last_down_frame_t_s"], s["experiment_start_t_s"]
+    assert t0 > 0 and t0 < last <= t0 + 0.4  # heartbeats arrived while running, then silence
     stops = [t for t in s["brake_on_t_s"] if t > last]
     assert stops, "motors never stopped after the host went silent"
     dt = stops[0] - last
@@ -239,9 +239,9 @@ def test_host_silent_motors_stop_within_500ms(elf, sim, tmp_path):
 
 def test_hang_in_main_loop_triggers_watchdog(elf, sim, tmp_path):
     out = tmp_path / "hang"
-    code, lg, s = fil.record(out, elf, straight(48.0, 3.0), clamp=True, args=["--hang-at", "0.5"])
+    code, lg, s = fil.record(out, elf, straight(48.0, 3.0), clamp=True, args=["--hang-after-start", "0.4"])
     hang = s["hang"]["set_t_s"]
-    assert hang >= 0.5
+    assert s["experiment_start_t_s"] > 0 and hang >= s["experiment_start_t_s"] + 0.4
     assert s["reset_t_s"], "no reset after the hang"
     dt = s["reset_t_s"][0] - hang
     print(f"\nhang at {hang:.4f} s, watchdog reset {dt * 1000:.1f} ms later")

@@ -40,6 +40,7 @@
 #include <vector>
 
 extern "C" {
+#include <simavr/avr_extint.h>
 #include <simavr/avr_ioport.h>
 #include <simavr/avr_uart.h>
 #include <simavr/sim_avr.h>
@@ -93,6 +94,7 @@ struct Options {
     bool link_up = true, link_down = true;
     double host_silent_at = -1.0;  // board time after which host bytes are discarded
     double hang_at = -1.0;         // board time at which g_fault_hang is set
+    double silent_after_run = -1.0, hang_after_run = -1.0;  // ... relative to the experiment start
     unsigned seed = 1;
     int plant_log_every = 1;
 };
@@ -121,6 +123,9 @@ void usage() {
         "  --link-dir up|down|both  where corruption applies (default both; up = robot->host)\n"
         "  --host-silent-at S   from this board time on, host bytes no longer reach the robot\n"
         "  --hang-at S          at this board time set the firmware's g_fault_hang (watchdog test)\n"
+        "  --host-silent-after-start S, --hang-after-start S\n"
+        "                       the same, S seconds after the first telemetry frame that reports\n"
+        "                       an experiment running\n"
         "  --seed N             random seed (default 1)\n"
         "  --plant-log-every N  plant.csv row every N plant steps (default 1)\n");
 }
@@ -182,6 +187,8 @@ void parse(int argc, char** argv) {
         }
         else if (a == "--host-silent-at") opt.host_silent_at = nonneg(val());
         else if (a == "--hang-at") opt.hang_at = nonneg(val());
+        else if (a == "--host-silent-after-start") opt.silent_after_run = nonneg(val());
+        else if (a == "--hang-after-start") opt.hang_after_run = nonneg(val());
         else if (a == "--seed") opt.seed = static_cast<unsigned>(nonneg(val()));
         else if (a == "--plant-log-every") { opt.plant_log_every = static_cast<int>(num(val(), a.c_str())); if (opt.plant_log_every < 1) die("--plant-log-every must be >= 1"); }
         else if (a.size() > 1 && a[0] == '-') die("unknown option %s (see --help)", a.c_str());
@@ -315,6 +322,7 @@ unsigned long enc_checked;
 uint32_t task_max[3], task_max_run[3];      // whole run / frames with status "running"
 unsigned task_overruns_max[3], task_overruns_run[3];
 unsigned long running_frames;
+double run_start_t = -1;  // board time of the first frame reporting an experiment running
 unsigned illegal_max[2];
 uint8_t last_failsafe = 0;
 struct FsEvent { double t; unsigned code; unsigned boot; };
@@ -530,7 +538,9 @@ bool poll_host() {
         ssize_t n = read(pty_fd, buf, sizeof buf);
         if (n > 0) {
             host_seen = true;
-            bool silent = opt.host_silent_at >= 0 && board_origin_set && board_now() >= opt.host_silent_at;
+            bool silent = board_origin_set &&
+                          ((opt.host_silent_at >= 0 && board_now() >= opt.host_silent_at) ||
+                           (opt.silent_after_run >= 0 && run_start_t >= 0 && board_now() >= run_start_t + opt.silent_after_run));
             for (ssize_t i = 0; i < n; ++i) {
                 if (silent) ++link.down_silenced;
                 else host_byte(buf[i]);
@@ -566,6 +576,7 @@ void on_uart_out(avr_irq_t*, uint32_t value, void*) {
                 unsigned ovr[3] = {t.inner_overruns, t.outer_overruns, t.telemetry_overruns};
                 bool running = t.status & proto::kStatusRunning;
                 if (running) ++running_frames;
+                if (running && run_start_t < 0) run_start_t = tb;
                 for (int i = 0; i < 3; ++i) {
                     if (cyc[i] > task_max[i]) task_max[i] = cyc[i];
                     if (ovr[i] > task_overruns_max[i]) task_overruns_max[i] = ovr[i];
@@ -660,7 +671,9 @@ avr_cycle_count_t plant_cb(avr_t*, avr_cycle_count_t when, void*) {
     }
     ++plant_steps;
     if (!poll_host() && opt.exit_on_hangup) { stop_now = true; stop_reason = "host closed the link"; }
-    if (opt.hang_at >= 0 && !hang_done && board_origin_set && board_now() >= opt.hang_at) {
+    bool hang_due = (opt.hang_at >= 0 && board_now() >= opt.hang_at) ||
+                    (opt.hang_after_run >= 0 && run_start_t >= 0 && board_now() >= run_start_t + opt.hang_after_run);
+    if (hang_due && !hang_done && board_origin_set) {
         avr->data[hang_addr] = 1;
         hang_done = true;
         hang_t = board_now();
@@ -807,7 +820,7 @@ void write_summary(double wall_s) {
     fprintf(f, "],\n  \"reset_causes\": [");
     for (size_t i = 0; i < reset_causes.size(); ++i)
         fprintf(f, "%s{\"t_s\": %.6f, \"mcusr\": %u}", i ? ", " : "", reset_causes[i].first, reset_causes[i].second);
-    fprintf(f, "],\n  \"hang\": {\"at_s\": %g, \"set_t_s\": %.6f, \"symbol_addr\": %ld},\n", opt.hang_at, hang_t, hang_addr);
+    fprintf(f, "],\n  \"experiment_start_t_s\": %.6f,\n  \"hang\": {\"at_s\": %g, \"set_t_s\": %.6f, \"symbol_addr\": %ld},\n", run_start_t, opt.hang_at, hang_t, hang_addr);
     fprintf(f, "  \"frames_from_robot\": {\"telemetry\": %lu, \"params\": %lu, \"ack\": %lu, \"seq_restarts\": %lu},\n",
             telem_frames, params_frames, ack_frames, seq_restarts);
     fprintf(f, "  \"link\": {\"pty\": ");
@@ -858,9 +871,9 @@ int main(int argc, char** argv) {
     memset(&fw, 0, sizeof fw);
     if (access(opt.elf.c_str(), R_OK)) die("cannot read %s: %s", opt.elf.c_str(), strerror(errno));
     if (elf_read_firmware(opt.elf.c_str(), &fw)) die("libsimavr cannot load %s", opt.elf.c_str());
-    if (opt.hang_at >= 0) {
+    if (opt.hang_at >= 0 || opt.hang_after_run >= 0) {
         hang_addr = elf_symbol(opt.elf.c_str(), "g_fault_hang");
-        if (hang_addr < 0) die("--hang-at: %s has no symbol g_fault_hang (the firmware's hang hook)", opt.elf.c_str());
+        if (hang_addr < 0) die("--hang-at/--hang-after-start: %s has no symbol g_fault_hang (the firmware's hang hook)", opt.elf.c_str());
         hang_addr &= 0xFFFF;  // data space offset
     }
     snap_pc = elf_symbol(opt.elf.c_str(), "_Z12enc_snapshotv");
@@ -872,6 +885,11 @@ int main(int argc, char** argv) {
     avr->log = 0;
     avr_load_firmware(avr, &fw);
     avr->sleep = no_sleep;
+    // INT4..INT7 (PE4..PE7) are never enabled by the firmware (EIMSK |= 0x0F), but their sense
+    // control stays at 00 (low level) and PE5 is the right motor's PWM pin: simavr's "strict"
+    // low-level emulation then polls the pin on every cycle while it is low (motors off), which
+    // made the simulation ~2-3x slower. Non-strict: no polling; the disabled vectors are unaffected.
+    for (uint8_t i = 4; i < 8; ++i) avr_extint_set_strict_lvl_trig(avr, i, 0);
     uint32_t flags = 0;
     avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('2'), &flags);
     uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('2'), UART_IRQ_INPUT);
