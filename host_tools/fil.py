@@ -62,7 +62,11 @@ def build_firmware() -> Path:
     pio = shutil.which("pio", path=_env()["PATH"])
     if pio is None:
         raise FilError("PlatformIO (pio) not found: run scripts/setup.sh, then source scripts/env.sh")
-    r = subprocess.run([pio, "run", "-e", "megaatmega2560"], capture_output=True, text=True, env=_env(), cwd=ROOT)
+    for attempt in range(3):  # the tree is shared: another build of .pio may be under way
+        r = subprocess.run([pio, "run", "-e", "megaatmega2560"], capture_output=True, text=True, env=_env(), cwd=ROOT)
+        if r.returncode == 0 and PIO_ELF.exists():
+            break
+        time.sleep(3)
     if r.returncode != 0 or not PIO_ELF.exists():
         raise FilError(f"pio run -e megaatmega2560 failed:\n{(r.stdout + r.stderr)[-3000:]}")
     BUILD.mkdir(parents=True, exist_ok=True)
