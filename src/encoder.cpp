@@ -2,6 +2,8 @@
 
 #include <avr/interrupt.h>
 #include <avr/io.h>
+#include "board.h"  // F_CPU for util/delay.h
+#include <util/delay.h>
 
 namespace {
 EncRaw g_last;          // raw values at the previous snapshot
@@ -22,15 +24,19 @@ void enc_init() {
     cli();
     DDRD &= static_cast<uint8_t>(~0x0F);
     PORTD |= 0x0F;                      // pull-ups (open-collector encoders read high when idle)
+    _delay_us(20);                      // let the lines settle before the first sample
     // ISCn = 01: any logical change, for INT0..INT3.
     EICRA = _BV(ISC00) | _BV(ISC10) | _BV(ISC20) | _BV(ISC30);
-    GPIOR0 = PIND & 0x03;               // previous states, see src/encoder_isr.S
-    GPIOR1 = PIND & 0x0C;
     enc_raw_l = enc_raw_r = 0;
     enc_ill_l = enc_ill_r = 0;
     g_last = EncRaw{0, 0, 0, 0};
     g_total = EncSnapshot{0, 0, 0, 0};
-    EIFR = 0x0F;                        // drop edges seen while configuring
+    // Clear the flags BEFORE sampling the pins: an edge after the sample stays flagged and is
+    // decoded against the sampled state as soon as the interrupts are enabled.
+    EIFR = 0x0F;
+    uint8_t pins = PIND;
+    GPIOR0 = pins & 0x03;               // previous states, see src/encoder_isr.S
+    GPIOR1 = pins & 0x0C;
     EIMSK |= 0x0F;
     SREG = sreg;
 }
