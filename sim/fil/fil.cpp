@@ -258,8 +258,6 @@ double board_t(avr_cycle_count_t c) {
 double board_now() { return board_t(avr->cycle); }
 
 slip::Plant plant;
-struct Hist { double t, th_r, th_l; };
-std::deque<Hist> hist;  // recent plant wheel angles on the board clock (enc check)
 
 // the current plant step, for the wheel angle at any cycle inside it
 avr_cycle_count_t step_c0;
@@ -664,8 +662,6 @@ avr_cycle_count_t plant_cb(avr_t*, avr_cycle_count_t when, void*) {
     for (double v : vs)
         if (fabs(v) > max_slip_speed) max_slip_speed = fabs(v);
     if (board_origin_set) {
-        hist.push_back({t1, s1.theta_r_rad, s1.theta_l_rad});
-        while (hist.size() > 8000) hist.pop_front();
         camera(t0, x0, y0, p0, t1, s1.x_m, s1.y_m, s1.phi_rad);
         if (plant_steps % static_cast<unsigned long>(opt.plant_log_every) == 0) write_plant_row(s1, t1);
     }
@@ -820,7 +816,8 @@ void write_summary(double wall_s) {
     fprintf(f, "],\n  \"reset_causes\": [");
     for (size_t i = 0; i < reset_causes.size(); ++i)
         fprintf(f, "%s{\"t_s\": %.6f, \"mcusr\": %u}", i ? ", " : "", reset_causes[i].first, reset_causes[i].second);
-    fprintf(f, "],\n  \"experiment_start_t_s\": %.6f,\n  \"hang\": {\"at_s\": %g, \"set_t_s\": %.6f, \"symbol_addr\": %ld},\n", run_start_t, opt.hang_at, hang_t, hang_addr);
+    fprintf(f, "],\n  \"experiment_start_t_s\": %.6f,\n  \"hang\": {\"at_s\": %g, \"after_start_s\": %g, \"set_t_s\": %.6f, \"symbol_addr\": %ld},\n",
+            run_start_t, opt.hang_at, opt.hang_after_run, hang_t, hang_addr);
     fprintf(f, "  \"frames_from_robot\": {\"telemetry\": %lu, \"params\": %lu, \"ack\": %lu, \"seq_restarts\": %lu},\n",
             telem_frames, params_frames, ack_frames, seq_restarts);
     fprintf(f, "  \"link\": {\"pty\": ");
@@ -828,11 +825,11 @@ void write_summary(double wall_s) {
     fprintf(f, ", \"baud\": %.1f, \"ber\": %g, \"drop\": %g, \"up\": %s, \"down\": %s,\n"
                "    \"up_bytes\": %lu, \"up_flipped\": %lu, \"up_dropped\": %lu, \"up_unsent\": %lu,\n"
                "    \"down_bytes\": %lu, \"down_flipped\": %lu, \"down_dropped\": %lu, \"down_silenced\": %lu,\n"
-               "    \"host_silent_at_s\": %g, \"last_down_byte_t_s\": %.6f, \"last_down_frame_t_s\": %.6f,\n"
+               "    \"host_silent_at_s\": %g, \"host_silent_after_start_s\": %g, \"last_down_byte_t_s\": %.6f, \"last_down_frame_t_s\": %.6f,\n"
                "    \"down_frames\": %lu, \"down_frames_corrupted\": %lu, \"down_corrupted_seqs\": [",
             kF / (8.0 * (XBEE_UBRR + 1)), opt.link_ber, opt.link_drop, opt.link_up ? "true" : "false",
             opt.link_down ? "true" : "false", link.up_bytes, link.up_flipped, link.up_dropped, link.up_unsent,
-            link.down_bytes, link.down_flipped, link.down_dropped, link.down_silenced, opt.host_silent_at,
+            link.down_bytes, link.down_flipped, link.down_dropped, link.down_silenced, opt.host_silent_at, opt.silent_after_run,
             link.last_down_byte_t, link.last_down_frame_t, down_frames_total, down_frames_corrupted);
     for (size_t i = 0; i < down_corrupted_seqs.size(); ++i) fprintf(f, "%s%u", i ? ", " : "", down_corrupted_seqs[i]);
     fprintf(f, "]},\n  \"groundtruth\": {\"rate_hz\": %g, \"noise_xy_m\": %g, \"noise_phi_rad\": %g, \"dropout\": %g, "
