@@ -330,6 +330,14 @@ int main(int argc, char** argv) {
             long dx = static_cast<long>(b.x_odo) - static_cast<long>(a.x_odo);
             printf("  x before the silence %.3f m, 0.7 s later %.3f m\n", a.x_odo * 1e-6, b.x_odo * 1e-6);
             check(dx > 200000 && dx < 300000, "after the stop, odometry continues from the run's last pose");
+            bool mono = true;  // no frame (the first after the stop included) jumps back
+            for (size_t i = n1; i < telem.size(); ++i)
+                if (telem[i].x_odo < telem[i - 1].x_odo) {
+                    mono = false;
+                    printf("  x_odo went back: frame %zu %.4f m -> %.4f m (status 0x%02x)\n", i,
+                           telem[i - 1].x_odo * 1e-6, telem[i].x_odo * 1e-6, telem[i].status);
+                }
+            check(mono, "x_odo never goes back across the stop (wheels turning forward)");
         }
         uint8_t porth = avr->data[0x102];  // PORTH
         check((porth & 0x60) == 0x60, "brake pins D8/D9 high");
@@ -339,6 +347,22 @@ int main(int argc, char** argv) {
             printf("  brake pins high %.2f ms after the last host byte; failsafe in telemetry at %.1f ms\n",
                    (brake_seen_t - silent_at) * 1000, (brake_t - silent_at) * 1000);
         print_timing(telem.back());
+    }
+    {   // 4b. a short experiment that ends by itself (duration reached)
+        proto::Start s; s.profile = 0; s.wheel_accel = 4800; s.accel_time = 100; s.duration = 300; s.radius = 0;
+        send(s);
+        run_for(0.03);
+        size_t n3 = telem.size();
+        for (int i = 0; i < 6; ++i) { run_for(0.1); send(proto::Heartbeat()); }
+        bool finished = false, mono = true, moved = false;
+        for (size_t i = n3 + 1; i < telem.size(); ++i) {
+            if (telem[i].failsafe == proto::kFailsafeFinished) finished = true;
+            if (telem[i].x_odo < telem[i - 1].x_odo) mono = false;
+            if (telem[i].x_odo > 50000) moved = true;
+        }
+        check(finished && (telem.back().status & proto::kStatusRunning) == 0,
+              "experiment ends at its duration: failsafe finished, not running");
+        check(mono && moved, "x_odo continues across the end of the experiment (no reset to 0)");
     }
     enc_rate = 0;
 
