@@ -10,6 +10,7 @@ exists (see :class:`ClosedLoopReplay`).
 pair (recorded, simulated) on the recording's own time base."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Protocol
 
@@ -182,15 +183,23 @@ class OpenLoopReplay:
         src = prep.duty if self.mode == "duty" else prep.torque
         t_in = prep.t_in if self.mode == "duty" else prep.t_in_tau
         grid = prep.t_grid
-        in_r = _zoh(t_in, src[0], grid)
-        in_l = _zoh(t_in, src[1], grid)
-        out = plant.simulate(grid, in_r, in_l, mode=self.mode, dt_s=self.dt_s,
+        # Simulate on a dyadic grid (multiples of 2^-n s, one plant step per row): sums of its
+        # times are exact in binary floating point, so the plant's clock never appears to run
+        # backwards between rows (which would clear the actuation-delay history), and input
+        # changes land within one step of their reconstructed time.  Outputs are then
+        # interpolated onto the recording's times.
+        h = 2.0 ** math.floor(math.log2(self.dt_s))
+        t0 = math.floor(grid[0] / h) * h
+        n = int(math.ceil((grid[-1] - t0) / h)) + 1
+        fine = t0 + h * np.arange(n)
+        in_r = _zoh(t_in, src[0], fine)
+        in_l = _zoh(t_in, src[1], fine)
+        out = plant.simulate(fine, in_r, in_l, mode=self.mode, dt_s=h * 1.000001,
                              start_pose=prep.start_pose)
         ts = np.asarray(out["t_s"], float)
-        if ts.shape != grid.shape or not np.allclose(ts, grid, atol=1e-9):
-            out = {k: np.interp(grid, ts, np.asarray(v, float)) for k, v in out.items()}
-            out["t_s"] = grid
-        return out
+        res = {k: np.interp(grid, ts, np.asarray(v, float)) for k, v in out.items()}
+        res["t_s"] = grid.copy()
+        return res
 
 
 class ClosedLoopReplay:
