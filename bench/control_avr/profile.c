@@ -1,7 +1,7 @@
 /* Cycle profile of the control benchmark (libsimavr): runs an ATmega2560 ELF to its end and
  * prints, for every program address that executed, the CPU cycles spent there ("pc cycles",
  * pc as a byte address in hex). bench/control_avr/profile.sh maps the addresses to source
- * lines. simavr charges each instruction its datasheet cycle count; no interrupts are used by
+ * lines, and the cycles spent in each CTL_PROBE region ("region n cycles"). simavr charges each instruction its datasheet cycle count; no interrupts are used by
  * the benchmark, so no response-time correction is needed.
  * Usage: profile bench.elf > pcs.txt */
 #include <stdio.h>
@@ -21,14 +21,18 @@ int main(int argc, char **argv) {
     avr_load_firmware(avr, &fw);
     const size_t n = 256u * 1024u;
     unsigned long long *cyc = calloc(n, sizeof *cyc);
+    unsigned long long region[256] = {0};
     if (!cyc) return 2;
     for (;;) {
         const avr_flashaddr_t pc = avr->pc;
         const avr_cycle_count_t c0 = avr->cycle;
         const int st = avr_run(avr);
         if (pc < n) cyc[pc] += avr->cycle - c0;
+        region[avr->data[0x3e]] += avr->cycle - c0;  /* GPIOR0: CTL_PROBE region marker */
         if (st == cpu_Done || st == cpu_Crashed || avr->state == cpu_Sleeping) break;
     }
+    for (int r = 1; r < 256; ++r)
+        if (region[r]) printf("region %d %llu\n", r, region[r]);
     for (size_t pc = 0; pc < n; ++pc)
         if (cyc[pc]) printf("%zx %llu\n", pc, cyc[pc]);
     return 0;

@@ -3,19 +3,20 @@
 namespace ctl {
 
 namespace {
-inline int32_t sub_sat32(int32_t a, int32_t b) {
+CTL_INLINE int32_t sub_sat32(int32_t a, int32_t b) {
   if (b == INT32_MIN) return a >= 0 ? INT32_MAX : a - b;
   return fx::add_sat32(a, -b);
 }
 // |x| < 2^19 (8 N m in Q16): Q16 -> Q12 rounded toward zero (no division: avr-gcc calls
 // __divmodsi4 for x / 16).
-inline int16_t q16_to_q12_toward_zero(int32_t x) {
-  return x >= 0 ? static_cast<int16_t>(fx::asr<4>(x)) : static_cast<int16_t>(-fx::asr<4>(-x));
+CTL_INLINE int16_t q16_to_q12_toward_zero(int32_t x) {
+  // ceil(x / 16) = floor((x + 15) / 16) for x < 0
+  return static_cast<int16_t>(fx::asr<4>(x + (x < 0 ? 15 : 0)));
 }
-inline int8_t sign32(int32_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
-inline int8_t sign16(int16_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
+CTL_INLINE int8_t sign32(int32_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
+CTL_INLINE int8_t sign16(int16_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
 // Duty Q15 from u (|u| < 2^31): clamped to +-32767, *sat when |u| >= 32767.
-inline int16_t duty_q15(int32_t u, bool* sat) {
+CTL_INLINE int16_t duty_q15(int32_t u, bool* sat) {
   const int16_t d = fx::sat16(u);
   if (d >= fx::kQ15One) { *sat = true; return fx::kQ15One; }
   if (d <= -fx::kQ15One) { *sat = true; return static_cast<int16_t>(-fx::kQ15One); }
@@ -23,7 +24,7 @@ inline int16_t duty_q15(int32_t u, bool* sat) {
   return d;
 }
 // Q20 metres -> Q12 metres, saturated at +-8 m.
-inline int16_t q20_to_q12(int32_t x) { return fx::sat16(fx::rshift_round<8>(x)); }
+CTL_INLINE int16_t q20_to_q12(int32_t x) { return fx::sat16(fx::rshift_round<8>(x)); }
 }  // namespace
 
 KinematicOutQ kinematic_law_q(const ControlConfigQ& c, const PoseQ& pose, const RefSampleQ& ref) {
@@ -87,7 +88,7 @@ const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
 
 // k dt per step, cached: dt in Q16 s = dt_us * 4295 / 65536 (error 8e-6 relative);
 // k_il dt in Q15 (N s/m), k_ia dt in Q18 (N m s); the fast path needs both in int16.
-void ControllerQ::update_kdt(uint32_t dt_us) {
+CTL_INLINE void ControllerQ::update_kdt(uint32_t dt_us) {
   kdt_dt_us_ = dt_us;
   // dt < 65536 us: a 16x16 product (dt * 4295 < 2^31) instead of a 32-bit one.
   const int16_t dt_q16 = dt_us < 65536UL ? fx::hi16(fx::mul_us(static_cast<uint16_t>(dt_us), 4295))
@@ -106,7 +107,9 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
 
     return out_;
   }
+  CTL_PROBE(1);
   out_.odo = odo_.update_deferred(enc_r, enc_l, dt_us);  // pose arc: in the outer step
+  CTL_PROBE(2);
   const int16_t v = odo_.v_q12(), w = odo_.omega_q11();
 
   // Velocity errors: e_v Q12 (|v_d| <= 1.4, |v| <= 2.3 m/s: fits), e_w Q10 (|omega_d - omega|
@@ -114,10 +117,12 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   const int16_t e_v = fx::sub_sat16(kin_.v_d_q12, v);
   const int16_t e_w = fx::half_diff16(kin_.omega_d_q11, w);
 
+  CTL_PROBE(3);
   // F (Q8 N) = m_eff dv_ff - m_t d w^2 + k_l e_v + I_v   (m_eff dv_ff from the outer step)
   const int16_t w2_q6 = fx::hi16(fx::mul_ss(w, w));   // <= 256 (rad/s)^2
   int32_t force = static_cast<int32_t>(f_ff_q8_) - fx::mul16<16>(w2_q6, cfg_.mtd_q18) +
                   fx::mul16<12>(e_v, cfg_.k_l_q8) + fx::asr<8>(i_v_q16_ + 128);
+  CTL_PROBE(4);
   // M (Q12 N m) = I_eff dw_ff + m_t d w v + k_a e_w + I_w, saturated at +-8 N m (int16): far
   // beyond what the wheels can take (stall torque 0.77 N m is M = 4.4 N m with both wheels).
   const int16_t wv_q7 = fx::hi16(fx::mul_ss(w, v));   // |w v| <= 128
@@ -126,6 +131,7 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   // |F| is bounded by its terms (< 2^22 Q8); keep it there explicitly.
   force = fx::clamp32(force, 0x3FFFFFL);  // 16384 N
 
+  CTL_PROBE(5);
   // Split: tau = (r/2)(F +- M/b), Q16 N m. F +- M/b is taken in Q7 N, saturated at +-256 N
   // (4.7 N m of wheel torque, six times the stall torque: the duty saturates long before).
   // |F| < 2^22 and |M/b| < 2^18 (Q8): the sums and their rounding cannot overflow.
@@ -135,6 +141,7 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   const int32_t tau_r = fx::mul16<7>(sum_r_q7, cfg_.half_r_q16);
   const int32_t tau_l = fx::mul16<7>(sum_l_q7, cfg_.half_r_q16);
 
+  CTL_PROBE(6);
   const int32_t lim_r = cfg_.clamp_enabled ? out_.tau_max_r_q16 : cfg_.tau_big_q16;
   const int32_t lim_l = cfg_.clamp_enabled ? out_.tau_max_l_q16 : cfg_.tau_big_q16;
   out_.tau_r_q16 = fx::clamp32(tau_r, lim_r);
@@ -142,6 +149,7 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   out_.clamped_r = out_.tau_r_q16 != tau_r;
   out_.clamped_l = out_.tau_l_q16 != tau_l;
 
+  CTL_PROBE(7);
   // Duty u = tau/stall + dtheta/no_load (Q15), saturated. |tau| <= 10 stall < 8 N m, so the
   // torque fits Q12 int16; it is rounded toward zero so that a torque clamped at tau_max is
   // never rounded above it.
@@ -152,12 +160,15 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   out_.pwm_r_q15 = duty_q15(u_r, &out_.sat_r);
   out_.pwm_l_q15 = duty_q15(u_l, &out_.sat_l);
 
+  CTL_PROBE(8);
   // Anti-windup by conditional integration (same rule as the float path): an integrator stops
   // while a limited wheel it drives would be pushed further into the limit (s_i e > 0).
   const int8_t s_r = (out_.clamped_r || out_.sat_r) ? sign32(tau_r) : 0;
   const int8_t s_l = (out_.clamped_l || out_.sat_l) ? sign32(tau_l) : 0;
   if (dt_us > 0 && dt_us < 500000UL) {  // integrate only for 0 < dt < 0.5 s
+    CTL_PROBE(9);
     if (dt_us != kdt_dt_us_) update_kdt(dt_us);
+    CTL_PROBE(10);
     const int8_t sv = sign16(e_v), sw = sign16(e_w);
     const bool block_v = (s_r != 0 && s_r == sv) || (s_l != 0 && s_l == sv);
     const bool block_w = (s_r != 0 && s_r == sw) || (s_l != 0 && s_l == -sw);
@@ -174,6 +185,7 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
       i_w_q16_ = fx::clamp32(fx::add_sat32(i_w_q16_, inc_q16), cfg_.integ_max_w_q16);
     }
   }
+  CTL_PROBE(0);
   return out_;
 }
 

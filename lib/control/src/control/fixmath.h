@@ -35,6 +35,13 @@ constexpr int32_t q_const(double v, int shift) {
 
 #define CTL_INLINE inline __attribute__((always_inline))
 
+/// Region marker for bench/control_avr/profile.sh (writes GPIOR0; empty in normal builds).
+#if defined(__AVR__) && defined(CTL_PROFILE)
+#define CTL_PROBE(n) __asm__ volatile("out 0x1e, %0" ::"r"(static_cast<uint8_t>(n)))
+#else
+#define CTL_PROBE(n) ((void)0)
+#endif
+
 /// Saturate an int32 to int16.
 static CTL_INLINE int16_t sat16(int32_t x) {
 #if defined(__AVR__)
@@ -214,6 +221,22 @@ struct Sh<0> {
   static CTL_INLINE int32_t r(int32_t x) { return x; }
   static CTL_INLINE int32_t l(int32_t x) { return x; }
 };
+/// x >> (16 - K), K = 1..3 (S = 13..15): bytes 1..3 of x and a sign byte shifted left K times, and the
+/// upper three of these four bytes taken (avr-gcc shifts the low word right bit by bit).
+template <uint8_t K>
+CTL_INLINE int32_t asr_13_15(int32_t x) {
+  union { int32_t i; uint8_t b[4]; } u, v;
+  u.i = x;
+  uint8_t b1 = u.b[1], b2 = u.b[2], b3 = u.b[3];
+  uint8_t e = (b3 & 0x80) ? 0xFF : 0;
+  // K = 1..3 one-bit steps, written out (avr-gcc -Os keeps a counted loop otherwise)
+  __asm__("lsl %0\n\trol %1\n\trol %2\n\trol %3" : "+r"(b1), "+r"(b2), "+r"(b3), "+r"(e));
+  if (K >= 2) __asm__("lsl %0\n\trol %1\n\trol %2\n\trol %3" : "+r"(b1), "+r"(b2), "+r"(b3), "+r"(e));
+  if (K >= 3) __asm__("lsl %0\n\trol %1\n\trol %2\n\trol %3" : "+r"(b1), "+r"(b2), "+r"(b3), "+r"(e));
+  v.b[0] = b2; v.b[1] = b3; v.b[2] = e;
+  v.b[3] = (e & 0x80) ? 0xFF : 0;
+  return v.i;
+}
 /// x >> 8 by byte moves (sign-extended).
 static CTL_INLINE int32_t asr8(int32_t x) {
   union { int32_t i; uint8_t b[4]; } u, v;
@@ -238,10 +261,7 @@ CTL_INLINE int32_t asr(int32_t x) {
     return sh::Sh<(S >= 5 && S <= 7 ? 8 - S : 0)>::l(sh::asr8(x)) | lo;
   }
   if (S <= 12) return sh::Sh<(S >= 8 && S <= 12 ? S - 8 : 0)>::r(sh::asr8(x));
-  if (S <= 15) {  // (x >> 16) << (16 - S) | (low word >> S)
-    const uint16_t lo = static_cast<uint16_t>(static_cast<uint16_t>(x) >> (S <= 15 ? S : 0));
-    return sh::Sh<(S >= 13 && S <= 15 ? 16 - S : 0)>::l(static_cast<int32_t>(static_cast<int16_t>(x >> 16))) | lo;
-  }
+  if (S <= 15) return sh::asr_13_15<(S >= 13 && S <= 15 ? 16 - S : 1)>(x);
   return static_cast<int32_t>(static_cast<int16_t>(x >> 16) >> (S >= 16 ? S - 16 : 0));
 #else
   return x >> S;

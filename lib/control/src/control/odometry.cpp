@@ -100,15 +100,11 @@ OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
   return st;
 }
 
-OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
-  if (!cfg_.ok) return OdoStatus::kBadConfig;
-  int16_t dn_r, dn_l;
-  const OdoStatus st = speeds(enc_r, enc_l, dt_us, &dn_r, &dn_l);
-  if (n_pending_ == kMaxPending) integrate_pending();  // nobody read the pose: catch up
-  pend_r_[n_pending_] = dn_r;
-  pend_l_[n_pending_] = dn_l;
-  ++n_pending_;
-  return st;
+void OdometryQ::set_dt(uint32_t dt_us) {
+  last_dt_us_ = dt_us;
+  rate_per_count_q11_ = static_cast<int32_t>(fx::div_u32(static_cast<uint32_t>(cfg_.wheel_rate_q11), dt_us));
+  // dt >= 13.5 ms: the rate fits 16 bits in Q10 (0 = use the 32-bit path)
+  rate_q10_ = rate_per_count_q11_ < 131072L ? static_cast<uint16_t>((rate_per_count_q11_ + 1) >> 1) : 0;
 }
 
 void OdometryQ::integrate_pending() const {
@@ -158,48 +154,6 @@ void OdometryQ::integrate_arc(int16_t dn_r, int16_t dn_l) const {
   pose_.x_q20 = fx::add_sat32(pose_.x_q20, (dx_q28 >> 8) + (sx >> 8));
   pose_.y_q20 = fx::add_sat32(pose_.y_q20, (dy_q28 >> 8) + (sy >> 8));
   pose_.phi_b32 += dphi;
-}
-
-OdoStatus OdometryQ::speeds(int32_t enc_r, int32_t enc_l, uint32_t dt_us, int16_t* dn_r_out,
-                            int16_t* dn_l_out) {
-  bool jumped = false;
-  const int16_t dn_r = static_cast<int16_t>(count_step(enc_r, last_r_, &jumped));  // |dn| <= 16383
-  const int16_t dn_l = static_cast<int16_t>(count_step(enc_l, last_l_, &jumped));
-  last_r_ = enc_r;
-  last_l_ = enc_l;
-  *dn_r_out = dn_r;
-  *dn_l_out = dn_l;
-
-  // Wheel speeds, rad/s Q8: dn * (2pi/ppr 2^8 1e6 / dt_us). The reciprocal is cached and
-  // recomputed when dt changes -- in the firmware that is nearly every step (dt is measured in
-  // microseconds), so the division is the short 17-bit one of fx::div_u32 (~220 cycles).
-  OdoStatus st = jumped ? OdoStatus::kCountJump : OdoStatus::kOk;
-  if (dt_us == 0) {
-    w_r_q8_ = w_l_q8_ = 0;
-    st = OdoStatus::kBadDt;
-  } else {
-    if (dt_us != last_dt_us_) {
-      last_dt_us_ = dt_us;
-      rate_per_count_q11_ = static_cast<int32_t>(fx::div_u32(static_cast<uint32_t>(cfg_.wheel_rate_q11), dt_us));
-      // dt >= 13.5 ms: the rate fits 16 bits in Q10 (0 = use the 32-bit path)
-      rate_q10_ = rate_per_count_q11_ < 131072L ? static_cast<uint16_t>((rate_per_count_q11_ + 1) >> 1) : 0;
-    }
-    if (rate_q10_ != 0 || rate_per_count_q11_ == 0) {
-      // |rate dn| <= 65535 * 16383 < 2^30: no overflow in the rounding
-      w_r_q8_ = fx::sat16(fx::rshift_round_nc<10>(fx::mul_us(rate_q10_, dn_r)));
-      w_l_q8_ = fx::sat16(fx::rshift_round_nc<10>(fx::mul_us(rate_q10_, dn_l)));
-    } else {
-      w_r_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, dn_r));
-      w_l_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, dn_l));
-    }
-  }
-  // v and omega from the wheel speeds; the sum and difference saturate at 128 rad/s (v at
-  // 2.3 m/s, omega beyond the Q11 range anyway), far above the motor's 36.65 rad/s.
-  const int16_t sum_q8 = fx::add_sat16(w_r_q8_, w_l_q8_);
-  const int16_t diff_q8 = fx::sub_sat16(w_r_q8_, w_l_q8_);
-  v_q12_ = fx::sat16(fx::mul16<12>(sum_q8, cfg_.half_r_q16));     // Q8*Q16>>12
-  w_q11_ = fx::sat16(fx::mul16<12>(diff_q8, cfg_.r_over_2b_q15));  // Q8*Q15>>12
-  return st;
 }
 
 }  // namespace ctl

@@ -130,6 +130,7 @@ class OdometryQ {
   /// New cumulative counts after dt_us microseconds: wheel speeds and pose.
   OdoStatus update(int32_t enc_r, int32_t enc_l, uint32_t dt_us);
   /// The same, but the pose arc of this sample is queued (integrated when the pose is read).
+  /// Inline: it is the first part of the controller's inner step.
   OdoStatus update_deferred(int32_t enc_r, int32_t enc_l, uint32_t dt_us);
 
   /// The pose after the latest update (integrates any queued arcs first: logically const).
@@ -145,8 +146,15 @@ class OdometryQ {
   int16_t omega_q11() const { return w_q11_; }     ///< rad/s, Q11
 
  private:
-  /// Count increments (clamped, int16) and wheel speeds, v, omega of one sample.
-  OdoStatus speeds(int32_t enc_r, int32_t enc_l, uint32_t dt_us, int16_t* dn_r, int16_t* dn_l);
+  /// Modulo-2^32 count increment, clamped to +-kMaxStepCounts (sets *jumped then).
+  static CTL_INLINE int16_t count_step_q(int32_t now, int32_t last, bool* jumped) {
+    const int32_t d = static_cast<int32_t>(static_cast<uint32_t>(now) - static_cast<uint32_t>(last));
+    if (d > kMaxStepCounts) { *jumped = true; return static_cast<int16_t>(kMaxStepCounts); }
+    if (d < -kMaxStepCounts) { *jumped = true; return static_cast<int16_t>(-kMaxStepCounts); }
+    return static_cast<int16_t>(d);
+  }
+  /// New dt: the cached wheel rate per count (a division).
+  void set_dt(uint32_t dt_us);
   void integrate_pending() const;
   void integrate_arc(int16_t dn_r, int16_t dn_l) const;
 
@@ -163,6 +171,48 @@ class OdometryQ {
   uint16_t rate_q10_;           // the same in Q10 when it fits 16 bits, else 0
   int16_t w_r_q8_, w_l_q8_, v_q12_, w_q11_;
 };
+
+CTL_INLINE OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
+  if (!cfg_.ok) return OdoStatus::kBadConfig;
+  bool jumped = false;
+  const int16_t dn_r = count_step_q(enc_r, last_r_, &jumped);
+  const int16_t dn_l = count_step_q(enc_l, last_l_, &jumped);
+  last_r_ = enc_r;
+  last_l_ = enc_l;
+  if (n_pending_ == kMaxPending) integrate_pending();  // nobody read the pose: catch up
+  pend_r_[n_pending_] = dn_r;
+  pend_l_[n_pending_] = dn_l;
+  ++n_pending_;
+
+  // Wheel speeds, rad/s Q8: dn * (2pi/ppr 2^8 1e6 / dt_us). The rate per count is cached and
+  // recomputed when dt changes -- in the firmware that is nearly every step (dt is measured in
+  // microseconds), hence the short division of set_dt().
+  OdoStatus st = jumped ? OdoStatus::kCountJump : OdoStatus::kOk;
+  if (dt_us == 0) {
+    w_r_q8_ = w_l_q8_ = 0;
+    st = OdoStatus::kBadDt;
+  } else {
+    CTL_PROBE(11);
+    if (dt_us != last_dt_us_) set_dt(dt_us);
+    CTL_PROBE(12);
+    if (rate_q10_ != 0 || rate_per_count_q11_ == 0) {
+      // |rate dn| <= 65535 * 16383 < 2^30: no overflow in the rounding
+      w_r_q8_ = fx::sat16(fx::rshift_round_nc<10>(fx::mul_us(rate_q10_, dn_r)));
+      w_l_q8_ = fx::sat16(fx::rshift_round_nc<10>(fx::mul_us(rate_q10_, dn_l)));
+    } else {
+      w_r_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, dn_r));
+      w_l_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, dn_l));
+    }
+  }
+  CTL_PROBE(13);
+  // v and omega from the wheel speeds; the sum and difference saturate at 128 rad/s (v at
+  // 2.3 m/s, omega beyond the Q11 range anyway), far above the motor's 36.65 rad/s.
+  const int16_t sum_q8 = fx::add_sat16(w_r_q8_, w_l_q8_);
+  const int16_t diff_q8 = fx::sub_sat16(w_r_q8_, w_l_q8_);
+  v_q12_ = fx::sat16(fx::mul16<12>(sum_q8, cfg_.half_r_q16));     // Q8*Q16>>12
+  w_q11_ = fx::sat16(fx::mul16<12>(diff_q8, cfg_.r_over_2b_q15));  // Q8*Q15>>12
+  return st;
+}
 
 /// Wrap an angle to [-pi, pi).
 float wrap_pi(float a_rad);
