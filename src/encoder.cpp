@@ -27,6 +27,11 @@ void enc_init() {
     _delay_us(20);                      // let the lines settle before the first sample
     // ISCn = 01: any logical change, for INT0..INT3.
     EICRA = _BV(ISC00) | _BV(ISC10) | _BV(ISC20) | _BV(ISC30);
+    // INT4..INT7 are not used (their interrupts stay disabled). Their sense is set to "any
+    // change" instead of the reset value "low level": simavr 1.6 polls a level-sensing pin on
+    // every cycle even when the interrupt is masked, and INT5's pin PE5 is the right motor's
+    // PWM output -- a 5-10x slower simulation (docs/fil.md). No effect on the hardware.
+    EICRB = _BV(ISC40) | _BV(ISC50) | _BV(ISC60) | _BV(ISC70);
     enc_raw_l = enc_raw_r = 0;
     enc_ill_l = enc_ill_r = 0;
     g_last = EncRaw{0, 0, 0, 0};
