@@ -277,12 +277,13 @@ int32_t q20_to_um(int32_t v_q20) {
 
 void telemetry_task() {
     EncSnapshot e = enc_snapshot();
+    uint32_t t_us = time_us();  // right after the snapshot: the frame's time is the counts' time
     const ctl::OdometryQ& odo = g_running ? g_ctrl->odometry() : *g_idle_odo;
     const ctl::InnerOutQ& in = g_ctrl->inner();
     const ctl::KinematicOutQ& kin = g_ctrl->kinematic();
     proto::Telemetry t;
     memset(&t, 0, sizeof t);
-    t.t_us = time_us();
+    t.t_us = t_us;
     t.enc_r = e.count_r;
     t.enc_l = e.count_l;
     t.omega_r = q_to_raw16<100, 8>(odo.omega_r_q8());
