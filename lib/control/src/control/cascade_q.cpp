@@ -59,46 +59,25 @@ void ControllerQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
   const slip::NormalForcesQ nf = slip::normal_forces_q16(cfg_.traction, 0);
   out_.tau_max_r_q16 = slip::tau_max_q16(cfg_.traction, nf.N_r_q16);
   out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
-  dv_ff_q12_ = dw_ff_q11_ = 0;
-  f_ff_q8_ = m_ff_q12_ = 0;
-  i_v_q16_ = i_w_q16_ = 0;
-  kdt_dt_us_ = 0;
-  kdt_fast_ = false;
-  kdt_v_q15_ = kdt_w_q18_ = dt_q16_ = 0;
+  p_ff_q16_ = q_ff_q16_ = 0;
+  j_v_q24_ = j_w_q24_ = 0;
 }
 
 const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
   kin_ = kinematic_law_q(cfg_, odo_.pose(), ref);
-  dv_ff_q12_ = ref.dv_q12;
-  dw_ff_q11_ = ref.domega_q11;
-  // The feed-forward terms of F and M change only here.
-  f_ff_q8_ = static_cast<int16_t>(fx::mul16<16>(dv_ff_q12_, cfg_.m_eff_q12));   // |.| < 2^15
-  m_ff_q12_ = static_cast<int16_t>(fx::mul16<16>(dw_ff_q11_, cfg_.I_eff_q17));
+  // The feed-forward terms change only here: P_ff = (r/2) m_eff dv_ff, Q_ff = (r/2b) I_eff dw_ff.
+  p_ff_q16_ = fx::mul16<14>(ref.dv_q12, cfg_.g_ffv_q18);      // Q12*Q18 -> Q16
+  q_ff_q16_ = fx::mul16<16>(ref.domega_q11, cfg_.g_ffw_q21);  // Q11*Q21 -> Q16
   // Per-wheel tau_max, refreshed at the outer rate (the load transfer changes slowly):
   // lateral force m_t (v w + d dw_ff), Q16 N, from the latest measured v, w.
   const int16_t v = odo_.v_q12(), w = odo_.omega_q11();
   const int32_t a_lat_q16 = fx::rshift_round<7>(static_cast<int32_t>(v) * w);  // Q23 -> Q16
   const int32_t lat_q16 = fx::add_sat32(fx::mul32x16<8>(a_lat_q16, cfg_.m_t_q8),
-                                        fx::mul16<11>(dw_ff_q11_, cfg_.mtd_q16));
+                                        fx::mul16<11>(ref.domega_q11, cfg_.mtd_q16));
   const slip::NormalForcesQ nf = slip::normal_forces_q16(cfg_.traction, lat_q16);
   out_.tau_max_r_q16 = slip::tau_max_q16(cfg_.traction, nf.N_r_q16);
   out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
   return kin_;
-}
-
-// k dt per step, cached: dt in Q16 s = dt_us * 4295 / 65536 (error 8e-6 relative);
-// k_il dt in Q15 (N s/m), k_ia dt in Q18 (N m s); the fast path needs both in int16.
-CTL_INLINE void ControllerQ::update_kdt(uint32_t dt_us) {
-  kdt_dt_us_ = dt_us;
-  // dt < 65536 us: a 16x16 product (dt * 4295 < 2^31) instead of a 32-bit one.
-  const int16_t dt_q16 = dt_us < 65536UL ? fx::hi16(fx::mul_us(static_cast<uint16_t>(dt_us), 4295))
-                                         : static_cast<int16_t>((dt_us * 4295UL) >> 16);
-  const int32_t kv = fx::rshift_round<9>(fx::mul_ss(cfg_.k_il_q8, dt_q16));   // Q24 -> Q15
-  const int32_t kw = fx::rshift_round<10>(fx::mul_ss(cfg_.k_ia_q12, dt_q16)); // Q28 -> Q18
-  kdt_fast_ = kv <= INT16_MAX && kw <= INT16_MAX;
-  kdt_v_q15_ = static_cast<int16_t>(kdt_fast_ ? kv : 0);
-  kdt_w_q18_ = static_cast<int16_t>(kdt_fast_ ? kw : 0);
-  dt_q16_ = dt_q16;
 }
 
 const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
@@ -118,28 +97,23 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   const int16_t e_w = fx::half_diff16(kin_.omega_d_q11, w);
 
   CTL_PROBE(3);
-  // F (Q8 N) = m_eff dv_ff - m_t d w^2 + k_l e_v + I_v   (m_eff dv_ff from the outer step)
+  // The velocity loop directly in wheel-torque units (Q16 N m): with the split
+  // tau_r = (r/2)(F + M/b), tau_l = (r/2)(F - M/b), P = (r/2) F and Q = (r/2b) M give
+  // tau_r = P + Q, tau_l = P - Q; every gain below already carries its r/2 or r/2b.
+  //   P = (r/2) [m_eff dv_ff - m_t d w^2 + k_l e_v + I_v]
+  //   Q = (r/2b)[I_eff dw_ff + m_t d w v + k_a e_w + I_w]
+  // Each product term is below 2^19 (8 N m), the integrators below 64 N m (config check): the
+  // sums cannot overflow.
   const int16_t w2_q6 = fx::hi16(fx::mul_ss(w, w));   // <= 256 (rad/s)^2
-  int32_t force = static_cast<int32_t>(f_ff_q8_) - fx::mul16<16>(w2_q6, cfg_.mtd_q18) +
-                  fx::mul16<12>(e_v, cfg_.k_l_q8) + fx::asr<8>(i_v_q16_ + 128);
-  CTL_PROBE(4);
-  // M (Q12 N m) = I_eff dw_ff + m_t d w v + k_a e_w + I_w, saturated at +-8 N m (int16): far
-  // beyond what the wheels can take (stall torque 0.77 N m is M = 4.4 N m with both wheels).
   const int16_t wv_q7 = fx::hi16(fx::mul_ss(w, v));   // |w v| <= 128
-  const int16_t moment = fx::sat16(static_cast<int32_t>(m_ff_q12_) + fx::mul16<13>(wv_q7, cfg_.mtd_q18) +
-                                   fx::mul16<10>(e_w, cfg_.k_a_q12) + fx::asr<4>(i_w_q16_ + 8));
-  // |F| is bounded by its terms (< 2^22 Q8); keep it there explicitly.
-  force = fx::clamp32(force, 0x3FFFFFL);  // 16384 N
-
+  const int32_t p = p_ff_q16_ - fx::mul16<13>(w2_q6, cfg_.g_c_q23) + fx::mul16<11>(e_v, cfg_.g_l_q15) +
+                    fx::rshift_round_nc<8>(j_v_q24_);
+  CTL_PROBE(4);
+  const int32_t q = q_ff_q16_ + fx::mul16<11>(wv_q7, cfg_.g_cv_q20) + fx::mul16<12>(e_w, cfg_.g_a_q18) +
+                    fx::rshift_round_nc<8>(j_w_q24_);
   CTL_PROBE(5);
-  // Split: tau = (r/2)(F +- M/b), Q16 N m. F +- M/b is taken in Q7 N, saturated at +-256 N
-  // (4.7 N m of wheel torque, six times the stall torque: the duty saturates long before).
-  // |F| < 2^22 and |M/b| < 2^18 (Q8): the sums and their rounding cannot overflow.
-  const int32_t m_over_b_q8 = fx::mul16<12>(moment, cfg_.inv_b_q8);  // Q20 -> Q8 N
-  const int16_t sum_r_q7 = fx::sat16(fx::rshift_round_nc<1>(force + m_over_b_q8));
-  const int16_t sum_l_q7 = fx::sat16(fx::rshift_round_nc<1>(force - m_over_b_q8));
-  const int32_t tau_r = fx::mul16<7>(sum_r_q7, cfg_.half_r_q16);
-  const int32_t tau_l = fx::mul16<7>(sum_l_q7, cfg_.half_r_q16);
+  const int32_t tau_r = p + q;
+  const int32_t tau_l = p - q;
 
   CTL_PROBE(6);
   const int32_t lim_r = cfg_.clamp_enabled ? out_.tau_max_r_q16 : cfg_.tau_big_q16;
@@ -167,22 +141,29 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   const int8_t s_l = (out_.clamped_l || out_.sat_l) ? sign32(tau_l) : 0;
   if (dt_us > 0 && dt_us < 500000UL) {  // integrate only for 0 < dt < 0.5 s
     CTL_PROBE(9);
-    if (dt_us != kdt_dt_us_) update_kdt(dt_us);
-    CTL_PROBE(10);
     const int8_t sv = sign16(e_v), sw = sign16(e_w);
     const bool block_v = (s_r != 0 && s_r == sv) || (s_l != 0 && s_l == sv);
     const bool block_w = (s_r != 0 && s_r == sw) || (s_l != 0 && s_l == -sw);
-    if (!block_v) {
-      const int32_t inc_q16 = kdt_fast_
-          ? fx::rshift_round_nc<11>(fx::mul_ss(e_v, kdt_v_q15_))                  // Q12*Q15 -> Q16
-          : fx::rshift_round<4>(fx::mul32x16<16>(fx::mul_ss(e_v, cfg_.k_il_q8), dt_q16_));
-      i_v_q16_ = fx::clamp32(fx::add_sat32(i_v_q16_, inc_q16), cfg_.integ_max_v_q16);
-    }
-    if (!block_w) {
-      const int32_t inc_q16 = kdt_fast_
-          ? fx::rshift_round_nc<12>(fx::mul_ss(e_w, kdt_w_q18_))                  // Q10*Q18 -> Q16
-          : fx::rshift_round<6>(fx::mul32x16<16>(fx::mul_ss(e_w, cfg_.k_ia_q12), dt_q16_));
-      i_w_q16_ = fx::clamp32(fx::add_sat32(i_w_q16_, inc_q16), cfg_.integ_max_w_q16);
+    if (!block_v || !block_w) {
+      // dt in Q16 s = dt_us * 4295 / 65536 (error 8e-6 relative); for dt < 65.5 ms a 16x16
+      // product. dt changes nearly every step in the firmware: nothing is cached.
+      const int16_t dt_q16 = dt_us < 65536UL ? fx::hi16(fx::mul_us(static_cast<uint16_t>(dt_us), 4295))
+                                             : static_cast<int16_t>((dt_us * 4295UL) >> 16);
+      CTL_PROBE(10);
+      if (!block_v) {  // J_v += (r/2) k_il dt e_v
+        const int32_t kdt_q20 = fx::rshift_round_nc<11>(fx::mul_ss(cfg_.g_il_q15, dt_q16));  // Q31 -> Q20
+        const int32_t inc_q24 = kdt_q20 <= INT16_MAX
+            ? fx::rshift_round_nc<8>(fx::mul_ss(e_v, static_cast<int16_t>(kdt_q20)))      // Q32 -> Q24
+            : fx::rshift_round<3>(fx::mul32x16<16>(fx::mul_ss(e_v, cfg_.g_il_q15), dt_q16));  // Q27 -> Q24
+        j_v_q24_ = fx::clamp32(fx::add_sat32(j_v_q24_, inc_q24), cfg_.jmax_v_q24);
+      }
+      if (!block_w) {  // J_w += (r/2b) k_ia dt e_w
+        const int32_t kdt_q24 = fx::rshift_round_nc<10>(fx::mul_ss(cfg_.g_ia_q18, dt_q16));  // Q34 -> Q24
+        const int32_t inc_q24 = kdt_q24 <= INT16_MAX
+            ? fx::rshift_round_nc<10>(fx::mul_ss(e_w, static_cast<int16_t>(kdt_q24)))     // Q34 -> Q24
+            : fx::rshift_round<4>(fx::mul32x16<16>(fx::mul_ss(e_w, cfg_.g_ia_q18), dt_q16));  // Q28 -> Q24
+        j_w_q24_ = fx::clamp32(fx::add_sat32(j_w_q24_, inc_q24), cfg_.jmax_w_q24);
+      }
     }
   }
   CTL_PROBE(0);

@@ -3,7 +3,9 @@
 //   positions Q20 m (int32), heading binary angle (uint32), position errors Q12 m (int16, +-8 m)
 //   v Q12 m/s, omega Q11 rad/s, wheel speeds Q8 rad/s (int16)
 //   dv_ff Q12 m/s^2, domega_ff Q11 rad/s^2 (int16)
-//   force F Q8 N (int32), moment M Q12 N m (int16, +-8 N m), F +- M/b Q7 N (int16); integrators Q16
+//   the velocity loop works in wheel-torque units: P = (r/2) F and Q = (r/2b) M, Q16 N m (int32),
+//   so that the split is tau_r = P + Q, tau_l = P - Q (no multiply); its integrators are kept
+//   as (r/2) I_v and (r/2b) I_w in Q24 N m (integ_v_q16()/integ_w_q16() convert back to N, N m)
 //   wheel torques and tau_max Q16 N m (int32, the format of slip::tau_max_q16); duty Q15 (int16)
 // Every intermediate is saturated; no input in range can overflow (see test_control_fixed).
 #ifndef CONTROL_CASCADE_Q_H
@@ -41,6 +43,17 @@ struct ControlConfigQ {
   int16_t v_max_q12, omega_max_q11;
   int32_t integ_max_v_q16, integ_max_w_q16;
   int32_t tau_big_q16;               // sanity limit when the clamp is off (10 stall)
+  // The velocity loop in wheel-torque units (P = (r/2) F, Q = (r/2b) M):
+  int16_t g_l_q15;                   // (r/2) k_l             N m s/m
+  int16_t g_a_q18;                   // (r/2b) k_a            N m s
+  int16_t g_c_q23;                   // (r/2) m_t d           kg m^2
+  int16_t g_cv_q20;                  // (r/2b) m_t d          kg m^2 / m
+  int16_t g_ffv_q18;                 // (r/2) m_eff           kg m
+  int16_t g_ffw_q21;                 // (r/2b) I_eff          kg m^2
+  int16_t g_il_q15;                  // (r/2) k_il            N m/m
+  int16_t g_ia_q18;                  // (r/2b) k_ia           N m
+  int32_t jmax_v_q24, jmax_w_q24;    // integrator bounds (r/2) I_v,max and (r/2b) I_w,max, N m
+  int32_t two_over_r_q16, two_b_over_r_q16;  // to report the integrators in N and N m
   bool clamp_enabled;
   bool ok;
 
@@ -59,6 +72,18 @@ struct ControlConfigQ {
         v_max_q12(q16c(c.v_max_m_s, 12)), omega_max_q11(q16c(c.omega_max_rad_s, 11)),
         integ_max_v_q16(fx::q_const(c.integ_max_n, 16)), integ_max_w_q16(fx::q_const(c.integ_max_nm, 16)),
         tau_big_q16(fx::q_const(10.0 * c.motor.stall_nm, 16)),
+        g_l_q15(q16c(c.robot.r / 2.0 * c.gains.k_l, 15)),
+        g_a_q18(q16c(c.robot.r / (2.0 * c.robot.b) * c.gains.k_a, 18)),
+        g_c_q23(q16c(c.robot.r / 2.0 * c.robot.m_t() * c.robot.d, 23)),
+        g_cv_q20(q16c(c.robot.r / (2.0 * c.robot.b) * c.robot.m_t() * c.robot.d, 20)),
+        g_ffv_q18(q16c(c.robot.r / 2.0 * c.m_eff_kg, 18)),
+        g_ffw_q21(q16c(c.robot.r / (2.0 * c.robot.b) * c.I_eff_kgm2, 21)),
+        g_il_q15(q16c(c.robot.r / 2.0 * c.gains.k_il, 15)),
+        g_ia_q18(q16c(c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia, 18)),
+        jmax_v_q24(fx::q_const(c.robot.r / 2.0 * c.integ_max_n, 24)),
+        jmax_w_q24(fx::q_const(c.robot.r / (2.0 * c.robot.b) * c.integ_max_nm, 24)),
+        two_over_r_q16(fx::q_const(2.0 / c.robot.r, 16)),
+        two_b_over_r_q16(fx::q_const(2.0 * c.robot.b / c.robot.r, 16)),
         clamp_enabled(c.clamp_enabled),
         ok(OdometryConfigQ::ok_range(OdometryConfig{static_cast<float>(c.robot.r), static_cast<float>(c.robot.b),
                                                     c.counts_per_rev}) &&
@@ -69,7 +94,14 @@ struct ControlConfigQ {
            fits16(1.0 / c.motor.stall_nm, 13) && c.motor.stall_nm * 10.0 < 7.99 && fits16(1.0 / c.motor.no_load_rad_s, 20) &&
            fits16(c.v_max_m_s, 12) && fits16(c.omega_max_rad_s, 11) && c.gains.k_x >= 0 &&
            c.gains.k_y >= 0 && c.gains.k_phi >= 0 && c.gains.k_l >= 0 && c.gains.k_a >= 0 &&
-           c.gains.k_il >= 0 && c.gains.k_ia >= 0) {}
+           c.gains.k_il >= 0 && c.gains.k_ia >= 0 &&
+           fits16(c.robot.r / 2.0 * c.gains.k_l, 15) && fits16(c.robot.r / (2.0 * c.robot.b) * c.gains.k_a, 18) &&
+           fits16(c.robot.r / 2.0 * c.robot.m_t() * c.robot.d, 23) &&
+           fits16(c.robot.r / (2.0 * c.robot.b) * c.robot.m_t() * c.robot.d, 20) &&
+           fits16(c.robot.r / 2.0 * c.m_eff_kg, 18) && fits16(c.robot.r / (2.0 * c.robot.b) * c.I_eff_kgm2, 21) &&
+           fits16(c.robot.r / 2.0 * c.gains.k_il, 15) && fits16(c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia, 18) &&
+           c.robot.r / 2.0 * c.integ_max_n < 64.0 && c.robot.r / (2.0 * c.robot.b) * c.integ_max_nm < 64.0 &&
+           2.0 / c.robot.r < 32000.0 && 2.0 * c.robot.b / c.robot.r < 32000.0) {}
 
   static constexpr bool fits16(double v, int shift) {
     return v * fx::pow2(shift) < 32767.0 && v * fx::pow2(shift) > -32768.0;
@@ -108,8 +140,10 @@ class ControllerQ {
   const OdometryQ& odometry() const { return odo_; }
   const KinematicOutQ& kinematic() const { return kin_; }
   const InnerOutQ& inner() const { return out_; }
-  int32_t integ_v_q16() const { return i_v_q16_; }
-  int32_t integ_w_q16() const { return i_w_q16_; }
+  /// The velocity-loop integrators I_v (N) and I_w (N m), Q16 (converted from the wheel-torque
+  /// units they are kept in; within +-integ_max).
+  int32_t integ_v_q16() const { return j_to_q16(j_v_q24_, cfg_.two_over_r_q16, cfg_.integ_max_v_q16); }
+  int32_t integ_w_q16() const { return j_to_q16(j_w_q24_, cfg_.two_b_over_r_q16, cfg_.integ_max_w_q16); }
   bool config_ok() const { return cfg_.ok; }
 
  private:
@@ -117,15 +151,13 @@ class ControllerQ {
   OdometryQ odo_;
   KinematicOutQ kin_;
   InnerOutQ out_;
-  void update_kdt(uint32_t dt_us);
+  static int32_t j_to_q16(int32_t j_q24, int32_t scale_q16, int32_t lim_q16) {
+    const int64_t x = (static_cast<int64_t>(j_q24) * scale_q16) / 16777216;
+    return static_cast<int32_t>(x > lim_q16 ? lim_q16 : (x < -lim_q16 ? -lim_q16 : x));
+  }
 
-  int16_t dv_ff_q12_, dw_ff_q11_;
-  int16_t f_ff_q8_, m_ff_q12_;     // m_eff dv_ff (N, Q8), I_eff dw_ff (N m, Q12)
-  int32_t i_v_q16_, i_w_q16_;
-  uint32_t kdt_dt_us_;             // dt the cached integrator gains belong to
-  int16_t kdt_v_q15_, kdt_w_q18_;  // k_il dt, k_ia dt
-  int16_t dt_q16_;
-  bool kdt_fast_;
+  int32_t p_ff_q16_, q_ff_q16_;    // (r/2) m_eff dv_ff, (r/2b) I_eff dw_ff: from the outer step
+  int32_t j_v_q24_, j_w_q24_;      // (r/2) I_v, (r/2b) I_w
 };
 
 }  // namespace ctl
