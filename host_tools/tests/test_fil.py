@@ -115,6 +115,27 @@ def test_encoder_counts_equal_plant_wheel_angles(run48):
     print(f"\nencoder: {n_checked} frame counts vs plant angle, worst {worst:.3f} counts")
 
 
+def test_motor_outputs_read_back_as_the_commanded_duty(run48):
+    # the duty the simulator reads from OCR3C/OCR1A, COM bits and DIR/BRAKE pins equals the duty
+    # the firmware reports (pwm_r/l, its Q15 command) within one PWM count: fast PWM gives
+    # (OCR + 1) / (TOP + 1), the firmware's map sets OCR = round(800 |d|) (+1/800 on average today)
+    out, _, _ = run48
+    tel = csv(out / "telemetry.csv")
+    pl = csv(out / "plant.csv")
+    run = ((tel["status"].astype(int) & RUNNING) != 0) & (np.abs(tel["pwm_r"]) > 0.05) & (np.abs(tel["pwm_r"]) < 0.95)
+    assert run.sum() > 30
+    k = np.searchsorted(pl["t_s"], tel["t_s"][run])  # the plant step after the frame
+    for w in ("r", "l"):
+        d = pl[f"duty_{w}"][k] - tel[f"pwm_{w}"][run]
+        # a duty set just before the frame reaches the plant at the next step: skip those
+        d = d[np.abs(d) < 0.01]
+        assert d.size > 0.8 * run.sum()
+        # bound: OCR is a whole count (+-0.5/800), the +1 count, the telemetry's 1e-4 resolution
+        assert np.all(np.abs(d) <= 1.5 / 800 + 1e-4), np.abs(d).max()
+        print(f"\nduty read from the timers - duty reported by the firmware ({w}): median {np.median(d) * 800:+.2f}"
+              " PWM counts", end="")
+
+
 def test_no_task_overran_and_cycles_reported(run48):
     out, _, s = run48
     tel = csv(out / "telemetry.csv")

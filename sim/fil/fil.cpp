@@ -97,6 +97,7 @@ struct Options {
     double silent_after_run = -1.0, hang_after_run = -1.0;  // ... relative to the experiment start
     unsigned seed = 1;
     int plant_log_every = 1;
+    bool pwm_ideal = false;        // duty = OCR / (TOP + 1) instead of the hardware's (OCR + 1) / (TOP + 1)
 };
 Options opt;
 
@@ -127,7 +128,9 @@ void usage() {
         "                       the same, S seconds after the first telemetry frame that reports\n"
         "                       an experiment running\n"
         "  --seed N             random seed (default 1)\n"
-        "  --plant-log-every N  plant.csv row every N plant steps (default 1)\n");
+        "  --plant-log-every N  plant.csv row every N plant steps (default 1)\n"
+        "  --pwm-model hardware|ideal  fast PWM duty (OCR+1)/(TOP+1) as the ATmega2560 makes it\n"
+        "                       (default), or OCR/(TOP+1) as the firmware's torque->PWM map assumes\n");
 }
 
 double num(const char* s, const char* what) {
@@ -189,6 +192,12 @@ void parse(int argc, char** argv) {
         else if (a == "--hang-at") opt.hang_at = nonneg(val());
         else if (a == "--host-silent-after-start") opt.silent_after_run = nonneg(val());
         else if (a == "--hang-after-start") opt.hang_after_run = nonneg(val());
+        else if (a == "--pwm-model") {
+            std::string m = val();
+            if (m == "hardware") opt.pwm_ideal = false;
+            else if (m == "ideal") opt.pwm_ideal = true;
+            else die("--pwm-model: '%s' is not hardware or ideal", m.c_str());
+        }
         else if (a == "--seed") opt.seed = static_cast<unsigned>(nonneg(val()));
         else if (a == "--plant-log-every") { opt.plant_log_every = static_cast<int>(num(val(), a.c_str())); if (opt.plant_log_every < 1) die("--plant-log-every must be >= 1"); }
         else if (a.size() > 1 && a[0] == '-') die("unknown option %s (see --help)", a.c_str());
@@ -378,7 +387,8 @@ double channel_duty(int w) {
     if (com) {
         double top = rd16(right ? kICR3 : kICR1);
         double ocr = rd16(right ? kOCR3C : kOCR1A);
-        mag = ocr >= top ? 1.0 : (ocr + 1.0) / (top + 1.0);
+        if (opt.pwm_ideal) mag = ocr >= top + 1 ? 1.0 : ocr / (top + 1.0);
+        else mag = ocr >= top ? 1.0 : (ocr + 1.0) / (top + 1.0);
     } else {
         uint8_t port = avr->data[right ? kPORTE : kPORTB];
         mag = (port & (1 << 5)) ? 1.0 : 0.0;  // PE5 / PB5 as a plain output
@@ -835,7 +845,7 @@ void write_summary(double wall_s) {
     fprintf(f, "]},\n  \"groundtruth\": {\"rate_hz\": %g, \"noise_xy_m\": %g, \"noise_phi_rad\": %g, \"dropout\": %g, "
                "\"rows\": %lu, \"missing\": %lu},\n",
             opt.cam_rate, opt.cam_xy, opt.cam_phi, opt.cam_dropout, gt_rows, gt_missing);
-    fprintf(f, "  \"seed\": %u\n}\n", opt.seed);
+    fprintf(f, "  \"pwm_model\": \"%s\",\n  \"seed\": %u\n}\n", opt.pwm_ideal ? "ideal" : "hardware", opt.seed);
     fclose(f);
 }
 
