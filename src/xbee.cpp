@@ -22,10 +22,19 @@ ISR(USART2_RX_vect) {
     if (!g_rx.push(b) && g_rx_overflows != 0xFFFFu) g_rx_overflows = g_rx_overflows + 1;
 }
 
+// UDRE is level-triggered (set while UDR2 is empty), so this ISR masks itself (UDRIE2 off)
+// before it re-enables interrupts: encoder edges then wait only for the prologue. Nothing else
+// can set UDRIE2 meanwhile -- xbee_write() runs in the main loop, which cannot run until this
+// ISR returns -- so the ring keeps a single consumer.
 ISR(USART2_UDRE_vect) {
+    UCSR2B &= static_cast<uint8_t>(~_BV(UDRIE2));
+    sei();
     uint8_t b;
-    if (g_tx.pop(&b)) UDR2 = b;
-    else UCSR2B &= static_cast<uint8_t>(~_BV(UDRIE2));  // empty: stop until the next write
+    if (g_tx.pop(&b)) {
+        UDR2 = b;
+        cli();
+        UCSR2B |= _BV(UDRIE2);  // more may follow; an empty ring is found on the next entry
+    }
 }
 
 void xbee_init() {
