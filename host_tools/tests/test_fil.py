@@ -240,6 +240,25 @@ def run_r(out: Path) -> float:
     return float(json.loads((out / "meta.json").read_text())["robot"]["r"])
 
 
+def test_arc_left_turns_left_wiring_and_signs(elf, sim, tmp_path):
+    # a straight line cannot tell the wheels apart: a left arc (radius +0.5 m) must turn the
+    # plant counter-clockwise, with the right wheel (OCR3C/PB6, encoder on PD2/PD3) faster, and
+    # the firmware's odometry heading must follow the true heading
+    out = tmp_path / "arc"
+    exp = {"profile": "arc", "wheel_accel": 20.0, "accel_time": 0.5, "duration": 1.5, "radius": 0.5}
+    code, lg, s = fil.record(out, elf, exp, clamp=True)
+    assert code == 0, lg.end_reason
+    run = runfmt.load_run(out)
+    tel, gt = run.telemetry, run.groundtruth
+    running = ((tel["status"].astype(int) & RUNNING) != 0) & (tel["t_s"] > tel["t_s"][0] + 0.1)
+    t, phi = tel["t_s"][running], tel["phi_odo_rad"][running]
+    assert gt["phi_rad"][-1] > 0.6 and np.all(np.diff(gt["phi_rad"][gt["t_s"] < t[-1]]) > -1e-6)
+    assert tel["enc_r"][running][-1] > 1.4 * tel["enc_l"][running][-1] > 0
+    early = np.interp(t - 0.03, gt["t_s"], gt["phi_rad"]) - 0.005
+    late = np.interp(t, gt["t_s"], gt["phi_rad"]) + 0.005
+    assert np.all((phi >= early) & (phi <= late)), float(np.max(np.maximum(early - phi, phi - late)))
+
+
 def test_host_silent_motors_stop_within_500ms(elf, sim, tmp_path):
     out = tmp_path / "silent"
     code, lg, s = fil.record(out, elf, straight(48.0, 3.0), clamp=True, args=["--host-silent-after-start", "0.4"])
