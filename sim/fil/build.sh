@@ -24,6 +24,6 @@ g++ -std=c++14 -O2 -Wall -Wextra \
     -I"$simavr/include" -I"$simavr/include/simavr" \
     -I"$root/lib/slipmodel/src" -I"$root/lib/protocol/src" -I"$root/include" \
     -o "$out/fil.tmp" $srcs \
-    -L"$libdir" -Wl,-rpath,"$libdir" -lsimavr -lelf
+    -L"$libdir" -Wl,-rpath,"$libdir" -lsimavr  # (libsimavr brings its own libelf dependency; fil.cpp reads ELF symbols itself)
 mv "$out/fil.tmp" "$out/fil"
 echo "$out/fil"
