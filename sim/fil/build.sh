@@ -15,8 +15,9 @@ libdir="$simavr/lib/x86_64-linux-gnu"
 out="$root/.build/fil"
 mkdir -p "$out"
 srcs="$root/sim/fil/fil.cpp $root/lib/slipmodel/src/slipmodel/*.cpp $root/lib/protocol/src/protocol/*.cpp"
-# rebuild only when a source is newer than the binary
-if [ -x "$out/fil" ] && [ -z "$(find $srcs "$root/include/board.h" "$0" -newer "$out/fil" 2>/dev/null)" ]; then
+# rebuild only when a source or header (or this script) is newer than the binary
+deps="$root/sim/fil $root/lib/slipmodel/src $root/lib/protocol/src $root/include/board.h"
+if [ -x "$out/fil" ] && [ -z "$(find $deps -newer "$out/fil" 2>/dev/null)" ]; then
     echo "$out/fil"
     exit 0
 fi
