@@ -71,7 +71,7 @@ inline uint32_t checksum_step(uint32_t h, const ctl::ControllerQ& q, const ctl::
 // host replay therefore uses the AVR's values).
 #define BENCH_CFG_FIELDS(X)                                                                     \
   X(odo.ds_per_count_q44) X(odo.dphi_per_count_b32) X(odo.dphi_per_count_frac)                  \
-  X(odo.wheel_rate_q11) X(odo.half_r_q16) X(odo.r_over_2b_q15) X(odo.ok)                        \
+  X(odo.wheel_rate_q11) X(odo.half_r_q16) X(odo.r_over_2b_q15) X(odo.inv_rate_q32) X(odo.ok)                        \
   X(traction.n_wheel0_q16) X(traction.n_wheels_q16) X(traction.n_c_q16)                         \
   X(traction.lat_gain_q24) X(traction.k_tau_q24) X(k_x_q8) X(k_y_q8) X(k_phi_q8) X(k_l_q8)      \
   X(k_a_q12) X(k_il_q8) X(k_ia_q12) X(m_eff_q12) X(I_eff_q17) X(m_t_q8) X(mtd_q16) X(mtd_q18)   \

@@ -225,6 +225,59 @@ void test_wheel_speed_III_1() {
   CHECK_NEAR(2 * kPi * -10 / (kPpr * 0.01), oq.omega_l_q8() / 256.0, 1.0 / 256, "fixed w_l, 10 ms");
 }
 
+// dt measured in microseconds changes every step in the firmware: within +-63 us of the last
+// divided dt the rate per count is updated to first order (no division). Wheel speeds must
+// stay within the same 1/256 rad/s of the exact value as with the division, for dt around
+// the whole fast range (13.6 to 32 ms) and beyond (where the division runs again).
+void test_wheel_speed_with_dt_jitter() {
+  srand(7);
+  const uint32_t centres[] = {13600, 20000, 25000, 32000};
+  double worst = 0;
+  for (uint32_t c : centres) {
+    OdometryQ oq(kCfgQ);
+    int32_t er = 0, el = 0;
+    for (int k = 0; k < 4000; ++k) {
+      const int32_t jit = (k % 50 == 49) ? 400 : 63;  // occasionally beyond the linear window
+      const uint32_t dt = static_cast<uint32_t>(static_cast<int32_t>(c) + rand() % (2 * jit + 1) - jit);
+      const int32_t dr = rand() % 541 - 270, dl = rand() % 541 - 270;
+      er += dr;
+      el += dl;
+      oq.update_deferred(er, el, dt);
+      const double wr = 2 * kPi * dr / (kPpr * (dt * 1e-6)), wl = 2 * kPi * dl / (kPpr * (dt * 1e-6));
+      worst = fmax(worst, fmax(fabs(wr - oq.omega_r_q8() / 256.0), fabs(wl - oq.omega_l_q8() / 256.0)));
+      if (k % 2) (void)oq.pose();  // as the outer step does
+    }
+  }
+  printf("wheel speeds with dt jitter: max |fixed - exact| %.2e rad/s (bound 1/256 = 3.9e-3)\n", worst);
+  TEST_ASSERT_TRUE(worst <= 1.0 / 256);
+}
+
+// Deferring the arcs (update_deferred, integrated when the pose is read) gives exactly the
+// pose of integrating at every update, whatever the reading pattern.
+void test_deferred_pose_is_identical() {
+  srand(11);
+  OdometryQ a(kCfgQ), b(kCfgQ);
+  int32_t er = 0, el = 0;
+  for (int k = 0; k < 5000; ++k) {
+    er += rand() % 541 - 270;
+    el += rand() % 541 - 270;
+    const uint32_t dt = 25000 + rand() % 41 - 20;
+    a.update(er, el, dt);
+    b.update_deferred(er, el, dt);
+    TEST_ASSERT_TRUE(b.pending() <= OdometryQ::kMaxPending);
+    TEST_ASSERT_EQUAL_INT16(a.omega_r_q8(), b.omega_r_q8());
+    TEST_ASSERT_EQUAL_INT16(a.v_q12(), b.v_q12());
+    if (rand() % 3 == 0) {  // read at irregular times (also not at all for several steps)
+      TEST_ASSERT_EQUAL_INT32(a.pose().x_q20, b.pose().x_q20);
+      TEST_ASSERT_EQUAL_INT32(a.pose().y_q20, b.pose().y_q20);
+      TEST_ASSERT_EQUAL_UINT32(a.pose().phi_b32, b.pose().phi_b32);
+      TEST_ASSERT_EQUAL_UINT8(0, b.pending());
+    }
+  }
+  TEST_ASSERT_EQUAL_INT32(a.pose().x_q20, b.pose().x_q20);
+  TEST_ASSERT_TRUE(a.pose().x_q20 != 0 || a.pose().y_q20 != 0);
+}
+
 void test_bad_input_is_reported_and_finite() {
   Odometry of(kCfg);
   OdometryQ oq(kCfgQ);
@@ -277,6 +330,8 @@ int main() {
   RUN_TEST(test_random_profiles);
   RUN_TEST(test_count_wraparound);
   RUN_TEST(test_wheel_speed_III_1);
+  RUN_TEST(test_wheel_speed_with_dt_jitter);
+  RUN_TEST(test_deferred_pose_is_identical);
   RUN_TEST(test_bad_input_is_reported_and_finite);
   RUN_TEST(test_fixed_vs_float_ten_minutes);
   return UNITY_END();

@@ -88,9 +88,9 @@ void OdometryQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
   phi_frac_ = 0;
   x_frac_ = y_frac_ = 0;
   n_pending_ = 0;
-  last_dt_us_ = 0;
+  last_dt_us_ = div_dt_us_ = 0;
   rate_per_count_q11_ = 0;
-  rate_q10_ = 0;
+  rate_div_q10_ = slope_q12_ = rate_q10_ = 0;
   w_r_q8_ = w_l_q8_ = v_q12_ = w_q11_ = 0;
 }
 
@@ -100,11 +100,22 @@ OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
   return st;
 }
 
+// The exact rate for dt (a division), and the slope d rate / d dt = -rate / dt for the
+// first-order updates of update_deferred(): rate(dt0 + e) = rate0 (1 - e/dt0 + (e/dt0)^2 - ...);
+// dropping the square costs rate0 (e/dt0)^2 <= 65535 (63/13540)^2 = 1.4 units of Q10 at the
+// extreme (dt0 = 13.5 ms), 0.23 units at 25 ms, plus 0.5 of rounding. The slope rate0/dt0 =
+// rate0^2 / (wheel_rate_q11 / 2) needs no second division.
 void OdometryQ::set_dt(uint32_t dt_us) {
-  last_dt_us_ = dt_us;
+  div_dt_us_ = dt_us;
   rate_per_count_q11_ = static_cast<int32_t>(fx::div_u32(static_cast<uint32_t>(cfg_.wheel_rate_q11), dt_us));
   // dt >= 13.5 ms: the rate fits 16 bits in Q10 (0 = use the 32-bit path)
-  rate_q10_ = rate_per_count_q11_ < 131072L ? static_cast<uint16_t>((rate_per_count_q11_ + 1) >> 1) : 0;
+  rate_div_q10_ = rate_per_count_q11_ < 131072L ? static_cast<uint16_t>((rate_per_count_q11_ + 1) >> 1) : 0;
+  rate_q10_ = rate_div_q10_;
+  slope_q12_ = 0;
+  if (rate_div_q10_ != 0 && rate_div_q10_ < 64000U && cfg_.inv_rate_q32 != 0) {
+    const uint16_t r2_hi = static_cast<uint16_t>((static_cast<uint32_t>(rate_div_q10_) * rate_div_q10_) >> 16);
+    slope_q12_ = static_cast<uint16_t>((static_cast<uint32_t>(r2_hi) * cfg_.inv_rate_q32) >> 16);
+  }
 }
 
 void OdometryQ::integrate_pending() const {

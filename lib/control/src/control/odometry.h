@@ -80,6 +80,7 @@ struct OdometryConfigQ {
   int32_t wheel_rate_q11;      ///< 2pi / ppr * 2^8 * 1e6, Q11 (to get rad/s Q8 from counts/us)
   int16_t half_r_q16;          ///< r / 2, Q16
   int16_t r_over_2b_q15;       ///< r / (2b), Q15
+  uint16_t inv_rate_q32;       ///< 8192 / wheel_rate_q11, Q32 (0: does not fit, no linear dt update)
   bool ok;                     ///< the float configuration was valid and representable
 
   constexpr explicit OdometryConfigQ(const OdometryConfig& c)
@@ -91,7 +92,12 @@ struct OdometryConfigQ {
         half_r_q16(c.valid() && c.wheel_radius_m < 0.5f
                        ? static_cast<int16_t>(fx::q_const(c.wheel_radius_m / 2.0, 16)) : 0),
         r_over_2b_q15(ok_range(c) ? static_cast<int16_t>(fx::q_const(c.wheel_radius_m / (2.0 * c.half_track_m), 15)) : 0),
+        inv_rate_q32(c.valid() && inv_rate(c) < 65535.0 ? static_cast<uint16_t>(fx::q_const(inv_rate(c), 0)) : 0),
         ok(ok_range(c)) {}
+
+  static constexpr double inv_rate(const OdometryConfig& c) {
+    return 8192.0 / (6.283185307179586 / c.counts_per_rev * 256.0 * 1.0e6 * 2048.0) * 4294967296.0;
+  }
 
   /// r/(2b) 2pi/ppr in binary-angle units (0 for an invalid configuration).
   static constexpr double dphi_b32(const OdometryConfig& c) {
@@ -166,9 +172,12 @@ class OdometryQ {
   mutable uint8_t x_frac_, y_frac_;  // position below Q20 (Q28 residue)
   mutable uint8_t n_pending_;
   int16_t pend_r_[kMaxPending], pend_l_[kMaxPending];  // queued count increments, oldest first
-  uint32_t last_dt_us_;
-  int32_t rate_per_count_q11_;  // cached wheel_rate_q11 / dt_us
-  uint16_t rate_q10_;           // the same in Q10 when it fits 16 bits, else 0
+  uint32_t last_dt_us_;         // dt of the current rate
+  uint32_t div_dt_us_;          // dt of the last exact division
+  int32_t rate_per_count_q11_;  // wheel_rate_q11 / div_dt_us_
+  uint16_t rate_div_q10_;       // the same in Q10 when it fits 16 bits, else 0
+  uint16_t slope_q12_;          // rate_div_q10_ / div_dt_us_ (Q10 units per us, Q12); 0: none
+  uint16_t rate_q10_;           // rate for last_dt_us_ (Q10), 0: use the 32-bit path
   int16_t w_r_q8_, w_l_q8_, v_q12_, w_q11_;
 };
 
@@ -193,7 +202,19 @@ CTL_INLINE OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, ui
     st = OdoStatus::kBadDt;
   } else {
     CTL_PROBE(11);
-    if (dt_us != last_dt_us_) set_dt(dt_us);
+    if (dt_us != last_dt_us_) {
+      // dt within +-63 us of the last divided dt (the firmware's jitter): first-order update
+      // rate = rate_div - slope (dt - dt_div), error below 2 units of the Q10 rate (3e-5
+      // relative; see set_dt). Otherwise the division.
+      last_dt_us_ = dt_us;
+      const int32_t dd = static_cast<int32_t>(dt_us - div_dt_us_);
+      if (slope_q12_ != 0 && dd >= -63 && dd <= 63) {
+        rate_q10_ = static_cast<uint16_t>(
+            rate_div_q10_ - fx::rshift_round_nc<12>(fx::mul_us(slope_q12_, static_cast<int16_t>(dd))));
+      } else {
+        set_dt(dt_us);
+      }
+    }
     CTL_PROBE(12);
     if (rate_q10_ != 0 || rate_per_count_q11_ == 0) {
       // |rate dn| <= 65535 * 16383 < 2^30: no overflow in the rounding
