@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, minimize_scalar
 
 from host_tools.analyzer import effects as fx
 from host_tools.analyzer.replay import CHANNELS, FIT_CHANNELS, OpenLoopReplay, PreparedRun, channels
@@ -187,13 +187,31 @@ class Problem:
                 x0 = best
         x0 = np.clip(np.asarray(x0, float), 1e-6, 1 - 1e-6)
         try:
-            res = least_squares(fun, x0, bounds=(np.zeros(k), np.ones(k)), method="trf",
-                                diff_step=2e-3, max_nfev=max_nfev, x_scale=1.0)
-            x = res.x
-            r = res.fun
-            nfev += res.nfev
-            J = res.jac
-            ok, msg = bool(res.status > 0), str(res.message)
+            if k == 1:
+                # one parameter: bounded Brent search around the best grid point.  Robust to
+                # the cost being piecewise constant at the plant's step (delays), unlike a
+                # finite-difference gradient.
+                half = 1.0 / max(grid - 1, 1)
+                lo, hi = max(0.0, x0[0] - half), min(1.0, x0[0] + half)
+                cost = lambda v: float(np.sum(fun(np.array([v])) ** 2))  # noqa: E731
+                sol = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
+                                      options={"xatol": 2e-4, "maxiter": max_nfev})
+                x = np.array([sol.x if sol.fun <= cost(x0[0]) else x0[0]])
+                nfev += int(sol.nfev) + 1
+                r = fun(x)
+                # Jacobian for the uncertainty, with a step well above the plant's time step
+                hstep = 1e-2 if x[0] + 1e-2 <= 1 else -1e-2
+                J = ((fun(x + hstep) - r) / hstep).reshape(-1, 1)
+                nfev += 1
+                ok, msg = True, "bounded scalar search"
+            else:
+                res = least_squares(fun, x0, bounds=(np.zeros(k), np.ones(k)), method="trf",
+                                    diff_step=1e-2, max_nfev=max_nfev, x_scale=1.0)
+                x = res.x
+                r = res.fun
+                nfev += res.nfev
+                J = res.jac
+                ok, msg = bool(res.status >= 0), str(res.message)
         except Exception as exc:  # a simulation blew up: keep the best start, mark it
             x, r, J, ok, msg = x0, fun(x0), None, False, f"{type(exc).__name__}: {exc}"
         values = [p.from_x(v) for p, v in zip(params, x)]
