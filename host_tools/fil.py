@@ -169,6 +169,11 @@ def record(out: str | Path, elf: str | Path, experiment: dict | None = None, cla
     for f in ("telemetry.csv", "groundtruth.csv"):
         if (out / f).exists():
             raise FilError(f"{out / f} already exists; refusing to overwrite a recorded run")
+    if record_s is None:
+        record_s = (experiment["duration"] + 5.0) if experiment else 5.0
+    args = list(args or [])
+    if "--t-end" not in args:  # the simulator's own limit (board time) must not cut the recording
+        args += ["--t-end", f"{record_s + 10.0:g}"]
     sim = Sim(elf, out, args)
     d = P.definition()
 
@@ -176,8 +181,6 @@ def record(out: str | Path, elf: str | Path, experiment: dict | None = None, cla
         import serial
         return serial.serial_for_url(sim.pty, baudrate=d.baud, timeout=0.05, write_timeout=0.5)
 
-    if record_s is None:
-        record_s = (experiment["duration"] + 5.0) if experiment else 5.0
     lg = FilLogger(str(out), open_port, sim.pty, d.baud, experiment=experiment, clamp=clamp, mu=mu,
                    record_s=record_s, status=False, d=d,
                    fil_meta={"command": sim.cmd[1:], "elf": str(elf)})
