@@ -222,7 +222,7 @@ def sparse_hint(preps, chans_per_run) -> dict | None:
 
 
 def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | None = None,
-            dt_s: float = 5e-4, pairs_top: int = 4,
+            dt_s: float = 5e-4, pairs_top: int = 5,
             log: Callable[[str], None] = _log) -> Analysis:
     t_start = time.time()
     runs = [runfmt.load_run(p) for p in run_dirs]
@@ -301,7 +301,9 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
         remaining = _remaining_windows(problem, final_effects, fit_chans)
         nrms1 = math.sqrt(_excess(problem, final_effects))
         if not final_effects or remaining or nrms1 > EXPLAINED_RMS:
-            ranked = [c.effects[0] for c in cands if c.checks.get("bic")][:pairs_top]
+            # the best singles by BIC, accepted or not: in a pair case each single may fail
+            # (the other effect spoils its held-out error) while the pair passes
+            ranked = [c.effects[0] for c in cands if c.fit.rss < rss0][:pairs_top]
             if best_single is not None and best_single.effects[0] not in ranked:
                 ranked = [best_single.effects[0]] + ranked[:pairs_top - 1]
             import itertools

@@ -197,9 +197,14 @@ class OpenLoopReplay:
         out = plant.simulate(fine, in_r, in_l, mode=self.mode, dt_s=h * 1.000001,
                              start_pose=prep.start_pose)
         ts = np.asarray(out["t_s"], float)
-        res = {k: np.interp(grid, ts, np.asarray(v, float)) for k, v in out.items()}
+        res = {k: np.interp(grid, ts, np.asarray(v, float)) for k, v in out.items()
+               if k in _NEEDED}
         res["t_s"] = grid.copy()
         return res
+
+
+_NEEDED = {"x_m", "y_m", "phi_rad", "theta_r_rad", "theta_l_rad", "dtheta_r_rad_s",
+           "dtheta_l_rad_s", "tau_r_nm", "tau_l_nm", "v_m_s", "omega_rad_s", "slip_r", "slip_l"}
 
 
 class ClosedLoopReplay:
