@@ -55,6 +55,7 @@ def report_dict(an: Analysis) -> dict:
         "candidates": cands,
         "fit": an.fit_table,
         "hint": an.hint,
+        "torque_replay_mismatch": an.torque_mismatch,
         "notes": an.notes,
         "runs": [r.path for r in an.runs],
         "heldout_rmse_units": "candidates' heldout_rmse_* are normalized: RMS of residual / "
