@@ -14,6 +14,14 @@ CTL_INLINE int16_t q16_to_q12_toward_zero(int32_t x) {
   return static_cast<int16_t>(fx::asr<4>(x + (x < 0 ? 15 : 0)));
 }
 CTL_INLINE int8_t sign32(int32_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
+// Clamp to [-lim, lim] (lim >= 0), *clamped when it acted.
+CTL_INLINE int32_t clamp_flag(int32_t x, int32_t lim, bool* clamped) {
+  if (x > lim) { *clamped = true; return lim; }
+  const int32_t nlim = -lim;
+  if (x < nlim) { *clamped = true; return nlim; }
+  *clamped = false;
+  return x;
+}
 CTL_INLINE int8_t sign16(int16_t x) { return x > 0 ? 1 : (x < 0 ? -1 : 0); }
 // Duty Q15 from u (|u| < 2^31): clamped to +-32767, *sat when |u| >= 32767.
 CTL_INLINE int16_t duty_q15(int32_t u, bool* sat) {
@@ -118,10 +126,8 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   CTL_PROBE(6);
   const int32_t lim_r = cfg_.clamp_enabled ? out_.tau_max_r_q16 : cfg_.tau_big_q16;
   const int32_t lim_l = cfg_.clamp_enabled ? out_.tau_max_l_q16 : cfg_.tau_big_q16;
-  out_.tau_r_q16 = fx::clamp32(tau_r, lim_r);
-  out_.tau_l_q16 = fx::clamp32(tau_l, lim_l);
-  out_.clamped_r = out_.tau_r_q16 != tau_r;
-  out_.clamped_l = out_.tau_l_q16 != tau_l;
+  out_.tau_r_q16 = clamp_flag(tau_r, lim_r, &out_.clamped_r);
+  out_.tau_l_q16 = clamp_flag(tau_l, lim_l, &out_.clamped_l);
 
   CTL_PROBE(7);
   // Duty u = tau/stall + dtheta/no_load (Q15), saturated. |tau| <= 10 stall < 8 N m, so the
@@ -155,14 +161,14 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
         const int32_t inc_q24 = kdt_q20 <= INT16_MAX
             ? fx::rshift_round_nc<8>(fx::mul_ss(e_v, static_cast<int16_t>(kdt_q20)))      // Q32 -> Q24
             : fx::rshift_round<3>(fx::mul32x16<16>(fx::mul_ss(e_v, cfg_.g_il_q15), dt_q16));  // Q27 -> Q24
-        j_v_q24_ = fx::clamp32(fx::add_sat32(j_v_q24_, inc_q24), cfg_.jmax_v_q24);
+        j_v_q24_ = fx::clamp32(j_v_q24_ + inc_q24, cfg_.jmax_v_q24);  // |J| < 2^30, |inc| <= 2^28
       }
       if (!block_w) {  // J_w += (r/2b) k_ia dt e_w
         const int32_t kdt_q24 = fx::rshift_round_nc<10>(fx::mul_ss(cfg_.g_ia_q18, dt_q16));  // Q34 -> Q24
         const int32_t inc_q24 = kdt_q24 <= INT16_MAX
             ? fx::rshift_round_nc<10>(fx::mul_ss(e_w, static_cast<int16_t>(kdt_q24)))     // Q34 -> Q24
             : fx::rshift_round<4>(fx::mul32x16<16>(fx::mul_ss(e_w, cfg_.g_ia_q18), dt_q16));  // Q28 -> Q24
-        j_w_q24_ = fx::clamp32(fx::add_sat32(j_w_q24_, inc_q24), cfg_.jmax_w_q24);
+        j_w_q24_ = fx::clamp32(j_w_q24_ + inc_q24, cfg_.jmax_w_q24);
       }
     }
   }

@@ -154,10 +154,11 @@ class OdometryQ {
  private:
   /// Modulo-2^32 count increment, clamped to +-kMaxStepCounts (sets *jumped then).
   static CTL_INLINE int16_t count_step_q(int32_t now, int32_t last, bool* jumped) {
-    const int32_t d = static_cast<int32_t>(static_cast<uint32_t>(now) - static_cast<uint32_t>(last));
-    if (d > kMaxStepCounts) { *jumped = true; return static_cast<int16_t>(kMaxStepCounts); }
-    if (d < -kMaxStepCounts) { *jumped = true; return static_cast<int16_t>(-kMaxStepCounts); }
-    return static_cast<int16_t>(d);
+    const uint32_t d = static_cast<uint32_t>(now) - static_cast<uint32_t>(last);
+    // in range iff d + kMax (mod 2^32) <= 2 kMax: one unsigned compare
+    if (d + static_cast<uint32_t>(kMaxStepCounts) <= 2UL * kMaxStepCounts) return static_cast<int16_t>(d);
+    *jumped = true;
+    return static_cast<int16_t>(static_cast<int32_t>(d) > 0 ? kMaxStepCounts : -kMaxStepCounts);
   }
   /// New dt: the cached wheel rate per count (a division).
   void set_dt(uint32_t dt_us);
