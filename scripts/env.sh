@@ -10,6 +10,9 @@ export PLATFORMIO_DISABLE_PROGRESSBAR=true
 # host programs that link libsimavr: -I$DD_SIMAVR/include/simavr -L$DD_SIMAVR/lib/x86_64-linux-gnu
 export DD_SIMAVR="$PLATFORMIO_CORE_DIR/packages/tool-simavr"
 export DD_SIMAVR_LIBDIR="$DD_SIMAVR/lib/x86_64-linux-gnu"
+# Compile and link flags of a host program that uses libsimavr (#include <simavr/sim_avr.h>).
+export DD_SIMAVR_CFLAGS="-I$DD_SIMAVR/include"
+export DD_SIMAVR_LIBS="-L$DD_SIMAVR_LIBDIR -Wl,-rpath,$DD_SIMAVR_LIBDIR -lsimavr"
 # Python environment first, then the provisioned avr-gcc 5.4 and simavr 1.6.
 export PATH="$_dd_root/.venv/bin:$PLATFORMIO_CORE_DIR/packages/toolchain-atmelavr/bin:$DD_SIMAVR/bin:$PATH"
 unset _dd_root

@@ -2,6 +2,7 @@
 # Build bench/logger/avr_codec_cycles.cpp with avr-g++ 5.4 (-Os) and run it in simavr.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
+source "$ROOT/scripts/env.sh"  # provisioned avr-gcc and simavr (scripts/setup.sh)
 OUT="$ROOT/.build/bench"
 mkdir -p "$OUT"
 F="-mmcu=atmega2560 -Os -std=gnu++11 -fno-exceptions -fno-rtti -Wall -Wextra -DF_CPU=16000000UL -I$ROOT/lib/protocol/src"
