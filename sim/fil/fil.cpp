@@ -294,11 +294,15 @@ const int kReversed[2] = {ENC_RIGHT_REVERSED, ENC_LEFT_REVERSED};
 const uint8_t kGray[4] = {0, 1, 3, 2};  // (B,A)
 double counts_per_rad() { return ENC_COUNTS_PER_REV / kTwoPi; }
 
-// ISR accounting
+// ISR accounting. ISRs can nest (the firmware's USART ISRs re-enable interrupts so that the
+// encoder ISRs preempt them): a stack of open invocations; each one's own cycles exclude the
+// ISRs nested in it.
 struct VecStat { unsigned long n = 0, max = 0; double sum = 0; };
 VecStat vstat[64];
-int in_isr = -1;
-avr_cycle_count_t isr_start;
+struct Open { int vec; avr_cycle_count_t start, nested; };
+Open isr_stack[16];
+int isr_depth;
+unsigned long isr_nested_calls;
 
 // link
 int pty_fd = -1;
@@ -694,15 +698,6 @@ void step() {
     avr_flashaddr_t pc0 = avr->pc;
     uint16_t op = static_cast<uint16_t>(avr->flash[pc0] | (avr->flash[pc0 + 1] << 8));
     avr_run(avr);
-    if (op == 0x9518 && in_isr >= 0) {  // RETI
-        if (avr->interrupt_state < -1) avr->interrupt_state = -1;  // hardware: one instruction
-        unsigned long d = static_cast<unsigned long>(avr->cycle - isr_start);
-        VecStat& v = vstat[in_isr];
-        ++v.n;
-        v.sum += static_cast<double>(d);
-        if (d > v.max) v.max = d;
-        in_isr = -1;
-    }
     if (static_cast<long>(avr->pc) == snap_pc && board_origin_set) {
         Snap sn{board_now(), counts_at(0, avr->cycle), counts_at(1, avr->cycle), pos_now[0], pos_now[1]};
         snaps.push_back(sn);
@@ -711,9 +706,20 @@ void step() {
         if (snap_f) fprintf(snap_f, "%.7f,%.4f,%.4f,%ld,%ld,%u\n", sn.t, sn.s_r, sn.s_l, sn.pins_r, sn.pins_l,
                             static_cast<unsigned>(boot_at_s.size()));
     }
-    if (in_isr < 0 && avr->pc < kVecEnd && avr->pc != 0 && pc0 >= kVecEnd) {
-        in_isr = static_cast<int>(avr->pc / 4);
-            isr_start = avr->cycle;
+    if (op == 0x9518 && isr_depth > 0) {  // RETI
+        if (avr->interrupt_state < -1) avr->interrupt_state = -1;  // hardware: one instruction
+        Open& o = isr_stack[--isr_depth];
+        avr_cycle_count_t total = avr->cycle - o.start;
+        unsigned long d = static_cast<unsigned long>(total - o.nested);
+        VecStat& v = vstat[o.vec];
+        ++v.n;
+        v.sum += static_cast<double>(d);
+        if (d > v.max) v.max = d;
+        if (isr_depth > 0) isr_stack[isr_depth - 1].nested += total;
+    }
+    if (avr->pc < kVecEnd && avr->pc != 0 && pc0 >= kVecEnd) {  // the core has just vectored
+        if (isr_depth > 0) ++isr_nested_calls;
+        if (isr_depth < 16) isr_stack[isr_depth++] = Open{static_cast<int>(avr->pc / 4), avr->cycle, 0};
         avr->cycle += 5;  // interrupt response that simavr does not charge
     }
 }
@@ -784,7 +790,7 @@ void write_summary(double wall_s) {
                 vstat[v].n, vstat[v].max, vstat[v].sum / static_cast<double>(vstat[v].n));
         first = false;
     }
-    fprintf(f, "\n  },\n");
+    fprintf(f, "\n  },\n  \"isr_nested_calls\": %lu,\n", isr_nested_calls);
     VecStat enc;
     for (int v = 1; v <= 4; ++v) {
         enc.n += vstat[v].n;
@@ -935,6 +941,7 @@ int main(int argc, char** argv) {
             boot_at_s.push_back(board_now());
         } else if (!t5 && board_running) {
             board_running = false;
+            isr_depth = 0;  // a reset abandons any ISR in progress
             reset_at_s.push_back(board_now());
         }
         if (avr->cycle > next_plant_at + plant_cycles) {  // a reset cleared the cycle timers
