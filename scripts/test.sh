@@ -4,7 +4,9 @@
 #   1. native Unity tests (pio test -e native)
 #   2. embedded Unity tests on the simulated ATmega2560 (pio test -e simavr)
 #   3. the firmware build with its size check (pio run -e megaatmega2560)
-#   4. the Python tests of host_tools (pytest)
+#   4. the firmware on simavr: encoder ISR cycles and edge-rate sweep, system checks over the
+#      XBee link (sim/isr_bench/run.sh)
+#   5. the Python tests of host_tools (pytest), firmware in the loop included
 set -uo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -27,6 +29,7 @@ step() {
 step native    pio test -e native
 step simavr    pio test -e simavr --without-uploading
 step firmware  pio run -e megaatmega2560
+step fw-sim    bash sim/isr_bench/run.sh .pio/build/megaatmega2560/firmware.elf
 step python    .venv/bin/python -m pytest -q host_tools/tests
 
 echo
