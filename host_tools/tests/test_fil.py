@@ -344,6 +344,25 @@ def test_corrupted_command_bytes_are_rejected(elf, sim, tmp_path):
           f"{len(rejected & bad)} corrupted answered with a rejection, the rest dropped silently")
 
 
+def test_corrupted_telemetry_is_rejected_by_the_logger(elf, sim, tmp_path):
+    # bit errors on the robot->host link: the logger drops the damaged frames (CRC) and every row
+    # it records is still exact (counts within +-1 of the plant angle at the frame's sample time)
+    out = tmp_path / "uplink"
+    code, lg, s = fil.record(out, elf, straight(48.0, 1.0), clamp=True,
+                             args=["--link-dir", "up", "--link-ber", "0.002", "--seed", "5"])
+    assert code == 0, lg.end_reason
+    assert s["link"]["up_flipped"] > 5 and s["link"]["down_flipped"] == 0
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["logger"]["crc_errors"] + sum(meta["logger"]["rejected_blocks"].values()) > 0
+    tel = csv(out / "telemetry.csv")
+    smp = csv(out / "encoder_samples.csv")
+    assert 0.6 * s["frames_from_robot"]["telemetry"] < tel["t_s"].size < s["frames_from_robot"]["telemetry"]
+    i = np.searchsorted(smp["t_s"], tel["t_s"] + 1e-6) - 1
+    ok = i >= 0
+    for w in ("r", "l"):
+        assert np.all(np.abs(tel[f"enc_{w}"][ok] - smp[f"counts_true_{w}"][i[ok]]) <= 1.0)
+
+
 def test_camera_rate_noise_and_dropout(elf, sim, tmp_path):
     import subprocess
     out = tmp_path / "cam"
