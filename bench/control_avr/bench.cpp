@@ -155,6 +155,13 @@ int main() {
     ASR_CHECK(8) ASR_CHECK(9) ASR_CHECK(10) ASR_CHECK(11) ASR_CHECK(12) ASR_CHECK(13)
     ASR_CHECK(14) ASR_CHECK(15) ASR_CHECK(16) ASR_CHECK(17) ASR_CHECK(20)
     n += 20;
+    // saturating 16-bit add and subtract
+    {
+      const int32_t s1 = static_cast<int32_t>(a) + b, s2 = static_cast<int32_t>(a) - b;
+      bad += ctl::fx::add_sat16(a, b) != (s1 > 32767 ? 32767 : (s1 < -32768 ? -32768 : s1));
+      bad += ctl::fx::sub_sat16(a, b) != (s2 > 32767 ? 32767 : (s2 < -32768 ? -32768 : s2));
+      n += 2;
+    }
     // the short division: inside and outside its fast range
     const uint32_t dd = (k & 1) ? 13000UL + (x >> 14) % 24000UL : 1UL + (x >> (k % 31));
     const uint32_t nn = (k & 2) ? 1775000000UL + (x & 0xFFFFF) : x;

@@ -56,16 +56,52 @@ static CTL_INLINE int16_t sat16(int32_t x) {
 #endif
 }
 
-/// Saturating int16 a + b and a - b (= sat16 of the exact int32 result).
+/// Saturating int16 a + b and a - b (= sat16 of the exact int32 result). On the AVR the
+/// overflow flag of the 16-bit add/subtract is used directly (avr-gcc 5.4 compiles the
+/// overflow builtins to compares).
 static CTL_INLINE int16_t add_sat16(int16_t a, int16_t b) {
-  int16_t s;
-  if (__builtin_add_overflow(a, b, &s)) return a < 0 ? INT16_MIN : INT16_MAX;
-  return s;
+#if defined(__AVR__)
+  // on overflow a and b have the same sign: 0x7FFF, plus one (0x8000) when b < 0
+  __asm__(
+      "add %A0, %A1\n\t"
+      "adc %B0, %B1\n\t"
+      "brvc 1f\n\t"
+      "ldi %A0, 0xFF\n\t"
+      "ldi %B0, 0x7F\n\t"
+      "sbrs %B1, 7\n\t"
+      "rjmp 1f\n\t"
+      "subi %A0, 0xFF\n\t"
+      "sbci %B0, 0xFF\n"
+      "1:"
+      : "+d"(a)
+      : "r"(b));
+  return a;
+#else
+  const int32_t s = static_cast<int32_t>(a) + b;
+  return s > INT16_MAX ? INT16_MAX : (s < INT16_MIN ? INT16_MIN : static_cast<int16_t>(s));
+#endif
 }
 static CTL_INLINE int16_t sub_sat16(int16_t a, int16_t b) {
-  int16_t s;
-  if (__builtin_sub_overflow(a, b, &s)) return a < 0 ? INT16_MIN : INT16_MAX;
-  return s;
+#if defined(__AVR__)
+  // on overflow a and b have opposite signs: 0x7FFF, plus one (0x8000) when b >= 0
+  __asm__(
+      "sub %A0, %A1\n\t"
+      "sbc %B0, %B1\n\t"
+      "brvc 1f\n\t"
+      "ldi %A0, 0xFF\n\t"
+      "ldi %B0, 0x7F\n\t"
+      "sbrc %B1, 7\n\t"
+      "rjmp 1f\n\t"
+      "subi %A0, 0xFF\n\t"
+      "sbci %B0, 0xFF\n"
+      "1:"
+      : "+d"(a)
+      : "r"(b));
+  return a;
+#else
+  const int32_t s = static_cast<int32_t>(a) - b;
+  return s > INT16_MAX ? INT16_MAX : (s < INT16_MIN ? INT16_MIN : static_cast<int16_t>(s));
+#endif
 }
 
 /// floor((a - b) / 2) for int16 a, b, computed in 16 bits (always fits int16).
