@@ -17,7 +17,8 @@ void motor_brake();
 bool motor_braking();
 // Applied duty (Q15) as last set (0 while braking).
 int16_t motor_duty_q15(Wheel w);
-// Compare value in timer counts (0..MOTOR_PWM_TOP+1), for tests and the FIL simulator.
+// Timer counts per PWM period the enable pin is high (0..MOTOR_PWM_TOP+1; the OCR register
+// holds this minus one), for tests and the FIL simulator.
 uint16_t motor_compare(Wheel w);
 
 // Current sense: starts A0 then A1 conversions (ADC ISR); results are raw 10-bit counts.

@@ -16,25 +16,28 @@ volatile uint8_t g_sense_ch;
 
 const uint16_t kTop = MOTOR_PWM_TOP;
 
-void set_compare(Wheel w, uint16_t cmp) {
-    // cmp == 0: disconnect OCnx and hold the pin low (fast PWM would still emit a one-clock
-    // spike per period at OCR = 0). cmp > kTop: 100 %.
+// In fast PWM (non-inverting) the pin is high for OCR + 1 of the TOP + 1 counts of a period, and
+// constantly high at OCR = TOP. So `high_counts` in 1..TOP+1 is written as OCR = high_counts - 1;
+// high_counts == 0 disconnects OCnx and holds the pin low (OCR = 0 would still emit a one-count
+// pulse per period).
+void set_compare(Wheel w, uint16_t high_counts) {
+    if (high_counts > kTop + 1u) high_counts = kTop + 1u;
     if (w == kRight) {
-        if (cmp == 0) {
+        if (high_counts == 0) {
             TCCR3A &= static_cast<uint8_t>(~(_BV(COM3C1) | _BV(COM3C0)));
             PORTE &= static_cast<uint8_t>(~_BV(PE5));
             OCR3C = 0;
         } else {
-            OCR3C = cmp;
+            OCR3C = high_counts - 1u;
             TCCR3A |= _BV(COM3C1);
         }
     } else {
-        if (cmp == 0) {
+        if (high_counts == 0) {
             TCCR1A &= static_cast<uint8_t>(~(_BV(COM1A1) | _BV(COM1A0)));
             PORTB &= static_cast<uint8_t>(~_BV(PB5));
             OCR1A = 0;
         } else {
-            OCR1A = cmp;
+            OCR1A = high_counts - 1u;
             TCCR1A |= _BV(COM1A1);
         }
     }
@@ -91,7 +94,8 @@ void motor_set_q15(Wheel w, int16_t duty_q15) {
     bool fwd = duty_q15 >= 0;
     uint16_t mag = fwd ? static_cast<uint16_t>(duty_q15)
                        : (duty_q15 == -32768 ? 32768u : static_cast<uint16_t>(-duty_q15));
-    // (TOP + 1) * |d| / 32768, rounded; 32767 maps to TOP (99.99 %), -32768 to TOP + 1 (100 %).
+    // high counts per period: (TOP + 1) * |d| / 32768, rounded; 32767 -> 800 of 800 (rounded up),
+    // -32768 -> 800 (100 %).
     uint16_t cmp = static_cast<uint16_t>((static_cast<uint32_t>(kTop + 1u) * mag + 16384u) >> 15);
     uint8_t sreg = SREG;
     cli();  // 16-bit OCR writes and COM bit RMW
@@ -121,9 +125,9 @@ void motor_brake() {
 bool motor_braking() { return g_braking; }
 int16_t motor_duty_q15(Wheel w) { return g_duty[w]; }
 
-uint16_t motor_compare(Wheel w) {
-    if (w == kRight) return (TCCR3A & _BV(COM3C1)) ? OCR3C : 0;
-    return (TCCR1A & _BV(COM1A1)) ? OCR1A : 0;
+uint16_t motor_compare(Wheel w) {  // counts per period the pin is high (0..TOP + 1)
+    if (w == kRight) return (TCCR3A & _BV(COM3C1)) ? static_cast<uint16_t>(OCR3C + 1u) : 0;
+    return (TCCR1A & _BV(COM1A1)) ? static_cast<uint16_t>(OCR1A + 1u) : 0;
 }
 
 void motor_sense_start() {

@@ -48,19 +48,22 @@ static void test_duty_to_compare_and_direction() {
     motor_set_q15(kRight, 16384);  // +0.5
     TEST_ASSERT_FALSE(motor_braking());
     TEST_ASSERT_BITS_LOW(_BV(PH5) | _BV(PH6), PORTH);  // brake released
-    TEST_ASSERT_EQUAL_UINT16(400, OCR3C);
+    TEST_ASSERT_EQUAL_UINT16(400, motor_compare(kRight));  // 400 of 800 counts high
+    TEST_ASSERT_EQUAL_UINT16(399, OCR3C);                  // fast PWM: high for OCR + 1 counts
     TEST_ASSERT_BITS_HIGH(_BV(COM3C1), TCCR3A);
     TEST_ASSERT_EQUAL(MOTOR_RIGHT_DIR_FORWARD_LEVEL ? 1 : 0, (PORTB >> PB6) & 1);
     TEST_ASSERT_EQUAL_UINT16(0, motor_compare(kLeft));  // the other wheel stays off
 
     motor_set_q15(kLeft, -8192);  // -0.25: backward
-    TEST_ASSERT_EQUAL_UINT16(200, OCR1A);
+    TEST_ASSERT_EQUAL_UINT16(200, motor_compare(kLeft));
+    TEST_ASSERT_EQUAL_UINT16(199, OCR1A);
     TEST_ASSERT_BITS_HIGH(_BV(COM1A1), TCCR1A);
     TEST_ASSERT_EQUAL(MOTOR_LEFT_DIR_FORWARD_LEVEL ? 0 : 1, (PORTB >> PB7) & 1);
     TEST_ASSERT_EQUAL_INT16(-8192, motor_duty_q15(kLeft));
 
-    motor_set_q15(kRight, -32768);  // -1: 100 % (compare above TOP, output always high)
+    motor_set_q15(kRight, -32768);  // -1: 100 % (OCR = TOP: output constantly high)
     TEST_ASSERT_EQUAL_UINT16(800, motor_compare(kRight));
+    TEST_ASSERT_EQUAL_UINT16(799, OCR3C);
     motor_set_q15(kRight, 1);  // rounds to 0: disconnected, pin low (no 1-clock spikes)
     TEST_ASSERT_EQUAL_UINT16(0, motor_compare(kRight));
     TEST_ASSERT_BITS_LOW(_BV(COM3C1) | _BV(COM3C0), TCCR3A);
