@@ -15,6 +15,7 @@ COMMANDS = {
     "log": ("host_tools.logger", "record a run from the XBee serial port"),
     "timing": ("host_tools.timing", "check the firmware's timing budgets"),
     "analyze": ("host_tools.analyzer.cli", "find, name and model sim/real mismatch"),
+    "fil": ("host_tools.fil", "firmware in the loop: record a run from firmware.elf in simavr"),
     "demo": ("host_tools.demo", "the main job: thesis reproduction and analyzer demo"),
 }
 
