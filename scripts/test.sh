@@ -6,7 +6,8 @@
 #   3. the firmware build with its size check (pio run -e megaatmega2560)
 #   4. the firmware on simavr: encoder ISR cycles and edge-rate sweep, system checks over the
 #      XBee link (sim/isr_bench/run.sh)
-#   5. the Python tests of host_tools (pytest), firmware in the loop included
+#   5. the timing budgets on a firmware-in-the-loop recording (48 rad/s^2 straight line)
+#   6. the Python tests of host_tools (pytest), firmware in the loop included
 set -uo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -30,6 +31,12 @@ step native    pio test -e native
 step simavr    pio test -e simavr --without-uploading
 step firmware  pio run -e megaatmega2560
 step fw-sim    bash sim/isr_bench/run.sh .pio/build/megaatmega2560/firmware.elf
+fil_timing() {
+    rm -rf .build/ci/fil-48
+    .venv/bin/python -m host_tools fil record --out .build/ci/fil-48 --accel 48 --clamp off \
+        && .venv/bin/python -m host_tools timing --run .build/ci/fil-48
+}
+step timing    fil_timing
 step python    .venv/bin/python -m pytest -q host_tools/tests
 
 echo
