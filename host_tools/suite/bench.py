@@ -134,7 +134,7 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
     L.append("confusion (true -> analyzer: verdict [named effects])")
     w = max(len(r["case"]) for r in results)
     for r in results:
-        said = r["verdict"] if r["verdict"] != "explained" else "explained " + ",".join(r["selected"])
+        said = r["verdict"] + (" " + ",".join(r["selected"]) if r["selected"] else "")
         extra = ""
         if r.get("named") and set(r["named"]) - set(r["selected"]):
             extra = f" (equivalent: {','.join(sorted(set(r['named']) - set(r['selected'])))})"

@@ -183,4 +183,4 @@ def get(names: list[str] | None = None, fast: bool = False) -> list[Case]:
 
 def demo_case() -> Case:
     """The built-in concealed-effect case of ``python -m host_tools demo``."""
-    return next(c for c in all_cases() if c.name == "motor_back_emf_strong")
+    return next(c for c in all_cases() if c.name == "motor_back_emf_weak")
