@@ -51,10 +51,20 @@ uint16_t overhead;
     expr;                                                \
     const uint16_t t1_ = TCNT1;                          \
     if (TIFR1 & (1 << TOV1)) overflowed = true;          \
-    (stat).add(static_cast<uint16_t>(t1_ - t0_ - overhead)); \
+    last_cycles = static_cast<uint16_t>(t1_ - t0_ - overhead); \
+    (stat).add(last_cycles);                             \
   } while (0)
 
+// Forces v to be computed before this point (the compiler may otherwise sink the computation
+// of a call's arguments, e.g. a division, between the two reads of TCNT1).
+template <typename T>
+inline T opaque(T v) {
+  __asm__ volatile("" : "+r"(v));
+  return v;
+}
+
 bool overflowed = false;
+uint16_t last_cycles;
 volatile int32_t sink;
 
 void row(const char* name, const Stat& s) {
@@ -90,16 +100,19 @@ int main() {
     overhead = s.lo;
   }
 
-  Stat in_q, in_q_const, out_q, ref_q, in_f, out_f, ref_f;
-  in_q.reset(); in_q_const.reset(); out_q.reset(); ref_q.reset(); in_f.reset(); out_f.reset(); ref_f.reset();
+  Stat in_q, in_q_const, in_q_steady, out_q, ref_q, in_f, out_f, ref_f;
+  in_q.reset(); in_q_const.reset(); in_q_steady.reset(); out_q.reset(); ref_q.reset(); in_f.reset(); out_f.reset();
+  ref_f.reset();
   ctl::RefSampleQ rq{};
   ctl::RefSample rf;
   uint32_t check = 0;
   uint8_t limited = 0;
   for (uint8_t i = 0; i < kRuns; ++i) {
-    const int32_t enc_r = bench::enc_r_at(i), enc_l = bench::enc_l_at(i);
-    const uint32_t t_ms = 25UL * i;
-    TIME_IT(in_q, qc.inner_step(enc_r, enc_l, bench::dt_us_at(i)));
+    const int32_t enc_r = opaque(bench::enc_r_at(i)), enc_l = opaque(bench::enc_l_at(i));
+    const uint32_t t_ms = opaque(25UL * i);
+    const uint32_t dt_us = opaque(bench::dt_us_at(i));  // not inside the timed call (it divides by 9)
+    TIME_IT(in_q, qc.inner_step(enc_r, enc_l, dt_us));
+    if (i > 0) in_q_steady.add(last_cycles);  // without the first call (its division)
     TIME_IT(in_q_const, qc_const.inner_step(enc_r, enc_l, 25000UL));
     if (bench::outer_due(i)) qc_const.outer_step(rq);  // rq: the previous sample (untimed)
     if (bench::outer_due(i)) {
@@ -120,6 +133,7 @@ int main() {
          static_cast<unsigned>(kRuns), overhead);
   printf("%-34s %6s %6s %6s %4s\n", "step", "min", "mean", "max", "n");
   row("fixed inner_step (25 ms, dt jitter)", in_q);
+  row("  the same after the first call", in_q_steady);
   row("fixed inner_step (dt constant)", in_q_const);
   row("fixed outer_step (50 ms)", out_q);
   row("fixed reference_at_q", ref_q);
