@@ -209,12 +209,13 @@ void test_inner_step_range_and_saturation() {
   TEST_ASSERT_TRUE(n_sat > 1000 && n_clamp > 1000);
 }
 
-// Integrators at 25 ms (cached 16-bit k dt) and at 50 ms (k_il dt = 1.5 does not fit Q15: the
-// 32-bit path) agree with the float path.
+// Integrators agree with the float path on every path: dt < 65.5 ms (k dt from the gains per
+// microsecond: 25 and 50 ms), and longer dt (dt in Q16 s; with the default gains k dt no
+// longer fits 16 bits there: the 32-bit products).
 void test_integrators_both_paths() {
   const ControlConfig fc = config(true);
   const ControlConfigQ qc(fc);
-  const uint32_t dts[] = {25000, 50000};
+  const uint32_t dts[] = {25000, 50000, 100000, 300000};
   for (uint32_t dt : dts) {
     Controller f(fc);
     ControllerQ q(qc);

@@ -71,6 +71,22 @@ void ControllerQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
   j_v_q24_ = j_w_q24_ = 0;
 }
 
+// Integrators for dt of 65.5 ms to 0.5 s (rare: a late step): dt in Q16 s = dt_us * 4295 /
+// 65536 (error 8e-6 relative), k dt in int16 when it fits, else a 32x16 product.
+void ControllerQ::integrate_long_dt(uint32_t dt_us, int16_t e_v, int16_t e_w) {
+  const int16_t dt_q16 = static_cast<int16_t>((dt_us * 4295UL) >> 16);  // < 32768 for dt < 0.5 s
+  const int32_t kdt_q20 = fx::rshift_round_nc<11>(fx::mul_ss(cfg_.g_il_q15, dt_q16));  // Q31 -> Q20
+  const int32_t inc_v = kdt_q20 <= INT16_MAX
+      ? fx::rshift_round_nc<8>(fx::mul_ss(e_v, static_cast<int16_t>(kdt_q20)))          // Q32 -> Q24
+      : fx::rshift_round<3>(fx::mul32x16<16>(fx::mul_ss(e_v, cfg_.g_il_q15), dt_q16));  // Q27 -> Q24
+  j_v_q24_ = fx::clamp32(j_v_q24_ + inc_v, cfg_.jmax_v_q24);  // |J| < 2^30, |inc| <= 2^28
+  const int32_t kdt_q24 = fx::rshift_round_nc<10>(fx::mul_ss(cfg_.g_ia_q18, dt_q16));  // Q34 -> Q24
+  const int32_t inc_w = kdt_q24 <= INT16_MAX
+      ? fx::rshift_round_nc<10>(fx::mul_ss(e_w, static_cast<int16_t>(kdt_q24)))         // Q34 -> Q24
+      : fx::rshift_round<4>(fx::mul32x16<16>(fx::mul_ss(e_w, cfg_.g_ia_q18), dt_q16));  // Q28 -> Q24
+  j_w_q24_ = fx::clamp32(j_w_q24_ + inc_w, cfg_.jmax_w_q24);
+}
+
 const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
   kin_ = kinematic_law_q(cfg_, odo_.pose(), ref);
   // The feed-forward terms change only here: P_ff = (r/2) m_eff dv_ff, Q_ff = (r/2b) I_eff dw_ff.
@@ -150,26 +166,24 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
     const int8_t sv = sign16(e_v), sw = sign16(e_w);
     const bool block_v = (s_r != 0 && s_r == sv) || (s_l != 0 && s_l == sv);
     const bool block_w = (s_r != 0 && s_r == sw) || (s_l != 0 && s_l == -sw);
-    if (!block_v || !block_w) {
-      // dt in Q16 s = dt_us * 4295 / 65536 (error 8e-6 relative); for dt < 65.5 ms a 16x16
-      // product. dt changes nearly every step in the firmware: nothing is cached.
-      const int16_t dt_q16 = dt_us < 65536UL ? fx::hi16(fx::mul_us(static_cast<uint16_t>(dt_us), 4295))
-                                             : static_cast<int16_t>((dt_us * 4295UL) >> 16);
+    if (dt_us < 65536UL) {
+      // dt < 65.5 ms (the firmware's 25 ms): k dt from the gains per microsecond, one 16x16
+      // product each; the configuration check keeps k dt within int16 for any such dt.
+      // dt changes nearly every step in the firmware: nothing is cached.
+      const uint16_t dt16 = static_cast<uint16_t>(dt_us);
       CTL_PROBE(10);
       if (!block_v) {  // J_v += (r/2) k_il dt e_v
-        const int32_t kdt_q20 = fx::rshift_round_nc<11>(fx::mul_ss(cfg_.g_il_q15, dt_q16));  // Q31 -> Q20
-        const int32_t inc_q24 = kdt_q20 <= INT16_MAX
-            ? fx::rshift_round_nc<8>(fx::mul_ss(e_v, static_cast<int16_t>(kdt_q20)))      // Q32 -> Q24
-            : fx::rshift_round<3>(fx::mul32x16<16>(fx::mul_ss(e_v, cfg_.g_il_q15), dt_q16));  // Q27 -> Q24
-        j_v_q24_ = fx::clamp32(j_v_q24_ + inc_q24, cfg_.jmax_v_q24);  // |J| < 2^30, |inc| <= 2^28
+        const int16_t kdt_q19 = static_cast<int16_t>(fx::rshift_round_nc<15>(fx::mul_us(dt16, cfg_.g_il_us_q34)));
+        j_v_q24_ = fx::clamp32(j_v_q24_ + fx::rshift_round_nc<7>(fx::mul_ss(e_v, kdt_q19)),  // Q31 -> Q24
+                               cfg_.jmax_v_q24);  // |J| < 2^30, |increment| <= 2^23
       }
       if (!block_w) {  // J_w += (r/2b) k_ia dt e_w
-        const int32_t kdt_q24 = fx::rshift_round_nc<10>(fx::mul_ss(cfg_.g_ia_q18, dt_q16));  // Q34 -> Q24
-        const int32_t inc_q24 = kdt_q24 <= INT16_MAX
-            ? fx::rshift_round_nc<10>(fx::mul_ss(e_w, static_cast<int16_t>(kdt_q24)))     // Q34 -> Q24
-            : fx::rshift_round<4>(fx::mul32x16<16>(fx::mul_ss(e_w, cfg_.g_ia_q18), dt_q16));  // Q28 -> Q24
-        j_w_q24_ = fx::clamp32(j_w_q24_ + inc_q24, cfg_.jmax_w_q24);
+        const int16_t kdt_q22 = static_cast<int16_t>(fx::rshift_round_nc<15>(fx::mul_us(dt16, cfg_.g_ia_us_q37)));
+        j_w_q24_ = fx::clamp32(j_w_q24_ + fx::rshift_round_nc<8>(fx::mul_ss(e_w, kdt_q22)),  // Q32 -> Q24
+                               cfg_.jmax_w_q24);
       }
+    } else {
+      integrate_long_dt(dt_us, block_v ? 0 : e_v, block_w ? 0 : e_w);
     }
   }
   CTL_PROBE(0);

@@ -52,6 +52,8 @@ struct ControlConfigQ {
   int16_t g_ffw_q21;                 // (r/2b) I_eff          kg m^2
   int16_t g_il_q15;                  // (r/2) k_il            N m/m
   int16_t g_ia_q18;                  // (r/2b) k_ia           N m
+  int16_t g_il_us_q34;               // (r/2) k_il 1e-6 (k dt for dt in us; < 2^14: k dt fits Q19)
+  int16_t g_ia_us_q37;               // (r/2b) k_ia 1e-6 (< 2^14: k dt fits Q22)
   int32_t jmax_v_q24, jmax_w_q24;    // integrator bounds (r/2) I_v,max and (r/2b) I_w,max, N m
   int32_t two_over_r_q16, two_b_over_r_q16;  // to report the integrators in N and N m
   bool clamp_enabled;
@@ -80,6 +82,8 @@ struct ControlConfigQ {
         g_ffw_q21(q16c(c.robot.r / (2.0 * c.robot.b) * c.I_eff_kgm2, 21)),
         g_il_q15(q16c(c.robot.r / 2.0 * c.gains.k_il, 15)),
         g_ia_q18(q16c(c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia, 18)),
+        g_il_us_q34(q16c(c.robot.r / 2.0 * c.gains.k_il * 1e-6, 34)),
+        g_ia_us_q37(q16c(c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia * 1e-6, 37)),
         jmax_v_q24(fx::q_const(c.robot.r / 2.0 * c.integ_max_n, 24)),
         jmax_w_q24(fx::q_const(c.robot.r / (2.0 * c.robot.b) * c.integ_max_nm, 24)),
         two_over_r_q16(fx::q_const(2.0 / c.robot.r, 16)),
@@ -100,6 +104,8 @@ struct ControlConfigQ {
            fits16(c.robot.r / (2.0 * c.robot.b) * c.robot.m_t() * c.robot.d, 20) &&
            fits16(c.robot.r / 2.0 * c.m_eff_kg, 18) && fits16(c.robot.r / (2.0 * c.robot.b) * c.I_eff_kgm2, 21) &&
            fits16(c.robot.r / 2.0 * c.gains.k_il, 15) && fits16(c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia, 18) &&
+           c.robot.r / 2.0 * c.gains.k_il * 1e-6 * fx::pow2(34) < 16384.0 &&
+           c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia * 1e-6 * fx::pow2(37) < 16384.0 &&
            c.robot.r / 2.0 * c.integ_max_n < 64.0 && c.robot.r / (2.0 * c.robot.b) * c.integ_max_nm < 64.0 &&
            2.0 / c.robot.r < 32000.0 && 2.0 * c.robot.b / c.robot.r < 32000.0) {}
 
@@ -151,6 +157,7 @@ class ControllerQ {
   OdometryQ odo_;
   KinematicOutQ kin_;
   InnerOutQ out_;
+  void integrate_long_dt(uint32_t dt_us, int16_t e_v, int16_t e_w);
   static int32_t j_to_q16(int32_t j_q24, int32_t scale_q16, int32_t lim_q16) {
     const int64_t x = (static_cast<int64_t>(j_q24) * scale_q16) / 16777216;
     return static_cast<int32_t>(x > lim_q16 ? lim_q16 : (x < -lim_q16 ? -lim_q16 : x));
