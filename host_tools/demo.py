@@ -296,6 +296,30 @@ def _fit_plot(report: dict, path: str) -> None:
     plt.close(fig)
 
 
+def _index(out: str, elapsed_s: float) -> None:
+    """OUT_DIR/README.md: where everything is."""
+    L = ["# Main job results", ""]
+    if os.path.isfile(os.path.join(out, "thesis", "README.md")):
+        L.append("- Thesis reproduction (II.6): [thesis/README.md](thesis/README.md) — table against "
+                 "the thesis's numbers; figures `thesis/ii61_torque_steps.png`, "
+                 "`thesis/ii62_profiles.png`, `thesis/ii63_clamp.png`.")
+    sp = os.path.join(out, "analyzer", "summary.json")
+    if os.path.isfile(sp):
+        with open(sp) as fh:
+            sm = json.load(fh)
+        sc = sm.get("score") or {}
+        L.append("- Analyzer on the concealed-effect dataset: [analyzer/report/report.md]"
+                 "(analyzer/report/report.md) (report.json, plots, model.json beside it); "
+                 "`analyzer/fit_improvement.png`; runs under `analyzer/dataset/runs/`, hidden "
+                 "label under `analyzer/dataset/labels/`.")
+        L.append(f"  Hidden truth: `{sm['case']['effects']}`; the analyzer said "
+                 f"`{sc.get('verdict')}`, selected `{sc.get('selected')}`, named "
+                 f"`{sc.get('named')}`; main parameter {sc.get('param')}.")
+    L += ["", f"Made by `python -m host_tools demo` in {elapsed_s:.0f} s.", ""]
+    with open(os.path.join(out, "README.md"), "w") as fh:
+        fh.write("\n".join(L))
+
+
 def main(args) -> int:
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
@@ -331,5 +355,6 @@ def main(args) -> int:
                       f"{fit['heldout_rmse_after'][ch]:.4g}")
         print(f"  -> report: {os.path.join(r['report_dir'], 'report.md')} (report.json, plots, "
               f"model.json beside it); fit plot: {os.path.join(out, 'analyzer', 'fit_improvement.png')}")
-    print(f"done in {time.time() - t0:.1f} s; results under {out}")
+    _index(out, time.time() - t0)
+    print(f"done in {time.time() - t0:.1f} s; results under {out} (start at {os.path.join(out, 'README.md')})")
     return status

@@ -38,3 +38,19 @@ def test_ii63_clamp_removes_slip_and_drift(thesis):
     assert off["slip"] and not on["slip"]
     assert off["odo_drift_m"] > 0.1 and on["odo_drift_m"] < 0.005
     assert on["max_tau_cmd_nm"] <= res["tau_max_nm"] + 1e-4 < off["max_tau_cmd_nm"]
+
+
+def test_analyzer_demo_end_to_end(tmp_path):
+    """Part 2: the dataset is made, the analyzer runs on it and the report shows the fit
+    improve (about 15-30 s)."""
+    r = demo.analyzer_demo(str(tmp_path), log=lambda *a: None)
+    assert r["rc"] == 0
+    rep = r["report"]
+    assert (tmp_path / "report" / "report.json").exists()
+    assert (tmp_path / "fit_improvement.png").stat().st_size > 1000
+    labels = tmp_path / "dataset" / "labels"
+    runs = tmp_path / "dataset" / "runs"
+    assert labels.is_dir() and not any("labels" in str(p) for p in runs.rglob("*"))
+    assert rep["verdict"] == "explained" and r["score"]["named_all"]
+    fit = rep["fit"]
+    assert fit["heldout_rmse_after"]["omega_r"] < 0.5 * fit["heldout_rmse_before"]["omega_r"]
