@@ -308,8 +308,17 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
             if best_single is not None and best_single.effects[0] not in ranked:
                 ranked = [best_single.effects[0]] + ranked[:pairs_top - 1]
             import itertools
+            combos = list(itertools.combinations(ranked[:pairs_top - 1], 2))
+            # forward step: the best single (selected or not) with every other effect
+            lead = best_single.effects[0] if best_single is not None else (
+                ranked[0] if ranked else None)
+            if lead is not None:
+                for c in cands:
+                    e = c.effects[0]
+                    if e != lead and (lead, e) not in combos and (e, lead) not in combos:
+                        combos.append((lead, e))
             pair_tasks = []
-            for a, b in itertools.combinations(ranked, 2):
+            for a, b in combos:
                 ca = next(c for c in cands if c.effects == [a])
                 cb = next(c for c in cands if c.effects == [b])
                 x0 = np.concatenate([ca.fit.x, cb.fit.x])
@@ -335,22 +344,27 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                 if best_pair is not None:
                     selected_c = [best_pair]
                     final_effects = dict(best_pair.fit.params)
-    # equivalents: other accepted singles that explain about as much
+    # equivalents: alternatives that explain about as much (BIC within 10, similar held-out).
+    # For a single: other singles.  For a pair (a, b): pairs (a, c) standing in for b.
     selected: list[dict] = []
     if selected_c:
         sel = selected_c[0]
+        pool = cands if len(sel.effects) == 1 else pair_cands
+
+        def _close(c: Candidate, me: Candidate) -> bool:
+            return ((c.delta_bic - me.delta_bic) < 10.0 and c.fit.rss < rss0 and
+                    bool(c.checks.get("heldout")) and
+                    c.heldout_after <= max(1.25 * me.heldout_after, me.heldout_after + 0.1))
+
         for e in sel.effects:
             equiv = []
-            for c in cands:
-                if c.effects[0] in sel.effects or not (c.checks.get("bic") and
-                                                       c.checks.get("heldout")):
+            others = [x for x in sel.effects if x != e]
+            for c in pool:
+                if c is sel or e in c.effects or not set(others) <= set(c.effects):
                     continue
-                me = next(x for x in cands if x.effects == [e])
-                close = ((c.delta_bic - me.delta_bic) < 10.0 and
-                         c.heldout_after <= max(1.25 * me.heldout_after,
-                                                me.heldout_after + 0.1))
-                if close and c.fit.rss < rss0:
-                    equiv.append(c.effects[0])
+                alt = [x for x in c.effects if x not in others]
+                if len(alt) == 1 and _close(c, sel) and alt[0] not in equiv:
+                    equiv.append(alt[0])
             selected.append({"effect": e, "params": {k: _r(v, 5) for k, v in
                                                     sel.fit.params[e].items()},
                              "equivalent": equiv,
