@@ -113,7 +113,9 @@ int main() {
     const uint32_t dt_us = opaque(bench::dt_us_at(i));  // not inside the timed call (it divides by 9)
     TIME_IT(in_q, qc.inner_step(enc_r, enc_l, dt_us));
     if (i > 0) in_q_steady.add(last_cycles);  // without the first call (its division)
+#ifndef CTL_PROFILE  // profile.sh: the jittered-dt controller alone
     TIME_IT(in_q_const, qc_const.inner_step(enc_r, enc_l, 25000UL));
+#endif
     if (bench::outer_due(i)) qc_const.outer_step(rq);  // rq: the previous sample (untimed)
     if (bench::outer_due(i)) {
       TIME_IT(ref_q, rq = ctl::reference_at_q(spec_q, t_ms));
