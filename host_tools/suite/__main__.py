@@ -18,6 +18,8 @@ def main(argv=None) -> int:
         p.add_argument("--cases", default=None, help="comma-separated case names")
         if name != "list":
             p.add_argument("--out", default="out/suite", help="data folder (default out/suite)")
+            p.add_argument("--seed-offset", type=int, default=0,
+                           help="add to every case's seed (other noise, phases; same physics)")
         if name == "score":
             p.add_argument("--rescore", action="store_true",
                            help="score again from the stored reports and labels")
@@ -31,6 +33,8 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    for c in sel:
+        c.seed += getattr(a, "seed_offset", 0)
     if a.cmd == "list":
         for c in sel:
             print(f"{c.name:<28} expect {c.expect:<12} {len(c.experiments)} runs  "

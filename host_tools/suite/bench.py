@@ -187,7 +187,9 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
                      + (f"  WORSE: {','.join(r['heldout_worse_channels'])}" if r["heldout_worse_channels"] else ""))
     L.append("")
     L.append(f"{'figure':<52} {'measured':>10} {'target':>10}")
+    m["false_alarms"] = sum(1 for r in nulls if not r["ok"])
     rows = [("nulls giving no_mismatch", f"{100 * m['null_ok']:.0f} %", "100 %", m["null_ok"] >= 1.0),
+            ("false alarms on nulls", f"{m['false_alarms']}/{len(nulls)}", "0", m["false_alarms"] == 0),
             ("effect cases naming every true effect (sel./equiv.)", f"{100 * m['named']:.0f} %", ">= 90 %", m["named"] >= 0.9),
             ("effect cases naming at least one true effect", f"{100 * m['named_any']:.0f} %", "—", True),
             ("main parameter within 25 % (deviation from nominal)", f"{100 * m['param']:.0f} %", ">= 80 %", m["param"] >= 0.8),
