@@ -392,3 +392,55 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
                    np.column_stack([tel[c] for c in cols]), delimiter=",",
                    header=",".join(cols), comments="", fmt="%.9g")
     return os.fspath(path)
+
+
+def _parse_effect(text: str) -> tuple[str, dict[str, float]]:
+    """``name:param=value,param=value`` -> (name, params)."""
+    name, _, rest = text.partition(":")
+    params: dict[str, float] = {}
+    for item in filter(None, rest.split(",")):
+        k, eq, v = item.partition("=")
+        if not eq:
+            raise ValueError(f"--effect {text!r}: expected name:param=value[,param=value]")
+        try:
+            params[k.strip()] = float(v)
+        except ValueError:
+            raise ValueError(f"--effect {text!r}: {v!r} is not a number") from None
+    return name.strip(), params
+
+
+def main(argv=None) -> int:
+    """``python -m host_tools.truth RUN_DIR [--ref line|arc|figure_eight] [--accel A]
+    [--cruise V] [--radius R] [--no-clamp] [--duration T] [--seed N]
+    [--effect name:p=v,...]... [--hidden DIR]``: one closed-loop run of the truth simulator
+    written as a run folder (true state to --hidden, never into the run)."""
+    import argparse
+    import sys
+    ap = argparse.ArgumentParser(prog="python -m host_tools.truth", description=main.__doc__)
+    ap.add_argument("run_dir")
+    ap.add_argument("--ref", default="line", choices=list(_REF_KINDS))
+    ap.add_argument("--accel", type=float, default=1.0, help="m/s^2")
+    ap.add_argument("--cruise", type=float, default=0.6, help="m/s")
+    ap.add_argument("--radius", type=float, default=0.5, help="m (arc: > 0 turns left)")
+    ap.add_argument("--no-clamp", action="store_true", help="tau_max clamp off")
+    ap.add_argument("--duration", type=float, default=2.0, help="s")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...")
+    ap.add_argument("--hidden", default=None, help="folder for the true state (csv)")
+    ap.add_argument("--overwrite", action="store_true")
+    a = ap.parse_args(argv)
+    try:
+        effects = dict(_parse_effect(e) for e in a.effect)
+        path = simulate_run(a.run_dir, {"kind": a.ref, "accel": a.accel, "cruise": a.cruise,
+                                        "radius": a.radius}, effects, clamp=not a.no_clamp,
+                            duration_s=a.duration, seed=a.seed, hidden_dir=a.hidden,
+                            overwrite=a.overwrite)
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"run written to {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
