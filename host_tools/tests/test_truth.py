@@ -129,3 +129,15 @@ def test_each_vocabulary_effect_agrees_with_slipmodel(name):
         err = np.hypot(o["x_m"] - xt, o["y_m"] - yt).max()
         assert size > 3e-3, (name, size)
         assert err < 1.5e-3 and err < 0.2 * size, (name, u_r, u_l, err, size)
+
+
+def test_command_line(tmp_path, capsys):
+    run = tmp_path / "r"
+    assert truth.main([str(run), "--ref", "arc", "--duration", "1.0",
+                       "--effect", "eccentric_wheel:eps=0.02", "--hidden", str(tmp_path / "h")]) == 0
+    assert runfmt.load_run(run).telemetry["t_s"].size == 50
+    assert truth.main([str(tmp_path / "x"), "--effect", "gremlin:x=1"]) == 2
+    assert truth.main([str(tmp_path / "x"), "--effect", "motor_lag:tau_s=abc"]) == 2
+    assert truth.main([str(tmp_path / "x"), "--accel", "50"]) == 2
+    assert "outside" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
