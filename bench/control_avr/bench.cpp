@@ -100,8 +100,8 @@ int main() {
     overhead = s.lo;
   }
 
-  Stat in_q, in_q_const, in_q_steady, out_q, ref_q, in_f, out_f, ref_f;
-  in_q.reset(); in_q_const.reset(); in_q_steady.reset(); out_q.reset(); ref_q.reset(); in_f.reset(); out_f.reset();
+  Stat in_q, in_q_const, in_q_steady, in_q_free, out_q, ref_q, in_f, out_f, ref_f;
+  in_q.reset(); in_q_const.reset(); in_q_steady.reset(); in_q_free.reset(); out_q.reset(); ref_q.reset(); in_f.reset(); out_f.reset();
   ref_f.reset();
   ctl::RefSampleQ rq{};
   ctl::RefSample rf;
@@ -113,6 +113,8 @@ int main() {
     const uint32_t dt_us = opaque(bench::dt_us_at(i));  // not inside the timed call (it divides by 9)
     TIME_IT(in_q, qc.inner_step(enc_r, enc_l, dt_us));
     if (i > 0) in_q_steady.add(last_cycles);  // without the first call (its division)
+    const ctl::InnerOutQ& oq = qc.inner();
+    if (i > 0 && !(oq.clamped_r || oq.clamped_l || oq.sat_r || oq.sat_l)) in_q_free.add(last_cycles);
 #ifndef CTL_PROFILE  // profile.sh: the jittered-dt controller alone
     TIME_IT(in_q_const, qc_const.inner_step(enc_r, enc_l, 25000UL));
 #endif
@@ -136,6 +138,7 @@ int main() {
   printf("%-34s %6s %6s %6s %4s\n", "step", "min", "mean", "max", "n");
   row("fixed inner_step (25 ms, dt jitter)", in_q);
   row("  the same after the first call", in_q_steady);
+  row("  ... steps not limited (integrating)", in_q_free);
   row("fixed inner_step (dt constant)", in_q_const);
   row("fixed outer_step (50 ms)", out_q);
   row("fixed reference_at_q", ref_q);
