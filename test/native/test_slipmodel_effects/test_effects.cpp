@@ -163,6 +163,23 @@ static void test_actuation_delay(void) {
   EXPECT_NEAR(1e-12, ref.state().x_m, del.state().x_m);  // then the same motion, 0.1 s late
 }
 
+// The C ABI re-aligns the clock with set_time() at every input sample (decimal grids such as
+// 0.02 s are not sums of binary steps): that rounding must not empty the delay line.
+static void test_actuation_delay_survives_clock_realignment(void) {
+  Plant free_running, realigned;
+  free_running.set_effect(kActuationDelay, true, 0.01);
+  realigned.set_effect(kActuationDelay, true, 0.01);
+  for (int k = 0; k < 50; ++k) {  // 1 s of 0.02 s input samples, 40 steps each
+    for (int i = 0; i < 40; ++i) {
+      free_running.step_torque(0.05, 0.05, kDt);
+      realigned.step_torque(0.05, 0.05, kDt);
+    }
+    realigned.set_time((k + 1) * 0.02);
+  }
+  EXPECT_NEAR(1e-9, free_running.state().x_m, realigned.state().x_m);
+  TEST_ASSERT_TRUE(realigned.state().x_m > 0.1);
+}
+
 static void test_motor_lag(void) {
   Plant pl;
   pl.set_effect(kMotorLag, true, 0.05);
@@ -320,6 +337,7 @@ int main(void) {
   RUN_TEST(test_driver_voltage_drop);
   RUN_TEST(test_deadband);
   RUN_TEST(test_actuation_delay);
+  RUN_TEST(test_actuation_delay_survives_clock_realignment);
   RUN_TEST(test_motor_lag);
   RUN_TEST(test_axle_viscous);
   RUN_TEST(test_axle_coulomb);

@@ -106,7 +106,10 @@ void Plant::set_velocity(double v_m_s, double w_m_s, double omega_rad_s, double 
 }
 
 void Plant::set_time(double t_s) {
-  if (t_s < s_.t_s) history_.clear();
+  // Only a real jump back in time invalidates the delay line. Re-aligning the clock after summed
+  // steps (sm_simulate does it at every input sample) moves it by rounding only, ~1e-15 s.
+  const double kBackJumpS = 1e-6;
+  if (t_s < s_.t_s - kBackJumpS) history_.clear();
   s_.t_s = t_s;
 }
 

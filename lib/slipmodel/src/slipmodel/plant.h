@@ -48,7 +48,7 @@ class Plant {
   /// Sets the velocities (wheels whose contact slip speed is below 1e-9 m/s count as stuck).
   void set_velocity(double v_m_s, double w_m_s, double omega_rad_s, double dtheta_r_rad_s,
                     double dtheta_l_rad_s);
-  /// Sets the clock (clears the actuation-delay history if time goes backwards).
+  /// Sets the clock (clears the actuation-delay history if time jumps back by more than 1 µs).
   void set_time(double t_s);
 
   /// One Euler step with commanded wheel torques (N m).
