@@ -1,13 +1,14 @@
-#!/bin/sh
+#!/usr/bin/env bash
 # Cycle profile of the control benchmark per function (and per source line where the line
 # is not an inlined helper): builds bench.cpp with -g (same code as run.sh), runs it under the
 # libsimavr harness profile.c, and maps the cycles per program address to functions/lines.
-# Usage: sh bench/control_avr/profile.sh [function-name-substring ...]
+# Usage: bash bench/control_avr/profile.sh [function-name-substring ...]
 set -eu
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+. "$ROOT/scripts/env.sh"  # provisioned avr-gcc, simavr and libsimavr (scripts/setup.sh)
 OUT="$ROOT/.build/bench_control_avr"
 mkdir -p "$OUT"
-gcc -O2 -Wall -o "$OUT/profile" "$ROOT/bench/control_avr/profile.c" -lsimavr -lelf
+gcc -O2 -Wall -o "$OUT/profile" "$ROOT/bench/control_avr/profile.c" $DD_SIMAVR_CFLAGS $DD_SIMAVR_LIBS
 avr-g++ -g -DCTL_PROFILE -std=gnu++11 -Os -mmcu=atmega2560 -DF_CPU=16000000UL -Wall -Wextra \
   -fno-exceptions -fno-rtti -ffunction-sections -fdata-sections -Wl,--gc-sections \
   -I"$ROOT/lib/control/src" -I"$ROOT/lib/slipmodel/src" \

@@ -1,8 +1,9 @@
-#!/bin/sh
+#!/usr/bin/env bash
 # Build the lib/control AVR cycle benchmark the way the firmware is built and run it in simavr.
-# Usage (from anywhere): sh bench/control_avr/run.sh      Output: a table of CPU cycles.
+# Usage (from anywhere): bash bench/control_avr/run.sh      Output: a table of CPU cycles.
 set -eu
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+. "$ROOT/scripts/env.sh"  # provisioned avr-gcc, simavr and libsimavr (scripts/setup.sh)
 OUT="$ROOT/.build/bench_control_avr"
 mkdir -p "$OUT"
 avr-g++ -std=gnu++11 -Os -mmcu=atmega2560 -DF_CPU=16000000UL -Wall -Wextra \
