@@ -415,7 +415,7 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     all_c.sort(key=lambda c: c.delta_bic)
     an = Analysis(runs, preps, floors, nominal, nominal_t, updated,
                   entries if verdict != "no_mismatch" else [],
-                  all_c, selected, verdict, fit_table, hint, model, notes, wins)
+                  all_c, selected, verdict, fit_table, hint, model, notes, windows=wins)
     an.torque_mismatch = entries_t
     an.timing_s = time.time() - t_start
     log(f"verdict: {verdict}" + (f"; selected {', '.join(s['effect'] for s in selected)}"

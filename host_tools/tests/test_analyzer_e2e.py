@@ -75,7 +75,9 @@ def test_back_emf_is_found_located_and_fitted(tmp_path):
         assert f["heldout_rmse_after"][ch] <= f["heldout_rmse_before"][ch]
     # outputs beside report.json
     assert (out / "report.md").read_text().startswith("# Mismatch report")
-    assert any(p.endswith(".png") for p in os.listdir(out))
+    pngs = [p for p in os.listdir(out) if p.endswith(".png")]
+    # one plot per mismatched channel: both wheels, not just a default
+    assert any("omega_r" in p for p in pngs) and any("omega_l" in p for p in pngs)
     model = json.load(open(out / "model.json"))
     assert model["format"] == "ddmodel/1"
     assert model["effects"][sel["effect"]]
