@@ -5,7 +5,8 @@ recordings disagree with it, fits every effect of the vocabulary across all runs
 what the data support, and writes OUT_DIR/report.json (mismatch-report/1), report.md,
 PNG plots and model.json (the updated model parameters, ddmodel/1).
 
-Exit codes: 0 done, 2 bad input (the message says what is wrong and where)."""
+Exit codes: 0 done, 2 bad input (the message says what is wrong and where), 1 the native
+plant library could not be built or loaded."""
 from __future__ import annotations
 
 import argparse
@@ -19,7 +20,7 @@ outputs (in OUT_DIR):
   *.png         recording, nominal and updated simulation, windows of mismatch shaded
   model.json    updated model parameters (format ddmodel/1, see docs/analyzer.md)
 
-progress goes to stderr.  exit status: 0 done, 2 bad input.
+progress goes to stderr.  exit status: 0 done, 2 bad input, 1 native plant unavailable.
 """
 
 
@@ -62,6 +63,11 @@ def main(args: argparse.Namespace) -> int:
     except RunFormatError as exc:
         print(f"error: bad input: {exc}", file=sys.stderr)
         return 2
+    except (ImportError, OSError, RuntimeError) as exc:
+        # the native plant (lib/slipmodel via host_tools._native) could not be built or loaded
+        print(f"error: the native plant is unavailable: {type(exc).__name__}: {exc}",
+              file=sys.stderr)
+        return 1
     write_outputs(an, args.out, plots=not args.no_plots)
     print(f"verdict: {an.verdict}; report: {os.path.join(args.out, 'report.json')}")
     return 0
