@@ -43,6 +43,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
 
 
+def _native_build_error() -> type:
+    try:
+        from host_tools._native import NativeBuildError
+        return NativeBuildError
+    except Exception:  # the module itself is missing: ImportError covers it
+        return ImportError
+
+
 def main(args: argparse.Namespace) -> int:
     from host_tools.runfmt import RunFormatError
 
@@ -63,7 +71,7 @@ def main(args: argparse.Namespace) -> int:
     except RunFormatError as exc:
         print(f"error: bad input: {exc}", file=sys.stderr)
         return 2
-    except (ImportError, OSError, RuntimeError) as exc:
+    except (ImportError, OSError, _native_build_error()) as exc:
         # the native plant (lib/slipmodel via host_tools._native) could not be built or loaded
         print(f"error: the native plant is unavailable: {type(exc).__name__}: {exc}",
               file=sys.stderr)
