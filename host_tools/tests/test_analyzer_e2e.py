@@ -155,3 +155,17 @@ def test_help_documents_the_command(capsys):
     assert e.value.code == 0
     out = capsys.readouterr().out
     assert "--out" in out and "exit status" in out and "report.json" in out
+
+
+def test_every_vocabulary_effect_has_a_fitting_spec_with_neutral_inside_bounds():
+    from host_tools.analyzer import effects as fx
+    from host_tools.runfmt import validate_meta
+    meta = validate_meta({})
+    vocab = _native.effect_vocabulary()
+    assert set(vocab) <= set(fx.SPECS), "effects unknown to analyzer/effects.py"
+    for name, params in vocab.items():
+        spec = fx.spec_for(name, params)
+        assert {p.name for p in spec.params} == set(params)
+        for p in spec.params:
+            assert p.lo(meta) <= p.neutral(meta) <= p.hi(meta), (name, p.name)
+            assert p.floor(meta) >= 0
