@@ -181,6 +181,27 @@ int main() {
       bad += ctl::fx::sub_sat16(a, b) != (s2 > 32767 ? 32767 : (s2 < -32768 ? -32768 : s2));
       n += 2;
     }
+    // rounded shifts (inline assembly for S = 7..15), their 16-bit truncated and saturated
+    // forms; |v| <= 2^30 (the precondition), magnitudes spread so that saturation is exercised
+    {
+      const int32_t v = static_cast<int32_t>(w) >> (2 + (k % 24));
+#define RS_REF(S) static_cast<int32_t>((static_cast<int64_t>(v) + (1L << (S - 1))) >> S)
+#define RS_REF_W(S) static_cast<int32_t>((static_cast<int64_t>(w) + (1L << (S - 1))) >> S)
+      // full-range x for S = 7, 8 (exact for every x); |x| <= 2^30 otherwise
+      bad += ctl::fx::rshift_round_nc<7>(w) != RS_REF_W(7);
+      bad += ctl::fx::rshift_round_nc<8>(w) != RS_REF_W(8);
+      n += 2;
+#define RS16_CHECK(S)                                                                             \
+  bad += ctl::fx::rshift_round_nc<S>(v) != RS_REF(S);                                             \
+  bad += ctl::fx::rshift_round_nc_lo16<S>(v) != static_cast<int16_t>(RS_REF(S));                  \
+  bad += ctl::fx::rshift_round_nc_sat16<S>(v) != (RS_REF(S) > 32767 ? 32767 : (RS_REF(S) < -32768 ? -32768 : RS_REF(S)));                       \
+  n += 3;
+      bad += ctl::fx::rshift_round_nc<7>(v) != RS_REF(7);
+      bad += ctl::fx::rshift_round_nc<8>(v) != RS_REF(8);
+      n += 2;
+      RS16_CHECK(9) RS16_CHECK(10) RS16_CHECK(11) RS16_CHECK(12) RS16_CHECK(13) RS16_CHECK(14)
+      RS16_CHECK(15)
+    }
     // the short division: inside and outside its fast range
     const uint32_t dd = (k & 1) ? 13000UL + (x >> 14) % 24000UL : 1UL + (x >> (k % 31));
     const uint32_t nn = (k & 2) ? 1775000000UL + (x & 0xFFFFF) : x;

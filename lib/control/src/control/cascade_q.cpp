@@ -173,12 +173,12 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
       const uint16_t dt16 = static_cast<uint16_t>(dt_us);
       CTL_PROBE(10);
       if (!block_v) {  // J_v += (r/2) k_il dt e_v
-        const int16_t kdt_q19 = static_cast<int16_t>(fx::rshift_round_nc<15>(fx::mul_us(dt16, cfg_.g_il_us_q34)));
+        const int16_t kdt_q19 = fx::rshift_round_nc_lo16<15>(fx::mul_us(dt16, cfg_.g_il_us_q34));
         j_v_q24_ = fx::clamp32(j_v_q24_ + fx::rshift_round_nc<7>(fx::mul_ss(e_v, kdt_q19)),  // Q31 -> Q24
                                cfg_.jmax_v_q24);  // |J| < 2^30, |increment| <= 2^23
       }
       if (!block_w) {  // J_w += (r/2b) k_ia dt e_w
-        const int16_t kdt_q22 = static_cast<int16_t>(fx::rshift_round_nc<15>(fx::mul_us(dt16, cfg_.g_ia_us_q37)));
+        const int16_t kdt_q22 = fx::rshift_round_nc_lo16<15>(fx::mul_us(dt16, cfg_.g_ia_us_q37));
         j_w_q24_ = fx::clamp32(j_w_q24_ + fx::rshift_round_nc<8>(fx::mul_ss(e_w, kdt_q22)),  // Q32 -> Q24
                                cfg_.jmax_w_q24);
       }

@@ -312,11 +312,123 @@ CTL_INLINE int32_t rshift_round(int32_t x) {
   return asr<S>(x + half);
 }
 
+#if defined(__AVR__)
+namespace sh {
+/// floor((x + 2^(S-1)) / 2^S) for S = 7..15, in one inline-assembly block on the bytes of x
+/// (avr-gcc 5.4 otherwise moves the 32-bit value between register quadruples several times).
+/// Exact whenever x + 2^(S-1) does not overflow (S = 7, 8: for every x).
+///   S = 7, 8: floor(x / 2^S) + bit S-1 of x (the rounding bit, added by carry after the byte move)
+///   S = 9..13: 2^(S-1) added to bytes 1..3, bytes 1..3 shifted right S-8 bits, moved down
+///   S = 14, 15: 2^(S-1) added, x (plus a sign byte) shifted left 16-S bits, bytes 2..4 taken
+template <uint8_t S>
+CTL_INLINE int32_t rs_round(int32_t x) {
+  uint8_t t;
+  if (S == 7) {
+    __asm__(
+        "lsl %A0\n\trol %B0\n\trol %C0\n\trol %D0\n\tsbc %[t], %[t]\n\t"
+        "lsl %A0\n\tmov %A0, %B0\n\tmov %B0, %C0\n\tmov %C0, %D0\n\tmov %D0, %[t]\n\t"
+        "adc %A0, __zero_reg__\n\tadc %B0, __zero_reg__\n\tadc %C0, __zero_reg__\n\tadc %D0, __zero_reg__"
+        : "+r"(x), [t] "=&r"(t));
+  } else if (S == 8) {
+    __asm__(
+        "mov %[t], %D0\n\tlsl %[t]\n\tsbc %[t], %[t]\n\t"
+        "lsl %A0\n\tmov %A0, %B0\n\tmov %B0, %C0\n\tmov %C0, %D0\n\tmov %D0, %[t]\n\t"
+        "adc %A0, __zero_reg__\n\tadc %B0, __zero_reg__\n\tadc %C0, __zero_reg__\n\tadc %D0, __zero_reg__"
+        : "+r"(x), [t] "=&r"(t));
+  } else if (S >= 9 && S <= 13) {
+    __asm__(
+        "ldi %[t], %[h]\n\tadd %B0, %[t]\n\tadc %C0, __zero_reg__\n\tadc %D0, __zero_reg__\n\t"
+        ".rept %[k]\n\tasr %D0\n\tror %C0\n\tror %B0\n\t.endr\n\t"
+        "mov %A0, %B0\n\tmov %B0, %C0\n\tmov %C0, %D0\n\tlsl %D0\n\tsbc %D0, %D0"
+        : "+r"(x), [t] "=&d"(t)
+        : [h] "M"(static_cast<int>(1u << ((S >= 9 && S <= 13 ? S : 9) - 9))),
+          [k] "M"(static_cast<int>(S - 8)));
+  } else if (S == 14 || S == 15) {
+    __asm__(
+        "ldi %[t], %[h]\n\tadd %B0, %[t]\n\tadc %C0, __zero_reg__\n\tadc %D0, __zero_reg__\n\t"
+        "mov %[t], %D0\n\tlsl %[t]\n\tsbc %[t], %[t]\n\t"
+        ".rept %[k]\n\tlsl %A0\n\trol %B0\n\trol %C0\n\trol %D0\n\trol %[t]\n\t.endr\n\t"
+        "mov %A0, %C0\n\tmov %B0, %D0\n\tmov %C0, %[t]\n\tmov %D0, %[t]\n\tlsl %D0\n\tsbc %D0, %D0"
+        : "+r"(x), [t] "=&d"(t)
+        : [h] "M"(static_cast<int>(1u << ((S == 14 || S == 15 ? S : 9) - 9))),
+          [k] "M"(static_cast<int>(16 - S)));
+  }
+  return x;
+}
+/// rs_round<S>(x) (S = 9..15) truncated to 16 bits (SAT = false) or saturated to int16
+/// (SAT = true), in one block; the result is left in the upper word of the register quadruple.
+template <uint8_t S, bool SAT>
+CTL_INLINE int16_t rs_round16(int32_t x) {
+  uint8_t t;
+  // in range iff the rounded value >> (S + 15) is 0 or -1, i.e. byte 3 >> (S - 9) is 0 or -1:
+  // (byte 3 + 2^(S-9)) has no bit at or above S - 8
+  if (S >= 9 && S <= 13) {
+    __asm__(
+        "ldi %[t], %[h]\n\tadd %B0, %[t]\n\tadc %C0, __zero_reg__\n\tadc %D0, __zero_reg__\n\t"
+        ".if %[sat]\n\t"
+        "mov %[t], %D0\n\tsubi %[t], %[nh]\n\tandi %[t], %[m]\n\tbreq 1f\n\t"
+        "mov %C0, %D0\n\tlsl %C0\n\tsbc %C0, %C0\n\tldi %[t], 0x7F\n\tmov %D0, %[t]\n\t"
+        "sub %D0, %C0\n\tcom %C0\n\trjmp 2f\n"
+        "1:\n\t"
+        ".endif\n\t"
+        ".rept %[k]\n\tasr %D0\n\tror %C0\n\tror %B0\n\t.endr\n\t"
+        "mov %D0, %C0\n\tmov %C0, %B0\n"
+        "2:"
+        : "+r"(x), [t] "=&d"(t)
+        : [h] "M"(static_cast<int>(1u << ((S >= 9 && S <= 13 ? S : 9) - 9))),
+          [nh] "M"(static_cast<int>(256u - (1u << ((S >= 9 && S <= 13 ? S : 9) - 9)))),
+          [m] "M"(static_cast<int>(256u - (1u << ((S >= 9 && S <= 13 ? S : 9) - 8)))),
+          [k] "M"(static_cast<int>(S - 8)), [sat] "M"(static_cast<uint8_t>(SAT ? 1 : 0)));
+  } else if (S == 14 || S == 15) {
+    __asm__(
+        "ldi %[t], %[h]\n\tadd %B0, %[t]\n\tadc %C0, __zero_reg__\n\tadc %D0, __zero_reg__\n\t"
+        ".if %[sat]\n\t"
+        "mov %[t], %D0\n\tsubi %[t], %[nh]\n\tandi %[t], %[m]\n\tbreq 1f\n\t"
+        "mov %C0, %D0\n\tlsl %C0\n\tsbc %C0, %C0\n\tldi %[t], 0x7F\n\tmov %D0, %[t]\n\t"
+        "sub %D0, %C0\n\tcom %C0\n\trjmp 2f\n"
+        "1:\n\t"
+        ".endif\n\t"
+        ".rept %[k]\n\tlsl %A0\n\trol %B0\n\trol %C0\n\trol %D0\n\t.endr\n"
+        "2:"
+        : "+r"(x), [t] "=&d"(t)
+        : [h] "M"(static_cast<int>(1u << ((S == 14 || S == 15 ? S : 9) - 9))),
+          [nh] "M"(static_cast<int>(256u - (1u << ((S == 14 || S == 15 ? S : 9) - 9)))),
+          [m] "M"(static_cast<int>(256u - (1u << ((S == 14 || S == 15 ? S : 9) - 8)))),
+          [k] "M"(static_cast<int>(16 - S)), [sat] "M"(static_cast<uint8_t>(SAT ? 1 : 0)));
+  }
+  return static_cast<int16_t>(static_cast<uint32_t>(x) >> 16);
+}
+}  // namespace sh
+#endif
+
 /// Rounded x >> S without the overflow check, for |x| <= 2^31 - 2^(S-1) - 1 (products of two
 /// 16-bit values: |x| <= 2^30).
 template <uint8_t S>
 CTL_INLINE int32_t rshift_round_nc(int32_t x) {
+#if defined(__AVR__)
+  if (S >= 7 && S <= 15) return sh::rs_round<(S >= 7 && S <= 15 ? S : 7)>(x);
+#endif
   return asr<S>(x + static_cast<int32_t>(1L << (S - 1)));
+}
+
+/// static_cast<int16_t>(rshift_round_nc<S>(x)) (the low 16 bits), S = 9..15.
+template <uint8_t S>
+CTL_INLINE int16_t rshift_round_nc_lo16(int32_t x) {
+#if defined(__AVR__)
+  return sh::rs_round16<S, false>(x);
+#else
+  return static_cast<int16_t>(static_cast<uint16_t>(static_cast<uint32_t>(x + static_cast<int32_t>(1L << (S - 1))) >> S));
+#endif
+}
+
+/// sat16(rshift_round_nc<S>(x)), S = 9..15.
+template <uint8_t S>
+CTL_INLINE int16_t rshift_round_nc_sat16(int32_t x) {
+#if defined(__AVR__)
+  return sh::rs_round16<S, true>(x);
+#else
+  return sat16(asr<S>(x + static_cast<int32_t>(1L << (S - 1))));
+#endif
 }
 
 /// (a * b) >> S, rounded; a 16x16->32 multiply (cheap on the AVR). S in 1..30.

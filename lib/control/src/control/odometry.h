@@ -211,7 +211,7 @@ CTL_INLINE OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, ui
       const int32_t dd = static_cast<int32_t>(dt_us - div_dt_us_);
       if (slope_q12_ != 0 && dd >= -63 && dd <= 63) {
         rate_q10_ = static_cast<uint16_t>(
-            rate_div_q10_ - fx::rshift_round_nc<12>(fx::mul_us(slope_q12_, static_cast<int16_t>(dd))));
+            rate_div_q10_ - static_cast<uint16_t>(fx::rshift_round_nc_lo16<12>(fx::mul_us(slope_q12_, static_cast<int16_t>(dd)))));
       } else {
         set_dt(dt_us);
       }
@@ -219,8 +219,8 @@ CTL_INLINE OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, ui
     CTL_PROBE(12);
     if (rate_q10_ != 0 || rate_per_count_q11_ == 0) {
       // |rate dn| <= 65535 * 16383 < 2^30: no overflow in the rounding
-      w_r_q8_ = fx::sat16(fx::rshift_round_nc<10>(fx::mul_us(rate_q10_, dn_r)));
-      w_l_q8_ = fx::sat16(fx::rshift_round_nc<10>(fx::mul_us(rate_q10_, dn_l)));
+      w_r_q8_ = fx::rshift_round_nc_sat16<10>(fx::mul_us(rate_q10_, dn_r));
+      w_l_q8_ = fx::rshift_round_nc_sat16<10>(fx::mul_us(rate_q10_, dn_l));
     } else {
       w_r_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, dn_r));
       w_l_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, dn_l));
@@ -231,8 +231,8 @@ CTL_INLINE OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, ui
   // 2.3 m/s, omega beyond the Q11 range anyway), far above the motor's 36.65 rad/s.
   const int16_t sum_q8 = fx::add_sat16(w_r_q8_, w_l_q8_);
   const int16_t diff_q8 = fx::sub_sat16(w_r_q8_, w_l_q8_);
-  v_q12_ = fx::sat16(fx::mul16<12>(sum_q8, cfg_.half_r_q16));     // Q8*Q16>>12
-  w_q11_ = fx::sat16(fx::mul16<12>(diff_q8, cfg_.r_over_2b_q15));  // Q8*Q15>>12
+  v_q12_ = fx::rshift_round_nc_sat16<12>(fx::mul_ss(sum_q8, cfg_.half_r_q16));     // Q8*Q16>>12
+  w_q11_ = fx::rshift_round_nc_sat16<12>(fx::mul_ss(diff_q8, cfg_.r_over_2b_q15));  // Q8*Q15>>12
   return st;
 }
 
