@@ -123,7 +123,7 @@ static inline uint32_t div_u32(uint32_t n, uint32_t d) {
   // into the remainder while the (inverted) quotient bits enter the low word from below.
   uint16_t rem = n_hi, lo = static_cast<uint16_t>(n);
   const uint16_t d16 = static_cast<uint16_t>(d);
-  uint8_t cnt, q16;
+  uint8_t q16;
   __asm__(
       "cp %A[rem], %A[d]\n\t"
       "cpc %B[rem], %B[d]\n\t"
@@ -131,8 +131,7 @@ static inline uint32_t div_u32(uint32_t n, uint32_t d) {
       "sub %A[rem], %A[d]\n\t"
       "sbc %B[rem], %B[d]\n"
       "1:\n\t"
-      "ldi %[cnt], 16\n"
-      "2:\n\t"
+      ".rept 16\n\t"  // unrolled (no loop counter: 3 cycles per step less)
       "rol %A[lo]\n\t"
       "rol %B[lo]\n\t"
       "rol %A[rem]\n\t"
@@ -143,15 +142,14 @@ static inline uint32_t div_u32(uint32_t n, uint32_t d) {
       "sub %A[rem], %A[d]\n\t"
       "sbc %B[rem], %B[d]\n"
       "3:\n\t"
-      "dec %[cnt]\n\t"
-      "brne 2b\n\t"
+      ".endr\n\t"
       "rol %A[lo]\n\t"
       "rol %B[lo]\n\t"
       "sbc %[q16], %[q16]\n\t"  // carry = inverted quotient bit 16
       "inc %[q16]\n\t"
       "com %A[lo]\n\t"
       "com %B[lo]\n\t"
-      : [rem] "+r"(rem), [lo] "+r"(lo), [cnt] "=&d"(cnt), [q16] "=&r"(q16)
+      : [rem] "+r"(rem), [lo] "+r"(lo), [q16] "=&r"(q16)
       : [d] "r"(d16));
   (void)rem;
   union { uint32_t u; uint16_t w[2]; } q;
