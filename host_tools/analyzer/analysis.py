@@ -16,9 +16,10 @@ from host_tools import runfmt
 from host_tools.analyzer import effects as fx
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit import (Candidate, Problem, evaluate_candidate, judge, params_for)
-from host_tools.analyzer.replay import (CHANNELS, CUMULATIVE, FIT_CHANNELS, ClosedLoopReplay,
-                                        OpenLoopReplay, PreparedRun, channels, prepare_best,
-                                        state_table)
+from host_tools.analyzer.replay import (CHANNELS, CLOSED_LOOP_CHANNELS, CUMULATIVE,
+                                        FIT_CHANNELS, ClosedLoopReplay, OpenLoopReplay,
+                                        PreparedRun, channels, closed_loop_channels,
+                                        prepare_best, state_table)
 
 REPORT_FORMAT = "mismatch-report/1"
 
@@ -81,6 +82,33 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, ob
     return floors
 
 
+def closed_loop_floors(chans_per_run: Sequence[Mapping[str, object]]) -> dict[str, float]:
+    """Noise floor of the closed-loop channels (recorded minus replayed controller output),
+    from the data: the white part of the nominal residual (MAD of second differences), which
+    holds the torque jumps that single encoder-count differences between the real wheel and the
+    plant cause through the speed loop; at least the telemetry's resolution (0.1 mN m for the
+    torque command, 2^-15 for the duty) as a uniform quantization std."""
+    base = {"tau_cmd_r": 1e-4 / math.sqrt(12), "tau_cmd_l": 1e-4 / math.sqrt(12),
+            "pwm_r": 2.0 ** -15 / math.sqrt(12), "pwm_l": 2.0 ** -15 / math.sqrt(12)}
+    floors = {}
+    for c in CLOSED_LOOP_CHANNELS:
+        res = [ch[c].resid for ch in chans_per_run if ch and c in ch]
+        if not res:
+            continue
+        hf = float(np.sqrt(np.mean([sg.hf_noise_std(x) ** 2 for x in res])))
+        floors[c] = max(base[c], hf)
+    return floors
+
+
+def _pooled_rmse(chans_per_run, names) -> dict[str, float]:
+    out = {}
+    for c in names:
+        r = [ch[c].resid for ch in chans_per_run if ch and c in ch]
+        if r and sum(x.size for x in r):
+            out[c] = float(np.sqrt(np.mean(np.concatenate(r) ** 2)))
+    return out
+
+
 # ------------------------------------------------------------------------ worker
 
 
@@ -140,6 +168,9 @@ class Analysis:
     torque_mismatch: list[dict] = field(default_factory=list)
     windows: dict = field(default_factory=dict)   # (run idx, channel) -> [Window]
     timing_s: float = 0.0
+    closed_loop: dict = field(default_factory=dict)      # report section (see docs/analyzer.md)
+    cl_nominal: list = field(default_factory=list)       # per run: channel -> Channel, or {}
+    cl_updated: list = field(default_factory=list)
 
 
 def _window_entries(preps, chans_per_run, floors, channel_names, replay_name,
@@ -252,10 +283,28 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     preps = [prepare_best(r, duty) for r in runs]
     nominal = [channels(p, duty.simulate(p, {}), "duty") for p in preps]
     nominal_t = [channels(p, torque.simulate(p, {}), "torque") for p in preps]
-    ok, why = ClosedLoopReplay.available()
-    if not ok:
-        notes.append(f"closed-loop replay through lib/control not run: {why}; the controller's "
-                     "torque (tau_cmd) is therefore not compared")
+    # closed loop through lib/control: the torque and duty the firmware should have commanded
+    clr = ClosedLoopReplay(dt_s=dt_s)
+    ok, why = clr.available()
+    cl_setups: list = [None] * len(preps)
+    cl_runs: list[dict] = []
+    cl_nominal: list[dict] = [{} for _ in preps]
+    for i, p in enumerate(preps):
+        if not ok:
+            cl_runs.append({"run": p.name, "replayed": False, "problems": [why],
+                            "assumptions": []})
+            continue
+        setup, problems, assumptions = clr.setup(p)
+        cl_setups[i] = setup
+        cl_runs.append({"run": p.name, "replayed": setup is not None, "problems": problems,
+                        "assumptions": assumptions, "reference": setup})
+        if setup is not None:
+            cl_nominal[i] = closed_loop_channels(p, clr.simulate(p, {}, setup))
+        else:
+            notes.append(f"closed-loop replay of {p.name} not run: " + "; ".join(problems))
+    n_cl = sum(1 for c in cl_nominal if c)
+    if n_cl:
+        log(f"closed-loop replay through lib/control: {n_cl}/{len(preps)} run(s)")
     floors = noise_floors(preps, nominal)
     floors_t = noise_floors(preps, nominal_t)
     log("noise floors: " + ", ".join(f"{c}={v:.3g}" for c, v in sorted(floors.items())))
@@ -267,6 +316,14 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                                        tau_max)
     entries_t, _, _ = _window_entries(preps, nominal_t, floors_t, chan_names, "torque",
                                       states, tau_max)
+    cl_floors = closed_loop_floors(cl_nominal)
+    cl_entries: list[dict] = []
+    cl_wins: dict = {}
+    if n_cl:
+        cl_entries, cl_wins, _ = _window_entries(preps, cl_nominal, cl_floors,
+                                                 [c for c in CLOSED_LOOP_CHANNELS
+                                                  if c in cl_floors], "closed-loop", states,
+                                                 tau_max)
     fit_chans = [c for c in FIT_CHANNELS if c in floors]
     sig_fit = [e for e in entries if e["channel"] in fit_chans]
     problem = Problem(preps, floors, vocab, dt_s=dt_s, fit_channels=fit_chans)
@@ -391,6 +448,9 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                              f"(normalized RMS residual {nrms0:.3g} -> {nrms1:.3g}, noise = 1)")
     if final_effects:
         updated = [channels(p, duty.simulate(p, final_effects), "duty") for p in preps]
+    cl_updated = [closed_loop_channels(p, clr.simulate(p, final_effects, cl_setups[i]))
+                  if (final_effects and cl_setups[i] is not None) else cl_nominal[i]
+                  for i, p in enumerate(preps)]
     # error tables: fitting data and held-out
     rb = problem.channel_rmse({}, runs_idx)
     ra = problem.channel_rmse(final_effects, runs_idx) if final_effects else dict(rb)
@@ -410,6 +470,29 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                  "noise_floor": {k: _r(v) for k, v in floors.items()},
                  "normalized_rms_before": _r(nrms0),
                  "normalized_rms_after": _r(math.sqrt(_excess(problem, final_effects)))}
+    cl_b = _pooled_rmse(cl_nominal, CLOSED_LOOP_CHANNELS)
+    cl_a = _pooled_rmse(cl_updated, CLOSED_LOOP_CHANNELS)
+    for c in cl_b:
+        fit_table["rmse_before"][c] = _r(cl_b[c])
+        fit_table["rmse_after"][c] = _r(cl_a[c])
+        fit_table["noise_floor"][c] = _r(cl_floors[c])
+
+    def _nrms(chs):
+        r = [ch[c].resid / cl_floors[c] for ch in chs if ch for c in cl_floors if c in ch]
+        return _r(float(np.sqrt(np.mean(np.concatenate(r) ** 2)))) if r else None
+
+    closed_loop = {
+        "replay": "lib/control fixed-point cascade (ctl_* C ABI) against the lib/slipmodel "
+                  "plant, firmware schedule, encoder counts quantised from the plant",
+        "runs": cl_runs, "channels": list(cl_b),
+        "noise_floor": {c: _r(v) for c, v in cl_floors.items()},
+        "rmse_nominal": {c: _r(v) for c, v in cl_b.items()},
+        "rmse_updated": {c: _r(v) for c, v in cl_a.items()},
+        "normalized_rms_nominal": _nrms(cl_nominal),
+        "normalized_rms_updated": _nrms(cl_updated),
+        "updated_effects": {k: dict(v) for k, v in final_effects.items()},
+        "mismatch": cl_entries,
+        "used_for_decisions": False}
     model = updated_model(runs[0].meta, final_effects, [r.path for r in runs])
     all_c = cands + pair_cands
     all_c.sort(key=lambda c: c.delta_bic)
@@ -417,6 +500,10 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                   entries if verdict != "no_mismatch" else [],
                   all_c, selected, verdict, fit_table, hint, model, notes, windows=wins)
     an.torque_mismatch = entries_t
+    an.closed_loop = closed_loop
+    an.cl_nominal, an.cl_updated = cl_nominal, cl_updated
+    for (i, c), w in cl_wins.items():
+        an.windows[(i, c)] = w
     an.timing_s = time.time() - t_start
     log(f"verdict: {verdict}" + (f"; selected {', '.join(s['effect'] for s in selected)}"
                                  if selected else "") + f" ({an.timing_s:.1f} s)")

@@ -3,8 +3,8 @@
 The plant is lib/slipmodel's, reached through host_tools._native (never re-implemented
 here).  A *replayer* turns (prepared run, effects) into simulated plant outputs; the
 open-loop ones drive the plant with the recorded duty or the recorded torque command.
-A closed-loop replay through lib/control plugs in as another replayer once its C ABI
-exists (see :class:`ClosedLoopReplay`).
+:class:`ClosedLoopReplay` runs the firmware's controller (lib/control through its C ABI)
+against the plant and reproduces the torque and duty the firmware should have commanded.
 
 :func:`channels` then maps a recording and a simulation onto common channels, each a
 pair (recorded, simulated) on the recording's own time base."""
@@ -183,22 +183,15 @@ class OpenLoopReplay:
         src = prep.duty if self.mode == "duty" else prep.torque
         t_in = prep.t_in if self.mode == "duty" else prep.t_in_tau
         grid = prep.t_grid
-        # Simulate on a dyadic grid (multiples of 2^-n s, one plant step per row): sums of its
-        # times are exact in binary floating point, so the plant's clock never appears to run
-        # backwards between rows (which would clear the actuation-delay history), and input
-        # changes land within one step of their reconstructed time.  Outputs are then
-        # interpolated onto the recording's times.
-        h = 2.0 ** math.floor(math.log2(self.dt_s))
-        t0 = math.floor(grid[0] / h) * h
-        n = int(math.ceil((grid[-1] - t0) / h)) + 1
-        fine = t0 + h * np.arange(n)
-        in_r = _zoh(t_in, src[0], fine)
-        in_l = _zoh(t_in, src[1], fine)
-        out = plant.simulate(fine, in_r, in_l, mode=self.mode, dt_s=h * 1.000001,
+        # The plant is stepped on the replay grid itself (telemetry times and reconstructed
+        # input times), each input held from its row to the next.  lib/slipmodel's
+        # Plant::set_time keeps the actuation-delay line across the clock re-alignment at every
+        # row, so no special time grid is needed.
+        in_r = _zoh(t_in, src[0], grid)
+        in_l = _zoh(t_in, src[1], grid)
+        out = plant.simulate(grid, in_r, in_l, mode=self.mode, dt_s=self.dt_s,
                              start_pose=prep.start_pose)
-        ts = np.asarray(out["t_s"], float)
-        res = {k: np.interp(grid, ts, np.asarray(v, float)) for k, v in out.items()
-               if k in _NEEDED}
+        res = {k: np.asarray(v, float) for k, v in out.items() if k in _NEEDED}
         res["t_s"] = grid.copy()
         return res
 
@@ -207,26 +200,168 @@ _NEEDED = {"x_m", "y_m", "phi_rad", "theta_r_rad", "theta_l_rad", "dtheta_r_rad_
            "dtheta_l_rad_s", "tau_r_nm", "tau_l_nm", "v_m_s", "omega_rad_s", "slip_r", "slip_l"}
 
 
+REF_KINDS = ("line", "arc", "figure_eight")
+CLOSED_LOOP_CHANNELS = ("tau_cmd_r", "tau_cmd_l", "pwm_r", "pwm_l")
+
+
+def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np.ndarray
+                      ) -> tuple[dict | None, list[str], list[str]]:
+    """What the closed-loop replay needs from a run, or why it cannot run.
+
+    Returns (setup, problems, assumptions).  ``setup`` is None when a problem makes the replay
+    impossible.  Needed: ``meta["reference"]`` = ``{"kind": line|arc|figure_eight, "accel":
+    m/s^2, "cruise": m/s, "radius": m (arc, figure eight)}`` (the free-text ``experiment`` is
+    not parsed: that would be guessing), ``torque_clamp``, ``periods_s.inner``/``outer``.
+    ``reference.t0_s`` is the board time of the controller's first tick (reference time 0);
+    when absent it is taken as 0 (the board clock starts with the experiment, as the truth
+    simulator writes) and that assumption is checked against the recording: every change of
+    the recorded torque command must fall in a telemetry interval that contains a tick."""
+    problems: list[str] = []
+    assumptions: list[str] = []
+    ref = meta.get("reference")
+    if not isinstance(ref, Mapping):
+        return None, ["meta.json has no structured 'reference' ({kind, accel, cruise, radius}); "
+                      "the free-text 'experiment' is not parsed, so the reference the firmware "
+                      "tracked is unknown"], []
+    kind = ref.get("kind")
+    if kind not in REF_KINDS:
+        return None, [f"meta.json reference.kind {kind!r} is not one of {list(REF_KINDS)}"], []
+    vals = {}
+    need = ["accel", "cruise"] + (["radius"] if kind != "line" else [])
+    for k in need:
+        v = ref.get(k)
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+            problems.append(f"meta.json reference.{k} is missing or not a number")
+        else:
+            vals[k] = float(v)
+    if "torque_clamp" not in meta:
+        problems.append("meta.json has no 'torque_clamp': the clamp setting the firmware ran "
+                        "with is unknown")
+    periods = meta.get("periods_s", {})
+    inner, outer = float(periods.get("inner", 0.0)), float(periods.get("outer", 0.0))
+    ratio = round(outer / inner) if inner > 0 else 0
+    if inner <= 0 or ratio < 1 or abs(ratio * inner - outer) > 1e-9:
+        problems.append(f"periods_s inner {inner} / outer {outer}: the outer loop is not a whole "
+                        "number of inner ticks")
+    if problems:
+        return None, problems, []
+    t0 = ref.get("t0_s")
+    if t0 is None:
+        t0 = 0.0
+        assumptions.append("reference.t0_s not in meta.json: the controller's first tick (reference "
+                           "time 0) is taken at board time 0")
+    t0 = float(t0)
+    if t0 > float(t[0]) + inner:
+        problems.append(f"reference.t0_s = {t0} s is after the first telemetry frame's tick")
+        return None, problems, assumptions
+    # the recorded torque command must change only in intervals that contain a tick
+    ch = np.flatnonzero((np.diff(tau_r) != 0) | (np.diff(tau_l) != 0)) + 1
+    ch = ch[t[ch - 1] >= t0]
+    if ch.size:
+        tick = t0 + np.floor((t[ch] - t0) / inner + 1e-9) * inner
+        bad = int(np.sum(~(tick > t[ch - 1] + 1e-9)))
+        if bad > max(1, int(0.05 * ch.size)):
+            problems.append(f"{bad} of {ch.size} changes of the recorded torque command fall "
+                            f"between ticks of a {inner * 1e3:g} ms schedule starting at "
+                            f"t0 = {t0:g} s: the tick times are not known")
+            return None, problems, assumptions
+    return ({"kind": kind, "accel": vals["accel"], "cruise": vals["cruise"],
+             "radius": vals.get("radius", 1.0), "clamp": bool(meta["torque_clamp"]),
+             "t0_s": t0, "inner_s": inner, "outer_every": int(ratio)}, [], assumptions)
+
+
+_CTL_KEYS = ("mu_s", "mu_k", "b", "e", "d", "g", "h", "m_r", "I_rz", "I_wz", "I_wy", "r", "m_w",
+             "supply_v", "no_load_rad_s", "stall_nm")
+
+
 class ClosedLoopReplay:
-    """Closed-loop replay through lib/control: the plant driven by the firmware's own control
-    laws, reproducing the torque the firmware should have commanded.  Needs the control C ABI
-    (host_tools._native.Controller); until that exists :meth:`available` says why not."""
+    """Closed-loop replay through lib/control: the firmware's fixed-point cascade (its C ABI
+    ``ctl_*``, bound by :class:`host_tools.truth.Controller`), configured with the run's nominal
+    parameters, reference and clamp setting, drives the lib/slipmodel plant (with or without
+    candidate effects) on the firmware's schedule: an inner step every ``periods_s.inner`` on
+    the plant's encoder counts (floor of angle x ppr / 2 pi), an outer step every
+    ``periods_s.outer`` after the inner step of the same tick.  It reproduces the torque and
+    duty the firmware should have commanded.
+
+    ``Plant.simulate`` restarts from rest, so every tick re-simulates the duty history
+    (O(ticks^2) plant steps, about 0.2 s for a 3 s run)."""
 
     name = "closed-loop"
+
+    def __init__(self, dt_s: float = 5e-4):
+        self.dt_s = dt_s
 
     @staticmethod
     def available() -> tuple[bool, str]:
         try:
-            from host_tools import _native
+            from host_tools.truth import Controller  # noqa: F401  (lib/control C ABI)
         except Exception as exc:  # pragma: no cover - depends on the build
-            return False, f"host_tools._native unavailable: {exc}"
-        if not hasattr(_native, "Controller"):
-            return False, "the lib/control C ABI (host_tools._native.Controller) does not exist yet"
+            return False, f"the lib/control C ABI could not be loaded: {exc}"
         return True, ""
 
-    def simulate(self, prep: PreparedRun, effects):  # pragma: no cover - not yet available
-        ok, why = self.available()
-        raise NotImplementedError(why or "closed-loop replay is not implemented yet")
+    def setup(self, prep: "PreparedRun") -> tuple[dict | None, list[str], list[str]]:
+        tel = prep.run.telemetry
+        return closed_loop_setup(prep.run.meta, tel["t_s"], tel["tau_cmd_r"], tel["tau_cmd_l"])
+
+    def simulate(self, prep: "PreparedRun", effects: Mapping[str, Mapping[str, float]],
+                 setup: dict | None = None) -> dict[str, np.ndarray]:
+        """Per tick: ``t_s`` (board time), the controller's columns (``tau_cmd_r`` ... ``pwm_l``)
+        and the plant's wheel angles.  Raises ValueError when the run lacks what the replay
+        needs (see :func:`closed_loop_setup`)."""
+        from host_tools import _native
+        from host_tools.truth import Controller
+        if setup is None:
+            setup, problems, _ = self.setup(prep)
+            if setup is None:
+                raise ValueError("closed-loop replay impossible: " + "; ".join(problems))
+        meta = prep.run.meta
+        params = {k: float(v) for part in ("robot", "motor") for k, v in meta[part].items()
+                  if k in _CTL_KEYS}
+        ctl = Controller(fixed_point=True, clamp=setup["clamp"], params=params)
+        ctl.set_reference(setup["kind"], setup["accel"], setup["cruise"], setup["radius"])
+        ctl.reset(0, 0, prep.start_pose)
+        plant = _native.Plant(robot=prep.robot, motor=prep.motor)
+        for name, ps in effects.items():
+            plant.set_effect(name, **{k: float(v) for k, v in ps.items()})
+        T, t0 = setup["inner_s"], setup["t0_s"]
+        t_end = float(prep.run.telemetry["t_s"][-1])
+        n = int(math.floor((t_end - t0) / T + 1e-9)) + 1
+        k_ppr = prep.ppr / (2 * math.pi)
+        duty_r, duty_l = np.zeros(n), np.zeros(n)
+        rows = []
+        th_r, th_l = np.zeros(n), np.zeros(n)
+        for k in range(n):
+            if k > 0:
+                tg = t0 + T * np.arange(k + 1)
+                st = plant.simulate(tg, np.append(duty_r[:k], 0.0), np.append(duty_l[:k], 0.0),
+                                    mode="duty", dt_s=self.dt_s, start_pose=prep.start_pose)
+                th_r[k], th_l[k] = st["theta_r_rad"][-1], st["theta_l_rad"][-1]
+            o = ctl.inner(int(math.floor(th_r[k] * k_ppr)), int(math.floor(th_l[k] * k_ppr)), T)
+            if k % setup["outer_every"] == 0:
+                ctl.outer(k * T)
+            duty_r[k], duty_l[k] = o["pwm_r"], o["pwm_l"]
+            rows.append(o)
+        out = {c: np.array([r[c] for r in rows]) for c in rows[0]}
+        out["t_s"] = t0 + T * np.arange(n)
+        out["theta_r_rad"], out["theta_l_rad"] = th_r, th_l
+        return out
+
+
+def closed_loop_channels(prep: "PreparedRun", sim: Mapping[str, np.ndarray]) -> dict:
+    """Recorded against replayed controller outputs at the telemetry frames: a frame reports
+    the output of the latest tick at or before it."""
+    tel = prep.run.telemetry
+    t = tel["t_s"]
+    ts = np.asarray(sim["t_s"], float)
+    T = float(ts[1] - ts[0]) if ts.size > 1 else 1.0
+    idx = np.floor((t - ts[0]) / T + 1e-6).astype(int)
+    ok = (idx >= 0) & (idx < ts.size)
+    out = {}
+    for c in CLOSED_LOOP_CHANNELS:
+        unit = "N m" if c.startswith("tau") else "1"
+        out[c] = Channel(c, t[ok], np.asarray(tel[c], float)[ok],
+                         np.asarray(sim[c], float)[idx[ok]], unit)
+    return out
 
 
 # -------------------------------------------------------------------------- channels

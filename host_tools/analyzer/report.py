@@ -56,6 +56,7 @@ def report_dict(an: Analysis) -> dict:
         "fit": an.fit_table,
         "hint": an.hint,
         "torque_replay_mismatch": an.torque_mismatch,
+        "closed_loop": an.closed_loop,
         "notes": an.notes,
         "runs": [r.path for r in an.runs],
         "heldout_rmse_units": "candidates' heldout_rmse_* are normalized: RMS of residual / "
@@ -75,17 +76,27 @@ def _plots(an: Analysis, out_dir: str, max_plots: int = 16) -> list[str]:
         chans = [(i, c) for i in range(len(an.preps)) for c in ("omega_r",)
                  if c in an.nominal[i]]
     for i, c in chans[:max_plots]:
-        ch = an.nominal[i][c]
+        closed = c not in an.nominal[i]
+        if closed:  # a closed-loop channel (recorded vs replayed controller output)
+            ch = an.cl_nominal[i].get(c) if i < len(an.cl_nominal) else None
+            if ch is None:
+                continue
+            upd = an.cl_updated[i].get(c) if (i < len(an.cl_updated) and
+                                               an.closed_loop.get("updated_effects")) else None
+        else:
+            ch = an.nominal[i][c]
+            upd = an.updated[i][c] if (an.updated is not None and c in an.updated[i]) else None
+        kind = "closed loop" if closed else "simulation"
         fig, ax = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True,
                                gridspec_kw={"height_ratios": [2, 1]})
         ax[0].plot(ch.t, ch.rec, "k.", ms=3, label="recording")
-        ax[0].plot(ch.t, ch.sim, "-", color="tab:red", lw=1.2, label="nominal simulation")
+        ax[0].plot(ch.t, ch.sim, "-", color="tab:red", lw=1.2, label=f"nominal {kind}")
         ax[1].plot(ch.t, ch.resid, "-", color="tab:red", lw=1, label="nominal residual")
-        if an.updated is not None and c in an.updated[i]:
-            u = an.updated[i][c]
-            ax[0].plot(u.t, u.sim, "-", color="tab:blue", lw=1.2, label="updated simulation")
+        if upd is not None:
+            u = upd
+            ax[0].plot(u.t, u.sim, "-", color="tab:blue", lw=1.2, label=f"updated {kind}")
             ax[1].plot(u.t, u.resid, "-", color="tab:blue", lw=1, label="updated residual")
-        f = an.floors.get(c, 0)
+        f = an.floors.get(c, an.closed_loop.get("noise_floor", {}).get(c) or 0)
         for a in (ax[1],):
             a.axhspan(-3 * f, 3 * f, color="0.85", label="±3 noise floors")
         for w in an.windows.get((i, c), []):
@@ -151,6 +162,25 @@ def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
         L.append(f"| {c['effect']} | {ps} | {c['delta_bic']:.1f} | "
                  f"{c['heldout_rmse_before']:.3g} → {c['heldout_rmse_after']:.3g} | "
                  f"{'yes' if c['accepted'] else 'no'} | {'; '.join(c['why_not'][:2])} |")
+    cl = an.closed_loop or {}
+    L += ["", "## Closed-loop replay through lib/control (the torque the firmware should have "
+          "commanded)", ""]
+    if cl.get("channels"):
+        L += ["The firmware's fixed-point controller drives the plant on its own schedule from "
+              "the run's reference and clamp setting; recorded minus replayed controller "
+              "output. Shown, not used to decide.", "",
+              "| channel | noise floor | nominal closed loop | updated closed loop |",
+              "|---|---|---|---|"]
+        for c in cl["channels"]:
+            L.append(f"| {c} | {cl['noise_floor'][c]:.3g} | {cl['rmse_nominal'][c]:.3g} | "
+                     f"{cl['rmse_updated'][c]:.3g} |")
+        L += ["", f"Normalized RMS (noise = 1): nominal {cl['normalized_rms_nominal']}, "
+              f"updated {cl['normalized_rms_updated']}."]
+    for rr in cl.get("runs", []):
+        if not rr["replayed"]:
+            L.append(f"- `{rr['run']}` not replayed in closed loop: {'; '.join(rr['problems'])}")
+        for a in rr.get("assumptions", []):
+            L.append(f"- `{rr['run']}`: assumed {a}")
     if an.notes:
         L += ["", "## Notes", ""] + [f"- {n}" for n in an.notes]
     if plots:

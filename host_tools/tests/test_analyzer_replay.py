@@ -1,0 +1,169 @@
+"""Replays of the analyzer: the closed-loop replay through lib/control (issue 8) against runs
+of the independent truth simulator (its own physics, the firmware's controller), and the
+open-loop replay of an actuation delay on the plain replay grid."""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+try:
+    from host_tools import _native
+    _native.effect_vocabulary()
+    from host_tools import truth
+    truth.build_truth()
+    HAVE_NATIVE = True
+except Exception:  # pragma: no cover - the native libraries could not be built here
+    HAVE_NATIVE = False
+
+pytestmark = pytest.mark.skipif(not HAVE_NATIVE, reason="native libraries not buildable")
+
+from host_tools.runfmt import load_run  # noqa: E402
+
+LINE = {"kind": "line", "accel": 1.0, "cruise": 0.6}
+ARC = {"kind": "arc", "accel": 0.8, "cruise": 0.5, "radius": 0.5}
+# Bound for a run with no effect: the truth simulator and the plant are different physics that
+# agree to ~0.5 mm, so the controller sees an encoder count one tick earlier or later now and
+# then; through the speed loop that moves the torque command by ~1-2 mN m for a tick.
+# Measured: 0.8 mN m RMS, 2.1 mN m max (torque); 0.7-0.9e-3 RMS (duty).
+TAU_RMS_BOUND = 2e-3     # N m
+TAU_MAX_BOUND = 5e-3     # N m
+PWM_RMS_BOUND = 3e-3
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def _replay(path, effects=None):
+    from host_tools.analyzer.replay import ClosedLoopReplay, closed_loop_channels, prepare
+    prep = prepare(load_run(path))
+    cl = ClosedLoopReplay()
+    setup, problems, assumptions = cl.setup(prep)
+    assert setup is not None, problems
+    return closed_loop_channels(prep, cl.simulate(prep, effects or {}, setup))
+
+
+@pytest.mark.parametrize("ref,clamp", [(LINE, True), (ARC, True),
+                                       ({"kind": "line", "accel": 72 * 0.0365,
+                                         "cruise": 36 * 0.0365}, False)])
+def test_closed_loop_replay_reproduces_the_recorded_torque_without_effect(tmp_path, ref, clamp):
+    path = truth.simulate_run(tmp_path / "run", ref, None, clamp=clamp, duration_s=2.5, seed=2)
+    ch = _replay(path)
+    for side in ("r", "l"):
+        tau = ch[f"tau_cmd_{side}"]
+        assert tau.t.size > 100
+        assert _rms(tau.rec) > 0.015  # the controller did command something
+        assert _rms(tau.resid) <= TAU_RMS_BOUND, _rms(tau.resid)
+        assert np.max(np.abs(tau.resid)) <= TAU_MAX_BOUND
+        assert _rms(ch[f"pwm_{side}"].resid) <= PWM_RMS_BOUND
+
+
+def test_closed_loop_replay_uses_the_runs_clamp_setting(tmp_path):
+    # slipping profile without the clamp: replaying it with the clamp on must not match
+    ref = {"kind": "line", "accel": 72 * 0.0365, "cruise": 36 * 0.0365}
+    path = truth.simulate_run(tmp_path / "run", ref, None, clamp=False, duration_s=2.0, seed=3)
+    meta_p = os.path.join(path, "meta.json")
+    meta = json.load(open(meta_p))
+    meta["torque_clamp"] = True
+    json.dump(meta, open(meta_p, "w"))
+    ch = _replay(path)
+    assert _rms(ch["tau_cmd_r"].resid) > 5 * TAU_RMS_BOUND
+
+
+def test_back_emf_nominal_closed_loop_differs_and_the_fitted_model_closes_the_gap(tmp_path):
+    from host_tools.analyzer.analysis import analyze
+    from host_tools.analyzer.report import write_outputs
+    eff = {"motor_back_emf": {"ke_ratio": 1.2}}
+    paths = [truth.simulate_run(tmp_path / f"run-{i}", ref, eff, duration_s=2.5, seed=i)
+             for i, ref in enumerate([LINE, ARC])]
+    an = analyze(paths, jobs=1, effects=["motor_back_emf", "wheel_radius"], log=lambda m: None)
+    assert an.verdict == "explained"
+    assert an.selected[0]["effect"] == "motor_back_emf"
+    rep = write_outputs(an, str(tmp_path / "out"), plots=False)
+    cl = rep["closed_loop"]
+    assert all(r["replayed"] for r in cl["runs"])
+    for side in ("r", "l"):
+        c = f"tau_cmd_{side}"
+        assert cl["rmse_nominal"][c] > 10 * TAU_RMS_BOUND          # the gap
+        assert cl["rmse_nominal"][c] > 10 * cl["noise_floor"][c]
+        assert cl["rmse_updated"][c] <= TAU_RMS_BOUND                # closed by the fit
+        assert rep["fit"]["rmse_before"][c] == cl["rmse_nominal"][c]
+        assert rep["fit"]["noise_floor"][c] == cl["noise_floor"][c]
+    assert cl["normalized_rms_updated"] < 1.5 < 10 < cl["normalized_rms_nominal"]
+    assert any(m["channel"].startswith("tau_cmd") and m["replay"] == "closed-loop"
+               for m in cl["mismatch"])
+    md = open(tmp_path / "out" / "report.md").read()
+    assert "Closed-loop replay through lib/control" in md and "| tau_cmd_r |" in md
+
+
+def test_missing_reference_is_reported_not_guessed(tmp_path):
+    from host_tools.analyzer.analysis import analyze
+    from host_tools.analyzer.report import write_outputs
+    path = truth.simulate_run(tmp_path / "run", LINE, None, duration_s=2.0, seed=4)
+    meta_p = os.path.join(path, "meta.json")
+    meta = json.load(open(meta_p))
+    del meta["reference"]
+    json.dump(meta, open(meta_p, "w"))
+    an = analyze([path], jobs=1, effects=["wheel_radius"], log=lambda m: None)
+    rep = write_outputs(an, str(tmp_path / "out"), plots=False)
+    run = rep["closed_loop"]["runs"][0]
+    assert run["replayed"] is False
+    assert any("reference" in p for p in run["problems"])
+    assert rep["closed_loop"]["channels"] == []
+    assert "tau_cmd_r" not in rep["fit"]["rmse_before"]
+    assert any("closed-loop replay of run not run" in n for n in rep["notes"])
+    assert "not replayed in closed loop" in open(tmp_path / "out" / "report.md").read()
+
+
+def test_closed_loop_setup_checks_the_tick_schedule_and_the_meta():
+    from host_tools.analyzer.replay import closed_loop_setup
+    t = np.round(0.004 + 0.02 * np.arange(100), 6)
+    ticks = np.floor(t / 0.025)            # a controller ticking at 0, 25, 50 ms ...
+    tau = ticks * 1e-3
+    meta = {"torque_clamp": True, "periods_s": {"inner": 0.025, "outer": 0.05},
+            "reference": dict(LINE)}
+    setup, problems, assumptions = closed_loop_setup(meta, t, tau, tau)
+    assert setup and setup["t0_s"] == 0.0 and not problems and assumptions
+    # a stated start that contradicts when the recorded torque changes
+    meta["reference"]["t0_s"] = 0.0125
+    setup, problems, _ = closed_loop_setup(meta, t, tau, tau)
+    assert setup is None and "tick" in problems[0]
+    for broken, word in ((lambda m: m["reference"].update(kind="spiral"), "kind"),
+                         (lambda m: m["reference"].pop("accel"), "accel"),
+                         (lambda m: m.pop("torque_clamp"), "torque_clamp"),
+                         (lambda m: m["periods_s"].update(outer=0.04), "outer")):
+        m = {"torque_clamp": True, "periods_s": {"inner": 0.025, "outer": 0.05},
+             "reference": dict(LINE)}
+        broken(m)
+        setup, problems, _ = closed_loop_setup(m, t, tau, tau)
+        assert setup is None and any(word in p for p in problems), (word, problems)
+
+
+def test_actuation_delay_is_kept_and_fitted_on_the_plain_replay_grid(tmp_path):
+    """The replay steps the plant on the recording's own grid (no dyadic-grid workaround):
+    the plant's delay line must survive the clock re-alignment at every row, and the
+    actuation_delay candidate must still recover the delay."""
+    from host_tools.analyzer import synth
+    from host_tools.analyzer.analysis import analyze
+    from host_tools.analyzer.replay import OpenLoopReplay, prepare
+    paths = synth.make_case(tmp_path / "delay", {"actuation_delay": {"delay_s": 0.03}},
+                            profiles=("ramp", "turn"), seed=11)
+    prep = prepare(load_run(paths[0]))
+    rp = OpenLoopReplay("duty")
+    grid = np.diff(prep.t_grid)
+    assert grid.min() < 0.01 and np.unique(np.round(grid, 6)).size > 1  # not a uniform grid
+    nom = rp.simulate(prep, {})
+    late = rp.simulate(prep, {"actuation_delay": {"delay_s": 0.03}})
+    # the delayed wheel lags the nominal one by ~30 ms of its motion, throughout the run
+    w_n, w_d = nom["dtheta_r_rad_s"], late["dtheta_r_rad_s"]
+    shifted = np.interp(prep.t_grid - 0.03, prep.t_grid, w_n)
+    inside = prep.t_grid > prep.t_grid[0] + 0.1
+    assert _rms((w_d - shifted)[inside]) < 0.1 * _rms((w_d - w_n)[inside])
+    an = analyze(paths, jobs=1, effects=["actuation_delay", "motor_lag", "motor_back_emf"],
+                 log=lambda m: None)
+    assert an.verdict == "explained"
+    assert an.selected[0]["effect"] == "actuation_delay"
+    assert an.selected[0]["params"]["delay_s"] == pytest.approx(0.03, rel=0.1)
