@@ -169,6 +169,8 @@ int main() {
     const int32_t w = static_cast<int32_t>(x ^ (x << 7));
     bad += ctl::fx::mul_ss(a, b) != static_cast<int32_t>(a) * static_cast<int32_t>(b);
     bad += ctl::fx::mul_us(ua, b) != static_cast<int32_t>(static_cast<uint32_t>(ua)) * static_cast<int32_t>(b);
+    bad += ctl::fx::mul_uu(ua, static_cast<uint16_t>(x)) != static_cast<uint32_t>(ua) * static_cast<uint16_t>(x);
+    ++n;
 #define ASR_CHECK(S) bad += ctl::fx::asr<S>(w) != (w >> S);
     ASR_CHECK(1) ASR_CHECK(2) ASR_CHECK(3) ASR_CHECK(4) ASR_CHECK(5) ASR_CHECK(6) ASR_CHECK(7)
     ASR_CHECK(8) ASR_CHECK(9) ASR_CHECK(10) ASR_CHECK(11) ASR_CHECK(12) ASR_CHECK(13)

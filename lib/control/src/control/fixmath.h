@@ -233,6 +233,34 @@ static CTL_INLINE int32_t mul_us(uint16_t a, int16_t b) {
 #endif
 }
 
+/// Unsigned 16 x 16 -> 32 (avr-gcc 5.4 calls __umulhisi3 for the C expression).
+static CTL_INLINE uint32_t mul_uu(uint16_t a, uint16_t b) {
+#if defined(__AVR__)
+  uint32_t r;
+  uint8_t z;
+  __asm__(
+      "clr %[z]\n\t"
+      "mul %B[a], %B[b]\n\t"
+      "movw %C[r], r0\n\t"
+      "mul %A[a], %A[b]\n\t"
+      "movw %A[r], r0\n\t"
+      "mul %B[a], %A[b]\n\t"
+      "add %B[r], r0\n\t"
+      "adc %C[r], r1\n\t"
+      "adc %D[r], %[z]\n\t"
+      "mul %A[a], %B[b]\n\t"
+      "add %B[r], r0\n\t"
+      "adc %C[r], r1\n\t"
+      "adc %D[r], %[z]\n\t"
+      "clr r1\n\t"
+      : [r] "=&r"(r), [z] "=&r"(z)
+      : [a] "r"(a), [b] "r"(b));
+  return r;
+#else
+  return static_cast<uint32_t>(a) * b;
+#endif
+}
+
 #if defined(__AVR__)
 namespace sh {
 /// One-bit 32-bit shifts, unrolled by Sh<N> (avr-gcc emits a counted loop, ~6 cycles per bit,

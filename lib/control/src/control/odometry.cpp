@@ -113,8 +113,8 @@ void OdometryQ::set_dt(uint32_t dt_us) {
   rate_q10_ = rate_div_q10_;
   slope_q12_ = 0;
   if (rate_div_q10_ != 0 && rate_div_q10_ < 64000U && cfg_.inv_rate_q32 != 0) {
-    const uint16_t r2_hi = static_cast<uint16_t>((static_cast<uint32_t>(rate_div_q10_) * rate_div_q10_) >> 16);
-    slope_q12_ = static_cast<uint16_t>((static_cast<uint32_t>(r2_hi) * cfg_.inv_rate_q32) >> 16);
+    const uint16_t r2_hi = static_cast<uint16_t>(fx::mul_uu(rate_div_q10_, rate_div_q10_) >> 16);
+    slope_q12_ = static_cast<uint16_t>(fx::mul_uu(r2_hi, cfg_.inv_rate_q32) >> 16);
   }
 }
 
