@@ -265,6 +265,7 @@ class Candidate:
     output_size: float           # RMS change of the fit channels, in noise floors
     checks: dict[str, bool] = field(default_factory=dict)
     reasons: list[str] = field(default_factory=list)
+    heldout_per_channel: dict = field(default_factory=dict)
 
     @property
     def accepted(self) -> bool:
@@ -322,6 +323,32 @@ def evaluate_candidate(problem: Problem, names: Sequence[str], base: Mapping | N
                      fold_values, size)
 
 
+# The per-channel held-out rule (docs/analyzer.md, "held-out: no channel worse"): an update may
+# add to any channel's held-out RMS error at most an independent error of HELDOUT_KAPPA noise
+# floors, combined in quadrature: after <= sqrt(before^2 + (kappa * floor)^2).  A channel that
+# sits at its floor then ends at <= sqrt(1 + 0.25) = 1.12 floors, below the 1.25 floors at
+# which the analyzer calls a mismatch (kappa = 0.75 would reach it exactly).
+HELDOUT_KAPPA = 0.5
+
+
+def heldout_channel_check(before: Mapping[str, float], after: Mapping[str, float],
+                          floors: Mapping[str, float], kappa: float = HELDOUT_KAPPA
+                          ) -> dict[str, dict]:
+    """Per channel: held-out RMSE before and after the update, the limit and whether it holds.
+    Channels without a noise floor or without both values are left out."""
+    out = {}
+    for ch, b in before.items():
+        a = after.get(ch)
+        f = floors.get(ch)
+        if a is None or f is None or not (math.isfinite(b) and math.isfinite(a)):
+            continue
+        limit = math.sqrt(b * b + (kappa * f) ** 2)
+        out[ch] = {"before": b, "after": a, "noise_floor": f, "limit": limit,
+                   "increase_noise_floors": (a - b) / f if f > 0 else 0.0,
+                   "ok": bool(a <= limit)}
+    return out
+
+
 def judge(problem: Problem, cand: Candidate, ref_effects: Mapping | None = None,
           only: Sequence[str] | None = None, bic_margin: float = -10.0,
           heldout_gain: float = 0.05, stability: float = 0.5, min_output: float = 0.5) -> None:
@@ -334,13 +361,15 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping | None = None,
     if not c["bic"]:
         cand.reasons.append(f"BIC does not improve enough ({cand.delta_bic:.1f} >= {bic_margin})")
     c["heldout"] = cand.heldout_after < (1 - heldout_gain) * cand.heldout_before
-    worse = [ch for ch, b in cand.heldout_channels_before.items()
-             if ch in cand.heldout_channels_after and ch in problem.floors
-             and cand.heldout_channels_after[ch] > b * 1.02
-             and cand.heldout_channels_after[ch] > problem.floors[ch]]
+    cand.heldout_per_channel = heldout_channel_check(cand.heldout_channels_before,
+                                                     cand.heldout_channels_after, problem.floors)
+    worse = [ch for ch, v in cand.heldout_per_channel.items() if not v["ok"]]
     if worse:
         c["heldout"] = False
-        cand.reasons.append(f"held-out error gets worse on {', '.join(worse)}")
+        cand.reasons.append("held-out error grows by more than the tolerance on " + ", ".join(
+            f"{ch} ({cand.heldout_per_channel[ch]['before']:.3g} -> "
+            f"{cand.heldout_per_channel[ch]['after']:.3g}, limit "
+            f"{cand.heldout_per_channel[ch]['limit']:.3g})" for ch in worse))
     elif not c["heldout"]:
         cand.reasons.append(f"held-out error does not improve by {heldout_gain:.0%} "
                             f"({cand.heldout_before:.3g} -> {cand.heldout_after:.3g})")

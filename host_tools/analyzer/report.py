@@ -35,6 +35,9 @@ def report_dict(an: Analysis) -> dict:
                      _r(c.heldout_after),
                  "accepted": c.accepted, "checks": dict(c.checks), "why_not": c.reasons,
                  "output_change_noise_floors": _r(c.output_size),
+                 "heldout_per_channel": {ch: {q: (_r(x) if isinstance(x, float) else x)
+                                              for q, x in v.items()}
+                                         for ch, v in c.heldout_per_channel.items()},
                  "param_std": {}}
         for e, ps in c.fit.params.items():
             for k, v in ps.items():
@@ -146,14 +149,18 @@ def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
                  "the noise floors below.")
     L += ["", "## Errors before and after (RMSE per channel)", "",
           f"Held-out method: {an.fit_table['heldout_method']}.", "",
+          f"Held-out rule: {an.fit_table.get('heldout_rule', '-')}.", "",
           "| channel | noise floor | fit: nominal | fit: updated | held-out: nominal | "
-          "held-out: updated |", "|---|---|---|---|---|---|"]
+          "held-out: updated | held-out limit |", "|---|---|---|---|---|---|---|"]
     ft = an.fit_table
+    hc = ft.get("heldout_check", {})
     for c in ft["rmse_before"]:
         g = lambda d: (f"{d[c]:.4g}" if d.get(c) is not None else "-")  # noqa: E731
+        lim = (f"{hc[c]['limit']:.4g} {'ok' if hc[c]['ok'] else 'EXCEEDED'}" if c in hc
+               else "-")
         L.append(f"| {c} | {g(ft['noise_floor'])} | {g(ft['rmse_before'])} | "
                  f"{g(ft['rmse_after'])} | {g(ft['heldout_rmse_before'])} | "
-                 f"{g(ft['heldout_rmse_after'])} |")
+                 f"{g(ft['heldout_rmse_after'])} | {lim} |")
     L += ["", "## Candidates (best first)", "",
           "| effect | fitted | ΔBIC | held-out (normalized) before → after | accepted | why not |",
           "|---|---|---|---|---|---|"]
