@@ -301,7 +301,21 @@ class ClosedLoopReplay:
 
     def setup(self, prep: "PreparedRun") -> tuple[dict | None, list[str], list[str]]:
         tel = prep.run.telemetry
-        return closed_loop_setup(prep.run.meta, tel["t_s"], tel["tau_cmd_r"], tel["tau_cmd_l"])
+        setup, problems, assumptions = closed_loop_setup(prep.run.meta, tel["t_s"],
+                                                         tel["tau_cmd_r"], tel["tau_cmd_l"])
+        # the loader fills missing meta keys with the run format's defaults: say when the
+        # clamp setting is such a default rather than recorded
+        try:
+            import json
+            import os
+            with open(os.path.join(prep.run.path, "meta.json")) as fh:
+                raw = json.load(fh)
+        except (OSError, ValueError):
+            raw = None
+        if isinstance(raw, Mapping) and "torque_clamp" not in raw and setup is not None:
+            assumptions.append("torque_clamp not in meta.json: the run format's default "
+                               f"({str(setup['clamp']).lower()}) is used")
+        return setup, problems, assumptions
 
     def simulate(self, prep: "PreparedRun", effects: Mapping[str, Mapping[str, float]],
                  setup: dict | None = None) -> dict[str, np.ndarray]:

@@ -123,6 +123,18 @@ def test_missing_reference_is_reported_not_guessed(tmp_path):
     assert "not replayed in closed loop" in open(tmp_path / "out" / "report.md").read()
 
 
+def test_a_defaulted_clamp_setting_is_stated_as_an_assumption(tmp_path):
+    from host_tools.analyzer.replay import ClosedLoopReplay, prepare
+    path = truth.simulate_run(tmp_path / "run", LINE, None, clamp=False, duration_s=1.0, seed=5)
+    meta_p = os.path.join(path, "meta.json")
+    meta = json.load(open(meta_p))
+    del meta["torque_clamp"]
+    json.dump(meta, open(meta_p, "w"))
+    setup, problems, assumptions = ClosedLoopReplay().setup(prepare(load_run(path)))
+    assert setup is not None and setup["clamp"] is False and not problems
+    assert any("torque_clamp not in meta.json" in a for a in assumptions)
+
+
 def test_closed_loop_setup_checks_the_tick_schedule_and_the_meta():
     from host_tools.analyzer.replay import closed_loop_setup
     t = np.round(0.004 + 0.02 * np.arange(100), 6)
