@@ -220,9 +220,15 @@ def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np
     assumptions: list[str] = []
     ref = meta.get("reference")
     if not isinstance(ref, Mapping):
-        return None, ["meta.json has no structured 'reference' ({kind, accel, cruise, radius}); "
-                      "the free-text 'experiment' is not parsed, so the reference the firmware "
-                      "tracked is unknown"], []
+        msg = ("meta.json has no structured 'reference' ({kind, accel, cruise, radius}); "
+               "the free-text 'experiment' is not parsed, so the reference the firmware "
+               "tracked is unknown")
+        cmds = meta.get("commands")
+        if isinstance(cmds, list) and any(isinstance(c, Mapping) and c.get("command") == "Start"
+                                          for c in cmds):
+            msg += ("; the logged Start command gives the profile but not the board time at "
+                    "which the experiment started, which the replay would need (reference.t0_s)")
+        return None, [msg], []
     kind = ref.get("kind")
     if kind not in REF_KINDS:
         return None, [f"meta.json reference.kind {kind!r} is not one of {list(REF_KINDS)}"], []

@@ -148,6 +148,11 @@ def test_closed_loop_setup_checks_the_tick_schedule_and_the_meta():
     meta["reference"]["t0_s"] = 0.0125
     setup, problems, _ = closed_loop_setup(meta, t, tau, tau)
     assert setup is None and "tick" in problems[0]
+    robot_meta = {"torque_clamp": True, "periods_s": {"inner": 0.025, "outer": 0.05},
+                  "commands": [{"command": "Start", "values": {"profile": "straight"},
+                                "result": "ok"}]}
+    setup, problems, _ = closed_loop_setup(robot_meta, t, tau, tau)
+    assert setup is None and "reference" in problems[0] and "t0_s" in problems[0]
     for broken, word in ((lambda m: m["reference"].update(kind="spiral"), "kind"),
                          (lambda m: m["reference"].pop("accel"), "accel"),
                          (lambda m: m.pop("torque_clamp"), "torque_clamp"),
