@@ -394,8 +394,8 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 def _odometry(theta_r: np.ndarray, theta_l: np.ndarray, r: float, b: float,
               pose0: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dead reckoning from wheel angles (III.2-III.4), the same formula as the recorded
-    odometry; used only to compare like with like.  The firmware's own odometry (lib/control)
-    replaces this when the control C ABI exists."""
+    odometry; used only to compare like with like in the open-loop replays (kinematics, no
+    physics).  Replacing it by lib/control's own odometry through ctl_* is not done yet."""
     ds = r * 0.5 * (np.diff(theta_r) + np.diff(theta_l))
     dphi = r * (np.diff(theta_r) - np.diff(theta_l)) / (2 * b)
     phi = pose0[2] + np.concatenate([[0.0], np.cumsum(dphi)])
