@@ -10,6 +10,7 @@ against the plant and reproduces the torque and duty the firmware should have co
 pair (recorded, simulated) on the recording's own time base."""
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Protocol
@@ -391,17 +392,28 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
-def _odometry(theta_r: np.ndarray, theta_l: np.ndarray, r: float, b: float,
-              pose0: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Dead reckoning from wheel angles (III.2-III.4), the same formula as the recorded
-    odometry; used only to compare like with like in the open-loop replays (kinematics, no
-    physics).  Replacing it by lib/control's own odometry through ctl_* is not done yet."""
-    ds = r * 0.5 * (np.diff(theta_r) + np.diff(theta_l))
-    dphi = r * (np.diff(theta_r) - np.diff(theta_l)) / (2 * b)
-    phi = pose0[2] + np.concatenate([[0.0], np.cumsum(dphi)])
-    mid = phi[:-1] + 0.5 * dphi
-    x = pose0[0] + np.concatenate([[0.0], np.cumsum(ds * np.cos(mid))])
-    y = pose0[1] + np.concatenate([[0.0], np.cumsum(ds * np.sin(mid))])
+def _odometry(counts_r: np.ndarray, counts_l: np.ndarray, t: np.ndarray, r: float, b: float,
+              ppr: int, pose0: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Encoder odometry of cumulative counts, computed by lib/control's own odometry (the
+    firmware's formula, III.1-III.4) through the ctl_odometry_series C ABI."""
+    from host_tools import _native  # the C ABI library (built on first use)
+    lib = _native.library()
+    fn = lib.ctl_odometry_series
+    i32p = ctypes.POINTER(ctypes.c_int32)
+    dp = ctypes.POINTER(ctypes.c_double)
+    fn.restype = ctypes.c_int
+    fn.argtypes = [ctypes.c_double, ctypes.c_double, ctypes.c_int32, ctypes.c_int, i32p, i32p, dp,
+                   ctypes.c_double, ctypes.c_double, ctypes.c_double, dp, dp, dp]
+    n = len(t)
+    cr = np.ascontiguousarray(counts_r, dtype=np.int32)
+    cl = np.ascontiguousarray(counts_l, dtype=np.int32)
+    tt = np.ascontiguousarray(t, dtype=np.float64)
+    x, y, phi = (np.empty(n) for _ in range(3))
+    rc = fn(r, b, int(ppr), n, cr.ctypes.data_as(i32p), cl.ctypes.data_as(i32p), tt.ctypes.data_as(dp),
+            float(pose0[0]), float(pose0[1]), float(pose0[2]),
+            x.ctypes.data_as(dp), y.ctypes.data_as(dp), phi.ctypes.data_as(dp))
+    if rc < 0:
+        raise ValueError(f"ctl_odometry_series failed ({rc}): r={r}, b={b}, ppr={ppr}")
     return x, y, phi
 
 
@@ -439,10 +451,10 @@ def channels(prep: PreparedRun, sim: Mapping[str, np.ndarray], mode: str = "duty
                                        np.diff(th) / dt, "rad/s")
         out[f"enc_{side}"] = Channel(f"enc_{side}", t, enc - enc[0], (th - th[0]) / k, "counts")
     # odometry of the simulated encoders (quantized like the real ones)
-    q_r = np.floor((th_r - th_r[0]) / k) * k
-    q_l = np.floor((th_l - th_l[0]) / k) * k
+    q_r = np.floor((th_r - th_r[0]) / k)
+    q_l = np.floor((th_l - th_l[0]) / k)
     pose0 = (tel["x_odo_m"][0], tel["y_odo_m"][0], tel["phi_odo_rad"][0])
-    xo, yo, po = _odometry(q_r, q_l, float(prep.robot["r"]), float(prep.robot["b"]), pose0)
+    xo, yo, po = _odometry(q_r, q_l, t, float(prep.robot["r"]), float(prep.robot["b"]), prep.ppr, pose0)
     out["x_odo_m"] = Channel("x_odo_m", t, tel["x_odo_m"], xo, "m")
     out["y_odo_m"] = Channel("y_odo_m", t, tel["y_odo_m"], yo, "m")
     out["phi_odo_rad"] = Channel("phi_odo_rad", t, tel["phi_odo_rad"], po, "rad")

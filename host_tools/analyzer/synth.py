@@ -30,9 +30,9 @@ PROFILES: dict[str, Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]] = {
 }
 
 
-def _odometry(th_r, th_l, r, b):
+def _odometry(counts_r, counts_l, t, r, b, ppr):
     from host_tools.analyzer.replay import _odometry as odo
-    return odo(th_r, th_l, r, b, (0.0, 0.0, 0.0))
+    return odo(counts_r, counts_l, t, r, b, ppr, (0.0, 0.0, 0.0))
 
 
 def make_run(path: str | os.PathLike, profile: str, effects: Mapping[str, Mapping[str, float]]
@@ -77,7 +77,7 @@ def make_run(path: str | os.PathLike, profile: str, effects: Mapping[str, Mappin
     dt = per["telemetry"]
     om_r = np.diff(enc_r, prepend=enc_r[0]) * k / dt
     om_l = np.diff(enc_l, prepend=enc_l[0]) * k / dt
-    x, y, phi = _odometry(enc_r * k, enc_l * k, full["robot"]["r"], full["robot"]["b"])
+    x, y, phi = _odometry(enc_r, enc_l, t_tel, full["robot"]["r"], full["robot"]["b"], ppr)
     tel = {"t_s": t_tel, "enc_r": enc_r.astype(int), "enc_l": enc_l.astype(int),
            "omega_r": om_r, "omega_l": om_l,
            # the torque the firmware's datasheet model attributes to the applied duty

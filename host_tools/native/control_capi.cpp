@@ -19,6 +19,7 @@
 
 #include <control/cascade.h>
 #include <control/cascade_q.h>
+#include <control/odometry.h>
 #include <control/reference.h>
 #include <slipmodel/params.h>
 
@@ -301,6 +302,37 @@ int ctl_inner(void* h, int32_t enc_r, int32_t enc_l, double dt_s, double* out, i
                       k.v_d_m_s, k.omega_d_rad_s, k.e_x_m, k.e_y_m, k.e_phi_rad, double(static_cast<int>(o.odo))};
   memcpy(out, v, sizeof v);
   return static_cast<int>(o.odo);
+}
+
+// Encoder odometry (III.1-III.4, lib/control's float ctl::Odometry) over a series of cumulative
+// counts: the pose after each sample, starting from (x0, y0, phi0) at sample 0. Lets host tools
+// compare odometry with the firmware's own formula instead of re-implementing it.
+// Returns the number of samples whose update reported a problem (0 normally), or a negative
+// error code (bad arguments, non-positive r, b or ppr).
+int ctl_odometry_series(double r_m, double b_m, int32_t counts_per_rev, int n,
+                        const int32_t* enc_r, const int32_t* enc_l, const double* t_s,
+                        double x0_m, double y0_m, double phi0_rad,
+                        double* x_m, double* y_m, double* phi_rad) {
+  if (n < 1 || !enc_r || !enc_l || !t_s || !x_m || !y_m || !phi_rad) return CTL_ERR_ARG;
+  if (!(r_m > 0.0) || !(b_m > 0.0) || counts_per_rev <= 0 || !isfinite(x0_m) ||
+      !isfinite(y0_m) || !isfinite(phi0_rad))
+    return CTL_ERR_VALUE;
+  const ctl::OdometryConfig cfg{static_cast<float>(r_m), static_cast<float>(b_m), counts_per_rev};
+  ctl::Odometry odo(cfg);
+  odo.reset(enc_r[0], enc_l[0],
+            ctl::Pose{static_cast<float>(x0_m), static_cast<float>(y0_m), static_cast<float>(phi0_rad)});
+  x_m[0] = x0_m;
+  y_m[0] = y0_m;
+  phi_rad[0] = phi0_rad;
+  int problems = 0;
+  for (int k = 1; k < n; ++k) {
+    if (odo.update(enc_r[k], enc_l[k], static_cast<float>(t_s[k] - t_s[k - 1])) != ctl::OdoStatus::kOk)
+      ++problems;
+    x_m[k] = odo.pose().x_m;
+    y_m[k] = odo.pose().y_m;
+    phi_rad[k] = odo.pose().phi_rad;
+  }
+  return problems;
 }
 
 }  // extern "C"
