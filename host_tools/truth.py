@@ -26,10 +26,10 @@ from typing import Mapping
 
 import numpy as np
 
-from host_tools import _native
+from host_tools import _native, runfmt
 
 ROOT = Path(__file__).resolve().parent.parent
-PPR = 1856
+PPR = runfmt.DEFAULT_META["encoder_ppr"]  # encoder counts per wheel turn
 INNER_S = 0.025
 _REF_KINDS = {"line": 0, "arc": 1, "figure_eight": 2}
 
@@ -322,10 +322,10 @@ class TruthSim:
                 {c: cam[:nc, i].copy() for i, c in enumerate(cnames)})
 
 
-NOMINAL_META_ROBOT = {"mu_s": 0.241, "mu_k": 0.239, "b": 0.105, "e": 0.095, "d": 0.055,
-                      "g": 9.81, "h": 0.0216, "m_r": 1.5, "I_rz": 0.009753, "I_wz": 0.000584,
-                      "I_wy": 0.001168, "r": 0.0365, "m_w": 0.064}
-NOMINAL_META_MOTOR = {"supply_v": 12.0, "no_load_rad_s": 36.65, "stall_nm": 0.77}
+# The run format's defaults (Table II.2 and the datasheet motor); runfmt keeps them, and
+# host_tools/tests/test_native.py checks them against lib/slipmodel's own defaults.
+NOMINAL_META_ROBOT = dict(runfmt.DEFAULT_META["robot"])
+NOMINAL_META_MOTOR = dict(runfmt.DEFAULT_META["motor"])
 TELEMETRY_SPEC_COLUMNS = ("t_s", "enc_r", "enc_l", "omega_r", "omega_l", "tau_cmd_r", "tau_cmd_l",
                           "pwm_r", "pwm_l", "x_odo_m", "y_odo_m", "phi_odo_rad")
 

@@ -205,3 +205,14 @@ def test_vocabulary_copy_is_safe_to_modify():
     v = _native.effect_vocabulary()
     v["stribeck"]["v_s"] = 99.0
     assert _native.effect_vocabulary()["stribeck"]["v_s"] == 0.01
+
+
+def test_run_format_defaults_are_the_library_defaults():
+    """The Python side's defaults (runfmt, from run-format.md) must equal lib/slipmodel's
+    Table II.2 and datasheet motor: one set of numbers, checked rather than trusted."""
+    from host_tools import runfmt
+
+    plant = _native.Plant()
+    for group in ("robot", "motor"):
+        for key, value in runfmt.DEFAULT_META[group].items():
+            assert plant.get(f"{group}.{key}") == pytest.approx(value, rel=1e-6), f"{group}.{key}"
