@@ -83,6 +83,19 @@ ctl::ControllerQ qc_const(cfg_q);  // same sequence with a constant dt (cached r
 
 }  // namespace
 
+namespace ctl {
+// Access to OdometryQ's private rate state for the self-test: set_dt() (inline assembly on the
+// AVR) must leave exactly the state set_dt_wide() (plain C) leaves, for every dt.
+struct OdometryQProbe {
+  static uint8_t check(OdometryQ& a, OdometryQ& b, uint32_t dt_us) {
+    a.set_dt(dt_us);
+    b.set_dt_wide(dt_us);
+    return (a.div_dt_us_ != b.div_dt_us_) + (a.rate_per_count_q11_ != b.rate_per_count_q11_) +
+           (a.rate_div_q10_ != b.rate_div_q10_) + (a.rate_q10_ != b.rate_q10_) + (a.slope_q12_ != b.slope_q12_);
+  }
+};
+}  // namespace ctl
+
 int main() {
   UBRR0 = 8;  // 115200 Bd at 16 MHz (irrelevant in simavr)
   UCSR0B = (1 << TXEN0);
@@ -209,6 +222,19 @@ int main() {
     const uint32_t nn = (k & 2) ? 1775000000UL + (x & 0xFFFFF) : x;
     bad += ctl::fx::div_u32(nn, dd) != nn / dd;
     ++n;
+  }
+  // set_dt (assembly) vs set_dt_wide (C): every dt from 13,000 to 33,000 us, the edges of the
+  // assembly's range, and random dt up to 2^20 us
+  {
+    ctl::OdometryQ oa(cfg_q.odo), ob(cfg_q.odo);
+    const uint32_t k = static_cast<uint32_t>(cfg_q.odo.wheel_rate_q11);
+    for (uint32_t dt = 13000; dt <= 33000; ++dt) { bad += ctl::OdometryQProbe::check(oa, ob, dt); ++n; }
+    const uint32_t edge[] = {1, 2, k >> 17, (k >> 17) + 1, (k >> 17) + 2, 32766, 32767, 32768, 32769, 65535, 65536};
+    for (uint8_t j = 0; j < sizeof edge / sizeof edge[0]; ++j) { bad += ctl::OdometryQProbe::check(oa, ob, edge[j]); ++n; }
+    for (uint16_t j = 0; j < 2000; ++j) {
+      x = x * 1103515245UL + 12345UL;
+      bad += ctl::OdometryQProbe::check(oa, ob, 1 + (x >> 12)); ++n;
+    }
   }
   printf("avr arithmetic self-test: %lu checks, %lu wrong\n", static_cast<unsigned long>(n), static_cast<unsigned long>(bad));
   printf("END\n");

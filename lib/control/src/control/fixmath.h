@@ -112,17 +112,19 @@ static CTL_INLINE int16_t half_diff16(int16_t a, int16_t b) {
 /// The high word of an int32 (x >> 16, floor), by a register move on the AVR.
 static CTL_INLINE int16_t hi16(int32_t x) { return static_cast<int16_t>(static_cast<uint32_t>(x) >> 16); }
 
-/// floor(n / d), d > 0. On the AVR, when n / 2^17 < d < 2^15 (a quotient of at most 17 bits;
-/// the control loop's 25 ms sample in microseconds is inside) a restoring division on a 16-bit
-/// remainder, about 220 cycles instead of avr-libc's ~600 for 32 bits; otherwise n / d.
-static inline uint32_t div_u32(uint32_t n, uint32_t d) {
+/// The range of div17(): d < 2^15 and n / 2^17 < d (a quotient of at most 17 bits; the control
+/// loop's sample of 13.5 to 32.7 ms in microseconds is inside).
+static CTL_INLINE bool div17_ok(uint32_t n, uint32_t d) {
+  return d < 32768UL && static_cast<uint16_t>(static_cast<uint16_t>(n >> 16) >> 1) < static_cast<uint16_t>(d);
+}
+
+/// floor(n / d) for div17_ok(n, d). On the AVR a restoring division on a 16-bit remainder
+/// (17 steps, unrolled: about 145 cycles instead of avr-libc's ~600 for 32 bits).
+static CTL_INLINE uint32_t div17(uint32_t n, uint16_t d) {
 #if defined(__AVR__)
-  const uint16_t n_hi = static_cast<uint16_t>(n >> 16);
-  if (d >= 32768UL || (n_hi >> 1) >= static_cast<uint16_t>(d)) return n / d;
   // Step 0: rem = n >> 16 (< 2d) gives quotient bit 16; then 16 steps shift the low word of n
   // into the remainder while the (inverted) quotient bits enter the low word from below.
-  uint16_t rem = n_hi, lo = static_cast<uint16_t>(n);
-  const uint16_t d16 = static_cast<uint16_t>(d);
+  uint16_t rem = static_cast<uint16_t>(n >> 16), lo = static_cast<uint16_t>(n);
   uint8_t q16;
   __asm__(
       "cp %A[rem], %A[d]\n\t"
@@ -150,12 +152,22 @@ static inline uint32_t div_u32(uint32_t n, uint32_t d) {
       "com %A[lo]\n\t"
       "com %B[lo]\n\t"
       : [rem] "+r"(rem), [lo] "+r"(lo), [q16] "=&r"(q16)
-      : [d] "r"(d16));
+      : [d] "r"(d));
   (void)rem;
   union { uint32_t u; uint16_t w[2]; } q;
   q.w[0] = lo;
   q.w[1] = q16;
   return q.u;
+#else
+  return n / d;
+#endif
+}
+
+/// floor(n / d), d > 0: div17() in its range, otherwise n / d.
+static inline uint32_t div_u32(uint32_t n, uint32_t d) {
+#if defined(__AVR__)
+  if (!div17_ok(n, d)) return n / d;
+  return div17(n, static_cast<uint16_t>(d));
 #else
   return n / d;
 #endif

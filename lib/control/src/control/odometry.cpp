@@ -1,6 +1,7 @@
 #include <control/odometry.h>
 
 #include <math.h>
+#include <stddef.h>
 
 namespace ctl {
 
@@ -106,6 +107,92 @@ OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
 // extreme (dt0 = 13.5 ms), 0.23 units at 25 ms, plus 0.5 of rounding. The slope rate0/dt0 =
 // rate0^2 / (wheel_rate_q11 / 2) needs no second division.
 void OdometryQ::set_dt(uint32_t dt_us) {
+#if defined(__AVR__)
+  if ((dt_us & 0xFFFF8000UL) == 0) {
+    // dt < 32.8 ms and (checked in the block) dt > wheel_rate_q11 / 2^17 (13.5 ms at 1856 counts
+    // per turn), the firmware's range, in one block of call-clobbered registers (nothing saved,
+    // no call): the 17-step division of fx::div17(), then exactly the values of set_dt_wide():
+    // the quotient q has at most 17 bits, so rate_div = (q + 1) >> 1 truncated to 16 bits (0
+    // for q = 2^17 - 1, as there), and the slope floor(floor(r^2 / 2^16) inv / 2^16) from
+    // exact 16x16 products (high words with every carry).
+    div_dt_us_ = dt_us;
+    static_assert(offsetof(OdometryQ, rate_per_count_q11_) <= 63, "adiw range");
+    static_assert(offsetof(OdometryQ, rate_q10_) - offsetof(OdometryQ, rate_per_count_q11_) <= 62 &&
+                  offsetof(OdometryQ, slope_q12_) - offsetof(OdometryQ, rate_per_count_q11_) <= 62 &&
+                  offsetof(OdometryQ, rate_div_q10_) - offsetof(OdometryQ, rate_per_count_q11_) <= 62 &&
+                  offsetof(OdometryQ, cfg_) + offsetof(OdometryConfigQ, wheel_rate_q11) <= 60 &&
+                  offsetof(OdometryQ, cfg_) + offsetof(OdometryConfigQ, inv_rate_q32) <= 62, "ldd/std displacement");
+    uint16_t rem, lo, d = static_cast<uint16_t>(dt_us), inv;
+    uint8_t z;
+    OdometryQ* self = this;
+    __asm__ volatile(
+        // k = wheel_rate_q11; out of range unless k_hi >> 1 < d
+        "ldd %A[rem], Z+%[o_k]+2\n\tldd %B[rem], Z+%[o_k]+3\n\t"
+        "movw %A[lo], %A[rem]\n\tlsr %B[lo]\n\tror %A[lo]\n\t"
+        "cp %A[lo], %A[d]\n\tcpc %B[lo], %B[d]\n\tbrcs 0f\n\t"
+        "clr %[z]\n\tinc %[z]\n\trjmp 9f\n"
+        "0:\n\t"
+        "ldd %A[lo], Z+%[o_k]\n\tldd %B[lo], Z+%[o_k]+1\n\t"
+        "ldd %A[inv], Z+%[o_inv]\n\tldd %B[inv], Z+%[o_inv]+1\n\t"
+        // division: quotient q = (z : lo), as in fx::div17()
+        "cp %A[rem], %A[d]\n\tcpc %B[rem], %B[d]\n\tbrcs 1f\n\tsub %A[rem], %A[d]\n\tsbc %B[rem], %B[d]\n"
+        "1:\n\t"
+        ".rept 16\n\t"
+        "rol %A[lo]\n\trol %B[lo]\n\trol %A[rem]\n\trol %B[rem]\n\t"
+        "cp %A[rem], %A[d]\n\tcpc %B[rem], %B[d]\n\tbrcs 3f\n\tsub %A[rem], %A[d]\n\tsbc %B[rem], %B[d]\n"
+        "3:\n\t"
+        ".endr\n\t"
+        "rol %A[lo]\n\trol %B[lo]\n\tsbc %[z], %[z]\n\tinc %[z]\n\tcom %A[lo]\n\tcom %B[lo]\n\t"
+        // rate_per_count_q11_ = q
+        "adiw r30, %[o_rpc]\n\t"
+        "st Z, %A[lo]\n\tstd Z+1, %B[lo]\n\tstd Z+2, %[z]\n\tstd Z+3, __zero_reg__\n\t"
+        // r = (q + 1) >> 1 (16 bits) -> rate_div_q10_, rate_q10_
+        "sec\n\tadc %A[lo], __zero_reg__\n\tadc %B[lo], __zero_reg__\n\tadc %[z], __zero_reg__\n\t"
+        "lsr %[z]\n\tror %B[lo]\n\tror %A[lo]\n\t"
+        "std Z+%[o_rd], %A[lo]\n\tstd Z+%[o_rd]+1, %B[lo]\n\t"
+        "std Z+%[o_rq], %A[lo]\n\tstd Z+%[o_rq]+1, %B[lo]\n\t"
+        "clr %[z]\n\t"
+        // slope 0 unless r != 0, r < 64000, inv != 0
+        "mov %A[rem], %B[lo]\n\tcpi %A[rem], 0xFA\n\tbrcc 5f\n\t"  // r >= 64000 = 0xFA00
+        "cp %A[lo], %[z]\n\tcpc %B[lo], %[z]\n\tbreq 5f\n\t"
+        "cp %A[inv], %[z]\n\tcpc %B[inv], %[z]\n\tbreq 5f\n\t"
+        // (rem : d) = r^2; r2_hi = d
+        "mul %A[lo], %A[lo]\n\tmovw %A[rem], r0\n\t"
+        "mul %B[lo], %B[lo]\n\tmovw %A[d], r0\n\t"
+        "mul %A[lo], %B[lo]\n\t"
+        "add %B[rem], r0\n\tadc %A[d], r1\n\tadc %B[d], %[z]\n\t"
+        "add %B[rem], r0\n\tadc %A[d], r1\n\tadc %B[d], %[z]\n\t"
+        // (rem : lo) = r2_hi * inv; slope = lo
+        "mul %A[d], %A[inv]\n\tmovw %A[rem], r0\n\t"
+        "mul %B[d], %B[inv]\n\tmovw %A[lo], r0\n\t"
+        "mul %B[d], %A[inv]\n\t"
+        "add %B[rem], r0\n\tadc %A[lo], r1\n\tadc %B[lo], %[z]\n\t"
+        "mul %A[d], %B[inv]\n\t"
+        "add %B[rem], r0\n\tadc %A[lo], r1\n\tadc %B[lo], %[z]\n\t"
+        "clr __zero_reg__\n\t"
+        "rjmp 6f\n"
+        "5:\n\t"
+        "clr %A[lo]\n\tclr %B[lo]\n"
+        "6:\n\t"
+        "std Z+%[o_sl], %A[lo]\n\tstd Z+%[o_sl]+1, %B[lo]\n"
+        "9:"
+        : [rem] "=&d"(rem), [lo] "=&r"(lo), [d] "+r"(d), [z] "=&r"(z), [inv] "=&r"(inv), "+z"(self)
+        : [o_k] "I"(offsetof(OdometryQ, cfg_) + offsetof(OdometryConfigQ, wheel_rate_q11)),
+          [o_inv] "I"(offsetof(OdometryQ, cfg_) + offsetof(OdometryConfigQ, inv_rate_q32)),
+          [o_rpc] "I"(offsetof(OdometryQ, rate_per_count_q11_)),
+          [o_rd] "I"(offsetof(OdometryQ, rate_div_q10_) - offsetof(OdometryQ, rate_per_count_q11_)),
+          [o_rq] "I"(offsetof(OdometryQ, rate_q10_) - offsetof(OdometryQ, rate_per_count_q11_)),
+          [o_sl] "I"(offsetof(OdometryQ, slope_q12_) - offsetof(OdometryQ, rate_per_count_q11_))
+        : "memory");
+    (void)rem; (void)lo; (void)d; (void)inv;
+    if (z != 0) self->set_dt_wide(self->div_dt_us_);  // dt <= 13.5 ms (self = this here)
+    return;
+  }
+#endif
+  set_dt_wide(dt_us);
+}
+
+void OdometryQ::set_dt_wide(uint32_t dt_us) {
   div_dt_us_ = dt_us;
   rate_per_count_q11_ = static_cast<int32_t>(fx::div_u32(static_cast<uint32_t>(cfg_.wheel_rate_q11), dt_us));
   // dt >= 13.5 ms: the rate fits 16 bits in Q10 (0 = use the 32-bit path)

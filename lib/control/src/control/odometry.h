@@ -160,8 +160,12 @@ class OdometryQ {
     *jumped = true;
     return static_cast<int16_t>(static_cast<int32_t>(d) > 0 ? kMaxStepCounts : -kMaxStepCounts);
   }
-  /// New dt: the cached wheel rate per count (a division).
+  friend struct OdometryQProbe;  // bench/control_avr: set_dt() (AVR assembly) vs set_dt_wide()
+  /// New dt: the cached wheel rate per count (a division) and the first-order slope; on the
+  /// AVR, for 13.5 ms < dt < 32.8 ms, one inline-assembly block; otherwise set_dt_wide().
   void set_dt(uint32_t dt_us);
+  /// The same in C (any dt > 0).
+  void set_dt_wide(uint32_t dt_us) __attribute__((noinline));
   void integrate_pending() const;
   void integrate_arc(int16_t dn_r, int16_t dn_l) const;
 
