@@ -80,6 +80,7 @@ constexpr ctl::ReferenceSpecQ spec_q{ctl::ReferenceSpec{ctl::PathKind::kArc, 0.5
 ctl::Controller fc(cfg);
 ctl::ControllerQ qc(cfg_q);
 ctl::ControllerQ qc_const(cfg_q);  // same sequence with a constant dt (cached reciprocal)
+ctl::ControllerQ qc_div(cfg_q);    // same counts, dt jumping on every call (every call divides)
 
 }  // namespace
 
@@ -146,6 +147,37 @@ int main() {
   }
   sink = qc.inner().pwm_r_q15 + static_cast<int32_t>(fc.inner().pwm_r * 1000.0f);
 
+  // The step that divides (dt more than 63 us from the last divided dt): the same counts and
+  // outer steps, dt jumping through 13.6-32.7 ms by 7,919 us (mod 19,100) so that every call
+  // divides; then dt outside that range (the 32-bit rate below 13.5 ms, avr-libc's division
+  // from 32.8 ms, the long-dt integrators from 65.5 ms), each value in turn.
+  Stat in_div, in_lo, in_mid, in_long;
+  in_div.reset(); in_lo.reset(); in_mid.reset(); in_long.reset();
+#ifndef CTL_PROFILE
+  {
+    ctl::RefSampleQ r{};
+    for (uint8_t i = 0; i < kRuns; ++i) {
+      const int32_t enc_r = opaque(bench::enc_r_at(i)), enc_l = opaque(bench::enc_l_at(i));
+      const uint32_t dt_us = opaque(13600UL + (7919UL * i) % 19100UL);
+      TIME_IT(in_div, qc_div.inner_step(enc_r, enc_l, dt_us));
+      if (bench::outer_due(i)) {
+        r = ctl::reference_at_q(spec_q, 25UL * i);
+        qc_div.outer_step(r);
+      }
+    }
+    static const uint32_t kOut[] = {5000UL, 10000UL, 13000UL, 13500UL, 33000UL, 40000UL, 50000UL, 65000UL,
+                                    70000UL, 100000UL, 300000UL};
+    for (uint8_t i = 0; i < kRuns; ++i) {
+      const uint8_t j = static_cast<uint8_t>(i % (sizeof kOut / sizeof kOut[0]));
+      const int32_t enc_r = opaque(bench::enc_r_at(i)), enc_l = opaque(bench::enc_l_at(i));
+      const uint32_t dt_us = opaque(kOut[j]);
+      Stat& st = dt_us < 13542UL ? in_lo : (dt_us < 65536UL ? in_mid : in_long);
+      TIME_IT(st, qc_div.inner_step(enc_r, enc_l, dt_us));
+      if (bench::outer_due(i)) qc_div.outer_step(r);
+    }
+  }
+#endif
+
   printf("BEGIN control_avr cycles (ATmega2560, -Os, %u calls each, overhead %u subtracted)\n",
          static_cast<unsigned>(kRuns), overhead);
   printf("%-34s %6s %6s %6s %4s\n", "step", "min", "mean", "max", "n");
@@ -153,6 +185,10 @@ int main() {
   row("  the same after the first call", in_q_steady);
   row("  ... steps not limited (integrating)", in_q_free);
   row("fixed inner_step (dt constant)", in_q_const);
+  row("fixed inner_step dividing 13.6-32.7", in_div);
+  row("  dt 5-13.5 ms (32-bit rate)", in_lo);
+  row("  dt 33-65 ms (avr-libc division)", in_mid);
+  row("  dt 70-300 ms (long dt)", in_long);
   row("fixed outer_step (50 ms)", out_q);
   row("fixed reference_at_q", ref_q);
   row("float inner_step (25 ms)", in_f);
