@@ -187,7 +187,7 @@ int main() {
   row("fixed inner_step (dt constant)", in_q_const);
   row("fixed inner_step dividing 13.6-32.7", in_div);
   row("  dt 5-13.5 ms (32-bit rate)", in_lo);
-  row("  dt 33-65 ms (avr-libc division)", in_mid);
+  row("  dt 33-65 ms (16-bit divisor)", in_mid);
   row("  dt 70-300 ms (long dt)", in_long);
   row("fixed outer_step (50 ms)", out_q);
   row("fixed reference_at_q", ref_q);
@@ -257,7 +257,12 @@ int main() {
     const uint32_t dd = (k & 1) ? 13000UL + (x >> 14) % 24000UL : 1UL + (x >> (k % 31));
     const uint32_t nn = (k & 2) ? 1775000000UL + (x & 0xFFFFF) : x;
     bad += ctl::fx::div_u32(nn, dd) != nn / dd;
-    ++n;
+    // the general 16-bit division: every 16-bit divisor width, quotients of 16 and 32 bits
+    const uint16_t d16 = static_cast<uint16_t>(1U + (x >> (k % 16)));
+    bad += ctl::fx::div32_16(nn, d16) != nn / d16;
+    bad += ctl::fx::div32_16(nn >> (k % 17), d16) != (nn >> (k % 17)) / d16;
+    bad += ctl::fx::div_u32(nn, d16) != nn / d16;
+    n += 4;
   }
   // set_dt (assembly) vs set_dt_wide (C): every dt from 13,000 to 33,000 us, the edges of the
   // assembly's range, and random dt up to 2^20 us
@@ -265,7 +270,7 @@ int main() {
     ctl::OdometryQ oa(cfg_q.odo), ob(cfg_q.odo);
     const uint32_t k = static_cast<uint32_t>(cfg_q.odo.wheel_rate_q11);
     for (uint32_t dt = 13000; dt <= 33000; ++dt) { bad += ctl::OdometryQProbe::check(oa, ob, dt); ++n; }
-    const uint32_t edge[] = {1, 2, k >> 17, (k >> 17) + 1, (k >> 17) + 2, 32766, 32767, 32768, 32769, 65535, 65536};
+    const uint32_t edge[] = {1, 2, 3, 255, 256, 4095, k >> 17, (k >> 17) + 1, (k >> 17) + 2, 32766, 32767, 32768, 32769, 65535, 65536};
     for (uint8_t j = 0; j < sizeof edge / sizeof edge[0]; ++j) { bad += ctl::OdometryQProbe::check(oa, ob, edge[j]); ++n; }
     for (uint16_t j = 0; j < 2000; ++j) {
       x = x * 1103515245UL + 12345UL;
