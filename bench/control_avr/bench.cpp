@@ -262,19 +262,24 @@ int main() {
     bad += ctl::fx::div32_16(nn, d16) != nn / d16;
     bad += ctl::fx::div32_16(nn >> (k % 17), d16) != (nn >> (k % 17)) / d16;
     bad += ctl::fx::div_u32(nn, d16) != nn / d16;
-    n += 4;
+    const uint32_t d24 = 65536UL + (x >> (8 + k % 24));  // 2^16 .. 2^24 + 2^16
+    bad += ctl::fx::div_u32(nn, d24) != nn / d24;
+    if (d24 < 16777216UL) bad += ctl::fx::div32_24(nn, d24) != nn / d24;
+    bad += ctl::fx::div_u32(nn, 16777215UL - (k & 3)) != nn / (16777215UL - (k & 3));
+    n += 7;
   }
   // set_dt (assembly) vs set_dt_wide (C): every dt from 13,000 to 33,000 us, the edges of the
-  // assembly's range, and random dt up to 2^20 us
+  // assembly's range, and random dt up to 2^20..2^27 us
   {
     ctl::OdometryQ oa(cfg_q.odo), ob(cfg_q.odo);
     const uint32_t k = static_cast<uint32_t>(cfg_q.odo.wheel_rate_q11);
     for (uint32_t dt = 13000; dt <= 33000; ++dt) { bad += ctl::OdometryQProbe::check(oa, ob, dt); ++n; }
-    const uint32_t edge[] = {1, 2, 3, 255, 256, 4095, k >> 17, (k >> 17) + 1, (k >> 17) + 2, 32766, 32767, 32768, 32769, 65535, 65536};
+    const uint32_t edge[] = {1, 2, 3, 255, 256, 4095, k >> 17, (k >> 17) + 1, (k >> 17) + 2, 32766, 32767, 32768, 32769, 65535, 65536,
+                             65537, 500000UL, 16777215UL, 16777216UL, 4294967295UL};
     for (uint8_t j = 0; j < sizeof edge / sizeof edge[0]; ++j) { bad += ctl::OdometryQProbe::check(oa, ob, edge[j]); ++n; }
     for (uint16_t j = 0; j < 2000; ++j) {
       x = x * 1103515245UL + 12345UL;
-      bad += ctl::OdometryQProbe::check(oa, ob, 1 + (x >> 12)); ++n;
+      bad += ctl::OdometryQProbe::check(oa, ob, 1 + (x >> (12 + j % 8))); ++n;
     }
   }
   printf("avr arithmetic self-test: %lu checks, %lu wrong\n", static_cast<unsigned long>(n), static_cast<unsigned long>(bad));

@@ -201,11 +201,42 @@ static CTL_INLINE uint32_t div32_16(uint32_t n, uint16_t d) {
 #endif
 }
 
-/// floor(n / d), d > 0: div17() in its range, div32_16() for other 16-bit d, otherwise n / d.
+/// floor(n / d) for 2^16 <= d < 2^24 (the quotient has at most 16 bits). On the AVR 16
+/// restoring steps on a 24-bit remainder (the carry out of its top as a 25th bit), about 230
+/// cycles instead of avr-libc's ~600.
+static CTL_INLINE uint32_t div32_24(uint32_t n, uint32_t d) {
+#if defined(__AVR__)
+  union { uint32_t u; uint8_t b[4]; uint16_t w[2]; } nn, dd;
+  nn.u = n;
+  dd.u = d;
+  uint16_t lo = nn.w[0];
+  uint8_t r0 = nn.b[2], r1 = nn.b[3], r2 = 0;  // remainder = n >> 16 < d
+  const uint8_t d0 = dd.b[0], d1 = dd.b[1], d2 = dd.b[2];
+  __asm__(
+      "clc\n\t"
+      ".rept 16\n\t"
+      "rol %A[lo]\n\trol %B[lo]\n\trol %[r0]\n\trol %[r1]\n\trol %[r2]\n\tbrcs 2f\n\t"
+      "cp %[r0], %[d0]\n\tcpc %[r1], %[d1]\n\tcpc %[r2], %[d2]\n\tbrcs 3f\n"
+      "2:\n\tsub %[r0], %[d0]\n\tsbc %[r1], %[d1]\n\tsbc %[r2], %[d2]\n\tclc\n"
+      "3:\n\t"
+      ".endr\n\t"
+      "rol %A[lo]\n\trol %B[lo]\n\tcom %A[lo]\n\tcom %B[lo]"
+      : [lo] "+r"(lo), [r0] "+r"(r0), [r1] "+r"(r1), [r2] "+r"(r2)
+      : [d0] "r"(d0), [d1] "r"(d1), [d2] "r"(d2));
+  (void)r0; (void)r1; (void)r2;
+  return lo;
+#else
+  return n / d;
+#endif
+}
+
+/// floor(n / d), d > 0: div17() in its range, div32_16() for other 16-bit d, div32_24() for
+/// 24-bit d, otherwise n / d.
 static inline uint32_t div_u32(uint32_t n, uint32_t d) {
 #if defined(__AVR__)
   if (div17_ok(n, d)) return div17(n, static_cast<uint16_t>(d));
-  if (d < 65536UL && d != 0) return div32_16(n, static_cast<uint16_t>(d));
+  if (d < 65536UL) return d != 0 ? div32_16(n, static_cast<uint16_t>(d)) : n / d;
+  if (d < 16777216UL) return div32_24(n, d);
   return n / d;
 #else
   return n / d;
