@@ -275,6 +275,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--clamp", choices=["on", "off"])
     r.add_argument("--mu-s", type=float)
     r.add_argument("--mu-k", type=float)
+    r.add_argument("--model", metavar="MODEL_JSON", help="an analyzer model.json (ddmodel/1): its parameters "
+                   "and effects go to the simulated plant, its mu_s/mu_k to the firmware (SetMu)")
     r.add_argument("--record-s", type=float, help="free recording length (with --experiment none)")
     r.add_argument("sim_options", nargs=argparse.REMAINDER,
                    help="after '--': options of .build/fil/fil (see .build/fil/fil --help)")
@@ -305,6 +307,13 @@ def main(a: argparse.Namespace) -> int:
             if (a.mu_s is None) != (a.mu_k is None):
                 raise P.ProtocolError("--mu-s and --mu-k go together")
             mu = (a.mu_s, a.mu_k) if a.mu_s is not None else None
+            if a.model:
+                from host_tools import model as M
+                if mu is not None:
+                    raise P.ProtocolError("--model and --mu-s/--mu-k exclude each other")
+                m = M.load_model(a.model)
+                mu = M.firmware_mu(m, a.model)
+                opts = sim_args(M.plant_keys(m)) + opts
             clamp = None if a.clamp is None else a.clamp == "on"
             code, lg, s = record(a.out, elf, exp, clamp, mu, opts, record_s=a.record_s)
             print(f"{a.out}: {lg.stats['telemetry_rows']} telemetry rows, {s['groundtruth']['rows']} ground-truth "
@@ -312,7 +321,7 @@ def main(a: argparse.Namespace) -> int:
                   f"logger: {lg.end_reason}")
             return code
         return bench(elf, a.accel, a.duration)
-    except (FilError, P.ProtocolError, L.LoggerError) as exc:
+    except (FilError, P.ProtocolError, L.LoggerError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 

@@ -754,6 +754,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--clamp", choices=["on", "off"], help="send SetClamp before starting")
     p.add_argument("--mu-s", type=float, help="send SetMu (with --mu-k)")
     p.add_argument("--mu-k", type=float)
+    p.add_argument("--model", metavar="MODEL_JSON", help="send SetMu with the mu_s/mu_k of an analyzer "
+                   "model.json (ddmodel/1): the firmware's tau_max follows (instead of --mu-s/--mu-k)")
     p.add_argument("--description", help="meta.json 'experiment' text (default: from the command)")
     p.add_argument("--record-s", type=float, help="stop after this many seconds (default: until the "
                    "experiment ends, or Ctrl-C)")
@@ -798,8 +800,14 @@ def main(args: argparse.Namespace) -> int:
             raise P.ProtocolError("--mu-s and --mu-k go together")
         if args.mu_s is not None:
             mu = (args.mu_s, args.mu_k)
+        if getattr(args, "model", None):
+            if mu is not None:
+                raise P.ProtocolError("--model and --mu-s/--mu-k exclude each other")
+            from host_tools import model as M
+            mu = M.firmware_mu(M.load_model(args.model), args.model)
+        if mu is not None:
             d.raw_values("SetMu", {"mu_s": mu[0], "mu_k": mu[1]})
-    except P.ProtocolError as exc:
+    except (P.ProtocolError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     record_s = args.record_s
