@@ -31,6 +31,7 @@ uint16_t encode_frame(uint8_t type, uint16_t seq, const uint8_t* payload, uint8_
 template <class Msg>
 uint16_t encode_message(const Msg& msg, uint16_t seq, uint8_t* out, uint16_t out_cap) {
     uint8_t payload[Msg::kSize > 0 ? Msg::kSize : 1];
+    if (Msg::kSize == 0) payload[0] = 0;  // nothing to encode; keeps the byte defined
     msg.encode(payload);
     return encode_frame(Msg::kType, seq, payload, Msg::kSize, out, out_cap);
 }
