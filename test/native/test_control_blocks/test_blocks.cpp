@@ -7,6 +7,8 @@
 
 #include <unity.h>
 
+#include "../expect_near.h"
+
 #include <control/cascade.h>
 #include <control/cascade_q.h>
 #include <control/fixmath.h>
@@ -19,15 +21,6 @@ using namespace ctl;
 
 namespace {
 const double kPi = 3.14159265358979323846;
-#define CHECK_NEAR(expected, actual, tol, what)                                              \
-  do {                                                                                       \
-    const double e_ = (expected), a_ = (actual), t_ = (tol);                                 \
-    if (!(fabs(e_ - a_) <= t_)) {                                                            \
-      char m_[200];                                                                          \
-      snprintf(m_, sizeof m_, "%s: expected %.9g got %.9g (tol %.3g)", what, e_, a_, t_);    \
-      TEST_FAIL_MESSAGE(m_);                                                                 \
-    }                                                                                        \
-  } while (0)
 }  // namespace
 
 void setUp() {}

@@ -6,6 +6,8 @@
 
 #include <unity.h>
 
+#include "../expect_near.h"
+
 #include "../test_control_closed_loop/closed_loop_sim.h"
 
 using namespace ctl;
@@ -23,15 +25,6 @@ uint32_t to_b32(double rad) {
 }
 double urand(double lo, double hi) { return lo + (hi - lo) * (rand() / static_cast<double>(RAND_MAX)); }
 
-#define CHECK_NEAR(expected, actual, tol, what)                                              \
-  do {                                                                                       \
-    const double e_ = (expected), a_ = (actual), t_ = (tol);                                 \
-    if (!(fabs(e_ - a_) <= t_)) {                                                            \
-      char m_[200];                                                                          \
-      snprintf(m_, sizeof m_, "%s: expected %.9g got %.9g (tol %.3g)", what, e_, a_, t_);    \
-      TEST_FAIL_MESSAGE(m_);                                                                 \
-    }                                                                                        \
-  } while (0)
 
 }  // namespace
 

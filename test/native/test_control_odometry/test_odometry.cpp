@@ -6,6 +6,8 @@
 
 #include <unity.h>
 
+#include "../expect_near.h"
+
 #include <control/odometry.h>
 
 using namespace ctl;
@@ -20,15 +22,6 @@ const OdometryConfig kCfg{static_cast<float>(kR), static_cast<float>(kB), kPpr};
 constexpr OdometryConfigQ kCfgQ{OdometryConfig{0.0365f, 0.105f, 1856}};
 const double kPi = 3.14159265358979323846;
 
-#define CHECK_NEAR(expected, actual, tol, what)                                              \
-  do {                                                                                       \
-    const double e_ = (expected), a_ = (actual), t_ = (tol);                                 \
-    if (!(fabs(e_ - a_) <= t_)) {                                                            \
-      char m_[160];                                                                          \
-      snprintf(m_, sizeof m_, "%s: expected %.9g got %.9g (tol %.3g)", what, e_, a_, t_);    \
-      TEST_FAIL_MESSAGE(m_);                                                                 \
-    }                                                                                        \
-  } while (0)
 
 // Exact pose (double) for per-step count increments, assuming constant wheel speeds within a
 // step: closed-form circular arc (III.3/III.4 with the sign of III.4 corrected), straight

@@ -5,6 +5,8 @@
 #include <string.h>
 #include <unity.h>
 
+#include "../expect_near.h"
+
 #include <slipmodel/effects.h>
 #include <slipmodel/keys.h>
 #include <slipmodel/plant.h>
@@ -13,14 +15,6 @@
 
 using namespace slip;
 
-// Own comparison: Unity's double assertions need UNITY_INCLUDE_DOUBLE for the whole build.
-#define EXPECT_NEAR(tol, expected, actual)                                                \
-  do {                                                                                    \
-    const double e_ = (expected), a_ = (actual), t_ = (tol);                              \
-    char m_[128];                                                                         \
-    snprintf(m_, sizeof(m_), "expected %.12g +- %.3g, got %.12g", e_, t_, a_);            \
-    TEST_ASSERT_MESSAGE(fabs(a_ - e_) <= t_, m_);                                         \
-  } while (0)
 
 static const double kDt = 5e-4;
 

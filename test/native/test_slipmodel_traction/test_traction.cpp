@@ -3,6 +3,8 @@
 #include <stdio.h>
 #include <unity.h>
 
+#include "../expect_near.h"
+
 #include <slipmodel/motor.h>
 #include <slipmodel/params.h>
 #include <slipmodel/rolling.h>
@@ -10,15 +12,6 @@
 
 using namespace slip;
 
-// Unity's double assertions fail with "Double Precision Disabled" unless UNITY_INCLUDE_DOUBLE is
-// set for the whole build (unity.c too), so these tests use their own comparison (fails on NaN).
-#define EXPECT_NEAR(tol, expected, actual)                                                \
-  do {                                                                                    \
-    const double e_ = (expected), a_ = (actual), t_ = (tol);                              \
-    char m_[128];                                                                         \
-    snprintf(m_, sizeof(m_), "expected %.12g +- %.3g, got %.12g", e_, t_, a_);            \
-    TEST_ASSERT_MESSAGE(fabs(a_ - e_) <= t_, m_);                                         \
-  } while (0)
 
 void setUp(void) {}
 void tearDown(void) {}
