@@ -186,14 +186,48 @@ void test_references() {
     CHECK_NEAR(0.5, hypot(r.x_m, r.y_m + 0.5), 1e-4, "on circle");
     CHECK_NEAR(r.v_m_s / -0.5, r.omega_rad_s, 1e-5, "omega");
   }
-  // Figure eight: continuous position and heading across the switch; numerical derivative of
-  // the pose agrees with (v cos phi, v sin phi, omega).
-  const ReferenceSpec e8{PathKind::kFigureEight, 0.5f, 0.4f, 0.6f};
-  const float h = 1e-3f;
-  for (float t = 1.0f; t < 30.0f; t += 0.173f) {
-    const RefSample a = reference_at(e8, t), b = reference_at(e8, t + h);
-    CHECK_NEAR(a.v_m_s * cos(a.phi_rad), (b.x_m - a.x_m) / h, 2e-3, "dx/dt");
-    CHECK_NEAR(a.v_m_s * sin(a.phi_rad), (b.y_m - a.y_m) / h, 2e-3, "dy/dt");
+  // Figure eight (phi = beta sin tau, kappa = cos(tau)/R): the numerical derivatives of the pose
+  // agree with (v cos phi, v sin phi, omega), that of omega with domega (the v^2 dkappa/du term
+  // included), and omega is continuous (the old eight of two circles jumped by 2 v/R = 1.33
+  // rad/s at each crossing); |kappa| <= 1/|R|. Both signs of R (R < 0 mirrors in y).
+  const float radii[] = {0.6f, -0.6f};
+  for (float R : radii) {
+    const ReferenceSpec e8{PathKind::kFigureEight, 0.5f, 0.4f, R};
+    const float h = 1e-3f;
+    for (float t = 1.0f; t < 30.0f; t += 0.173f) {
+      const RefSample a = reference_at(e8, t - h), m = reference_at(e8, t), b = reference_at(e8, t + h);
+      CHECK_NEAR(m.v_m_s * cos(m.phi_rad), (b.x_m - a.x_m) / (2 * h), 2e-3, "dx/dt");
+      CHECK_NEAR(m.v_m_s * sin(m.phi_rad), (b.y_m - a.y_m) / (2 * h), 2e-3, "dy/dt");
+      CHECK_NEAR(m.omega_rad_s, (b.phi_rad - a.phi_rad) / (2 * h), 2e-3, "dphi/dt");
+      CHECK_NEAR(m.domega_rad_s2, (b.omega_rad_s - a.omega_rad_s) / (2 * h), 5e-3, "domega/dt");
+      TEST_ASSERT_TRUE(fabs(m.omega_rad_s) <= m.v_m_s / fabs(R) * (1 + 1e-6));
+    }
+    double max_jump = 0;
+    RefSample prev = reference_at(e8, 0.0f);
+    for (int k = 1; k <= 30000; ++k) {  // 30 s in 1 ms steps (3 crossings, 3 lobe ends)
+      const RefSample r = reference_at(e8, k * 1e-3f);
+      max_jump = fmax(max_jump, fabs(r.omega_rad_s - prev.omega_rad_s));
+      prev = r;
+    }
+    // |domega/dt| <= dv/|R| + v^2/(beta R^2) = 0.83 + 0.18 rad/s^2: <= 1.0e-3 rad/s per ms.
+    printf("figure eight R %.1f: largest omega step in 1 ms %.2e rad/s\n", R, max_jump);
+    TEST_ASSERT_TRUE(max_jump < 1.1e-3);
+    // Shape (reference.h): closes after L = 2 pi beta |R| with heading 0; crosses itself at
+    // (0, 2.832 R) with heading +-beta at L/4 and 3L/4. At cruise, s = 0.16 + 0.4 (t - 0.8).
+    const double L = 2 * kPi * 2.4048255576957724 * fabs(R);
+    const RefSample c = reference_at(e8, static_cast<float>((L - 0.16) / 0.4 + 0.8));
+    CHECK_NEAR(0.0, c.x_m, 1e-5, "closed: x");
+    CHECK_NEAR(0.0, c.y_m, 1e-5, "closed: y");
+    CHECK_NEAR(0.0, c.phi_rad, 1e-5, "closed: heading");
+    const RefSample c1 = reference_at(e8, static_cast<float>((L / 4 - 0.16) / 0.4 + 0.8));
+    const RefSample c3 = reference_at(e8, static_cast<float>((3 * L / 4 - 0.16) / 0.4 + 0.8));
+    CHECK_NEAR(0.0, c1.x_m, 1e-5, "crossing 1: x");
+    CHECK_NEAR(2.8321431786 * R, c1.y_m, 1e-5, "crossing 1: y");
+    CHECK_NEAR(0.0, c3.x_m, 1e-5, "crossing 2: x");
+    CHECK_NEAR(2.8321431786 * R, c3.y_m, 1e-5, "crossing 2: y");
+    CHECK_NEAR((R > 0 ? 1 : -1) * 2.4048255576957724, c1.phi_rad, 1e-5, "crossing 1: heading");
+    CHECK_NEAR((R > 0 ? -1 : 1) * 2.4048255576957724, c3.phi_rad, 1e-5, "crossing 2: heading");
+    CHECK_NEAR(0.0, c1.omega_rad_s, 1e-5, "inflection at the crossing");
   }
   // Invalid spec -> at rest.
   TEST_ASSERT_EQUAL_FLOAT(0.0f, reference_at(ReferenceSpec{PathKind::kArc, 0.5f, 0.4f, 0.0f}, 3.0f).v_m_s);

@@ -59,16 +59,24 @@ void test_arc_converges_from_offset() {
 }
 
 void test_figure_eight_converges_from_offset() {
-  // The curvature of the eight jumps from +1/R to -1/R at every crossing; each jump
-  // re-excites the error, so the test checks the error settles to a small band, not to 0.
-  const sim::Result r =
-      run_float(ReferenceSpec{PathKind::kFigureEight, 0.5f, 0.4f, 0.6f}, true, -0.1, 0.15, 0.4, 20.0);
-  printf("figure eight: start error %.3f m, max error over the last 5 s %.4f m, final e_phi %.4f\n",
-         r.max_pos_err_m, r.max_tail_err_m, r.e_phi);
-  TEST_ASSERT_TRUE(r.max_tail_err_m < 0.04);
-  TEST_ASSERT_TRUE(r.max_tail_err_m < 0.25 * r.max_pos_err_m);
-  TEST_ASSERT_TRUE(fabs(r.e_phi) < 0.15);
-  TEST_ASSERT_EQUAL_INT(0, r.sat_steps);
+  // The eight is curvature-continuous (kappa = cos(tau)/R), so the errors decay as on the line
+  // and the arc; what remains is a band from the 50 ms outer step holding v_d, omega_d while
+  // omega_r changes (it halves with the outer step every 25 ms; 0 on the line and the arc, whose
+  // omega_r is constant). 48 s = 2.1 laps (L = 15.1 R = 9.07 m); the last quarter (36-48 s)
+  // contains a crossing and both lobe ends. Tolerance: the line's and arc's (2 mm, 5 mrad) on
+  // the final errors and on the whole last quarter (measured band 1.7 mm / 1.6 mm; the old
+  // eight of two circles: 2.7 cm, as its curvature jumps by 2/R at each crossing).
+  const float radii[] = {0.6f, -0.6f};
+  for (float R : radii) {
+    const sim::Result r =
+        run_float(ReferenceSpec{PathKind::kFigureEight, 0.5f, 0.4f, R}, true, -0.1, 0.15, 0.4, 48.0);
+    char what[80];
+    snprintf(what, sizeof what, "figure eight R = %.1f m (last-quarter band %.4f m)", R, r.max_tail_err_m);
+    TEST_ASSERT_TRUE(r.max_pos_err_m > 0.15);  // it really started off the reference
+    check_converged(r, 2e-3, 5e-3, what);
+    TEST_ASSERT_TRUE_MESSAGE(r.max_tail_err_m < 2e-3, what);
+    TEST_ASSERT_EQUAL_INT(0, r.sat_steps);
+  }
 }
 
 // II.6.2, clamp off. This model's no-slip limit is alpha* = 41.0 rad/s^2 (tau_max = 0.0924 N m

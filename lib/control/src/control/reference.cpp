@@ -4,6 +4,30 @@
 
 namespace ctl {
 
+namespace {
+constexpr int16_t kInvBetaQ15 = static_cast<int16_t>(fx::q_const(1.0 / kEightBeta, 15));  // 13626
+/// floor(a b / 2^16) mod 2^32 for 0 <= a < 2^31 and any int32 b, exactly (= the low word of
+/// the int64 product shifted right by 16) from four 16x16 MUL products instead of a 64-bit
+/// multiply: a b = ah bh 2^32 + (ah bl + al bh) 2^16 + al bl with al bl >= 0.
+inline uint32_t mul_mid32(int32_t a, int32_t b) {
+  const uint16_t al = static_cast<uint16_t>(a), bl = static_cast<uint16_t>(b);
+  const int16_t ah = static_cast<int16_t>(static_cast<uint32_t>(a) >> 16);  // 0..32767
+  const int16_t bh = static_cast<int16_t>(static_cast<uint32_t>(b) >> 16);
+  return (static_cast<uint32_t>(fx::mul_ss(ah, bh)) << 16) + static_cast<uint32_t>(fx::mul_us(bl, ah)) +
+         static_cast<uint32_t>(fx::mul_us(al, bh)) + (fx::mul_uu(al, bl) >> 16);
+}
+
+/// 2 c f1 - f0 in Q15 (one step of the Chebyshev recurrence), saturated.
+inline int16_t cheb(int16_t c, int16_t f1, int16_t f0) { return fx::sat16(fx::mul16<14>(c, f1) - f0); }
+
+// x and y series coefficients over beta |R| (reference.h).
+constexpr float kEx[4] = {static_cast<float>(kEightJ(2)), static_cast<float>(kEightJ(4) / 2),
+                          static_cast<float>(kEightJ(6) / 3), static_cast<float>(kEightJ(8) / 4)};
+constexpr float kEy[5] = {static_cast<float>(2 * kEightJ(1)), static_cast<float>(2 * kEightJ(3) / 3),
+                          static_cast<float>(2 * kEightJ(5) / 5), static_cast<float>(2 * kEightJ(7) / 7),
+                          static_cast<float>(2 * kEightJ(9) / 9)};
+}  // namespace
+
 ReferenceSpec straight_profile(float wheel_radius_m, float wheel_accel_rad_s2, float t_acc_s) {
   return ReferenceSpec{PathKind::kLine, wheel_radius_m * wheel_accel_rad_s2,
                        wheel_radius_m * wheel_accel_rad_s2 * t_acc_s, 0.0f};
@@ -30,15 +54,40 @@ RefSample reference_at(const ReferenceSpec& sp, float t_s) {
     o.x_m = s;
     return o;
   }
-  float rad = sp.radius_m;  // signed: > 0 turns left
-  float u = s;
   if (sp.kind == PathKind::kFigureEight) {
-    const float rabs = fabsf(rad);
-    const float period = 6.28318530717959f * rabs;
-    const float k = floorf(s / period);
-    u = s - k * period;
-    if (fmodf(k, 2.0f) != 0.0f) rad = -rad;  // odd circles turn the other way
+    // phi = beta sin(tau), tau = 2 pi u / L, L = 2 pi beta |R|; positions by the Jacobi-Anger
+    // series (reference.h). sin(n tau), cos(n tau) by the Chebyshev recurrence from sin, cos tau.
+    const float rabs = fabsf(sp.radius_m);
+    const float sgn = sp.radius_m > 0.0f ? 1.0f : -1.0f;
+    const float beta = static_cast<float>(kEightBeta);
+    const float period = 6.28318530717959f * beta * rabs;
+    const float u = s - period * floorf(s / period);
+    const float tau = 6.28318530717959f * u / period;
+    const float s1 = sinf(tau), c1 = cosf(tau);
+    float sn[10], cn[10];  // sin(n tau), cos(n tau), n = 0..9
+    sn[0] = 0.0f;
+    cn[0] = 1.0f;
+    sn[1] = s1;
+    cn[1] = c1;
+    for (int n = 2; n < 10; ++n) {
+      sn[n] = 2.0f * c1 * sn[n - 1] - sn[n - 2];
+      cn[n] = 2.0f * c1 * cn[n - 1] - cn[n - 2];
+    }
+    float x = 0.0f, y = 0.0f;
+    for (int k = 1; k <= 4; ++k) x += kEx[k - 1] * sn[2 * k];
+    for (int k = 0; k <= 4; ++k) y += kEy[k] * (1.0f - cn[2 * k + 1]);
+    const float br = beta * rabs;
+    o.x_m = br * x;
+    o.y_m = sgn * br * y;
+    o.phi_rad = sgn * beta * s1;  // |phi| <= beta < pi: already in [-pi, pi)
+    const float vk = v / sp.radius_m;  // v / R, signed
+    o.omega_rad_s = vk * c1;
+    // d omega/dt = dv kappa + v^2 dkappa/du, kappa = cos(tau)/R, dkappa/du = -sin(tau)/(beta |R| R)
+    o.domega_rad_s2 = dv / sp.radius_m * c1 - vk * (v / rabs) / beta * s1;
+    return o;
   }
+  const float rad = sp.radius_m;  // signed: > 0 turns left
+  const float u = s;
   const float phi = u / rad;
   o.x_m = rad * sinf(phi);
   o.y_m = rad * (1.0f - cosf(phi));
@@ -75,27 +124,44 @@ RefSampleQ reference_at_q(const ReferenceSpecQ& sp, uint32_t t_ms) {
     o.x_q20 = s_q20;
     return o;
   }
-  int32_t u_q20 = s_q20;
-  bool flip = false;
   if (sp.kind == static_cast<uint8_t>(PathKind::kFigureEight)) {
-    const int32_t k = s_q20 / sp.period_q20;  // s >= 0
-    u_q20 = s_q20 - k * sp.period_q20;
-    flip = (k & 1) != 0;
+    // tau = 2 pi s / L as a binary angle (wraps modulo 2 pi by construction, no division).
+    const uint32_t tau = mul_mid32(s_q20, sp.tau_b32_per_q20);
+    const int16_t s1 = fx::sin_q15(tau), c1 = fx::cos_q15(tau);
+    // Harmonics by the double-angle formulas and the Chebyshev recurrence in steps of 2 tau,
+    // f((n+2) tau) = 2 cos(2 tau) f(n tau) - f((n-2) tau): 9 products instead of 8 table reads.
+    const int16_t s2 = fx::sat16(fx::mul16<14>(s1, c1));                    // sin 2tau
+    const int16_t c2 = fx::sat16(32768L - fx::mul16<14>(s1, s1));           // cos 2tau
+    const int16_t s4 = fx::sat16(fx::mul16<14>(c2, s2));
+    const int16_t s6 = cheb(c2, s4, s2), s8 = cheb(c2, s6, s4);
+    const int16_t c3 = cheb(c2, c1, c1);                                    // cos(-tau) = cos tau
+    const int16_t c5 = cheb(c2, c3, c1), c7 = cheb(c2, c5, c3), c9 = cheb(c2, c7, c5);
+    // Coefficients pre-scaled by 32768/32767 (reference.h): plain rounded (c f) >> 15 products.
+    o.x_q20 = fx::mul32x16<15>(sp.cx_q20[0], s2) + fx::mul32x16<15>(sp.cx_q20[1], s4) +
+              fx::mul32x16<15>(sp.cx_q20[2], s6) + fx::mul32x16<15>(sp.cx_q20[3], s8);
+    // |x| <= 1.05 |R|, 0 <= y/R <= 5.7 (<= 570 m): no overflow in Q20
+    o.y_q20 = sp.cy_sum_q20 - fx::mul32x16<15>(sp.cy_q20[0], c1) - fx::mul32x16<15>(sp.cy_q20[1], c3) -
+              fx::mul32x16<15>(sp.cy_q20[2], c5) - fx::mul32x16<15>(sp.cy_q20[3], c7) -
+              fx::mul32x16<15>(sp.cy_q20[4], c9);
+    o.phi_b32 = static_cast<uint32_t>(fx::mul32x16<15>(sp.beta_b32, s1));
+    // omega = (v/R) cos tau; d omega/dt = (dv/R) cos tau - (v/R)(v/|R|) sin(tau) / beta
+    const int16_t vk = fx::sat16(fx::mul16<13>(o.v_q12, sp.curv_q12));                       // Q11
+    const int16_t dvk = fx::sat16(fx::mul16<13>(o.dv_q12, sp.curv_q12));                     // Q11
+    const int16_t vk_abs = vk < 0 ? static_cast<int16_t>(vk == INT16_MIN ? INT16_MAX : -vk) : vk;
+    const int16_t vv = fx::sat16(fx::mul16<11>(vk, vk_abs));                                 // Q11
+    const int16_t s_over_beta = static_cast<int16_t>(fx::mul16<15>(s1, kInvBetaQ15));        // Q15
+    o.omega_q11 = fx::sat16(fx::mul16<15>(vk, c1));
+    o.domega_q11 = fx::sub_sat16(fx::sat16(fx::mul16<15>(dvk, c1)), fx::sat16(fx::mul16<15>(vv, s_over_beta)));
+    return o;
   }
-  // phi = u / R as a binary angle (wraps modulo 2 pi by construction).
-  uint32_t phi = static_cast<uint32_t>((static_cast<int64_t>(u_q20) * sp.curv_b32_per_q20) >> 16);
-  int32_t rad_q20 = sp.radius_q20;
-  int16_t curv_q12 = sp.curv_q12;
-  if (flip) {
-    phi = 0U - phi;
-    rad_q20 = -rad_q20;
-    curv_q12 = static_cast<int16_t>(-curv_q12);
-  }
+  // phi = s / R as a binary angle (wraps modulo 2 pi by construction).
+  const uint32_t phi = mul_mid32(s_q20, sp.curv_b32_per_q20);
+  const int32_t rad_q20 = sp.radius_q20;
   o.phi_b32 = phi;
   o.x_q20 = fx::mul_trig<15>(rad_q20, fx::sin_q15(phi));
   o.y_q20 = rad_q20 - fx::mul_trig<15>(rad_q20, fx::cos_q15(phi));
-  o.omega_q11 = fx::sat16(fx::mul16<13>(o.v_q12, curv_q12));
-  o.domega_q11 = fx::sat16(fx::mul16<13>(o.dv_q12, curv_q12));
+  o.omega_q11 = fx::sat16(fx::mul16<13>(o.v_q12, sp.curv_q12));
+  o.domega_q11 = fx::sat16(fx::mul16<13>(o.dv_q12, sp.curv_q12));
   return o;
 }
 
