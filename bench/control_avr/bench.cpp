@@ -77,6 +77,7 @@ ctl::ControlConfig cfg =
 ctl::ControlConfigQ cfg_q(cfg);
 const ctl::ReferenceSpec spec{ctl::PathKind::kArc, 0.5f, 0.4f, 0.6f};
 constexpr ctl::ReferenceSpecQ spec_q{ctl::ReferenceSpec{ctl::PathKind::kArc, 0.5f, 0.4f, 0.6f}};
+constexpr ctl::ReferenceSpecQ spec8_q{bench::kEightSpec};
 ctl::Controller fc(cfg);
 ctl::ControllerQ qc(cfg_q);
 ctl::ControllerQ qc_const(cfg_q);  // same sequence with a constant dt (cached reciprocal)
@@ -178,6 +179,23 @@ int main() {
   }
 #endif
 
+  // The figure-eight reference over more than one lap (its own row and checksum).
+  Stat ref8_q, ref8_f;
+  ref8_q.reset(); ref8_f.reset();
+  uint32_t check8 = 0;
+#ifndef CTL_PROFILE
+  for (uint8_t i = 0; i < kRuns; ++i) {
+    const uint32_t t_ms = opaque(bench::eight_t_ms(i));
+    const float t_s = opaque(0.001f * static_cast<float>(bench::eight_t_ms(i)));
+    ctl::RefSampleQ r8{};
+    ctl::RefSample f8;
+    TIME_IT(ref8_q, r8 = ctl::reference_at_q(spec8_q, t_ms));
+    check8 = bench::checksum_ref(check8, r8);
+    TIME_IT(ref8_f, f8 = ctl::reference_at(bench::kEightSpec, t_s));
+    sink = static_cast<int32_t>(f8.x_m * 1000.0f);
+  }
+#endif
+
   printf("BEGIN control_avr cycles (ATmega2560, -Os, %u calls each, overhead %u subtracted)\n",
          static_cast<unsigned>(kRuns), overhead);
   printf("%-34s %6s %6s %6s %4s\n", "step", "min", "mean", "max", "n");
@@ -191,14 +209,17 @@ int main() {
   row("  dt 70-300 ms (long dt)", in_long);
   row("fixed outer_step (50 ms)", out_q);
   row("fixed reference_at_q", ref_q);
+  row("fixed reference_at_q, figure eight", ref8_q);
   row("float inner_step (25 ms)", in_f);
   row("float outer_step (50 ms)", out_f);
   row("float reference_at", ref_f);
+  row("float reference_at, figure eight", ref8_f);
   printf("state bytes: ControllerQ %u, Controller %u\n", static_cast<unsigned>(sizeof(ctl::ControllerQ)),
          static_cast<unsigned>(sizeof(ctl::Controller)));
   printf("fixed inner steps with the clamp or the duty limited: %u of %u\n", limited, static_cast<unsigned>(kRuns));
   printf("timer overflow: %s\n", overflowed ? "YES (figures invalid)" : "no");
-  printf("avr fixed-point checksum %08lx\n", static_cast<unsigned long>(check));
+  printf("avr fixed-point checksum %08lx %08lx\n", static_cast<unsigned long>(check),
+         static_cast<unsigned long>(check8));
   printf("avr config");
   uint8_t field = 0;
 #define BENCH_PRINT(f) \
@@ -206,8 +227,17 @@ int main() {
   printf(" %ld", static_cast<long>(cfg_q.f));
   BENCH_CFG_FIELDS(BENCH_PRINT)
   printf("\navr config");  // simavr splits long UART lines: keep them short
-#define BENCH_PRINT_REF(f) printf(" %ld", static_cast<long>(spec_q.f));
+  field = 0;
+#define BENCH_PRINT_REF(f) \
+  if (++field % 12 == 0) printf("\navr config"); \
+  printf(" %ld", static_cast<long>(spec_q.f));
   BENCH_REF_FIELDS(BENCH_PRINT_REF)
+  printf("\navr config");
+  field = 0;
+#define BENCH_PRINT_REF8(f) \
+  if (++field % 12 == 0) printf("\navr config"); \
+  printf(" %ld", static_cast<long>(spec8_q.f));
+  BENCH_REF_FIELDS(BENCH_PRINT_REF8)
   printf("\n");
   // Self-test of the AVR-only arithmetic (inline-assembly multiplies, byte-move shifts).
   uint32_t bad = 0, n = 0, x = 12345;

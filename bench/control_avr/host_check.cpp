@@ -10,13 +10,17 @@ int main(int argc, char** argv) {
       ctl::make_control_config(slip::RobotParams(), slip::MotorParams(), ctl::default_gains(), true);
   ctl::ControlConfigQ cfg_q(cfg);
   ctl::ReferenceSpecQ spec_q{ctl::ReferenceSpec{ctl::PathKind::kArc, 0.5f, 0.4f, 0.6f}};
+  ctl::ReferenceSpecQ spec8_q{bench::kEightSpec};
   int k = 1;
 #define BENCH_LOAD(f) \
   if (k < argc) cfg_q.f = static_cast<decltype(cfg_q.f)>(strtol(argv[k++], nullptr, 10));
   BENCH_CFG_FIELDS(BENCH_LOAD)
 #define BENCH_LOAD_REF(f) \
-  if (k < argc) spec_q.f = static_cast<decltype(spec_q.f)>(strtol(argv[k++], nullptr, 10));
+  if (k < argc) spec_q.f = static_cast<decltype(+spec_q.f)>(strtol(argv[k++], nullptr, 10));
   BENCH_REF_FIELDS(BENCH_LOAD_REF)
+#define BENCH_LOAD_REF8(f) \
+  if (k < argc) spec8_q.f = static_cast<decltype(+spec8_q.f)>(strtol(argv[k++], nullptr, 10));
+  BENCH_REF_FIELDS(BENCH_LOAD_REF8)
   if (argc > 1 && k != argc) {
     fprintf(stderr, "expected %d config values, got %d\n", k - 1, argc - 1);
     return 2;
@@ -32,6 +36,8 @@ int main(int argc, char** argv) {
     }
     h = bench::checksum_step(h, qc, rq, i);
   }
-  printf("host fixed-point checksum %08lx\n", static_cast<unsigned long>(h));
+  uint32_t h8 = 0;
+  for (uint8_t i = 0; i < bench::kRuns; ++i) h8 = bench::checksum_ref(h8, ctl::reference_at_q(spec8_q, bench::eight_t_ms(i)));
+  printf("host fixed-point checksum %08lx %08lx\n", static_cast<unsigned long>(h), static_cast<unsigned long>(h8));
   return 0;
 }

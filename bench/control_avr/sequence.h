@@ -66,6 +66,20 @@ inline uint32_t checksum_step(uint32_t h, const ctl::ControllerQ& q, const ctl::
   return h;
 }
 
+// The figure-eight reference sampled over more than one lap (L = 9.07 m at 0.4 m/s: 22.7 s)
+// for its own timing row and checksum (every field of every sample).
+constexpr ctl::ReferenceSpec kEightSpec{ctl::PathKind::kFigureEight, 0.5f, 0.4f, 0.6f};
+inline uint32_t eight_t_ms(uint8_t i) { return 400UL * i; }
+inline uint32_t checksum_ref(uint32_t h, const ctl::RefSampleQ& r) {
+  h = mix(h, static_cast<uint32_t>(r.x_q20));
+  h = mix(h, static_cast<uint32_t>(r.y_q20));
+  h = mix(h, r.phi_b32);
+  h = mix(h, static_cast<uint16_t>(r.v_q12));
+  h = mix(h, static_cast<uint16_t>(r.omega_q11));
+  h = mix(h, static_cast<uint16_t>(r.dv_q12));
+  return mix(h, static_cast<uint16_t>(r.domega_q11));
+}
+
 // Every field of the fixed configuration, in order, as int32 (the AVR builds its configuration
 // in 32-bit float at start-up, the host in double, so the constants may differ by an LSB; the
 // host replay therefore uses the AVR's values).
@@ -82,7 +96,9 @@ inline uint32_t checksum_step(uint32_t h, const ctl::ControllerQ& q, const ctl::
   X(two_over_r_q16) X(two_b_over_r_q16) X(clamp_enabled) X(ok)
 #define BENCH_REF_FIELDS(X)                                                                     \
   X(kind) X(accel_q24) X(cruise_q28) X(t_ramp_q16) X(s_ramp_q20) X(radius_q20)                  \
-  X(curv_b32_per_q20) X(curv_q12) X(period_q20) X(ok)
+  X(curv_b32_per_q20) X(curv_q12) X(period_q20) X(tau_b32_per_q20) X(beta_b32)                 \
+  X(cx_q20[0]) X(cx_q20[1]) X(cx_q20[2]) X(cx_q20[3]) X(cy_q20[0]) X(cy_q20[1]) X(cy_q20[2])    \
+  X(cy_q20[3]) X(cy_q20[4]) X(cy_sum_q20) X(ok)
 
 }  // namespace bench
 
