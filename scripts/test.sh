@@ -15,16 +15,38 @@ bash scripts/setup.sh || { echo "test: setup failed" >&2; exit 1; }
 source scripts/env.sh
 
 failed=()
+LOGS="$(mktemp -d)"
+trap 'rm -rf "$LOGS"' EXIT
 step() {
     local name="$1"; shift
     echo
     echo "=== test: $name: $*"
-    if "$@"; then
+    "$@" 2>&1 | tee "$LOGS/$name.log"
+    local rc=${PIPESTATUS[0]}
+    if [[ $rc == 0 ]]; then
         echo "=== test: $name: ok"
     else
-        echo "=== test: $name: FAILED (exit $?)"
+        echo "=== test: $name: FAILED (exit $rc)"
         failed+=("$name")
     fi
+}
+
+# Test cases counted from the runners' own summary lines (PlatformIO: "N test cases: ...",
+# pytest: "N passed, M failed"), for one closing line over all steps.
+count_cases() {
+    local passed=0 failed_n=0 line n
+    while IFS= read -r line; do
+        if [[ $line =~ ([0-9]+)\ test\ cases:\ (([0-9]+)\ failed,\ )?([0-9]+)\ succeeded ]]; then
+            failed_n=$((failed_n + ${BASH_REMATCH[3]:-0}))
+            passed=$((passed + ${BASH_REMATCH[4]}))
+        elif [[ $line =~ ^=*\ ?(([0-9]+)\ failed,\ )?([0-9]+)\ passed ]]; then
+            failed_n=$((failed_n + ${BASH_REMATCH[2]:-0}))
+            passed=$((passed + ${BASH_REMATCH[3]}))
+        elif [[ $line =~ ^=*\ ?([0-9]+)\ failed ]]; then
+            failed_n=$((failed_n + ${BASH_REMATCH[1]}))
+        fi
+    done < <(cat "$LOGS"/*.log 2>/dev/null | sed -e 's/\x1b\[[0-9;]*m//g')
+    echo "tests: $passed passed, $failed_n failed"
 }
 
 step native    pio test -e native
@@ -42,6 +64,8 @@ step python    .venv/bin/python -m pytest -q host_tools/tests
 echo
 if ((${#failed[@]})); then
     echo "=== test: FAILED steps: ${failed[*]}"
+    count_cases
     exit 1
 fi
 echo "=== test: all steps passed"
+count_cases
