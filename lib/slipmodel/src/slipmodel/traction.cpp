@@ -52,7 +52,9 @@ NormalForcesQ normal_forces_q16(const TractionQ& q, int32_t lat_force_q16) {
 
 int32_t tau_max_q16(const TractionQ& q, int32_t N_q16) {
   if (N_q16 <= 0) return 0;
-  return mul_q24(N_q16, q.k_tau_q24);
+  const int64_t prod = static_cast<int64_t>(N_q16) * static_cast<int64_t>(q.k_tau_q24);
+  const int64_t tau = (prod >> 24) - 1;  // floor, then one LSB lower (see the header)
+  return tau < 0 ? 0 : sat32(tau);
 }
 
 }  // namespace slip

@@ -83,6 +83,10 @@ constexpr TractionQ traction_q(const RobotParams& p) {
 NormalForcesQ normal_forces_q16(const TractionQ& q, int32_t lat_force_q16);
 
 /// Integer-only II.51: tau_max in Q16.16 N m for a normal force N_q16 (negative N gives 0).
+/// Rounded DOWN and one LSB (1.5e-5 N m) lower still, so that it is never above the float
+/// tau_max of the same lateral force: the roundings of N_q16 (<= 1.5 LSB of N) and k_tau_q24
+/// add at most 0.55 LSB for N <= 256 N. The limit is a knife edge (the plant slips as soon as
+/// the applied torque exceeds it by any amount), so a slip-avoiding limit must err low.
 int32_t tau_max_q16(const TractionQ& q, int32_t N_q16);
 
 }  // namespace slip
