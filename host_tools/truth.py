@@ -132,12 +132,18 @@ def counts(theta_rad) -> np.ndarray:
 
 def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_m: float = 1.0,
                         clamp: bool = True, T_s: float = 3.0, plant: _native.Plant | None = None,
-                        fixed_point: bool = True, dt_s: float = 5e-4) -> dict[str, np.ndarray]:
-    """The firmware's controller in closed loop with the nominal ``lib/slipmodel`` plant (duty
-    mode), on the 25 ms / 50 ms schedule with quantised encoders. Returns per-tick arrays:
+                        fixed_point: bool = True, dt_s: float = 5e-4,
+                        actuator: str = "duty") -> dict[str, np.ndarray]:
+    """The firmware's controller in closed loop with the nominal ``lib/slipmodel`` plant, on the
+    25 ms / 50 ms schedule with quantised encoders. ``actuator="duty"`` (default) applies the
+    controller's PWM duty through the datasheet motor (torque-speed line, saturation), as the
+    robot does; ``actuator="torque"`` applies its torque command after the clamp directly, an
+    ideal torque source, as the thesis's Simulink model does (II.6). Returns per-tick arrays:
     ``t_s``, true pose ``x_m, y_m, phi_rad``, reference ``x_ref, y_ref``, controller columns
     (``pwm_r`` ... ``odo_status``), and plant columns at the tick (``slip_r``, ``slip_l``,
     ``dtheta_r_rad_s`` ...), plus ``slip_any`` (any slipping internal step in the tick)."""
+    if actuator not in ("duty", "torque"):
+        raise ValueError(f"actuator must be 'duty' or 'torque', got {actuator!r}")
     plant = plant or _native.Plant()
     ctl = Controller(fixed_point=fixed_point, clamp=clamp)
     ctl.set_reference(kind, accel_m_s2, cruise_m_s, radius_m)
@@ -156,14 +162,17 @@ def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_
             tg = np.round(np.arange(k * sub + 1) * (INNER_S / sub), 12)
             ur = np.repeat(duty_r[:k], sub)
             ul = np.repeat(duty_l[:k], sub)
-            state = plant.simulate(tg, np.append(ur, 0.0), np.append(ul, 0.0), "duty", dt_s)
+            state = plant.simulate(tg, np.append(ur, 0.0), np.append(ul, 0.0), actuator, dt_s)
             th_r, th_l = state["theta_r_rad"][-1], state["theta_l_rad"][-1]
         if k == n:
             break
         o = ctl.inner(int(counts(th_r)), int(counts(th_l)))
         if k % 2 == 0:
             ctl.outer(k * INNER_S)
-        duty_r[k], duty_l[k] = o["pwm_r"], o["pwm_l"]
+        if actuator == "duty":
+            duty_r[k], duty_l[k] = o["pwm_r"], o["pwm_l"]
+        else:
+            duty_r[k], duty_l[k] = o["tau_cmd_r"], o["tau_cmd_l"]
         rows.append(o)
     res: dict[str, np.ndarray] = {"t_s": t_ticks}
     for c in ctl.columns:

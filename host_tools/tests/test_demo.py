@@ -40,6 +40,30 @@ def test_ii63_clamp_removes_slip_and_drift(thesis):
     assert on["max_tau_cmd_nm"] <= res["tau_max_nm"] + 1e-4 < off["max_tau_cmd_nm"]
 
 
+def test_ii63_ideal_torque_source(thesis):
+    """As the thesis simulated (torques applied directly): the clamped robot does not slip,
+    peaks no higher than the slipping one (mu_k ~ mu_s: slip costs almost no acceleration),
+    recovers the reference, and its error over the run is much smaller."""
+    _, res = thesis
+    off, on = res["ii63"]["off_torque_source"], res["ii63"]["on_torque_source"]
+    assert off["slip"] and not on["slip"]
+    assert on["max_err_m"] <= off["max_err_m"] + 0.01
+    assert on["final_err_m"] < 0.01 < 0.1 < off["final_err_m"]
+    assert on["rms_err_m"] < 0.6 * off["rms_err_m"]
+
+
+def test_ii62_no_slip_limit_follows_from_table_ii2(thesis):
+    """The straight-line no-slip limit tau_max / (I_wy + m_t r^2/2) equals 2 mu_s N / (m_t r),
+    and the 44 rad/s^2 profile needs more torque than tau_max; the closed loop slips there."""
+    _, res = thesis
+    mu_s, r, m_t = 0.241, 0.0365, 1.5 + 2 * 0.064
+    n_wheel = 0.5 * m_t * 9.81 * 0.095 / (0.095 + 0.055)  # caster takes d/(d+e) of the weight
+    assert abs(res["alpha_no_slip_rad_s2"] - 2 * mu_s * n_wheel / (m_t * r)) < 0.05
+    by = {row["alpha_rad_s2"]: row for row in res["ii62"]}
+    assert by[44.0]["tau_needed_nm"] > res["tau_max_nm"]
+    assert all(row["slip"] for row in res["ii62"])
+
+
 def test_analyzer_demo_end_to_end(tmp_path):
     """Part 2: the dataset is made, the analyzer runs on it and the report shows the fit
     improve (about 15-30 s)."""
