@@ -67,6 +67,9 @@ bool overflowed = false;
 uint16_t last_cycles;
 volatile int32_t sink;
 
+// Reference saturation for the self-test (int64 arithmetic).
+int32_t ref_sat32(int64_t v) { return v > INT32_MAX ? INT32_MAX : (v < INT32_MIN ? INT32_MIN : static_cast<int32_t>(v)); }
+
 void row(const char* name, const Stat& s) {
   printf("%-34s %6u %6lu %6u %4u\n", name, s.lo, static_cast<unsigned long>(s.sum / s.n), s.hi, s.n);
 }
@@ -218,8 +221,8 @@ int main() {
          static_cast<unsigned>(sizeof(ctl::Controller)));
   printf("fixed inner steps with the clamp or the duty limited: %u of %u\n", limited, static_cast<unsigned>(kRuns));
   printf("timer overflow: %s\n", overflowed ? "YES (figures invalid)" : "no");
-  printf("avr fixed-point checksum %08lx %08lx\n", static_cast<unsigned long>(check),
-         static_cast<unsigned long>(check8));
+  printf("avr fixed-point checksum %08lx %08lx %08lx\n", static_cast<unsigned long>(check),
+         static_cast<unsigned long>(check8), static_cast<unsigned long>(bench::checksum_trig()));
   printf("avr config");
   uint8_t field = 0;
 #define BENCH_PRINT(f) \
@@ -255,6 +258,15 @@ int main() {
     ASR_CHECK(8) ASR_CHECK(9) ASR_CHECK(10) ASR_CHECK(11) ASR_CHECK(12) ASR_CHECK(13)
     ASR_CHECK(14) ASR_CHECK(15) ASR_CHECK(16) ASR_CHECK(17) ASR_CHECK(20)
     n += 20;
+    // saturating 32-bit add and subtract (inline assembly), against int64; the operands span
+    // the whole range (w >> 0..3), so both saturations are exercised
+    {
+      const int32_t p = w >> (k & 3), q = static_cast<int32_t>(x * 2654435761UL) >> ((k >> 2) & 3);
+      const int64_t s1 = static_cast<int64_t>(p) + q, s2 = static_cast<int64_t>(p) - q;
+      bad += ctl::fx::add_sat32(p, q) != ref_sat32(s1);
+      bad += ctl::fx::sub_sat32(p, q) != ref_sat32(s2);
+      n += 2;
+    }
     // saturating 16-bit add and subtract
     {
       const int32_t s1 = static_cast<int32_t>(a) + b, s2 = static_cast<int32_t>(a) - b;
@@ -283,6 +295,19 @@ int main() {
       RS16_CHECK(9) RS16_CHECK(10) RS16_CHECK(11) RS16_CHECK(12) RS16_CHECK(13) RS16_CHECK(14)
       RS16_CHECK(15)
     }
+    // 32x16 products, rounded and saturated (inline assembly): every shift 8..16, operands
+    // over the whole range (a shifted by 0..31 bits, so that saturation is exercised)
+    {
+      const int32_t a32 = static_cast<int32_t>(x ^ (x << 13)) >> (k % 32);
+#define M32_CHECK(S)                                                                               \
+  {                                                                                                \
+    const int64_t e = (static_cast<int64_t>(a32) * b + (static_cast<int64_t>(1) << (S - 1))) >> S; \
+    bad += ctl::fx::mul32x16<S>(a32, b) != ref_sat32(e); \
+    ++n;                                                                                           \
+  }
+      M32_CHECK(8) M32_CHECK(9) M32_CHECK(10) M32_CHECK(11) M32_CHECK(12) M32_CHECK(13) M32_CHECK(14)
+      M32_CHECK(15) M32_CHECK(16)
+    }
     // the short division: inside and outside its fast range
     const uint32_t dd = (k & 1) ? 13000UL + (x >> 14) % 24000UL : 1UL + (x >> (k % 31));
     const uint32_t nn = (k & 2) ? 1775000000UL + (x & 0xFFFFF) : x;
@@ -297,6 +322,25 @@ int main() {
     if (d24 < 16777216UL) bad += ctl::fx::div32_24(nn, d24) != nn / d24;
     bad += ctl::fx::div_u32(nn, 16777215UL - (k & 3)) != nn / (16777215UL - (k & 3));
     n += 7;
+  }
+  // 32x16 products, 32-bit saturating add and subtract at the extremes of the operands
+  {
+    static const int32_t ea[] = {INT32_MIN, INT32_MIN + 1, -1, 0, 1, INT32_MAX, 0x40000000L, -0x40000000L, 0x7FFF8000L};
+    static const int16_t eb[] = {INT16_MIN, INT16_MIN + 1, -1, 0, 1, INT16_MAX, 0x4000, -0x4000};
+    for (uint8_t i = 0; i < sizeof ea / sizeof ea[0]; ++i)
+      for (uint8_t j = 0; j < sizeof eb / sizeof eb[0]; ++j) {
+        const int32_t a32 = ea[i];
+        const int16_t b = eb[j];
+        M32_CHECK(8) M32_CHECK(9) M32_CHECK(10) M32_CHECK(11) M32_CHECK(12) M32_CHECK(13) M32_CHECK(14)
+        M32_CHECK(15) M32_CHECK(16)
+      }
+    for (uint8_t i = 0; i < sizeof ea / sizeof ea[0]; ++i)
+      for (uint8_t j = 0; j < sizeof ea / sizeof ea[0]; ++j) {
+        const int64_t s1 = static_cast<int64_t>(ea[i]) + ea[j], s2 = static_cast<int64_t>(ea[i]) - ea[j];
+        bad += ctl::fx::add_sat32(ea[i], ea[j]) != ref_sat32(s1);
+        bad += ctl::fx::sub_sat32(ea[i], ea[j]) != ref_sat32(s2);
+        n += 2;
+      }
   }
   // set_dt (assembly) vs set_dt_wide (C): every dt from 13,000 to 33,000 us, the edges of the
   // assembly's range, and random dt up to 2^20..2^27 us (not in profile.sh's build, whose

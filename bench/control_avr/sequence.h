@@ -80,6 +80,22 @@ inline uint32_t checksum_ref(uint32_t h, const ctl::RefSampleQ& r) {
   return mix(h, static_cast<uint16_t>(r.domega_q11));
 }
 
+// sin_q15 and cos_q15 (inline assembly on the AVR) over every table point and quadrant edge
+// (angles k 2^20 +- 1) and 4,096 pseudo-random angles: a third checksum.
+inline uint32_t checksum_trig() {
+  uint32_t h = 0, x = 1;
+  for (uint16_t k = 0; k < 4096; ++k) {
+    const uint32_t e = static_cast<uint32_t>(k) << 20;
+    x = x * 1103515245UL + 12345UL;
+    const uint32_t a[4] = {e, e - 1, e + 1, x ^ (x << 9)};
+    for (uint8_t j = 0; j < 4; ++j) {
+      h = mix(h, static_cast<uint16_t>(ctl::fx::sin_q15(a[j])));
+      h = mix(h, static_cast<uint16_t>(ctl::fx::cos_q15(a[j])));
+    }
+  }
+  return h;
+}
+
 // Every field of the fixed configuration, in order, as int32 (the AVR builds its configuration
 // in 32-bit float at start-up, the host in double, so the constants may differ by an LSB; the
 // host replay therefore uses the AVR's values).

@@ -260,6 +260,27 @@ void test_fixed_point_helpers() {
   }
   TEST_ASSERT_EQUAL_INT32(INT32_MAX, fx::add_sat32(INT32_MAX - 5, 10));
   TEST_ASSERT_EQUAL_INT32(INT32_MIN, fx::add_sat32(INT32_MIN + 5, -10));
+  // Saturating subtraction (the AVR's assembly is checked against the same int64 reference in
+  // bench/control_avr), and the plain-C 32x16 product of the inner step's rare paths: equal to
+  // mul32x16 for S = 16; for S = 11 its int16 saturation (the 32-bit wheel-rate path) is equal.
+  srand(7);
+  for (int i = 0; i < 100000; ++i) {
+    const int32_t a = static_cast<int32_t>((static_cast<uint32_t>(rand()) << 16) ^ static_cast<uint32_t>(rand())) >> (i % 4);
+    const int32_t b = static_cast<int32_t>((static_cast<uint32_t>(rand()) << 16) ^ static_cast<uint32_t>(rand())) >> (i / 4 % 4);
+    const int64_t d = static_cast<int64_t>(a) - b;
+    TEST_ASSERT_EQUAL_INT32(d > INT32_MAX ? INT32_MAX : (d < INT32_MIN ? INT32_MIN : static_cast<int32_t>(d)), fx::sub_sat32(a, b));
+    const int16_t c = static_cast<int16_t>(rand());
+    TEST_ASSERT_EQUAL_INT32(fx::mul32x16<16>(a, c), fx::mul32x16_halves<16>(a, c));
+    TEST_ASSERT_EQUAL_INT16(fx::sat16(fx::mul32x16<11>(a, c)), fx::sat16(fx::mul32x16_halves<11>(a, c)));
+  }
+  TEST_ASSERT_EQUAL_INT32(INT32_MAX, fx::sub_sat32(0, INT32_MIN));
+  TEST_ASSERT_EQUAL_INT32(INT32_MIN, fx::sub_sat32(-2, INT32_MAX));
+  // The AVR's sin_q15 reads the difference of two table entries as one unsigned byte: the
+  // quarter-wave table must increase by 0..255 per entry.
+  for (int i = 0; i < 256; ++i) {
+    const int d = detail::kSinQuarterQ15[i + 1] - detail::kSinQuarterQ15[i];
+    TEST_ASSERT_TRUE(d >= 0 && d <= 255);
+  }
 }
 
 int main() {

@@ -3,10 +3,6 @@
 namespace ctl {
 
 namespace {
-CTL_INLINE int32_t sub_sat32(int32_t a, int32_t b) {
-  if (b == INT32_MIN) return a >= 0 ? INT32_MAX : a - b;
-  return fx::add_sat32(a, -b);
-}
 // |x| < 2^19 (8 N m in Q16): Q16 -> Q12 rounded toward zero (no division: avr-gcc calls
 // __divmodsi4 for x / 16).
 CTL_INLINE int16_t q16_to_q12_toward_zero(int32_t x) {
@@ -37,11 +33,11 @@ CTL_INLINE int16_t q20_to_q12(int32_t x) { return fx::sat16(fx::rshift_round<8>(
 
 KinematicOutQ kinematic_law_q(const ControlConfigQ& c, const PoseQ& pose, const RefSampleQ& ref) {
   KinematicOutQ k;
-  const int32_t dx = sub_sat32(ref.x_q20, pose.x_q20);
-  const int32_t dy = sub_sat32(ref.y_q20, pose.y_q20);
+  const int32_t dx = fx::sub_sat32(ref.x_q20, pose.x_q20);
+  const int32_t dy = fx::sub_sat32(ref.y_q20, pose.y_q20);
   const int16_t cp = fx::cos_q15(pose.phi_b32), sp = fx::sin_q15(pose.phi_b32);
   const int32_t ex = fx::add_sat32(fx::mul_trig<15>(dx, cp), fx::mul_trig<15>(dy, sp));
-  const int32_t ey = sub_sat32(fx::mul_trig<15>(dy, cp), fx::mul_trig<15>(dx, sp));
+  const int32_t ey = fx::sub_sat32(fx::mul_trig<15>(dy, cp), fx::mul_trig<15>(dx, sp));
   k.e_x_q12 = q20_to_q12(ex);
   k.e_y_q12 = q20_to_q12(ey);
   k.e_phi_b32 = static_cast<int32_t>(ref.phi_b32 - pose.phi_b32);
@@ -78,12 +74,12 @@ void ControllerQ::integrate_long_dt(uint32_t dt_us, int16_t e_v, int16_t e_w) {
   const int32_t kdt_q20 = fx::rshift_round_nc<11>(fx::mul_ss(cfg_.g_il_q15, dt_q16));  // Q31 -> Q20
   const int32_t inc_v = kdt_q20 <= INT16_MAX
       ? fx::rshift_round_nc<8>(fx::mul_ss(e_v, static_cast<int16_t>(kdt_q20)))          // Q32 -> Q24
-      : fx::rshift_round<3>(fx::mul32x16<16>(fx::mul_ss(e_v, cfg_.g_il_q15), dt_q16));  // Q27 -> Q24
+      : fx::rshift_round<3>(fx::mul32x16_halves<16>(fx::mul_ss(e_v, cfg_.g_il_q15), dt_q16));  // Q27 -> Q24
   j_v_q24_ = fx::clamp32(j_v_q24_ + inc_v, cfg_.jmax_v_q24);  // |J| < 2^30, |inc| <= 2^28
   const int32_t kdt_q24 = fx::rshift_round_nc<10>(fx::mul_ss(cfg_.g_ia_q18, dt_q16));  // Q34 -> Q24
   const int32_t inc_w = kdt_q24 <= INT16_MAX
       ? fx::rshift_round_nc<10>(fx::mul_ss(e_w, static_cast<int16_t>(kdt_q24)))         // Q34 -> Q24
-      : fx::rshift_round<4>(fx::mul32x16<16>(fx::mul_ss(e_w, cfg_.g_ia_q18), dt_q16));  // Q28 -> Q24
+      : fx::rshift_round<4>(fx::mul32x16_halves<16>(fx::mul_ss(e_w, cfg_.g_ia_q18), dt_q16));  // Q28 -> Q24
   j_w_q24_ = fx::clamp32(j_w_q24_ + inc_w, cfg_.jmax_w_q24);
 }
 

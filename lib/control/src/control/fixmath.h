@@ -247,11 +247,51 @@ static inline uint32_t div_u32(uint32_t n, uint32_t d) {
 static CTL_INLINE int32_t clamp32(int32_t x, int32_t lim) { return x > lim ? lim : (x < -lim ? -lim : x); }
 static CTL_INLINE int16_t clamp16(int16_t x, int16_t lim) { return x > lim ? lim : (x < -lim ? -lim : x); }
 
-/// Saturating int32 addition.
-static CTL_INLINE int32_t add_sat32(int32_t a, int32_t b) {
+#if defined(__AVR__)
+namespace sh {
+/// a + b (SUB = false) or a - b (SUB = true), saturated, on the overflow flag of the 32-bit
+/// add/subtract (5 cycles without overflow); on overflow the wrapped result has the wrong sign.
+template <bool SUB>
+CTL_INLINE int32_t addsub_sat32(int32_t a, int32_t b) {
+  __asm__(
+      ".if %[sub]\n\tsub %A0, %A1\n\tsbc %B0, %B1\n\tsbc %C0, %C1\n\tsbc %D0, %D1\n\t"
+      ".else\n\tadd %A0, %A1\n\tadc %B0, %B1\n\tadc %C0, %C1\n\tadc %D0, %D1\n\t.endif\n\t"
+      "brvc 2f\n\t"
+      "brpl 1f\n\t"
+      "clr %A0\n\tdec %A0\n\tmov %B0, %A0\n\tmov %C0, %A0\n\tmov %D0, %A0\n\tlsr %D0\n\trjmp 2f\n"  // INT32_MAX
+      "1:\n\tclr %A0\n\tclr %B0\n\tclr %C0\n\tclr %D0\n\tsec\n\tror %D0\n"               // INT32_MIN
+      "2:"
+      : "+r"(a)
+      : "r"(b), [sub] "M"(static_cast<uint8_t>(SUB ? 1 : 0)));
+  return a;
+}
+}  // namespace sh
+#endif
+
+/// Saturating int32 addition in plain C (add_sat32 on the host; on the AVR only where the
+/// assembly block would cost the surrounding code registers: mul32x16_halves).
+static CTL_INLINE int32_t add_sat32_c(int32_t a, int32_t b) {
   const int32_t s = static_cast<int32_t>(static_cast<uint32_t>(a) + static_cast<uint32_t>(b));
   if (((a ^ s) & (b ^ s)) < 0) return a < 0 ? INT32_MIN : INT32_MAX;  // sign flip = overflow
   return s;
+}
+
+/// Saturating int32 addition and subtraction.
+static CTL_INLINE int32_t add_sat32(int32_t a, int32_t b) {
+#if defined(__AVR__)
+  return sh::addsub_sat32<false>(a, b);
+#else
+  return add_sat32_c(a, b);
+#endif
+}
+static CTL_INLINE int32_t sub_sat32(int32_t a, int32_t b) {
+#if defined(__AVR__)
+  return sh::addsub_sat32<true>(a, b);
+#else
+  const int32_t s = static_cast<int32_t>(static_cast<uint32_t>(a) - static_cast<uint32_t>(b));
+  if (((a ^ b) & (a ^ s)) < 0) return a < 0 ? INT32_MIN : INT32_MAX;  // operands of opposite signs, sign flip
+  return s;
+#endif
 }
 
 /// Exact 16x16 -> 32 multiplies. avr-gcc 5.4 turns (int32)hi * b and (int32)lo * b, with hi/lo
@@ -545,10 +585,95 @@ CTL_INLINE int32_t mul16(int16_t a, int16_t b) {
   return rshift_round_nc<S>(mul_ss(a, b));  // |a b| <= 2^30
 }
 
-/// (a * b) >> S with a 32-bit a and a 16-bit b, S in 1..16, rounded and saturated to int32.
-/// Done as two 16x16 multiplies: a = hi * 2^16 + lo.
+#if defined(__AVR__)
+namespace sh {
+/// sat32(floor((a b + 2^(S-1)) / 2^S)) for S = 8..16 in one block (~70 cycles; the same in C
+/// from two 16x16 products, their shifts and saturation checks took ~145): the exact 48-bit
+/// product P = a b from eight MUL/MULSU/MULS (each signed partial product sign-extended by
+/// SBC on the carry MULSU/MULS leave, as in mul_ss), 2^(S-1) added at its byte, then bits
+/// S..S+31 taken -- from byte 2 shifted left 16-S bits (S >= 13) or from byte 1 shifted right
+/// S-8 bits (S <= 12) -- and checked against the bits above them (all equal to the sign).
+/// P: bytes 0,1 in lo, bytes 2..5 in r.
+template <uint8_t S>
+CTL_INLINE int32_t mul32x16_round(int32_t a, int16_t b) {
+  int32_t r;
+  uint16_t lo;
+  uint8_t z, t;
+  __asm__(
+      "clr %[z]\n\t"
+      "mul %A[a], %A[b]\n\tmovw %A[lo], r0\n\t"          // a0 b0 -> bytes 0, 1
+      "mul %C[a], %A[b]\n\tmovw %A[r], r0\n\t"           // a2 b0 -> bytes 2, 3
+      "muls %D[a], %B[b]\n\tmovw %C[r], r0\n\t"          // a3 b1 -> bytes 4, 5 (signed)
+      "mul %B[a], %A[b]\n\t"                              // a1 b0 -> bytes 1, 2
+      "add %B[lo], r0\n\tadc %A[r], r1\n\tadc %B[r], %[z]\n\tadc %C[r], %[z]\n\tadc %D[r], %[z]\n\t"
+      "mulsu %D[a], %A[b]\n\t"                            // a3 b0 -> bytes 3, 4 (signed)
+      "sbc %D[r], %[z]\n\tadd %B[r], r0\n\tadc %C[r], r1\n\tadc %D[r], %[z]\n\t"
+      "mulsu %B[b], %A[a]\n\t"                            // a0 b1 -> bytes 1, 2 (signed)
+      "sbc %B[r], %[z]\n\tsbc %C[r], %[z]\n\tsbc %D[r], %[z]\n\t"
+      "add %B[lo], r0\n\tadc %A[r], r1\n\tadc %B[r], %[z]\n\tadc %C[r], %[z]\n\tadc %D[r], %[z]\n\t"
+      "mulsu %B[b], %B[a]\n\t"                            // a1 b1 -> bytes 2, 3 (signed)
+      "sbc %C[r], %[z]\n\tsbc %D[r], %[z]\n\t"
+      "add %A[r], r0\n\tadc %B[r], r1\n\tadc %C[r], %[z]\n\tadc %D[r], %[z]\n\t"
+      "mulsu %B[b], %C[a]\n\t"                            // a2 b1 -> bytes 3, 4 (signed)
+      "sbc %D[r], %[z]\n\tadd %B[r], r0\n\tadc %C[r], r1\n\tadc %D[r], %[z]\n\t"
+      "clr r1\n\t"
+      // + 2^(S-1): bit 7 of byte 0 (S = 8) or bit S-9 of byte 1
+      "ldi %[t], %[h]\n\t"
+      ".if %[s8]\n\tadd %A[lo], %[t]\n\tadc %B[lo], %[z]\n\t.else\n\tadd %B[lo], %[t]\n\t.endif\n\t"
+      "adc %A[r], %[z]\n\tadc %B[r], %[z]\n\tadc %C[r], %[z]\n\tadc %D[r], %[z]\n\t"
+      ".if %[up]\n\t"
+      // S >= 13: in range iff byte 5 >> (S - 9) is 0 or -1 (bits S+31..47 equal)
+      ".if %[k]\n\t"
+      "mov %[t], %D[r]\n\tsubi %[t], %[nh]\n\tandi %[t], %[m]\n\tbreq 1f\n\t"
+      "mov %C[r], %D[r]\n\tlsl %C[r]\n\tsbc %C[r], %C[r]\n\tldi %[t], 0x7F\n\tmov %D[r], %[t]\n\t"
+      "sub %D[r], %C[r]\n\tcom %C[r]\n\tmov %B[r], %C[r]\n\tmov %A[r], %C[r]\n\trjmp 2f\n"
+      "1:\n\t"
+      ".rept %[k]\n\tlsl %B[lo]\n\trol %A[r]\n\trol %B[r]\n\trol %C[r]\n\trol %D[r]\n\t.endr\n"
+      "2:\n\t"
+      ".endif\n\t"
+      ".else\n\t"
+      // S <= 12: bytes 1..5 shifted right S-8 bits; in range iff byte 5 is the sign of byte 4
+      ".rept %[k]\n\tasr %D[r]\n\tror %C[r]\n\tror %B[r]\n\tror %A[r]\n\tror %B[lo]\n\t.endr\n\t"
+      "mov %[t], %C[r]\n\tlsl %[t]\n\tsbc %[t], %[t]\n\t"
+      "cp %[t], %D[r]\n\tbreq 1f\n\t"
+      "mov %C[r], %D[r]\n\tlsl %C[r]\n\tsbc %C[r], %C[r]\n\tldi %[t], 0x7F\n\tmov %D[r], %[t]\n\t"
+      "sub %D[r], %C[r]\n\tcom %C[r]\n\tmov %B[r], %C[r]\n\tmov %A[r], %C[r]\n\trjmp 2f\n"
+      "1:\n\t"
+      "mov %D[r], %C[r]\n\tmov %C[r], %B[r]\n\tmov %B[r], %A[r]\n\tmov %A[r], %B[lo]\n"
+      "2:\n\t"
+      ".endif"
+      : [r] "=&r"(r), [lo] "=&r"(lo), [z] "=&r"(z), [t] "=&d"(t)
+      : [a] "a"(a), [b] "a"(b), [h] "M"(static_cast<int>(S == 8 ? 0x80 : (1u << ((S >= 9 && S <= 16 ? S : 9) - 9)))),
+        [s8] "M"(static_cast<int>(S == 8 ? 1 : 0)), [up] "M"(static_cast<int>(S >= 13 ? 1 : 0)),
+        [k] "M"(static_cast<int>(S >= 13 ? 16 - S : S - 8)),
+        [nh] "M"(static_cast<int>(256u - (1u << ((S >= 13 && S <= 15 ? S : 15) - 9)))),
+        [m] "M"(static_cast<int>(256u - (1u << ((S >= 13 && S <= 15 ? S : 15) - 8)))));
+  (void)lo;
+  return r;
+}
+}  // namespace sh
+#endif
+
+/// (a * b) >> S with a 32-bit a and a 16-bit b, S in 8..16, rounded and saturated to int32:
+/// sat32(floor((a b + 2^(S-1)) / 2^S)). On the AVR one inline-assembly block (sh::mul32x16_round).
 template <uint8_t S>
 CTL_INLINE int32_t mul32x16(int32_t a, int16_t b) {
+  static_assert(S >= 8 && S <= 16, "mul32x16: S in 8..16");
+#if defined(__AVR__)
+  return sh::mul32x16_round<S>(a, b);
+#else
+  const int64_t p = (static_cast<int64_t>(a) * b + (static_cast<int64_t>(1) << (S - 1))) >> S;
+  return p > INT32_MAX ? INT32_MAX : (p < INT32_MIN ? INT32_MIN : static_cast<int32_t>(p));
+#endif
+}
+
+/// The same product in plain C from two 16x16 products, a = hi 2^16 + lo (~145 cycles on the
+/// AVR). Equal to mul32x16() for S = 16, and for S < 16 except that results within
+/// 2^(31-S) of INT32_MIN may come out as INT32_MIN. Used only on the inner step's rare paths
+/// (dt <= 13.5 ms or >= 65.5 ms): there the assembly block's six r16-r23 operands cost the
+/// ordinary step ~45 cycles of register allocation (measured), even out of line.
+template <uint8_t S>
+CTL_INLINE int32_t mul32x16_halves(int32_t a, int16_t b) {
   const int16_t hi = static_cast<int16_t>(a >> 16);
   const uint16_t lo = static_cast<uint16_t>(a & 0xFFFF);
   const int32_t p_hi = mul_ss(hi, b);  // |p_hi| <= 2^30
@@ -559,7 +684,7 @@ CTL_INLINE int32_t mul32x16(int32_t a, int16_t b) {
     if (p_hi < -lim) return INT32_MIN;
   }
   // p_lo + 2^(S-1) <= 65535 * 32767 + 2^15 < 2^31: no overflow check needed.
-  return add_sat32(p_hi * static_cast<int32_t>(1L << (16 - S)), rshift_round_nc<S>(p_lo));
+  return add_sat32_c(p_hi * static_cast<int32_t>(1L << (16 - S)), rshift_round_nc<S>(p_lo));
 }
 
 /// The bytes of a 32-bit word (little-endian on both the AVR and x86 hosts; the byte moves
@@ -569,9 +694,58 @@ union Word32 {
   uint8_t b[4];
 };
 
+#if defined(__AVR__)
+namespace sh {
+/// sin_q15(a + C 2^30) (C = 0: sine, 1: cosine) in one block, ~55 cycles instead of ~145 for
+/// the same C: the quadrant byte (+ C 0x40), the 22-bit position mirrored in odd quadrants,
+/// shifted left 2 bits (index in the top byte, the 16-bit fraction below; a carry out is the
+/// position 2^22, index 256), the table words read with LPM Z+, the fraction times their
+/// difference (bytes 2, 3 of two MUL products, rounded), negated in quadrants 2 and 3. The
+/// quarter-wave table increases by 1..201 per entry (test_control_blocks checks 0..255), so
+/// the difference is the low bytes' difference, one unsigned byte.
+template <uint8_t C>
+CTL_INLINE int16_t sin_table(uint32_t a_b32) {
+  int16_t y;
+  uint8_t q, p0, p1, p2, d, t, z;
+  const int16_t* tab = &detail::kSinQuarterQ15[0];
+  __asm__(
+      "mov %[p2], %D[a]\n\t"
+      ".if %[c]\n\tsubi %[p2], 0xC0\n\t.endif\n\t"
+      "mov %[q], %[p2]\n\tmov %[p0], %B[a]\n\tmov %[p1], %C[a]\n\tandi %[p2], 0x3F\n\t"
+      "sbrs %[q], 6\n\trjmp 1f\n\t"
+      "com %[p2]\n\tcom %[p1]\n\tneg %[p0]\n\tsbci %[p1], 0xFF\n\tsbci %[p2], 0xFF\n\tsubi %[p2], 0xC0\n"  // 2^22 - p
+      "1:\n\t"
+      "lsl %[p0]\n\trol %[p1]\n\trol %[p2]\n\tlsl %[p0]\n\trol %[p1]\n\trol %[p2]\n\t"
+      "clr %[z]\n\t"
+      "brcs 5f\n\t"
+      "add r30, %[p2]\n\tadc r31, %[z]\n\tadd r30, %[p2]\n\tadc r31, %[z]\n\t"
+      "lpm %A[y], Z+\n\tlpm %B[y], Z+\n\tlpm %[d], Z\n\tsub %[d], %A[y]\n\t"  // d = y1 - y0
+      "mul %[p0], %[d]\n\tmov %[t], r1\n\t"                               // byte 1
+      "mul %[p1], %[d]\n\tadd %[t], r0\n\tadc r1, %[z]\n\t"               // byte 2 in r1
+      "lsl %[t]\n\tadc r1, %[z]\n\t"                                         // + 0x8000
+      "add %A[y], r1\n\tadc %B[y], %[z]\n\tclr r1\n\trjmp 6f\n"
+      "5:\n\t"                                                               // index 256
+      "subi r30, lo8(-512)\n\tsbci r31, hi8(-512)\n\tlpm %A[y], Z+\n\tlpm %B[y], Z\n"
+      "6:\n\t"
+      "sbrs %[q], 7\n\trjmp 7f\n\t"
+      "neg %A[y]\n\tadc %B[y], %[z]\n\tneg %B[y]\n"
+      "7:"
+      : [y] "=&r"(y), [q] "=&r"(q), [p0] "=&r"(p0), [p1] "=&d"(p1), [p2] "=&d"(p2), [d] "=&r"(d),
+        [t] "=&r"(t), [z] "=&r"(z), "+z"(tab)
+      : [a] "r"(a_b32), [c] "M"(C));
+  (void)q; (void)p0; (void)p1; (void)p2; (void)d; (void)t; (void)z; (void)tab;
+  return y;
+}
+}  // namespace sh
+#endif
+
 /// sin of a binary angle, Q15 (|error| <= 3.5e-5: interpolation error (pi/512)^2/8 = 4.7e-6
 /// plus 0.5 LSB (1.5e-5) table rounding plus 0.5 LSB interpolation rounding; measured 3.2e-5).
+/// On the AVR one inline-assembly block (sh::sin_table), the same arithmetic.
 static CTL_INLINE int16_t sin_q15(uint32_t a_b32) {
+#if defined(__AVR__)
+  return sh::sin_table<0>(a_b32);
+#else
   Word32 w;
   w.u = a_b32;
   const uint8_t quadrant = static_cast<uint8_t>(w.b[3] >> 6);
@@ -594,10 +768,17 @@ static CTL_INLINE int16_t sin_q15(uint32_t a_b32) {
     y = static_cast<int16_t>(y0 + static_cast<int16_t>(prod.b[2] | (static_cast<uint16_t>(prod.b[3]) << 8)));
   }
   return (quadrant & 2) ? static_cast<int16_t>(-y) : y;
+#endif
 }
 
 /// cos of a binary angle, Q15.
-static CTL_INLINE int16_t cos_q15(uint32_t a_b32) { return sin_q15(a_b32 + 0x40000000UL); }
+static CTL_INLINE int16_t cos_q15(uint32_t a_b32) {
+#if defined(__AVR__)
+  return sh::sin_table<1>(a_b32);
+#else
+  return sin_q15(a_b32 + 0x40000000UL);
+#endif
+}
 
 /// (x * c) >> s for a Q15 sine/cosine c, rescaled by 32768/32767 so that c = 32767 acts as
 /// exactly 1.0 (the table stores round(32767 sin)); residual scale error < 1e-9.

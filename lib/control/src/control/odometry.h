@@ -226,8 +226,8 @@ CTL_INLINE OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, ui
       w_r_q8_ = fx::rshift_round_nc_sat16<10>(fx::mul_us(rate_q10_, dn_r));
       w_l_q8_ = fx::rshift_round_nc_sat16<10>(fx::mul_us(rate_q10_, dn_l));
     } else {
-      w_r_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, dn_r));
-      w_l_q8_ = fx::sat16(fx::mul32x16<11>(rate_per_count_q11_, dn_l));
+      w_r_q8_ = fx::sat16(fx::mul32x16_halves<11>(rate_per_count_q11_, dn_r));
+      w_l_q8_ = fx::sat16(fx::mul32x16_halves<11>(rate_per_count_q11_, dn_l));
     }
   }
   CTL_PROBE(13);
