@@ -71,7 +71,7 @@ volatile int32_t sink;
 int32_t ref_sat32(int64_t v) { return v > INT32_MAX ? INT32_MAX : (v < INT32_MIN ? INT32_MIN : static_cast<int32_t>(v)); }
 
 void row(const char* name, const Stat& s) {
-  printf("%-34s %6u %6lu %6u %4u\n", name, s.lo, static_cast<unsigned long>(s.sum / s.n), s.hi, s.n);
+  printf("%-44s %6u %6lu %6u %4u\n", name, s.lo, static_cast<unsigned long>(s.sum / s.n), s.hi, s.n);
 }
 
 // Configuration (built once at start-up; the float conversion is not part of the steps).
@@ -82,9 +82,10 @@ const ctl::ReferenceSpec spec{ctl::PathKind::kArc, 0.5f, 0.4f, 0.6f};
 constexpr ctl::ReferenceSpecQ spec_q{ctl::ReferenceSpec{ctl::PathKind::kArc, 0.5f, 0.4f, 0.6f}};
 constexpr ctl::ReferenceSpecQ spec8_q{bench::kEightSpec};
 ctl::Controller fc(cfg);
-ctl::ControllerQ qc(cfg_q);
+ctl::ControllerQ qc(cfg_q);        // the firmware's sequence: reset, then dt = 25 ms +- 4 us
 ctl::ControllerQ qc_const(cfg_q);  // same sequence with a constant dt (cached reciprocal)
 ctl::ControllerQ qc_div(cfg_q);    // same counts, dt jumping on every call (every call divides)
+ctl::ControllerQ qc8(cfg_q);       // same counts, the outer task on the figure eight
 
 }  // namespace
 
@@ -92,11 +93,16 @@ namespace ctl {
 // Access to OdometryQ's private rate state for the self-test: set_dt() (inline assembly on the
 // AVR) must leave exactly the state set_dt_wide() (plain C) leaves, for every dt.
 struct OdometryQProbe {
+  static void set_dt(OdometryQ& a, uint32_t dt_us) { a.set_dt(dt_us); }
   static uint8_t check(OdometryQ& a, OdometryQ& b, uint32_t dt_us) {
     a.set_dt(dt_us);
     b.set_dt_wide(dt_us);
-    return (a.div_dt_us_ != b.div_dt_us_) + (a.rate_per_count_q11_ != b.rate_per_count_q11_) +
-           (a.rate_div_q10_ != b.rate_div_q10_) + (a.rate_q10_ != b.rate_q10_) + (a.slope_q12_ != b.slope_q12_);
+    return differ(a, b.div_) + (a.rate_q10_ != b.rate_q10_);
+  }
+  // The rate state of `a` (after a division) against a RateQ computed elsewhere.
+  static uint8_t differ(const OdometryQ& a, const RateQ& r) {
+    return (a.div_.dt_us != r.dt_us) + (a.div_.per_count_q11 != r.per_count_q11) + (a.div_.div_q10 != r.div_q10) +
+           (a.div_.slope_q12 != r.slope_q12) + (a.rate_q10_ != r.div_q10);
   }
 };
 }  // namespace ctl
@@ -118,9 +124,12 @@ int main() {
     overhead = s.lo;
   }
 
-  Stat in_q, in_q_const, in_q_steady, in_q_free, out_q, ref_q, in_f, out_f, ref_f;
-  in_q.reset(); in_q_const.reset(); in_q_steady.reset(); in_q_free.reset(); out_q.reset(); ref_q.reset(); in_f.reset(); out_f.reset();
-  ref_f.reset();
+  Stat in_q, in_q_const, in_q_free, out_q, ref_q, task8_q, in_f, out_f, ref_f;
+  in_q.reset(); in_q_const.reset(); in_q_free.reset(); out_q.reset(); ref_q.reset(); task8_q.reset(); in_f.reset();
+  out_f.reset(); ref_f.reset();
+  // As the firmware starts an experiment: reset with the encoders' counts, then inner steps
+  // with dt = 25 ms +- 4 us from the first one on (the reset's nominal rate: no division).
+  qc.reset(bench::enc_r_at(0), bench::enc_l_at(0), ctl::PoseQ{0, 0, 0});
   ctl::RefSampleQ rq{};
   ctl::RefSample rf;
   uint32_t check = 0;
@@ -130,9 +139,8 @@ int main() {
     const uint32_t t_ms = opaque(25UL * i);
     const uint32_t dt_us = opaque(bench::dt_us_at(i));  // not inside the timed call (it divides by 9)
     TIME_IT(in_q, qc.inner_step(enc_r, enc_l, dt_us));
-    if (i > 0) in_q_steady.add(last_cycles);  // without the first call (its division)
     const ctl::InnerOutQ& oq = qc.inner();
-    if (i > 0 && !(oq.clamped_r || oq.clamped_l || oq.sat_r || oq.sat_l)) in_q_free.add(last_cycles);
+    if (!(oq.clamped_r || oq.clamped_l || oq.sat_r || oq.sat_l)) in_q_free.add(last_cycles);
 #ifndef CTL_PROFILE  // profile.sh: the jittered-dt controller alone
     TIME_IT(in_q_const, qc_const.inner_step(enc_r, enc_l, 25000UL));
 #endif
@@ -148,6 +156,12 @@ int main() {
       TIME_IT(out_f, fc.outer_step(rf));
     }
     if (qc.inner().clamped_r || qc.inner().clamped_l || qc.inner().sat_r || qc.inner().sat_l) ++limited;
+#ifndef CTL_PROFILE
+    // The firmware's outer task on the figure eight: its reference sample and the outer step
+    // (two queued arcs), timed together.
+    qc8.inner_step(enc_r, enc_l, dt_us);
+    if (bench::outer_due(i)) TIME_IT(task8_q, qc8.outer_step(ctl::reference_at_q(spec8_q, t_ms)));
+#endif
   }
   sink = qc.inner().pwm_r_q15 + static_cast<int32_t>(fc.inner().pwm_r * 1000.0f);
 
@@ -201,18 +215,19 @@ int main() {
 
   printf("BEGIN control_avr cycles (ATmega2560, -Os, %u calls each, overhead %u subtracted)\n",
          static_cast<unsigned>(kRuns), overhead);
-  printf("%-34s %6s %6s %6s %4s\n", "step", "min", "mean", "max", "n");
-  row("fixed inner_step (25 ms, dt jitter)", in_q);
-  row("  the same after the first call", in_q_steady);
+  printf("%-44s %6s %6s %6s %4s\n", "step", "min", "mean", "max", "n");
+  row("fixed inner_step firmware (reset, 25ms+-4us)", in_q);
   row("  ... steps not limited (integrating)", in_q_free);
   row("fixed inner_step (dt constant)", in_q_const);
-  row("fixed inner_step dividing 13.6-32.7", in_div);
+  row("fixed inner_step off-schedule 13.6-32.7 ms", in_div);
   row("  dt 5-13.5 ms (32-bit rate)", in_lo);
   row("  dt 33-65 ms (16-bit divisor)", in_mid);
   row("  dt 70-300 ms (long dt)", in_long);
   row("fixed outer_step (50 ms)", out_q);
   row("fixed reference_at_q", ref_q);
   row("fixed reference_at_q, figure eight", ref8_q);
+  row("fixed outer task, figure eight", task8_q);
+  printf("fixed outer_step max + figure-eight sample max: %u\n", out_q.hi + ref8_q.hi);
   row("float inner_step (25 ms)", in_f);
   row("float outer_step (50 ms)", out_f);
   row("float reference_at", ref_f);
@@ -349,13 +364,27 @@ int main() {
   {
     ctl::OdometryQ oa(cfg_q.odo), ob(cfg_q.odo);
     const uint32_t k = static_cast<uint32_t>(cfg_q.odo.wheel_rate_q11);
-    for (uint32_t dt = 13000; dt <= 33000; ++dt) { bad += ctl::OdometryQProbe::check(oa, ob, dt); ++n; }
+    // and the configuration's rate_for() (plain C, the nominal rate's code) against set_dt_wide
+    // over the same dt; the nominal rate itself against a division at the nominal dt
+    for (uint32_t dt = 13000; dt <= 33000; ++dt) {
+      bad += ctl::OdometryQProbe::check(oa, ob, dt);
+      bad += ctl::OdometryQProbe::differ(ob, cfg_q.odo.rate_for(dt));
+      n += 2;
+    }
+    ctl::OdometryQProbe::set_dt(oa, cfg_q.rate_nominal.dt_us);
+    bad += ctl::OdometryQProbe::differ(oa, cfg_q.rate_nominal) + (cfg_q.rate_nominal.dt_us != ctl::kNominalInnerDtUs);
+    ++n;
     const uint32_t edge[] = {1, 2, 3, 255, 256, 4095, k >> 17, (k >> 17) + 1, (k >> 17) + 2, 32766, 32767, 32768, 32769, 65535, 65536,
                              65537, 500000UL, 16777215UL, 16777216UL, 4294967295UL};
-    for (uint8_t j = 0; j < sizeof edge / sizeof edge[0]; ++j) { bad += ctl::OdometryQProbe::check(oa, ob, edge[j]); ++n; }
+    for (uint8_t j = 0; j < sizeof edge / sizeof edge[0]; ++j) {
+      bad += ctl::OdometryQProbe::check(oa, ob, edge[j]) + ctl::OdometryQProbe::differ(ob, cfg_q.odo.rate_for(edge[j]));
+      n += 2;
+    }
     for (uint16_t j = 0; j < 2000; ++j) {
       x = x * 1103515245UL + 12345UL;
-      bad += ctl::OdometryQProbe::check(oa, ob, 1 + (x >> (12 + j % 8))); ++n;
+      const uint32_t dt = 1 + (x >> (12 + j % 8));
+      bad += ctl::OdometryQProbe::check(oa, ob, dt) + ctl::OdometryQProbe::differ(ob, cfg_q.odo.rate_for(dt));
+      n += 2;
     }
   }
 #endif

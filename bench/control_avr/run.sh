@@ -39,3 +39,15 @@ for fn in _ZN3ctl11ControllerQ10inner_stepEllm _ZN3ctl11ControllerQ10outer_stepE
   fi
 done
 echo "fixed-point step functions call no soft-float routine"
+# The goals (lib/control/README.md): every inner step of the firmware's sequence (reset, then
+# dt = 25 ms +- jitter) <= 2,000 cycles; the outer step plus the figure-eight reference sample
+# <= 10,000 (timed together as the firmware's outer task, and as the sum of the two maxima).
+awk '
+  /^fixed inner_step firmware/ { inner = $(NF-1) }
+  /^fixed outer task, figure eight/ { task = $(NF-1) }
+  /^fixed outer_step max \+ figure-eight sample max/ { sum = $NF }
+  END {
+    ok = (inner != "" && task != "" && sum != "" && inner + 0 <= 2000 && task + 0 <= 10000 && sum + 0 <= 10000)
+    printf "goals: inner step (firmware sequence) max %s <= 2000, outer task (eight) max %s and outer + eight maxima %s <= 10000: %s\n", inner, task, sum, ok ? "met" : "NOT MET"
+    exit ok ? 0 : 1
+  }' "$OUT/table.txt"

@@ -109,7 +109,8 @@ inline uint32_t checksum_trig() {
   X(integ_max_v_q16) X(integ_max_w_q16) X(tau_big_q16) X(g_l_q15) X(g_a_q18) X(g_c_q23)          \
   X(g_cv_q20) X(g_ffv_q18) X(g_ffw_q21) X(g_il_q15) X(g_ia_q18) X(g_il_us_q34) X(g_ia_us_q37)       \
   X(jmax_v_q24) X(jmax_w_q24)     \
-  X(two_over_r_q16) X(two_b_over_r_q16) X(clamp_enabled) X(ok)
+  X(two_over_r_q16) X(two_b_over_r_q16) X(clamp_enabled) X(ok)                                 \
+  X(rate_nominal.dt_us) X(rate_nominal.per_count_q11) X(rate_nominal.div_q10) X(rate_nominal.slope_q12)
 #define BENCH_REF_FIELDS(X)                                                                     \
   X(kind) X(accel_q24) X(cruise_q28) X(t_ramp_q16) X(s_ramp_q20) X(radius_q20)                  \
   X(curv_b32_per_q20) X(curv_q12) X(period_q20) X(tau_b32_per_q20) X(beta_b32)                 \

@@ -40,6 +40,16 @@ void test_config_converts() {
   ControllerQ c{ControlConfigQ(bad)};
   TEST_ASSERT_EQUAL(static_cast<int>(OdoStatus::kBadConfig), static_cast<int>(c.inner_step(10, 10, 25000).odo));
   TEST_ASSERT_EQUAL_INT16(0, c.inner().pwm_r_q15);  // refuses to drive
+  // The precomputed wheel rate for the nominal dt (25 ms by default, or the given period).
+  TEST_ASSERT_EQUAL_UINT32(kNominalInnerDtUs, q.rate_nominal.dt_us);
+  TEST_ASSERT_EQUAL_INT32(q.odo.rate_for(25000).per_count_q11, q.rate_nominal.per_count_q11);
+  TEST_ASSERT_EQUAL_UINT16(q.odo.rate_for(25000).div_q10, q.rate_nominal.div_q10);
+  TEST_ASSERT_EQUAL_UINT16(q.odo.rate_for(25000).slope_q12, q.rate_nominal.slope_q12);
+  TEST_ASSERT_TRUE(q.rate_nominal.slope_q12 != 0);
+  const ControlConfigQ q20(config(true), 20000);
+  TEST_ASSERT_EQUAL_UINT32(20000, q20.rate_nominal.dt_us);
+  TEST_ASSERT_EQUAL_UINT16(q.odo.rate_for(20000).div_q10, q20.rate_nominal.div_q10);
+  TEST_ASSERT_EQUAL_INT32(0, ControlConfigQ(config(true), 0).rate_nominal.per_count_q11);
 }
 
 // References: fixed vs float for 10 minutes of each path.

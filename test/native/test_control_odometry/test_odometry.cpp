@@ -245,6 +245,54 @@ void test_wheel_speed_with_dt_jitter() {
   TEST_ASSERT_TRUE(worst <= 1.0 / 256);
 }
 
+namespace ctl {
+// The private rate state (the friend declared in odometry.h; bench/control_avr has its own).
+struct OdometryQProbe {
+  static void divide(OdometryQ& o, uint32_t dt_us) { o.set_dt(dt_us); }
+  static bool equal(const OdometryQ& o, const RateQ& r) {
+    return o.div_.dt_us == r.dt_us && o.div_.per_count_q11 == r.per_count_q11 && o.div_.div_q10 == r.div_q10 &&
+           o.div_.slope_q12 == r.slope_q12 && o.rate_q10_ == r.div_q10;
+  }
+};
+}  // namespace ctl
+
+// The configuration's precomputed rate (OdometryConfigQ::rate_for, plain C) is the state the
+// division leaves, for every dt class (32-bit rate below 13.5 ms, 16-bit above, no slope from
+// 64000 units of Q10, 24-bit divisors); a reset from rate_for(25000) then makes a first update at
+// 25 ms +- 63 us give exactly the wheel speeds of a controller that divided at 25 ms before.
+void test_precomputed_rate_is_the_division() {
+  OdometryQ o(kCfgQ);
+  uint32_t x = 3;
+  for (uint32_t k = 0; k < 200000; ++k) {
+    x = x * 1103515245u + 12345u;
+    const uint32_t dt = k < 40000 ? 1 + k : 1 + (x >> (k % 24));
+    OdometryQProbe::divide(o, dt);
+    if (!OdometryQProbe::equal(o, kCfgQ.rate_for(dt))) {
+      printf("rate_for(%u) differs from the division\n", static_cast<unsigned>(dt));
+      TEST_FAIL();
+    }
+  }
+  TEST_ASSERT_EQUAL_UINT32(0, kCfgQ.rate_for(0).per_count_q11);
+  static_assert(kCfgQ.rate_for(25000).dt_us == 25000 && kCfgQ.rate_for(25000).slope_q12 != 0,
+                "rate_for is a constant expression");
+  srand(13);
+  for (int k = 0; k < 2000; ++k) {
+    const int32_t e0r = rand() - RAND_MAX / 2, e0l = rand() - RAND_MAX / 2;
+    const int32_t dr = rand() % 541 - 270, dl = rand() % 541 - 270;
+    const uint32_t dt = 25000 + rand() % 127 - 63;
+    OdometryQ a(kCfgQ), b(kCfgQ);
+    a.reset(e0r, e0l, PoseQ{0, 0, 0}, kCfgQ.rate_for(25000));
+    b.reset(e0r, e0l, PoseQ{0, 0, 0});
+    b.update_deferred(e0r, e0l, 25000);  // divides at 25 ms
+    a.update_deferred(e0r + dr, e0l + dl, dt);
+    b.update_deferred(e0r + dr, e0l + dl, dt);
+    TEST_ASSERT_EQUAL_INT16(b.omega_r_q8(), a.omega_r_q8());
+    TEST_ASSERT_EQUAL_INT16(b.omega_l_q8(), a.omega_l_q8());
+    TEST_ASSERT_EQUAL_INT16(b.v_q12(), a.v_q12());
+    TEST_ASSERT_EQUAL_INT16(b.omega_q11(), a.omega_q11());
+  }
+}
+
 // Deferring the arcs (update_deferred, integrated when the pose is read) gives exactly the
 // pose of integrating at every update, whatever the reading pattern.
 void test_deferred_pose_is_identical() {
@@ -324,6 +372,7 @@ int main() {
   RUN_TEST(test_count_wraparound);
   RUN_TEST(test_wheel_speed_III_1);
   RUN_TEST(test_wheel_speed_with_dt_jitter);
+  RUN_TEST(test_precomputed_rate_is_the_division);
   RUN_TEST(test_deferred_pose_is_identical);
   RUN_TEST(test_bad_input_is_reported_and_finite);
   RUN_TEST(test_fixed_vs_float_ten_minutes);

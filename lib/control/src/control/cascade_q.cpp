@@ -57,7 +57,7 @@ KinematicOutQ kinematic_law_q(const ControlConfigQ& c, const PoseQ& pose, const 
 ControllerQ::ControllerQ(const ControlConfigQ& cfg) : cfg_(cfg), odo_(cfg.odo) { reset(0, 0, PoseQ{0, 0, 0}); }
 
 void ControllerQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
-  odo_.reset(enc_r, enc_l, p);
+  odo_.reset(enc_r, enc_l, p, cfg_.rate_nominal);  // no division on a first step at the nominal dt
   kin_ = KinematicOutQ{0, 0, 0, 0, 0};
   out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kOk};
   const slip::NormalForcesQ nf = slip::normal_forces_q16(cfg_.traction, 0);

@@ -21,6 +21,10 @@
 
 namespace ctl {
 
+/// The inner loop's nominal sample period (the thesis's 25 ms), the default of ControlConfigQ's
+/// nominal_dt_us.
+static const uint32_t kNominalInnerDtUs = 25000;
+
 /// Fixed-point configuration, built from the float one by a constexpr constructor, so that the
 /// firmware can fold it at compile time when its ControlConfig is a constant expression.
 struct ControlConfigQ {
@@ -58,8 +62,13 @@ struct ControlConfigQ {
   int32_t two_over_r_q16, two_b_over_r_q16;  // to report the integrators in N and N m
   bool clamp_enabled;
   bool ok;
+  /// The wheel-rate state (the 1/dt division) for the nominal dt, from the same code as the
+  /// run-time division (OdometryConfigQ::rate_for): ControllerQ::reset() starts from it, so a
+  /// first step with dt within +-63 us of the nominal dt does not divide.
+  RateQ rate_nominal;
 
-  constexpr explicit ControlConfigQ(const ControlConfig& c)
+  /// nominal_dt_us: the inner loop's sample period (0: no precomputed rate).
+  constexpr explicit ControlConfigQ(const ControlConfig& c, uint32_t nominal_dt_us = kNominalInnerDtUs)
       : odo(OdometryConfig{static_cast<float>(c.robot.r), static_cast<float>(c.robot.b), c.counts_per_rev}),
         traction(slip::traction_q(c.robot)),
         k_x_q8(q16c(c.gains.k_x, 8)), k_y_q8(q16c(c.gains.k_y, 8)), k_phi_q8(q16c(c.gains.k_phi, 8)),
@@ -107,7 +116,8 @@ struct ControlConfigQ {
            c.robot.r / 2.0 * c.gains.k_il * 1e-6 * fx::pow2(34) < 16384.0 &&
            c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia * 1e-6 * fx::pow2(37) < 16384.0 &&
            c.robot.r / 2.0 * c.integ_max_n < 64.0 && c.robot.r / (2.0 * c.robot.b) * c.integ_max_nm < 64.0 &&
-           2.0 / c.robot.r < 32000.0 && 2.0 * c.robot.b / c.robot.r < 32000.0) {}
+           2.0 / c.robot.r < 32000.0 && 2.0 * c.robot.b / c.robot.r < 32000.0),
+        rate_nominal(odo.rate_for(nominal_dt_us)) {}
 
   static constexpr bool fits16(double v, int shift) {
     return v * fx::pow2(shift) < 32767.0 && v * fx::pow2(shift) > -32768.0;
@@ -137,6 +147,9 @@ struct InnerOutQ {
 class ControllerQ {
  public:
   explicit ControllerQ(const ControlConfigQ& cfg);
+  /// Start from pose p with the encoders reading (enc_r, enc_l); the wheel-rate state starts
+  /// from the configuration's rate_nominal, so a first step at the nominal dt (+-63 us) does not
+  /// divide.
   void reset(int32_t enc_r, int32_t enc_l, const PoseQ& p);
   /// Outer loop (50 ms). Call after the inner step of the same tick (fresh pose).
   const KinematicOutQ& outer_step(const RefSampleQ& ref);

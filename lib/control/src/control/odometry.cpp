@@ -7,6 +7,10 @@ namespace ctl {
 
 namespace {
 const float kPi = 3.14159265358979f;
+// detail::rate_slope's product at run time (OdometryConfigQ::rate_for uses plain C).
+struct FxRateOps {
+  static CTL_INLINE uint32_t mul(uint16_t a, uint16_t b) { return fx::mul_uu(a, b); }
+};
 const float kTwoPi = 6.28318530717959f;
 
 int32_t count_step(int32_t now, int32_t last, bool* jumped) {
@@ -82,16 +86,16 @@ OdoStatus Odometry::update(int32_t enc_r, int32_t enc_l, float dt_s) {
 // ---------------------------------------------------------------- fixed point
 OdometryQ::OdometryQ(const OdometryConfigQ& cfg) : cfg_(cfg) { reset(0, 0, PoseQ{0, 0, 0}); }
 
-void OdometryQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
+void OdometryQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p, const RateQ& rate) {
   last_r_ = enc_r;
   last_l_ = enc_l;
   pose_ = p;
   phi_frac_ = 0;
   x_frac_ = y_frac_ = 0;
   n_pending_ = 0;
-  last_dt_us_ = div_dt_us_ = 0;
-  rate_per_count_q11_ = 0;
-  rate_div_q10_ = slope_q12_ = rate_q10_ = 0;
+  last_dt_us_ = rate.dt_us;
+  div_ = rate;
+  rate_q10_ = rate.div_q10;
   w_r_q8_ = w_l_q8_ = v_q12_ = w_q11_ = 0;
 }
 
@@ -115,11 +119,12 @@ void OdometryQ::set_dt(uint32_t dt_us) {
     // the quotient q has at most 17 bits, so rate_div = (q + 1) >> 1 truncated to 16 bits (0
     // for q = 2^17 - 1, as there), and the slope floor(floor(r^2 / 2^16) inv / 2^16) from
     // exact 16x16 products (high words with every carry).
-    div_dt_us_ = dt_us;
-    static_assert(offsetof(OdometryQ, rate_per_count_q11_) <= 63, "adiw range");
-    static_assert(offsetof(OdometryQ, rate_q10_) - offsetof(OdometryQ, rate_per_count_q11_) <= 62 &&
-                  offsetof(OdometryQ, slope_q12_) - offsetof(OdometryQ, rate_per_count_q11_) <= 62 &&
-                  offsetof(OdometryQ, rate_div_q10_) - offsetof(OdometryQ, rate_per_count_q11_) <= 62 &&
+    div_.dt_us = dt_us;
+    constexpr size_t kOffRpc = offsetof(OdometryQ, div_) + offsetof(RateQ, per_count_q11);
+    constexpr size_t kOffDiv = offsetof(OdometryQ, div_) + offsetof(RateQ, div_q10);
+    constexpr size_t kOffSlope = offsetof(OdometryQ, div_) + offsetof(RateQ, slope_q12);
+    static_assert(kOffRpc <= 63, "adiw range");
+    static_assert(offsetof(OdometryQ, rate_q10_) - kOffRpc <= 62 && kOffSlope - kOffRpc <= 62 && kOffDiv - kOffRpc <= 62 &&
                   offsetof(OdometryQ, cfg_) + offsetof(OdometryConfigQ, wheel_rate_q11) <= 60 &&
                   offsetof(OdometryQ, cfg_) + offsetof(OdometryConfigQ, inv_rate_q32) <= 62, "ldd/std displacement");
     uint16_t rem, lo, d = static_cast<uint16_t>(dt_us), inv;
@@ -143,10 +148,10 @@ void OdometryQ::set_dt(uint32_t dt_us) {
         "3:\n\t"
         ".endr\n\t"
         "rol %A[lo]\n\trol %B[lo]\n\tsbc %[z], %[z]\n\tinc %[z]\n\tcom %A[lo]\n\tcom %B[lo]\n\t"
-        // rate_per_count_q11_ = q
+        // div_.per_count_q11 = q
         "adiw r30, %[o_rpc]\n\t"
         "st Z, %A[lo]\n\tstd Z+1, %B[lo]\n\tstd Z+2, %[z]\n\tstd Z+3, __zero_reg__\n\t"
-        // r = (q + 1) >> 1 (16 bits) -> rate_div_q10_, rate_q10_
+        // r = (q + 1) >> 1 (16 bits) -> div_.div_q10, rate_q10_
         "sec\n\tadc %A[lo], __zero_reg__\n\tadc %B[lo], __zero_reg__\n\tadc %[z], __zero_reg__\n\t"
         "lsr %[z]\n\tror %B[lo]\n\tror %A[lo]\n\t"
         "std Z+%[o_rd], %A[lo]\n\tstd Z+%[o_rd]+1, %B[lo]\n\t"
@@ -179,13 +184,11 @@ void OdometryQ::set_dt(uint32_t dt_us) {
         : [rem] "=&d"(rem), [lo] "=&r"(lo), [d] "+r"(d), [z] "=&r"(z), [inv] "=&r"(inv), "+z"(self)
         : [o_k] "I"(offsetof(OdometryQ, cfg_) + offsetof(OdometryConfigQ, wheel_rate_q11)),
           [o_inv] "I"(offsetof(OdometryQ, cfg_) + offsetof(OdometryConfigQ, inv_rate_q32)),
-          [o_rpc] "I"(offsetof(OdometryQ, rate_per_count_q11_)),
-          [o_rd] "I"(offsetof(OdometryQ, rate_div_q10_) - offsetof(OdometryQ, rate_per_count_q11_)),
-          [o_rq] "I"(offsetof(OdometryQ, rate_q10_) - offsetof(OdometryQ, rate_per_count_q11_)),
-          [o_sl] "I"(offsetof(OdometryQ, slope_q12_) - offsetof(OdometryQ, rate_per_count_q11_))
+          [o_rpc] "I"(kOffRpc), [o_rd] "I"(kOffDiv - kOffRpc),
+          [o_rq] "I"(offsetof(OdometryQ, rate_q10_) - kOffRpc), [o_sl] "I"(kOffSlope - kOffRpc)
         : "memory");
     (void)rem; (void)lo; (void)d; (void)inv;
-    if (z != 0) self->set_dt_wide(self->div_dt_us_);  // dt <= 13.5 ms (self = this here)
+    if (z != 0) self->set_dt_wide(self->div_.dt_us);  // dt <= 13.5 ms (self = this here)
     return;
   }
 #endif
@@ -193,16 +196,13 @@ void OdometryQ::set_dt(uint32_t dt_us) {
 }
 
 void OdometryQ::set_dt_wide(uint32_t dt_us) {
-  div_dt_us_ = dt_us;
-  rate_per_count_q11_ = static_cast<int32_t>(fx::div_u32(static_cast<uint32_t>(cfg_.wheel_rate_q11), dt_us));
+  // the formulas of the configuration's rate_for() in fx:: arithmetic (restoring divisions, MUL
+  // products), each field stored as it is formed (a RateQ built first kept 10 more registers live);
   // dt >= 13.5 ms: the rate fits 16 bits in Q10 (0 = use the 32-bit path)
-  rate_div_q10_ = rate_per_count_q11_ < 131072L ? static_cast<uint16_t>((rate_per_count_q11_ + 1) >> 1) : 0;
-  rate_q10_ = rate_div_q10_;
-  slope_q12_ = 0;
-  if (rate_div_q10_ != 0 && rate_div_q10_ < 64000U && cfg_.inv_rate_q32 != 0) {
-    const uint16_t r2_hi = static_cast<uint16_t>(fx::mul_uu(rate_div_q10_, rate_div_q10_) >> 16);
-    slope_q12_ = static_cast<uint16_t>(fx::mul_uu(r2_hi, cfg_.inv_rate_q32) >> 16);
-  }
+  div_.dt_us = dt_us;
+  div_.per_count_q11 = static_cast<int32_t>(fx::div_u32(static_cast<uint32_t>(cfg_.wheel_rate_q11), dt_us));
+  div_.div_q10 = rate_q10_ = detail::rate_q10(div_.per_count_q11);
+  div_.slope_q12 = detail::rate_slope<FxRateOps>(div_.div_q10, cfg_.inv_rate_q32);
 }
 
 void OdometryQ::integrate_pending() const {

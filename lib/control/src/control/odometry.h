@@ -72,6 +72,36 @@ class Odometry {
   float w_r_, w_l_, v_, w_;
 };
 
+/// The cached wheel-rate state for one dt: what OdometryQ's division (set_dt()) leaves, and
+/// what ControlConfigQ precomputes for the nominal dt so that a reset needs no division.
+struct RateQ {
+  uint32_t dt_us;         ///< dt of the division (0: none)
+  int32_t per_count_q11;  ///< wheel_rate_q11 / dt_us
+  uint16_t div_q10;       ///< the same in Q10 when it fits 16 bits (dt >= 13.5 ms), else 0
+  uint16_t slope_q12;     ///< div_q10 / dt_us (Q10 units per us, Q12; the first-order update), 0: none
+};
+
+namespace detail {
+/// The rate formulas, shared by the run-time division (OdometryQ::set_dt_wide, fx:: arithmetic)
+/// and the configuration's rate_for() (plain C, constexpr): q = floor(k / dt), its Q10 form
+/// r = (q + 1) >> 1 truncated to 16 bits when q < 2^17 (else 0), and the slope
+/// r / dt = r^2 / (k / 2) as floor(floor(r^2 / 2^16) inv / 2^16), inv = 8192 / k in Q32 (0 unless
+/// 0 < r < 64000 and inv != 0; see OdometryQ::set_dt for the error of the first-order update).
+constexpr uint16_t rate_q10(int32_t q) { return static_cast<uint16_t>(q < 131072L ? (q + 1) >> 1 : 0); }
+template <class Ops>
+constexpr uint16_t rate_slope(uint16_t r, uint16_t inv) {
+  return (r != 0 && r < 64000U && inv != 0)
+             ? static_cast<uint16_t>(Ops::mul(static_cast<uint16_t>(Ops::mul(r, r) >> 16), inv) >> 16) : 0;
+}
+/// The arithmetic in plain C.
+struct RateOpsC {
+  static constexpr uint32_t mul(uint16_t a, uint16_t b) { return static_cast<uint32_t>(a) * b; }
+};
+constexpr RateQ rate_from_q(uint32_t dt_us, int32_t q, uint16_t inv) {
+  return RateQ{dt_us, q, rate_q10(q), rate_slope<RateOpsC>(rate_q10(q), inv)};
+}
+}  // namespace detail
+
 /// Fixed-point configuration, derived from OdometryConfig at compile time (constexpr).
 struct OdometryConfigQ {
   int32_t ds_per_count_q44;    ///< r pi / ppr (metres per count of n_r + n_l), Q44
@@ -94,6 +124,13 @@ struct OdometryConfigQ {
         r_over_2b_q15(ok_range(c) ? static_cast<int16_t>(fx::q_const(c.wheel_radius_m / (2.0 * c.half_track_m), 15)) : 0),
         inv_rate_q32(c.valid() && inv_rate(c) < 65535.0 ? static_cast<uint16_t>(fx::q_const(inv_rate(c), 0)) : 0),
         ok(ok_range(c)) {}
+
+  /// The rate state a division at dt_us leaves (OdometryQ::set_dt), computed in plain C
+  /// (bit-identical; checked in test_control_odometry and on the AVR by bench/control_avr).
+  constexpr RateQ rate_for(uint32_t dt_us) const {
+    return dt_us != 0 ? detail::rate_from_q(dt_us, static_cast<int32_t>(static_cast<uint32_t>(wheel_rate_q11) / dt_us), inv_rate_q32)
+                      : RateQ{0, 0, 0, 0};
+  }
 
   static constexpr double inv_rate(const OdometryConfig& c) {
     return 8192.0 / (6.283185307179586 / c.counts_per_rev * 256.0 * 1.0e6 * 2048.0) * 4294967296.0;
@@ -132,7 +169,10 @@ class OdometryQ {
   static const uint8_t kMaxPending = 2;
 
   explicit OdometryQ(const OdometryConfigQ& cfg);
-  void reset(int32_t enc_r, int32_t enc_l, const PoseQ& p);
+  /// Start from pose p with the encoders reading (enc_r, enc_l). `rate`: the rate state to
+  /// start from (the configuration's rate_for(dt) of the expected dt: a first update with dt
+  /// within +-63 us of it then needs no division); none by default.
+  void reset(int32_t enc_r, int32_t enc_l, const PoseQ& p, const RateQ& rate = RateQ{0, 0, 0, 0});
   /// New cumulative counts after dt_us microseconds: wheel speeds and pose.
   OdoStatus update(int32_t enc_r, int32_t enc_l, uint32_t dt_us);
   /// The same, but the pose arc of this sample is queued (integrated when the pose is read).
@@ -178,10 +218,7 @@ class OdometryQ {
   mutable uint8_t n_pending_;
   int16_t pend_r_[kMaxPending], pend_l_[kMaxPending];  // queued count increments, oldest first
   uint32_t last_dt_us_;         // dt of the current rate
-  uint32_t div_dt_us_;          // dt of the last exact division
-  int32_t rate_per_count_q11_;  // wheel_rate_q11 / div_dt_us_
-  uint16_t rate_div_q10_;       // the same in Q10 when it fits 16 bits, else 0
-  uint16_t slope_q12_;          // rate_div_q10_ / div_dt_us_ (Q10 units per us, Q12); 0: none
+  RateQ div_;                   // the last exact division (or the reset's rate state)
   uint16_t rate_q10_;           // rate for last_dt_us_ (Q10), 0: use the 32-bit path
   int16_t w_r_q8_, w_l_q8_, v_q12_, w_q11_;
 };
@@ -212,22 +249,22 @@ CTL_INLINE OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, ui
       // rate = rate_div - slope (dt - dt_div), error below 2 units of the Q10 rate (3e-5
       // relative; see set_dt). Otherwise the division.
       last_dt_us_ = dt_us;
-      const int32_t dd = static_cast<int32_t>(dt_us - div_dt_us_);
-      if (slope_q12_ != 0 && dd >= -63 && dd <= 63) {
+      const int32_t dd = static_cast<int32_t>(dt_us - div_.dt_us);
+      if (div_.slope_q12 != 0 && dd >= -63 && dd <= 63) {
         rate_q10_ = static_cast<uint16_t>(
-            rate_div_q10_ - static_cast<uint16_t>(fx::rshift_round_nc_lo16<12>(fx::mul_us(slope_q12_, static_cast<int16_t>(dd)))));
+            div_.div_q10 - static_cast<uint16_t>(fx::rshift_round_nc_lo16<12>(fx::mul_us(div_.slope_q12, static_cast<int16_t>(dd)))));
       } else {
         set_dt(dt_us);
       }
     }
     CTL_PROBE(12);
-    if (rate_q10_ != 0 || rate_per_count_q11_ == 0) {
+    if (rate_q10_ != 0 || div_.per_count_q11 == 0) {
       // |rate dn| <= 65535 * 16383 < 2^30: no overflow in the rounding
       w_r_q8_ = fx::rshift_round_nc_sat16<10>(fx::mul_us(rate_q10_, dn_r));
       w_l_q8_ = fx::rshift_round_nc_sat16<10>(fx::mul_us(rate_q10_, dn_l));
     } else {
-      w_r_q8_ = fx::sat16(fx::mul32x16_halves<11>(rate_per_count_q11_, dn_r));
-      w_l_q8_ = fx::sat16(fx::mul32x16_halves<11>(rate_per_count_q11_, dn_l));
+      w_r_q8_ = fx::sat16(fx::mul32x16_halves<11>(div_.per_count_q11, dn_r));
+      w_l_q8_ = fx::sat16(fx::mul32x16_halves<11>(div_.per_count_q11, dn_l));
     }
   }
   CTL_PROBE(13);
