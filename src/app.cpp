@@ -66,6 +66,7 @@ alignas(ctl::OdometryQ) uint8_t g_idle_odo_storage[sizeof(ctl::OdometryQ)];
 ctl::ReferenceSpecQ g_ref{ctl::ReferenceSpec{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f}};
 
 bool g_running;
+bool g_start_pending;              // Start accepted: the next inner tick starts the experiment
 uint8_t g_failsafe = proto::kFailsafeNone;
 uint32_t g_exp_start_ms;
 uint32_t g_exp_duration_ms;
@@ -90,7 +91,9 @@ T* place(uint8_t* storage, const T& v) {
 }
 
 void rebuild_controller() {
-    ctl::ControlConfigQ q(make_cfg());
+    // the inner period: the controller's wheel rate for it is precomputed (no division on the
+    // first step of an experiment)
+    ctl::ControlConfigQ q(make_cfg(), proto::kInnerPeriodUs);
     g_ctrl = place(g_ctrl_storage, ctl::ControllerQ(q));
     g_idle_odo = place(g_idle_odo_storage, ctl::OdometryQ(q.odo));
 }
@@ -138,6 +141,10 @@ void send_params() {
     send_msg(p);
 }
 
+// Running, or about to (a Start waiting for its tick): commands that change the
+// configuration or start an experiment are refused.
+bool busy() { return g_running || g_start_pending; }
+
 void stop_motors(uint8_t why) {
     motor_brake();
     if (g_running) {
@@ -146,6 +153,7 @@ void stop_motors(uint8_t why) {
         g_idle_odo->reset(g_enc.count_r, g_enc.count_l, g_ctrl->odometry().pose());
     }
     g_running = false;
+    g_start_pending = false;
     g_failsafe = why;
 }
 
@@ -154,7 +162,7 @@ void stop_motors(uint8_t why) {
 uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
     proto::Start s = proto::Start();
     if (!s.decode(pl, len)) return proto::kResultBadLength;
-    if (g_running) return proto::kResultBusy;
+    if (busy()) return proto::kResultBusy;
     float r = static_cast<float>(g_robot.r);
     float t_acc = s.get_accel_time();
     ctl::ReferenceSpec spec = ctl::straight_profile(r, s.get_wheel_accel(), t_acc);
@@ -171,20 +179,30 @@ uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
         *detail = 1;
         return proto::kResultOutOfRange;
     }
-    // accepted: apply
+    // accepted: the experiment starts at the next inner tick (start_experiment(), at most one
+    // inner period later), so that its first control step comes one period after the reset
     g_ref = q;
-    g_enc = enc_snapshot();
+    g_exp_duration_ms = s.duration;
+    g_start_pending = true;
+    return proto::kResultOk;
+}
+
+// At the inner tick after an accepted Start (instead of that tick's idle odometry): the
+// controller is reset with this tick's encoder snapshot, and this tick's time (already in
+// g_last_inner_us) is the baseline of the first control step's dt, one inner period later --
+// the period the controller's wheel rate is precomputed for, so that step does not divide as a
+// dt from the arbitrary moment of the command would make it. The reference's t = 0 and the
+// duration count from this tick.
+void start_experiment() {
     g_ctrl->reset(g_enc.count_r, g_enc.count_l, ctl::PoseQ{0, 0, 0});
     g_phi_turns = 0;
     g_phi_last_b32 = 0;
     g_illegal_at_start = g_enc.illegal_l + g_enc.illegal_r;
     g_exp_start_ms = sched_ms();
-    g_exp_duration_ms = s.duration;
-    g_last_inner_us = time_us();
     g_failsafe = proto::kFailsafeNone;
+    g_start_pending = false;
     g_running = true;
     sched_reset_stats();
-    return proto::kResultOk;
 }
 
 void handle_frame(const proto::Frame& f) {
@@ -196,12 +214,12 @@ void handle_frame(const proto::Frame& f) {
                 res = cmd_start(f.payload, f.len, &detail);
                 break;
             case proto::kMsgStop:
-                if (g_running || !motor_braking()) stop_motors(proto::kFailsafeStoppedByHost);
+                if (busy() || !motor_braking()) stop_motors(proto::kFailsafeStoppedByHost);
                 break;
             case proto::kMsgSetClamp: {
                 proto::SetClamp c = proto::SetClamp();
                 c.decode(f.payload, f.len);  // length checked by validate_command
-                if (g_running) { res = proto::kResultBusy; break; }
+                if (busy()) { res = proto::kResultBusy; break; }
                 g_clamp_on = c.on != 0;
                 rebuild_controller();
                 break;
@@ -209,7 +227,7 @@ void handle_frame(const proto::Frame& f) {
             case proto::kMsgSetMu: {
                 proto::SetMu m = proto::SetMu();
                 m.decode(f.payload, f.len);  // length checked by validate_command
-                if (g_running) { res = proto::kResultBusy; break; }
+                if (busy()) { res = proto::kResultBusy; break; }
                 g_robot.mu_s = m.get_mu_s();
                 g_robot.mu_k = m.get_mu_k();
                 g_params_default = false;
@@ -232,6 +250,10 @@ void inner_task() {
     uint32_t now_us = time_us();
     uint32_t dt_us = now_us - g_last_inner_us;
     g_last_inner_us = now_us;
+    if (g_start_pending) {
+        start_experiment();
+        return;
+    }
     if (!g_running) {
         g_idle_odo->update(g_enc.count_r, g_enc.count_l, dt_us);
         return;
