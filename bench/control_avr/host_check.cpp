@@ -38,7 +38,7 @@ int main(int argc, char** argv) {
   }
   uint32_t h8 = 0;
   for (uint8_t i = 0; i < bench::kRuns; ++i) h8 = bench::checksum_ref(h8, ctl::reference_at_q(spec8_q, bench::eight_t_ms(i)));
-  printf("host fixed-point checksum %08lx %08lx %08lx\n", static_cast<unsigned long>(h), static_cast<unsigned long>(h8),
-         static_cast<unsigned long>(bench::checksum_trig()));
+  printf("host fixed-point checksum %08lx %08lx %08lx %08lx\n", static_cast<unsigned long>(h), static_cast<unsigned long>(h8),
+         static_cast<unsigned long>(bench::checksum_trig()), static_cast<unsigned long>(bench::checksum_long()));
   return 0;
 }

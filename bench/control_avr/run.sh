@@ -22,10 +22,10 @@ g++ -std=c++14 -O2 -Wall -Wextra -I"$ROOT/lib/control/src" -I"$ROOT/lib/slipmode
   "$ROOT/bench/control_avr/host_check.cpp" "$ROOT"/lib/control/src/control/*.cpp \
   "$ROOT"/lib/slipmodel/src/slipmodel/*.cpp -o "$OUT/host_check"
 # shellcheck disable=SC2046
-# Three checksums: the 64-step controller sequence (arc reference), the figure-eight samples,
-# and a sweep of sin_q15/cos_q15.
-HOST=$("$OUT/host_check" $(sed -n 's/^avr config//p' "$OUT/table.txt" | tr '\n' ' ') | awk '{print $(NF-2), $(NF-1), $NF}')
-AVR=$(awk '/avr fixed-point checksum/ {print $(NF-2), $(NF-1), $NF}' "$OUT/table.txt")
+# Four checksums: the 64-step controller sequence (arc reference), the figure-eight samples,
+# a sweep of sin_q15/cos_q15, and arc and eight samples over 8.9 h.
+HOST=$("$OUT/host_check" $(sed -n 's/^avr config//p' "$OUT/table.txt" | tr '\n' ' ') | awk '{print $(NF-3), $(NF-2), $(NF-1), $NF}')
+AVR=$(awk '/avr fixed-point checksum/ {print $(NF-3), $(NF-2), $(NF-1), $NF}' "$OUT/table.txt")
 if [ -n "$AVR" ] && [ "$HOST" = "$AVR" ]; then echo "AVR and host fixed-point outputs identical (checksums $AVR)";
 else echo "MISMATCH: AVR checksum $AVR, host $HOST"; exit 1; fi
 grep -q "checks, 0 wrong" "$OUT/table.txt" || { echo "AVR arithmetic self-test FAILED"; exit 1; }

@@ -96,6 +96,21 @@ inline uint32_t checksum_trig() {
   return h;
 }
 
+// Lines whose constants are exact in float and double (so the AVR's and the host's
+// ReferenceSpecQ agree), slow enough not to saturate Q20 within the 8.9 h clamp of t: 0.0625 m/s
+// after a 0.125 s ramp, and after a ramp of 4096 s. Sampled over 8.9 h: a fourth checksum (the
+// profile's products and time conversion at long times).
+constexpr ctl::ReferenceSpec kSlowLines[2] = {{ctl::PathKind::kLine, 0.5f, 0.0625f, 0.0f},
+                                              {ctl::PathKind::kLine, 1.0f / 65536, 0.0625f, 0.0f}};
+inline uint32_t checksum_long() {
+  uint32_t h = 0;
+  for (uint8_t k = 0; k < 2; ++k) {
+    const ctl::ReferenceSpecQ q(kSlowLines[k]);
+    for (uint8_t i = 0; i <= 64; ++i) h = checksum_ref(h, ctl::reference_at_q(q, 500000UL * i + 12345UL * (i & 7)));
+  }
+  return h;
+}
+
 // Every field of the fixed configuration, in order, as int32 (the AVR builds its configuration
 // in 32-bit float at start-up, the host in double, so the constants may differ by an LSB; the
 // host replay therefore uses the AVR's values).

@@ -17,6 +17,14 @@ inline uint32_t mul_mid32(int32_t a, int32_t b) {
          static_cast<uint32_t>(fx::mul_us(al, bh)) + (fx::mul_uu(al, bl) >> 16);
 }
 
+/// floor(p / 2^S) mod 2^32 of a 64-bit product for S = 16..31 (avr-gcc 5.4 shifts an int64 bit
+/// by bit in __lshrdi3): bits 16..47 from the words, shifted S - 16 bits, with the bits above.
+template <uint8_t S>
+inline uint32_t bits64(const fx::U32x2& p) {
+  const uint32_t mid = (p.hi << 16) | (p.lo >> 16);
+  return S == 16 ? mid : (mid >> ((S - 16) & 31)) | (p.hi >> 16 << ((48 - S) & 31));
+}
+
 /// 2 c f1 - f0 in Q15 (one step of the Chebyshev recurrence), saturated.
 inline int16_t cheb(int16_t c, int16_t f1, int16_t f0) { return fx::sat16(fx::mul16<14>(c, f1) - f0); }
 
@@ -103,19 +111,26 @@ RefSampleQ reference_at_q(const ReferenceSpecQ& sp, uint32_t t_ms) {
   RefSampleQ o{0, 0, 0, 0, 0, 0, 0};
   if (!sp.ok) return o;
   if (t_ms > 32000000UL) t_ms = 32000000UL;  // 8.9 h: t_q16 stays below 2^31
-  // t in Q16 s: t_ms * 65.536 = t_ms * 65 + t_ms * 549 / 1024 (error 1e-6 relative).
-  const int32_t t_q16 = static_cast<int32_t>(t_ms * 65UL + ((t_ms * 549UL) >> 10));
+  // t in Q16 s: t_ms * 65.536 = t_ms * 65 + floor(t_ms * 549 / 1024) (error 1e-6 relative), from
+  // the words th, tl of t_ms < 2^25 in 16x16 products: t_ms * 549 / 1024 = th 549 2^6 +
+  // tl 549 / 1024 (t_ms * 549 in 32 bits would wrap beyond 2.17 h).
+  const uint16_t th = static_cast<uint16_t>(t_ms >> 16), tl = static_cast<uint16_t>(t_ms);
+  const int32_t t_q16 = static_cast<int32_t>((fx::mul_uu(th, 65) << 16) + fx::mul_uu(th, 549U * 64U) + fx::mul_uu(tl, 65) +
+                                             static_cast<uint32_t>(fx::asr<10>(static_cast<int32_t>(fx::mul_uu(tl, 549)))));
+  // The profile's products are exact 64-bit products of operands >= 0 (mul_u32x32).
   int32_t s_q20, v_q24, dv_q24;
   if (t_q16 < sp.t_ramp_q16) {
-    const int64_t v = (static_cast<int64_t>(sp.accel_q24) * t_q16) >> 16;       // Q24
-    v_q24 = static_cast<int32_t>(v);
-    s_q20 = static_cast<int32_t>((v * t_q16) >> 21);                            // v t / 2
+    // v = accel t (Q24; in the ramp below cruise, < 2^27), s = v t / 2 (Q20)
+    v_q24 = static_cast<int32_t>(bits64<16>(fx::mul_u32x32(static_cast<uint32_t>(sp.accel_q24), static_cast<uint32_t>(t_q16))));
+    s_q20 = static_cast<int32_t>(bits64<21>(fx::mul_u32x32(static_cast<uint32_t>(v_q24), static_cast<uint32_t>(t_q16))));
     dv_q24 = sp.accel_q24;
   } else {
+    // s = s_ramp + cruise (t - t_ramp) (>= 0), saturated at INT32_MAX
     v_q24 = sp.cruise_q28 >> 4;
-    const int64_t s = static_cast<int64_t>(sp.s_ramp_q20) +
-                      ((static_cast<int64_t>(sp.cruise_q28) * (t_q16 - sp.t_ramp_q16)) >> 24);
-    s_q20 = s > INT32_MAX ? INT32_MAX : static_cast<int32_t>(s);
+    const fx::U32x2 p = fx::mul_u32x32(static_cast<uint32_t>(sp.cruise_q28), static_cast<uint32_t>(t_q16 - sp.t_ramp_q16));
+    const uint32_t ds = bits64<24>(p);
+    s_q20 = (p.hi >> 24) != 0 || ds > static_cast<uint32_t>(INT32_MAX - sp.s_ramp_q20) ? INT32_MAX
+                                                                                     : sp.s_ramp_q20 + static_cast<int32_t>(ds);
     dv_q24 = 0;
   }
   o.v_q12 = fx::sat16(fx::rshift_round<12>(v_q24));
