@@ -6,23 +6,20 @@ namespace ctl {
 
 namespace {
 constexpr int16_t kInvBetaQ15 = static_cast<int16_t>(fx::q_const(1.0 / kEightBeta, 15));  // 13626
-/// floor(a b / 2^16) mod 2^32 for 0 <= a < 2^31 and any int32 b, exactly (= the low word of
-/// the int64 product shifted right by 16) from four 16x16 MUL products instead of a 64-bit
-/// multiply: a b = ah bh 2^32 + (ah bl + al bh) 2^16 + al bl with al bl >= 0.
-inline uint32_t mul_mid32(int32_t a, int32_t b) {
-  const uint16_t al = static_cast<uint16_t>(a), bl = static_cast<uint16_t>(b);
-  const int16_t ah = static_cast<int16_t>(static_cast<uint32_t>(a) >> 16);  // 0..32767
-  const int16_t bh = static_cast<int16_t>(static_cast<uint32_t>(b) >> 16);
-  return (static_cast<uint32_t>(fx::mul_ss(ah, bh)) << 16) + static_cast<uint32_t>(fx::mul_us(bl, ah)) +
-         static_cast<uint32_t>(fx::mul_us(al, bh)) + (fx::mul_uu(al, bl) >> 16);
-}
-
 /// floor(p / 2^S) mod 2^32 of a 64-bit product for S = 16..31 (avr-gcc 5.4 shifts an int64 bit
 /// by bit in __lshrdi3): bits 16..47 from the words, shifted S - 16 bits, with the bits above.
 template <uint8_t S>
 inline uint32_t bits64(const fx::U32x2& p) {
   const uint32_t mid = (p.hi << 16) | (p.lo >> 16);
   return S == 16 ? mid : (mid >> ((S - 16) & 31)) | (p.hi >> 16 << ((48 - S) & 31));
+}
+
+/// floor(a b / 2^16) mod 2^32 for 0 <= a < 2^31 and any int32 b, exactly (= the low word of
+/// the int64 product shifted right by 16): from the unsigned product of a and b's 32 bits, less
+/// 2^32 a when b < 0 (which changes only bits 32 and up: a 2^16 in the result).
+inline uint32_t mul_mid32(int32_t a, int32_t b) {
+  const uint32_t m = bits64<16>(fx::mul_u32x32(static_cast<uint32_t>(a), static_cast<uint32_t>(b)));
+  return b < 0 ? m - (static_cast<uint32_t>(a) << 16) : m;
 }
 
 /// 2 c f1 - f0 in Q15 (one step of the Chebyshev recurrence), saturated.
