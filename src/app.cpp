@@ -66,7 +66,8 @@ alignas(ctl::OdometryQ) uint8_t g_idle_odo_storage[sizeof(ctl::OdometryQ)];
 ctl::ReferenceSpecQ g_ref{ctl::ReferenceSpec{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f}};
 
 bool g_running;
-bool g_start_pending;              // Start accepted: the next inner tick starts the experiment
+bool g_start_pending;              // Start accepted: the next inner tick on time starts the experiment
+bool g_start_deferred;             // ...and one late tick has been passed over
 uint8_t g_failsafe = proto::kFailsafeNone;
 uint32_t g_exp_start_ms;
 uint32_t g_exp_duration_ms;
@@ -180,10 +181,12 @@ uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
         return proto::kResultOutOfRange;
     }
     // accepted: the experiment starts at the next inner tick (start_experiment(), at most one
-    // inner period later), so that its first control step comes one period after the reset
+    // inner period later, two if that tick is late), so that its first control step comes one
+    // period after the reset
     g_ref = q;
     g_exp_duration_ms = s.duration;
     g_start_pending = true;
+    g_start_deferred = false;
     return proto::kResultOk;
 }
 
@@ -251,8 +254,14 @@ void inner_task() {
     uint32_t dt_us = now_us - g_last_inner_us;
     g_last_inner_us = now_us;
     if (g_start_pending) {
-        start_experiment();
-        return;
+        // A tick released late (the main loop was busy, e.g. with this very command) by more
+        // than the controller's first-order window would give the first control step, on time,
+        // a dt that short of the period: passed over once, the next tick starts.
+        if (dt_us <= proto::kInnerPeriodUs + ctl::kRateWindowUs || g_start_deferred) {
+            start_experiment();
+            return;
+        }
+        g_start_deferred = true;
     }
     if (!g_running) {
         g_idle_odo->update(g_enc.count_r, g_enc.count_l, dt_us);

@@ -35,6 +35,10 @@ enum class OdoStatus : uint8_t {
 /// no-load speed gives about 270 counts per 25 ms).
 static const int32_t kMaxStepCounts = 16383;
 
+/// The wheel rate is updated to first order (no division) while dt is within this many
+/// microseconds of the dt of the last division (or of the reset's rate state).
+static const int16_t kRateWindowUs = 63;
+
 /// Constant configuration.
 struct OdometryConfig {
   float wheel_radius_m;
@@ -250,7 +254,7 @@ CTL_INLINE OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, ui
       // relative; see set_dt). Otherwise the division.
       last_dt_us_ = dt_us;
       const int32_t dd = static_cast<int32_t>(dt_us - div_.dt_us);
-      if (div_.slope_q12 != 0 && dd >= -63 && dd <= 63) {
+      if (div_.slope_q12 != 0 && dd >= -kRateWindowUs && dd <= kRateWindowUs) {
         rate_q10_ = static_cast<uint16_t>(
             div_.div_q10 - static_cast<uint16_t>(fx::rshift_round_nc_lo16<12>(fx::mul_us(div_.slope_q12, static_cast<int16_t>(dd)))));
       } else {
