@@ -20,7 +20,7 @@ from host_tools.analyzer.fit import (HELDOUT_KAPPA, Candidate, Problem, evaluate
 from host_tools.analyzer.replay import (CHANNELS, CLOSED_LOOP_CHANNELS, CUMULATIVE,
                                         FIT_CHANNELS, ClosedLoopReplay, OpenLoopReplay,
                                         PreparedRun, channels, closed_loop_channels,
-                                        prepare_best, state_table)
+                                        prepare_timed, state_table)
 
 REPORT_FORMAT = "mismatch-report/1"
 
@@ -281,7 +281,7 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     notes: list[str] = []
     duty = OpenLoopReplay("duty", dt_s=dt_s)
     torque = OpenLoopReplay("torque", dt_s=dt_s)
-    preps = [prepare_best(r, duty) for r in runs]
+    preps = [prepare_timed(r) for r in runs]
     nominal = [channels(p, duty.simulate(p, {}), "duty") for p in preps]
     nominal_t = [channels(p, torque.simulate(p, {}), "torque") for p in preps]
     # closed loop through lib/control: the torque and duty the firmware should have commanded

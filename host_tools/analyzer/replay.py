@@ -27,7 +27,7 @@ CUMULATIVE = ("enc_r", "enc_l", "x_odo_m", "y_odo_m", "phi_odo_rad")
 
 
 def reconstruct_input_times(t: np.ndarray, values: list[np.ndarray], period: float,
-                            arc_position: float = 0.5) -> np.ndarray:
+                            arc_position: float = 0.5, phase: float | None = None) -> np.ndarray:
     """When the recorded inputs change between two telemetry frames, the change happened at a
     tick of the loop that sets them (period ``period``), somewhere in (t[k-1], t[k]].  Find the
     tick phase that puts one tick in every such interval and return, per frame, the time the
@@ -35,21 +35,56 @@ def reconstruct_input_times(t: np.ndarray, values: list[np.ndarray], period: flo
     loop is not periodic, or faster than telemetry).
 
     The data pin the phase down to an arc of feasible phases (5 ms wide for a 25 ms loop seen
-    at 50 Hz); ``arc_position`` picks the phase along it (0 start, 0.5 centre, 1 end)."""
+    at 50 Hz); ``arc_position`` picks the phase along it (0 start, 0.5 centre, 1 end), unless
+    ``phase`` gives it (e.g. from :func:`board_rate_phase`)."""
     t = np.asarray(t, float)
-    n = t.size
     eff = t.copy()
-    if n < 3 or period <= 0:
-        return eff
-    changed = np.zeros(n, bool)
+    if phase is None:
+        arc = _feasible_arc(t, values, period)
+        if arc is None:
+            return eff
+        start, width, ks = arc
+        phase = (start + float(np.clip(arc_position, 0.0, 1.0)) * width) % period
+    else:
+        ks = _changes(t, values)
+        if ks.size == 0 or period <= 0:
+            return eff
+    tick = phase + np.floor((t[ks] - phase) / period + 1e-9) * period
+    ok = tick > t[ks - 1] + 1e-9
+    eff[ks[ok]] = tick[ok]
+    return eff
+
+
+def tick_phase(t: np.ndarray, values: list[np.ndarray], period: float,
+               arc_position: float = 0.5) -> float | None:
+    """The phase in [0, period) of the loop that sets ``values`` (see
+    :func:`reconstruct_input_times`), or None when the data do not pin it down."""
+    arc = _feasible_arc(np.asarray(t, float), values, period)
+    if arc is None:
+        return None
+    start, width, _ = arc
+    return float((start + float(np.clip(arc_position, 0.0, 1.0)) * width) % period)
+
+
+def _changes(t: np.ndarray, values: list[np.ndarray]) -> np.ndarray:
+    """Indices of the frames at which any of ``values`` differs from the frame before."""
+    changed = np.zeros(t.size, bool)
     for v in values:
         changed[1:] |= np.diff(np.asarray(v, float)) != 0
-    ks = np.flatnonzero(changed)
+    return np.flatnonzero(changed)
+
+
+def _feasible_arc(t: np.ndarray, values: list[np.ndarray], period: float):
+    """(first phase, width, frames where an input changed) of the arc of tick phases that put a
+    tick in every interval in which an input changed; None when the data do not pin it down."""
+    if t.size < 3 or period <= 0:
+        return None
+    ks = _changes(t, values)
     if ks.size == 0:
-        return eff
+        return None
     dt_tel = float(np.median(np.diff(t)))
     if period < dt_tel * 0.999:  # loop faster than telemetry: several ticks per interval
-        return eff
+        return None
     phases = np.linspace(0.0, period, 400, endpoint=False)
     bad = np.zeros(phases.size, int)
     for j, phase in enumerate(phases):
@@ -58,11 +93,10 @@ def reconstruct_input_times(t: np.ndarray, values: list[np.ndarray], period: flo
         bad[j] = int(np.sum(~(tick > t[ks - 1] + 1e-9)))
     # tolerate a few changes that no phase explains (timing jitter at coincidences)
     if bad.min() > max(1, int(0.05 * ks.size)):  # not one periodic loop: keep frame times
-        return eff
+        return None
     feasible = bad == bad.min()
-    # the data pin the phase down to an arc of feasible phases: take its centre
     if feasible.all():
-        return eff
+        return None
     start = int(np.flatnonzero(~feasible)[0])
     rolled = np.roll(feasible, -start)
     best_len, best_start, run_start = 0, 0, None
@@ -73,12 +107,56 @@ def reconstruct_input_times(t: np.ndarray, values: list[np.ndarray], period: flo
             if j - run_start > best_len:
                 best_len, best_start = j - run_start, run_start
             run_start = None
-    pos = best_start + float(np.clip(arc_position, 0.0, 1.0)) * (best_len - 1)
-    best_phase = ((pos + start) % phases.size) * period / phases.size
-    tick = best_phase + np.floor((t[ks] - best_phase) / period + 1e-9) * period
-    ok = tick > t[ks - 1] + 1e-9
-    eff[ks[ok]] = tick[ok]
-    return eff
+    step = period / phases.size
+    return ((best_start + start) % phases.size) * step, (best_len - 1) * step, ks
+
+
+def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
+                     arc: tuple[float, float] | None = None, step: float = 5e-5) -> float | None:
+    """The inner loop's tick phase from the recording alone (no model): the board's wheel
+    speed (``omega_r/l``, III.1) is the count difference over the last inner period, computed
+    at a tick and reported by the next telemetry frame, while the counts (``enc_r/l``) are read
+    at the frame's own time.  For a trial phase, the speeds the board would have reported are
+    computed from the recorded counts, interpolated linearly at the ticks; the phase whose speeds
+    agree best with the recorded ones is taken, searched along ``arc`` = (first phase, width)
+    when given (the phases consistent with the input changes), else over a whole period.
+    None when the recorded speeds do not depend on the phase (no acceleration, no data)."""
+    t = np.asarray(tel["t_s"], float)
+    if t.size < 5 or period <= 0:
+        return None
+    k = 2 * np.pi / ppr
+    sides = []
+    for side in ("r", "l"):
+        w = np.asarray(tel.get(f"omega_{side}", np.zeros(0)), float)
+        n = np.asarray(tel.get(f"enc_{side}", np.zeros(0)), float)
+        if w.size != t.size or n.size != t.size or not np.all(np.isfinite(w)):
+            return None
+        sides.append((n, w))
+    start, width = arc if arc is not None else (0.0, period - step)
+    phases = start + np.arange(0.0, width + 0.5 * step, step)
+
+    def score(phase: float) -> float:
+        tick = phase + np.floor((t - phase) / period + 1e-9) * period   # latest tick <= frame
+        ok = tick - period >= t[0]
+        if ok.sum() < 3:
+            return math.inf
+        s = 0.0
+        for n, w in sides:
+            pred = k * (np.interp(tick[ok], t, n) - np.interp(tick[ok] - period, t, n)) / period
+            s += float(np.sum((w[ok] - pred) ** 2))
+        return s
+
+    sc = np.array([score(float(p)) for p in phases])
+    if not np.isfinite(sc).any() or np.ptp(sc[np.isfinite(sc)]) <= 1e-12 * (1 + np.nanmin(sc)):
+        return None
+    j = int(np.nanargmin(sc))
+    best = float(phases[j])
+    if 0 < j < phases.size - 1 and np.all(np.isfinite(sc[j - 1:j + 2])):
+        # parabola through the minimum and its neighbours
+        den = sc[j - 1] - 2 * sc[j] + sc[j + 1]
+        if den > 0:
+            best += float(np.clip(0.5 * (sc[j - 1] - sc[j + 1]) / den, -0.5, 0.5)) * step
+    return best % period
 
 
 @dataclass
@@ -102,13 +180,20 @@ class PreparedRun:
         return self.run.name
 
 
-def prepare(run: Run, arc_position: float = 0.5) -> PreparedRun:
+def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> PreparedRun:
+    """The run with its input times reconstructed: the inner loop's tick phase is ``phase`` if
+    given, else the point ``arc_position`` along the arc of phases consistent with the input
+    changes."""
     tel = run.telemetry
     t = tel["t_s"]
     period = float(run.meta["periods_s"]["inner"])
-    t_in = reconstruct_input_times(t, [tel["pwm_r"], tel["pwm_l"]], period, arc_position)
+    duty_in = [tel["pwm_r"], tel["pwm_l"]]
+    if phase is None:
+        phase = tick_phase(t, duty_in, period, arc_position)
+    t_in = reconstruct_input_times(t, duty_in, period, arc_position, phase)
+    # the torque command is set at the same ticks as the duty
     t_in_tau = reconstruct_input_times(t, [tel["tau_cmd_r"], tel["tau_cmd_l"]], period,
-                                       arc_position)
+                                       arc_position, phase)
     # the input takes effect at t_in[k] and holds until the next one; the simulation is sampled
     # at the union of input times and telemetry times, from the first frame on
     grid = np.unique(np.concatenate([t, t_in, t_in_tau]))
@@ -117,22 +202,29 @@ def prepare(run: Run, arc_position: float = 0.5) -> PreparedRun:
                        torque=(tel["tau_cmd_r"], tel["tau_cmd_l"]),
                        t_grid=grid, robot=dict(run.meta["robot"]), motor=dict(run.meta["motor"]),
                        start_pose=run.start_pose, ppr=int(run.meta["encoder_ppr"]),
-                       extras={"arc_position": arc_position})
+                       extras={"arc_position": arc_position, "inner_period": period,
+                               # the inner loop's tick phase: the firmware's odometry is
+                               # computed at its ticks (see channels())
+                               "tick_phase": phase})
 
 
-def prepare_best(run: Run, replay: "OpenLoopReplay", positions=(0.0, 0.25, 0.5, 0.75, 1.0)
-                 ) -> PreparedRun:
-    """:func:`prepare`, with the input-timing phase chosen along its feasible arc by the
-    nominal duty replay's wheel-speed error (a nuisance parameter of the recording, fitted
-    once per run before anything else)."""
-    best, best_c = None, np.inf
-    for pos in positions:
-        prep = prepare(run, pos)
-        ch = channels(prep, replay.simulate(prep, {}), "duty")
-        c = float(sum(np.sum(ch[k].resid ** 2) for k in ("omega_r", "omega_l")))
-        if c < best_c:
-            best, best_c = prep, c
-    return best
+def prepare_timed(run: Run) -> PreparedRun:
+    """:func:`prepare` with the tick phase taken from the recording alone: along the arc
+    consistent with the input changes, where the board's reported wheel speeds agree best
+    with the recorded counts (:func:`board_rate_phase`); the arc's centre when they do not
+    depend on the phase.  No model enters, so the timing cannot absorb a mismatch of the
+    nominal model (choosing it by the nominal replay's error did: it shifted the inputs by up
+    to 3 ms to hide an effect, and the updated model then inherited the wrong timing)."""
+    tel = run.telemetry
+    period = float(run.meta["periods_s"]["inner"])
+    arc = _feasible_arc(np.asarray(tel["t_s"], float), [tel["pwm_r"], tel["pwm_l"]], period)
+    phase = board_rate_phase(tel, period, int(run.meta["encoder_ppr"]),
+                             None if arc is None else arc[:2])
+    prep = prepare(run, 0.5, phase)
+    prep.extras["timing"] = ("board wheel speeds against recorded counts" if phase is not None
+                             else "centre of the input-change arc" if arc is not None
+                             else "frame times")
+    return prep
 
 
 def _zoh(t_in: np.ndarray, v: np.ndarray, grid: np.ndarray) -> np.ndarray:
@@ -417,6 +509,48 @@ def _odometry(counts_r: np.ndarray, counts_l: np.ndarray, t: np.ndarray, r: floa
     return x, y, phi
 
 
+def _theta_at(sim: Mapping[str, np.ndarray], side: str, times: np.ndarray) -> np.ndarray:
+    """Wheel angle between the simulation's rows: cubic Hermite on the angle and its rate
+    (the rows are up to a telemetry period apart; linear interpolation would be off by a
+    good part of a count while the wheel accelerates)."""
+    g = np.asarray(sim["t_s"], float)
+    th = np.asarray(sim[f"theta_{side}_rad"], float)
+    w = np.asarray(sim.get(f"dtheta_{side}_rad_s", np.gradient(th, g)), float)
+    times = np.clip(np.asarray(times, float), g[0], g[-1])
+    i = np.clip(np.searchsorted(g, times, side="right") - 1, 0, g.size - 2)
+    h = g[i + 1] - g[i]
+    s = np.where(h > 0, (times - g[i]) / np.where(h > 0, h, 1.0), 0.0)
+    h00, h10 = 2 * s ** 3 - 3 * s ** 2 + 1, s ** 3 - 2 * s ** 2 + s
+    h01, h11 = -2 * s ** 3 + 3 * s ** 2, s ** 3 - s ** 2
+    return h00 * th[i] + h10 * h * w[i] + h01 * th[i + 1] + h11 * h * w[i + 1]
+
+
+def _replay_odometry(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.ndarray,
+                     th0_r: float, th0_l: float, pose0) -> tuple[np.ndarray, ...]:
+    """The odometry a telemetry frame reports: the firmware integrates it at its inner-loop
+    ticks from the counts of that tick, and a frame carries the pose of the latest tick at or
+    before it (the counts in the same frame are read at the frame's own time).  With the tick
+    phase reconstructed (:func:`prepare`), the simulated counts are taken at the ticks and the
+    pose is reported like that; without it, at the frame times."""
+    k = 2 * np.pi / prep.ppr
+    r, b = float(prep.robot["r"]), float(prep.robot["b"])
+    phase = prep.extras.get("tick_phase")
+    period = float(prep.extras.get("inner_period") or 0.0)
+    if phase is None or period <= 0:
+        q_r = np.floor((_theta_at(sim, "r", t) - th0_r) / k)
+        q_l = np.floor((_theta_at(sim, "l", t) - th0_l) / k)
+        return _odometry(q_r, q_l, t, r, b, prep.ppr, pose0)
+    # ticks from the last one at or before the first frame to the last frame
+    n0 = math.floor((t[0] - phase) / period + 1e-9)
+    n1 = math.floor((t[-1] - phase) / period + 1e-9)
+    ticks = phase + period * np.arange(n0, n1 + 1)
+    q_r = np.floor((_theta_at(sim, "r", ticks) - th0_r) / k + 1e-9)
+    q_l = np.floor((_theta_at(sim, "l", ticks) - th0_l) / k + 1e-9)
+    xo, yo, po = _odometry(q_r, q_l, ticks, r, b, prep.ppr, pose0)
+    idx = np.clip(np.floor((t - phase) / period + 1e-9).astype(int) - n0, 0, ticks.size - 1)
+    return xo[idx], yo[idx], po[idx]
+
+
 @dataclass
 class Channel:
     name: str
@@ -451,10 +585,8 @@ def channels(prep: PreparedRun, sim: Mapping[str, np.ndarray], mode: str = "duty
                                        np.diff(th) / dt, "rad/s")
         out[f"enc_{side}"] = Channel(f"enc_{side}", t, enc - enc[0], (th - th[0]) / k, "counts")
     # odometry of the simulated encoders (quantized like the real ones)
-    q_r = np.floor((th_r - th_r[0]) / k)
-    q_l = np.floor((th_l - th_l[0]) / k)
     pose0 = (tel["x_odo_m"][0], tel["y_odo_m"][0], tel["phi_odo_rad"][0])
-    xo, yo, po = _odometry(q_r, q_l, t, float(prep.robot["r"]), float(prep.robot["b"]), prep.ppr, pose0)
+    xo, yo, po = _replay_odometry(prep, sim, t, th_r[0], th_l[0], pose0)
     out["x_odo_m"] = Channel("x_odo_m", t, tel["x_odo_m"], xo, "m")
     out["y_odo_m"] = Channel("y_odo_m", t, tel["y_odo_m"], yo, "m")
     out["phi_odo_rad"] = Channel("phi_odo_rad", t, tel["phi_odo_rad"], po, "rad")

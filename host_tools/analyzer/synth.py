@@ -5,7 +5,8 @@ effect switched on.  That is NOT a proof of the analyzer -- the fitting model an
 come from the same code.  The real proof is issue 9's independent truth simulator.
 
 Each run: duty commands set by a 25 ms inner loop, 50 Hz telemetry with quantized encoders,
-board wheel speed from count differences, odometry from the counts, and a 30 Hz camera
+board wheel speed and odometry from the counts at the inner-loop ticks (each frame reports
+the latest tick's, like the firmware), and a 30 Hz camera
 ground truth with noise and dropouts."""
 from __future__ import annotations
 
@@ -74,10 +75,20 @@ def make_run(path: str | os.PathLike, profile: str, effects: Mapping[str, Mappin
     k = 2 * np.pi / ppr
     enc_r = np.floor(out["theta_r_rad"][at_tel] / k)
     enc_l = np.floor(out["theta_l_rad"][at_tel] / k)
-    dt = per["telemetry"]
-    om_r = np.diff(enc_r, prepend=enc_r[0]) * k / dt
-    om_l = np.diff(enc_l, prepend=enc_l[0]) * k / dt
-    x, y, phi = _odometry(enc_r, enc_l, t_tel, full["robot"]["r"], full["robot"]["b"], ppr)
+    # the firmware's odometry runs at the inner-loop ticks on that tick's counts (wheel speed =
+    # count difference over the inner period, III.1, and the pose); a frame reports the values
+    # of the latest tick at or before it
+    tq_r = np.floor(out["theta_r_rad"][at_tick] / k)
+    tq_l = np.floor(out["theta_l_rad"][at_tick] / k)
+    xt, yt, pt = _odometry(tq_r, tq_l, ticks, full["robot"]["r"], full["robot"]["b"], ppr)
+    wt_r = np.diff(tq_r, prepend=tq_r[0]) * k / per["inner"]
+    wt_l = np.diff(tq_l, prepend=tq_l[0]) * k / per["inner"]
+    last = np.searchsorted(ticks, t_tel + 1e-9, side="right") - 1
+    om_r = np.where(last >= 0, wt_r[np.maximum(last, 0)], 0.0)
+    om_l = np.where(last >= 0, wt_l[np.maximum(last, 0)], 0.0)
+    x = np.where(last >= 0, xt[np.maximum(last, 0)], 0.0)
+    y = np.where(last >= 0, yt[np.maximum(last, 0)], 0.0)
+    phi = np.where(last >= 0, pt[np.maximum(last, 0)], 0.0)
     tel = {"t_s": t_tel, "enc_r": enc_r.astype(int), "enc_l": enc_l.astype(int),
            "omega_r": om_r, "omega_l": om_l,
            # the torque the firmware's datasheet model attributes to the applied duty

@@ -189,3 +189,48 @@ def test_actuation_delay_is_kept_and_fitted_on_the_plain_replay_grid(tmp_path):
     assert an.verdict == "explained"
     assert an.selected[0]["effect"] == "actuation_delay"
     assert an.selected[0]["params"]["delay_s"] == pytest.approx(0.03, rel=0.1)
+
+
+def _phase_err(phase, true_phase, period=0.025):
+    return abs((phase - true_phase + period / 2) % period - period / 2)
+
+
+@pytest.mark.parametrize("effects", [None, {"motor_lag": {"tau_s": 0.05}},
+                                     {"actuation_delay": {"delay_s": 0.03}}])
+def test_tick_phase_comes_from_the_recording_not_from_the_nominal_model(tmp_path, effects):
+    """The truth simulator ticks at t = 0, 25 ms, ...  The phase is found from the board's
+    reported wheel speeds against the recorded counts (no model), so an effect that delays the
+    wheels cannot pull it (choosing it by the nominal replay's error did, by up to 3 ms)."""
+    from host_tools.analyzer.replay import prepare_timed
+    ref = {"kind": "line", "accel": 72 * 0.0365, "cruise": 36 * 0.0365}
+    path = truth.simulate_run(tmp_path / "run", ref, effects, clamp=False, duration_s=2.0, seed=5)
+    prep = prepare_timed(load_run(path))
+    assert prep.extras["timing"].startswith("board wheel speeds")
+    assert _phase_err(prep.extras["tick_phase"], 0.0) < 1e-3
+
+
+def test_tick_phase_of_synthetic_runs_and_no_phase_without_motion(tmp_path):
+    from host_tools.analyzer import synth
+    from host_tools.analyzer.replay import board_rate_phase
+    run = load_run(synth.make_run(tmp_path / "r", "ramp", None, seed=1, tick_phase=0.0123))
+    phase = board_rate_phase(run.telemetry, 0.025, 1856)
+    assert phase is not None and _phase_err(phase, 0.0123) < 1e-3
+    still = {k: (np.zeros_like(v) if k != "t_s" else v) for k, v in run.telemetry.items()}
+    assert board_rate_phase(still, 0.025, 1856) is None
+
+
+def test_replayed_odometry_is_the_pose_of_the_latest_inner_tick(tmp_path):
+    """The firmware integrates odometry at its inner ticks and a frame reports the latest tick's
+    pose; the replay does the same.  Computing it at the frame times instead lags by up to a
+    tick (at 1 m/s, millimetres)."""
+    from host_tools.analyzer.replay import OpenLoopReplay, channels, prepare_timed
+    path = truth.simulate_run(tmp_path / "run", ARC, None, duration_s=2.5, seed=6)
+    prep = prepare_timed(load_run(path))
+    rp = OpenLoopReplay("duty")
+    sim = rp.simulate(prep, {})
+    at_ticks = channels(prep, sim)
+    prep.extras["tick_phase"] = None          # odometry at the frame times
+    at_frames = channels(prep, sim)
+    for c in ("x_odo_m", "y_odo_m"):
+        assert _rms(at_ticks[c].resid) < 5e-4, (c, _rms(at_ticks[c].resid))
+        assert _rms(at_frames[c].resid) > 4 * _rms(at_ticks[c].resid)
