@@ -15,7 +15,7 @@ import numpy as np
 from host_tools import runfmt
 from host_tools.analyzer import effects as fx
 from host_tools.analyzer import signals as sg
-from host_tools.analyzer.fit import (HELDOUT_KAPPA, Candidate, Problem, evaluate_candidate,
+from host_tools.analyzer.fit import (HELDOUT_RULE, Candidate, Problem, evaluate_candidate,
                                     heldout_channel_check, judge, params_for)
 from host_tools.analyzer.replay import (CHANNELS, CLOSED_LOOP_CHANNELS, CUMULATIVE,
                                         FIT_CHANNELS, ClosedLoopReplay, OpenLoopReplay,
@@ -469,8 +469,7 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                  "heldout_method": ("leave one run out" if len(preps) > 1 else
                                     f"time split at {problem.split_frac:.0%} of the run"),
                  "noise_floor": {k: _r(v) for k, v in floors.items()},
-                 "heldout_rule": (f"no channel's held-out RMSE may exceed sqrt(before^2 + "
-                                  f"({HELDOUT_KAPPA:g} * noise_floor)^2)"),
+                 "heldout_rule": HELDOUT_RULE,
                  "heldout_check": {k: {q: (_r(x) if isinstance(x, float) and q != "ok" else x)
                                        for q, x in v.items()}
                                    for k, v in heldout_channel_check(hb, ha, floors).items()},
