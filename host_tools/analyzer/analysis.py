@@ -370,10 +370,16 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                 ranked = [best_single.effects[0]] + ranked[:pairs_top - 1]
             import itertools
             combos = list(itertools.combinations(ranked[:pairs_top - 1], 2))
-            # forward step: the best single (selected or not) with every other effect
-            lead = best_single.effects[0] if best_single is not None else (
-                ranked[0] if ranked else None)
-            if lead is not None:
+            # forward steps: every other effect added to the best accepted single and to the
+            # best-fitting single (by BIC).  The best fit may fail the acceptance tests only
+            # because its partner is missing (e.g. it makes one channel worse that the partner
+            # puts right), and its partner may explain little on its own.
+            leads = []
+            if best_single is not None:
+                leads.append(best_single.effects[0])
+            if ranked and ranked[0] not in leads:
+                leads.append(ranked[0])
+            for lead in leads:
                 for c in cands:
                     e = c.effects[0]
                     if e != lead and (lead, e) not in combos and (e, lead) not in combos:
