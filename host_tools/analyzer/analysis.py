@@ -27,11 +27,14 @@ REPORT_FORMAT = "mismatch-report/1"
 # Decision thresholds (normalized residual = residual / noise floor over the fit channels).
 STRONG_WINDOW = 3.0      # a window whose RMS is this many floors is a mismatch on its own
 MISMATCH_RMS = 1.25      # otherwise the overall normalized RMS must exceed this
-# After the update: explained when the residual is back within noise by the same measure that
-# detects a mismatch (normalized RMS <= 1.25).  On the issue-9 suite correct explanations leave
-# 0.81-1.19 and a weak battery sag (outside the vocabulary) 1.26: a thin margin, chosen after
-# seeing the suite.
-EXPLAINED_RMS = MISMATCH_RMS
+# After the update: explained when the residual is back within the noise floor (normalized RMS
+# <= 1).  Detection keeps a margin above the floor against false alarms; a claim of explanation
+# asks for the residual to be at noise level.  Settled after seeing the issue-9 suite (both seed
+# sets, with the inner-loop timing from the board's wheel speeds): nulls leave 0.77-0.89 with
+# the nominal model, correct explanations 0.77-0.89, a weak battery sag (outside the
+# vocabulary) 1.15 with a voltage drop and a 6 ms delay.  The earlier value, 1.25 (= the
+# detection threshold), called that sag explained.
+EXPLAINED_RMS = 1.0
 MODEL_FORMAT = "ddmodel/1"
 
 
