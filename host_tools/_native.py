@@ -122,6 +122,7 @@ def _load() -> ctypes.CDLL:
             "sm_plant_get": (ctypes.c_int, [ctypes.c_void_p, ctypes.c_char_p, c_double_p]),
             "sm_plant_clear_effects": (ctypes.c_int, [ctypes.c_void_p]),
             "sm_plant_reset": (ctypes.c_int, [ctypes.c_void_p] + [ctypes.c_double] * 3),
+            "sm_plant_set_velocity": (ctypes.c_int, [ctypes.c_void_p] + [ctypes.c_double] * 5),
             "sm_out_cols": (ctypes.c_int, []),
             "sm_out_col_name": (ctypes.c_char_p, [ctypes.c_int]),
             "sm_simulate": (ctypes.c_int, [ctypes.c_void_p, ctypes.c_int, ctypes.c_int,
@@ -298,8 +299,11 @@ class Plant:
 
     def simulate(self, t_s: Iterable[float], in_r: Iterable[float], in_l: Iterable[float],
                  mode: str = "torque", dt_s: float = 5e-4,
-                 start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> dict[str, np.ndarray]:
-        """Reset to ``start_pose`` at rest and simulate.
+                 start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 start_velocity: tuple[float, float, float, float, float] | None = None
+                 ) -> dict[str, np.ndarray]:
+        """Reset to ``start_pose`` at rest (or moving with ``start_velocity`` = (v, w, omega,
+        dtheta_r, dtheta_l), see ``Plant::set_velocity``) and simulate.
 
         Inputs are held over ``[t_s[k], t_s[k+1])`` (N m in ``mode="torque"``, duty in [-1, 1] in
         ``mode="duty"``); the plant integrates with an internal step <= ``dt_s``. Returns the
@@ -329,6 +333,12 @@ class Plant:
         rc = self._lib.sm_plant_reset(self._h, *(float(v) for v in start_pose))
         if rc != 0:
             raise ValueError(self._err())
+        if start_velocity is not None:
+            if len(start_velocity) != 5:
+                raise ValueError(f"start_velocity must be five numbers, got {start_velocity!r}")
+            rc = self._lib.sm_plant_set_velocity(self._h, *(float(v) for v in start_velocity))
+            if rc != 0:
+                raise ValueError(self._err())
         cols = _columns()
         out = np.empty((n, len(cols)), dtype=np.float64)
         dp = ctypes.POINTER(ctypes.c_double)

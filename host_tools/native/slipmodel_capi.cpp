@@ -8,6 +8,7 @@
 
 #include <slipmodel/effects.h>
 #include <slipmodel/keys.h>
+#include <slipmodel/motor.h>
 #include <slipmodel/params.h>
 #include <slipmodel/plant.h>
 #include <slipmodel/traction.h>
@@ -33,7 +34,7 @@ const char* const kCols[] = {"t_s",         "x_m",         "y_m",            "ph
                              "dtheta_r_rad_s", "dtheta_l_rad_s", "tau_r_nm", "tau_l_nm",
                              "slip_r",      "slip_l",      "N_r",            "N_l",
                              "N_c",         "w_m_s",       "F_r_n",          "F_l_n",
-                             "L_r_n",       "L_l_n"};
+                             "L_r_n",       "L_l_n",       "i_r_a",          "i_l_a"};
 const int kColCount = sizeof(kCols) / sizeof(kCols[0]);
 
 Handle* H(void* p) { return static_cast<Handle*>(p); }
@@ -42,7 +43,8 @@ void set_err(Handle* h, const char* fmt, const char* a, double x = 0.0, int i = 
   if (h) snprintf(h->err, sizeof(h->err), fmt, a, x, i);
 }
 
-void fill_dynamic(const slip::PlantState& s, double* row) {
+void fill_dynamic(const slip::Plant& pl, double* row) {
+  const slip::PlantState& s = pl.state();
   row[10] = s.tau_r_nm;
   row[11] = s.tau_l_nm;
   row[14] = s.N_r;
@@ -52,6 +54,8 @@ void fill_dynamic(const slip::PlantState& s, double* row) {
   row[19] = s.F_l_n;
   row[20] = s.L_r_n;
   row[21] = s.L_l_n;
+  row[22] = slip::motor_current_a(pl.motor(), s.tau_r_nm);
+  row[23] = slip::motor_current_a(pl.motor(), s.tau_l_nm);
 }
 
 void fill_kinematic(const slip::PlantState& s, double* row) {
@@ -141,6 +145,19 @@ int sm_plant_reset(void* p, double x, double y, double phi) {
   return SM_OK;
 }
 
+int sm_plant_set_velocity(void* p, double v_m_s, double w_m_s, double omega_rad_s,
+                          double dtheta_r_rad_s, double dtheta_l_rad_s) {
+  Handle* h = H(p);
+  if (h == nullptr) return SM_ERR_ARG;
+  if (!isfinite(v_m_s) || !isfinite(w_m_s) || !isfinite(omega_rad_s) || !isfinite(dtheta_r_rad_s) ||
+      !isfinite(dtheta_l_rad_s)) {
+    set_err(h, "set_velocity: velocities must be finite%s", "");
+    return SM_ERR_VALUE;
+  }
+  h->plant.set_velocity(v_m_s, w_m_s, omega_rad_s, dtheta_r_rad_s, dtheta_l_rad_s);
+  return SM_OK;
+}
+
 int sm_out_cols(void) { return kColCount; }
 
 const char* sm_out_col_name(int i) { return (i >= 0 && i < kColCount) ? kCols[i] : nullptr; }
@@ -173,7 +190,7 @@ int sm_simulate(void* p, int mode, int n, const double* t_s, const double* in_r,
     fill_kinematic(pl.state(), row);
     row[0] = t_s[k];
     if (k == n - 1) {
-      fill_dynamic(pl.state(), row);
+      fill_dynamic(pl, row);
       break;
     }
     const double span = t_s[k + 1] - t_s[k];
@@ -185,7 +202,7 @@ int sm_simulate(void* p, int mode, int n, const double* t_s, const double* in_r,
         pl.step_torque(in_r[k], in_l[k], hstep);
       else
         pl.step_duty(in_r[k], in_l[k], hstep);
-      if (j == 0) fill_dynamic(pl.state(), row);
+      if (j == 0) fill_dynamic(pl, row);
     }
     pl.set_time(t_s[k + 1]);  // no drift of the clock from summing steps
   }

@@ -315,9 +315,10 @@ static void test_string_keys(void) {
   TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "floor_slope.rad", 2.0));
   EXPECT_NEAR(0.0, 0.0365, pl.robot().r);
   EXPECT_NEAR(0.0, 0.239, pl.robot().mu_k);
-  TEST_ASSERT_EQUAL_INT(16, param_key_count());
+  TEST_ASSERT_EQUAL_INT(17, param_key_count());
   TEST_ASSERT_EQUAL_STRING("robot.mu_s", param_key_name(0));
-  TEST_ASSERT_NULL(param_key_name(16));
+  TEST_ASSERT_EQUAL_STRING("motor.stall_a", param_key_name(16));
+  TEST_ASSERT_NULL(param_key_name(17));
 }
 
 int main(void) {

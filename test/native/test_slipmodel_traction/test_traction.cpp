@@ -169,6 +169,19 @@ static void test_motor_inverse_round_trip(void) {
   EXPECT_NEAR(0.0, 0.0, motor_duty_for_torque(m, NAN, 1.0));
 }
 
+// Hand limits of the current: the stall point (u = 1 at rest gives stall_nm and so stall_a), no
+// load (u = 1 at no_load_rad_s: no torque, no current), and a back-driven wheel (negative).
+static void test_motor_current(void) {
+  const MotorParams m;
+  EXPECT_NEAR(1e-12, 2.0, m.stall_a);
+  EXPECT_NEAR(1e-12, m.stall_a, motor_current_a(m, motor_torque_nm(m, 1.0, 0.0)));
+  EXPECT_NEAR(1e-12, 0.0, motor_current_a(m, motor_torque_nm(m, 1.0, m.no_load_rad_s)));
+  EXPECT_NEAR(1e-12, -0.5 * m.stall_a, motor_current_a(m, motor_torque_nm(m, 0.0, 0.5 * m.no_load_rad_s)));
+  MotorParams zero = m;
+  zero.stall_nm = 0.0;
+  EXPECT_NEAR(0.0, 0.0, motor_current_a(zero, 0.3));
+}
+
 static void test_motor_imperfections(void) {
   const MotorParams m;
   MotorImperfections x;
@@ -232,5 +245,6 @@ int main(void) {
   RUN_TEST(test_motor_model_saturation);
   RUN_TEST(test_motor_inverse_round_trip);
   RUN_TEST(test_motor_imperfections);
+  RUN_TEST(test_motor_current);
   return UNITY_END();
 }

@@ -26,7 +26,7 @@ const ParamKey kKeys[] = {
     ROBOT_KEY(h, kNonNegative),    ROBOT_KEY(m_r, kPositive),     ROBOT_KEY(I_rz, kPositive),
     ROBOT_KEY(I_wz, kNonNegative), ROBOT_KEY(I_wy, kPositive),    ROBOT_KEY(r, kPositive),
     ROBOT_KEY(m_w, kNonNegative),  MOTOR_KEY(supply_v),           MOTOR_KEY(no_load_rad_s),
-    MOTOR_KEY(stall_nm),
+    MOTOR_KEY(stall_nm),           MOTOR_KEY(stall_a),
 };
 const int kKeyCount = sizeof(kKeys) / sizeof(kKeys[0]);
 

@@ -29,4 +29,9 @@ double motor_duty_for_torque(const MotorParams& m, double tau_nm, double dtheta_
   return clamp(tau_nm / m.stall_nm + dtheta_rad_s / m.no_load_rad_s, -1.0, 1.0);
 }
 
+double motor_current_a(const MotorParams& m, double tau_nm) {
+  if (!(m.stall_nm > 0.0)) return 0.0;
+  return tau_nm * m.stall_a / m.stall_nm;
+}
+
 }  // namespace slip

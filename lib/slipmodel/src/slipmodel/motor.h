@@ -38,6 +38,12 @@ double motor_torque_nm(const MotorParams& m, double u, double dtheta_rad_s,
 /// Exact inverse wherever the result is inside (-1, 1) and |tau_nm| <= stall_nm.
 double motor_duty_for_torque(const MotorParams& m, double tau_nm, double dtheta_rad_s);
 
+/// Motor current (A) that delivers the wheel torque tau_nm: a DC motor's torque is k_t i, and the
+/// datasheet's stall point gives k_t = stall_nm / stall_a (per wheel, gearbox included). Signed;
+/// the Motor Shield R3's sense output reports its magnitude. Friction on the axle acts after the
+/// motor, so it changes the current only through the speed it costs.
+double motor_current_a(const MotorParams& m, double tau_nm);
+
 }  // namespace slip
 
 #endif  // SLIPMODEL_MOTOR_H

@@ -41,6 +41,7 @@ struct MotorParams {
   double supply_v = 12.0;        ///< H-bridge supply voltage, V
   double no_load_rad_s = 36.65;  ///< no-load speed at supply_v, rad/s
   double stall_nm = 0.77;        ///< stall torque at supply_v, N m
+  double stall_a = 2.0;          ///< stall current at supply_v, A (thesis III.1: "2 A maximum current")
 };
 
 /// Encoder counts per wheel revolution (III.1).
