@@ -17,7 +17,7 @@ from host_tools.analyzer import effects as fx
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit import (HELDOUT_RULE, Candidate, Problem, evaluate_candidate,
                                     heldout_channel_check, judge, params_for)
-from host_tools.analyzer.replay import (CHANNELS, CLOSED_LOOP_CHANNELS, CUMULATIVE,
+from host_tools.analyzer.replay import (CHANNELS, CLOSED_LOOP_CHANNELS, CUMULATIVE, DERIVED,
                                         FIT_CHANNELS, ClosedLoopReplay, OpenLoopReplay,
                                         PreparedRun, channels, closed_loop_channels,
                                         prepare_timed, state_table)
@@ -36,6 +36,16 @@ MISMATCH_RMS = 1.25      # otherwise the overall normalized RMS must exceed this
 # detection threshold), called that sag explained.
 EXPLAINED_RMS = 1.0
 MODEL_FORMAT = "ddmodel/1"
+
+
+def _current_lsb_a() -> float:
+    """One ADC count of the motor-current telemetry (protocol.json's scale of current_r)."""
+    from host_tools import protocol
+    for m in protocol.definition().by_name.values():
+        for f in m.fields:
+            if f.name == "current_r" and f.scale:
+                return float(f.scale)
+    return 0.0
 
 
 def _log(msg: str) -> None:
@@ -68,6 +78,8 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, ob
             base = sg.quantization_std(k / dt)
         elif c.startswith("enc"):
             base = sg.quantization_std(1.0)
+        elif c.startswith("current"):
+            base = max(sg.quantization_std(_current_lsb_a()), 1e-6)
         elif c in ("x_odo_m", "y_odo_m"):
             base = r * k
         elif c == "phi_odo_rad":
@@ -80,7 +92,8 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, ob
             base = 1e-6
         f = max(base, hf)
         if c in CUMULATIVE:
-            span = max(float(np.ptp(ch[c].rec)) for ch in nominal if c in ch)
+            # within a replay window (a long run is compared window by window)
+            span = max(max(ch[c].spans()) for ch in nominal if c in ch)
             f = max(f, 0.01 * span)
         floors[c] = f
     return floors
@@ -218,7 +231,7 @@ def _r(v: float, sig: int = 4) -> float:
 
 
 def _excess(problem: Problem, effects: Mapping) -> float:
-    r = problem.residual(effects, list(range(len(problem.preps))))
+    r = problem.residual(effects, list(range(len(problem.preps))), full=True)
     return float(np.mean(r ** 2)) if r.size else 0.0
 
 
@@ -285,8 +298,11 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     duty = OpenLoopReplay("duty", dt_s=dt_s)
     torque = OpenLoopReplay("torque", dt_s=dt_s)
     preps = [prepare_timed(r) for r in runs]
-    nominal = [channels(p, duty.simulate(p, {}), "duty") for p in preps]
-    nominal_t = [channels(p, torque.simulate(p, {}), "torque") for p in preps]
+    nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
+    nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
+    n_win = sum(len(p.windows) for p in preps)
+    if n_win > len(preps):
+        log(f"long run(s): replayed in {n_win} windows re-anchored to the recording")
     # closed loop through lib/control: the torque and duty the firmware should have commanded
     clr = ClosedLoopReplay(dt_s=dt_s)
     ok, why = clr.available()
@@ -331,8 +347,12 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     fit_chans = [c for c in FIT_CHANNELS if c in floors]
     sig_fit = [e for e in entries if e["channel"] in fit_chans]
     problem = Problem(preps, floors, vocab, dt_s=dt_s, fit_channels=fit_chans)
+    fitw = problem.select_windows(nominal)
+    if fitw is not None:
+        log("fitting on " + ", ".join(f"{preps[i].name}: {len(w)}/{len(preps[i].windows)}"
+                                      for i, w in fitw.items()) + " windows")
     runs_idx = list(range(len(preps)))
-    r0 = problem.residual({}, runs_idx)
+    r0 = problem.residual({}, runs_idx, full=True)
     rss0 = float(np.sum(r0 ** 2))
     nrms0 = math.sqrt(rss0 / max(r0.size, 1))
     strong0 = [e for e in sig_fit if e["rms"] >= STRONG_WINDOW * e["noise_floor"]]
@@ -451,21 +471,24 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
         explained = bool(selected) and nrms1 <= EXPLAINED_RMS
         verdict = "explained" if explained else "unexplained"
         if not explained:
-            chans_after = [channels(p, duty.simulate(p, final_effects), "duty") for p in preps]
+            chans_after = [channels(p, duty.simulate_windows(p, final_effects), "duty")
+                           for p in preps]
             hint = sparse_hint(preps, chans_after)
             if selected:
                 notes.append("the selected effects explain part of the mismatch only "
                              f"(normalized RMS residual {nrms0:.3g} -> {nrms1:.3g}, noise = 1)")
     if final_effects:
-        updated = [channels(p, duty.simulate(p, final_effects), "duty") for p in preps]
+        updated = [channels(p, duty.simulate_windows(p, final_effects), "duty") for p in preps]
     cl_updated = [closed_loop_channels(p, clr.simulate(p, final_effects, cl_setups[i]))
                   if (final_effects and cl_setups[i] is not None) else cl_nominal[i]
                   for i, p in enumerate(preps)]
     # error tables: fitting data and held-out
-    rb = problem.channel_rmse({}, runs_idx)
-    ra = problem.channel_rmse(final_effects, runs_idx) if final_effects else dict(rb)
+    rb = problem.channel_rmse({}, runs_idx, full=True)
+    ra = problem.channel_rmse(final_effects, runs_idx, full=True) if final_effects else dict(rb)
+    hpairs = None
     if selected_c:
         hb, ha = selected_c[0].heldout_channels_before, selected_c[0].heldout_channels_after
+        hpairs = selected_c[0].heldout_pairs
     else:
         # no update: held-out error equals the nominal one on the held-out parts
         c0 = cands[0] if cands else None
@@ -481,7 +504,9 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                  "heldout_rule": HELDOUT_RULE,
                  "heldout_check": {k: {q: (_r(x) if isinstance(x, float) and q != "ok" else x)
                                        for q, x in v.items()}
-                                   for k, v in heldout_channel_check(hb, ha, floors).items()},
+                                   for k, v in heldout_channel_check(hb, ha, floors,
+                                                                     hpairs).items()},
+                 "derived_channels": list(DERIVED),
                  "normalized_rms_before": _r(nrms0),
                  "normalized_rms_after": _r(math.sqrt(_excess(problem, final_effects)))}
     cl_b = _pooled_rmse(cl_nominal, CLOSED_LOOP_CHANNELS)
@@ -536,7 +561,8 @@ def _remaining_windows(problem: Problem, effects: Mapping, fit_chans: Sequence[s
     """Number of significant windows left whose RMS is at least ``strong`` noise floors."""
     n = 0
     for prep, chans in zip(problem.preps, problem.sim_channels(effects,
-                                                               range(len(problem.preps)))):
+                                                               range(len(problem.preps)),
+                                                               full=True)):
         for c in fit_chans:
             ch = chans.get(c)
             if ch is None:

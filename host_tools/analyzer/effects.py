@@ -19,6 +19,10 @@ class ParamSpec:
     hi: Callable[[Mapping], float]
     floor: Callable[[Mapping], float]  # smallest |value - neutral| worth reporting
     unit: str = ""
+    # A fitted coordinate that is not itself a vocabulary parameter: (vocabulary parameter it
+    # sets, function of the effect's fitted coordinates).  Used to fit inside the physically
+    # possible region, e.g. mu_k as a fraction of mu_s so that mu_k <= mu_s always.
+    sets: tuple[str, Callable[[Mapping[str, float]], float]] | None = None
 
 
 @dataclass(frozen=True)
@@ -46,9 +50,12 @@ def _motor(key: str, scale: float = 1.0) -> Callable[[Mapping], float]:
 
 P = ParamSpec
 SPECS: dict[str, EffectSpec] = {s.name: s for s in [
+    # mu_k is fitted as a fraction of mu_s in [0.5, 1]: kinetic friction never exceeds static
     EffectSpec("friction_coefficient", (
-        P("mu_k", _robot("mu_k"), _c(0.03), _c(1.2), _robot("mu_k", 0.05)),
-        P("mu_s", _robot("mu_s"), _c(0.03), _c(1.2), _robot("mu_s", 0.05))),
+        P("mu_s", _robot("mu_s"), _c(0.03), _c(1.2), _robot("mu_s", 0.05)),
+        P("mu_k_over_mu_s", lambda m: float(m["robot"]["mu_k"]) / float(m["robot"]["mu_s"]),
+          _c(0.5), _c(1.0), _c(0.05),
+          sets=("mu_k", lambda d: d["mu_k_over_mu_s"] * d["mu_s"]))),
         "wheels spin up (slip) at a different torque; distance lost in slip changes"),
     EffectSpec("wheel_radius", (
         P("r_eff", _robot("r"), _robot("r", 0.7), _robot("r", 1.3), _robot("r", 0.015), "m"),),
@@ -81,7 +88,8 @@ SPECS: dict[str, EffectSpec] = {s.name: s for s in [
         P("h", _c(0.0), _c(0.0), _c(0.25), _c(0.005), "m"),),
         "normal forces shift during acceleration; slip threshold moves"),
     EffectSpec("stribeck", (
-        P("mu_k0", _robot("mu_k"), _c(0.03), _c(1.2), _robot("mu_k", 0.05)),
+        # friction at zero slip speed is capped at mu_s by the plant: above it is unidentifiable
+        P("mu_k0", _robot("mu_k"), _c(0.03), _robot("mu_s"), _robot("mu_k", 0.05)),
         P("v_s", _c(0.01), _c(0.001), _c(1.0), _c(0.0))),
         "kinetic friction depends on slip speed"),
     EffectSpec("deadband", (
@@ -127,6 +135,34 @@ SEPARATORS: dict[frozenset, str] = {
     frozenset({"track_width", "motor_gain_asymmetry"}):
         "a straight run: gain asymmetry curves it, a track-width error does not",
 }
+
+
+def vocabulary_params(effect: str, fitted: Mapping[str, float]) -> dict[str, float]:
+    """The vocabulary parameters of ``effect`` from its fitted coordinates."""
+    spec = SPECS.get(effect)
+    if spec is None:
+        return dict(fitted)
+    out = {}
+    for ps in spec.params:
+        if ps.name not in fitted:
+            continue
+        if ps.sets is None:
+            out[ps.name] = float(fitted[ps.name])
+        else:
+            out[ps.sets[0]] = float(ps.sets[1](fitted))
+    return out
+
+
+def physically_possible(effect: str, params: Mapping[str, float]) -> list[str]:
+    """Why a fitted parameter set is physically impossible (empty list: possible)."""
+    why = []
+    if effect == "friction_coefficient" and params.get("mu_k", 0.0) > params.get("mu_s", 1e9) + 1e-12:
+        why.append(f"mu_k {params['mu_k']:.4g} > mu_s {params['mu_s']:.4g}")
+    for k, v in params.items():
+        if k in ("mu_s", "mu_k", "mu_k0", "mu", "c", "torque", "delay_s", "tau_s", "h", "r_eff",
+                 "b_eff", "volts", "ke_ratio", "ratio", "v_s") and v < 0:
+            why.append(f"{k} = {v:.4g} < 0")
+    return why
 
 
 def separator(a: str, b: str) -> str:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import ctypes
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Protocol
+from typing import Any, Mapping, Protocol, Sequence
 
 import numpy as np
 
@@ -21,8 +21,12 @@ from host_tools.runfmt import Run
 
 # Channels compared (name -> kind).  "fit" channels enter the output-error fit.
 CHANNELS = ("omega_r", "omega_l", "enc_r", "enc_l", "x_odo_m", "y_odo_m", "phi_odo_rad",
-            "x_m", "y_m", "phi_rad")
-FIT_CHANNELS = ("omega_r", "omega_l", "x_m", "y_m", "phi_rad")
+            "x_m", "y_m", "phi_rad", "current_r_a", "current_l_a")
+FIT_CHANNELS = ("omega_r", "omega_l", "x_m", "y_m", "phi_rad", "current_r_a", "current_l_a")
+# Channels the recorder derives from others (odometry from the encoder counts): reported, never
+# evidence about physics on their own; a disagreement there while the counts agree is a finding
+# about the recorder (its odometry schedule, integration rule or geometry).
+DERIVED = ("x_odo_m", "y_odo_m", "phi_odo_rad")
 CUMULATIVE = ("enc_r", "enc_l", "x_odo_m", "y_odo_m", "phi_odo_rad")
 
 
@@ -174,10 +178,55 @@ class PreparedRun:
     start_pose: tuple[float, float, float]
     ppr: int
     extras: dict = field(default_factory=dict)
+    # replay windows: frame index ranges [i_a, i_b) covering the run (see make_windows)
+    windows: list = field(default_factory=list)
 
     @property
     def name(self) -> str:
         return self.run.name
+
+    def window_times(self, w: int) -> tuple[float, float]:
+        t = self.run.telemetry["t_s"]
+        i_a, i_b = self.windows[w]
+        return float(t[i_a]), float(t[i_b - 1])
+
+
+# Long recordings are replayed in windows re-anchored to the recording (multiple shooting): one
+# open-loop integration over minutes drifts by centimetres as any two integrations of the same
+# wheel motion do, and that drift is not physics.  A run up to SINGLE_WINDOW_S long is one
+# window from its start pose at rest (how every short experiment starts).  Longer runs are cut
+# into windows of WINDOW_S; a window after the first starts BURN_IN_S earlier from the
+# recorded state (wheel speeds from the counts, pose from the camera or the odometry), and its
+# cumulative and pose channels are compared as increments from the window's start.  A gap in
+# the telemetry (longer than GAP_S) always ends a window.
+SINGLE_WINDOW_S = 6.0
+WINDOW_S = 4.0
+BURN_IN_S = 0.5
+GAP_S = 0.5
+
+
+def make_windows(t: np.ndarray, single_s: float = SINGLE_WINDOW_S, window_s: float = WINDOW_S,
+                 gap_s: float = GAP_S) -> list[tuple[int, int]]:
+    """Frame index ranges [i_a, i_b) of the replay windows (see above)."""
+    t = np.asarray(t, float)
+    n = t.size
+    gaps = np.flatnonzero(np.diff(t) > gap_s) + 1
+    bounds = [0] + [int(g) for g in gaps] + [n]
+    out: list[tuple[int, int]] = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        if b <= a:
+            continue
+        span = t[b - 1] - t[a]
+        if not gaps.size and span <= single_s:
+            out.append((a, b))
+            continue
+        k = max(1, int(round(span / window_s)))
+        edges = np.searchsorted(t[a:b], t[a] + span * np.arange(1, k) / k) + a
+        idx = [a] + [int(e) for e in edges] + [b]
+        for i0, i1 in zip(idx[:-1], idx[1:]):
+            if i1 > i0:
+                out.append((i0, i1))
+    return out
 
 
 def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> PreparedRun:
@@ -197,7 +246,7 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
     # the input takes effect at t_in[k] and holds until the next one; the simulation is sampled
     # at the union of input times and telemetry times, from the first frame on
     grid = np.unique(np.concatenate([t, t_in, t_in_tau]))
-    return PreparedRun(run=run, t_in=t_in, t_in_tau=t_in_tau,
+    return PreparedRun(run=run, t_in=t_in, t_in_tau=t_in_tau, windows=make_windows(t),
                        duty=(tel["pwm_r"], tel["pwm_l"]),
                        torque=(tel["tau_cmd_r"], tel["tau_cmd_l"]),
                        t_grid=grid, robot=dict(run.meta["robot"]), motor=dict(run.meta["motor"]),
@@ -288,9 +337,109 @@ class OpenLoopReplay:
         res["t_s"] = grid.copy()
         return res
 
+    def simulate_windows(self, prep: PreparedRun, effects: Mapping[str, Mapping[str, float]],
+                         which: Sequence[int] | None = None) -> "WindowSims":
+        """Per replay window (``which``, default all): the plant outputs on the window's part of
+        the replay grid, started as :func:`window_start` says.  A one-window run gives the same
+        simulation as :meth:`simulate`."""
+        if len(prep.windows) <= 1 and (which is None or list(which) == [0]):
+            return WindowSims([(0, self.simulate(prep, effects))])
+        plant = self._plant(prep.robot, prep.motor)
+        plant.clear_effects()
+        for name, params in effects.items():
+            plant.set_effect(name, **{k: float(v) for k, v in params.items()})
+        src = prep.duty if self.mode == "duty" else prep.torque
+        t_in = prep.t_in if self.mode == "duty" else prep.t_in_tau
+        out = []
+        for w in (range(len(prep.windows)) if which is None else which):
+            t0, pose, vel = window_start(prep, w)
+            t_end = prep.window_times(w)[1]
+            grid = prep.t_grid[(prep.t_grid >= t0 - 1e-12) & (prep.t_grid <= t_end + 1e-12)]
+            if grid.size < 2:
+                continue
+            in_r = _zoh(t_in, src[0], grid)
+            in_l = _zoh(t_in, src[1], grid)
+            o = plant.simulate(grid, in_r, in_l, mode=self.mode, dt_s=self.dt_s,
+                               start_pose=pose, start_velocity=vel)
+            res = {k: np.asarray(v, float) for k, v in o.items() if k in _NEEDED}
+            res["t_s"] = grid.copy()
+            out.append((w, res))
+        return WindowSims(out)
+
+
+class WindowSims(list):
+    """[(window index, plant outputs)] of a windowed replay."""
+
+
+def _local_fit(t: np.ndarray, v: np.ndarray, at: float, half: float = 0.2) -> float | None:
+    """Value at ``at`` of a straight line fitted to the samples within ``half`` seconds (noise
+    of a single camera sample reduced); None with fewer than two samples there."""
+    m = np.abs(t - at) <= half
+    m &= np.isfinite(v)
+    if m.sum() < 2:
+        return None
+    tt, vv = t[m] - at, v[m]
+    if np.ptp(tt) <= 0:
+        return float(np.mean(vv))
+    A = np.column_stack([np.ones_like(tt), tt])
+    return float(np.linalg.lstsq(A, vv, rcond=None)[0][0])
+
+
+def _gt_anchor(gt: Mapping[str, np.ndarray] | None, at: float) -> dict[str, float] | None:
+    """Camera pose at ``at`` (local straight-line fit; heading unwrapped locally)."""
+    if gt is None:
+        return None
+    tg = gt["t_s"]
+    out = {}
+    for c in ("x_m", "y_m"):
+        v = _local_fit(tg, gt[c], at)
+        if v is None:
+            return None
+        out[c] = v
+    ph = gt.get("phi_rad")
+    if ph is not None:
+        m = (np.abs(tg - at) <= 0.2) & np.isfinite(ph)
+        if m.sum() >= 2:
+            ref = ph[m][0]
+            out["phi_rad"] = _local_fit(tg[m], ref + _wrap(ph[m] - ref), at)
+    return out
+
+
+def window_start(prep: PreparedRun, w: int) -> tuple[float, tuple, tuple | None]:
+    """(start time, start pose, start velocity or None) of replay window ``w``: the run's
+    start pose at rest for the first window; otherwise BURN_IN_S before the window (not before
+    a gap), moving as the recording says: wheel speeds from the counts around that frame,
+    the body rolling with them, pose from the camera (else the recorded odometry)."""
+    tel = prep.run.telemetry
+    t = tel["t_s"]
+    i_a, _ = prep.windows[w]
+    if w == 0 or i_a == 0:
+        return float(t[0]), prep.start_pose, None
+    first = i_a
+    while first > 0 and t[first] - t[first - 1] <= GAP_S and t[i_a] - t[first - 1] <= BURN_IN_S:
+        first -= 1
+    k = 2 * np.pi / prep.ppr
+    j0, j1 = max(first - 2, 0), min(first + 2, t.size - 1)
+    if first > 0 and t[first] - t[first - 1] > GAP_S:
+        j0 = first  # the frame before is across a gap
+    if j1 > j0:
+        w_r = float((tel["enc_r"][j1] - tel["enc_r"][j0]) * k / (t[j1] - t[j0]))
+        w_l = float((tel["enc_l"][j1] - tel["enc_l"][j0]) * k / (t[j1] - t[j0]))
+    else:
+        w_r = w_l = 0.0
+    r, b = float(prep.robot["r"]), float(prep.robot["b"])
+    vel = (r * (w_r + w_l) / 2, 0.0, r * (w_r - w_l) / (2 * b), w_r, w_l)
+    pose = (float(tel["x_odo_m"][first]), float(tel["y_odo_m"][first]),
+            float(tel["phi_odo_rad"][first]))
+    an = _gt_anchor(prep.run.groundtruth, float(t[first]))
+    if an is not None:
+        pose = (an["x_m"], an["y_m"], an.get("phi_rad", pose[2]))
+    return float(t[first]), pose, vel
+
 
 _NEEDED = {"x_m", "y_m", "phi_rad", "theta_r_rad", "theta_l_rad", "dtheta_r_rad_s",
-           "dtheta_l_rad_s", "tau_r_nm", "tau_l_nm", "v_m_s", "omega_rad_s", "slip_r", "slip_l"}
+           "dtheta_l_rad_s", "tau_r_nm", "tau_l_nm", "v_m_s", "omega_rad_s", "slip_r", "slip_l",
+           "i_r_a", "i_l_a"}
 
 
 REF_KINDS = ("line", "arc", "figure_eight")
@@ -558,53 +707,120 @@ class Channel:
     rec: np.ndarray
     sim: np.ndarray
     unit: str
+    seg: np.ndarray | None = None   # replay window of each sample (None: one window)
 
     @property
     def resid(self) -> np.ndarray:
         d = self.rec - self.sim
         return _wrap(d) if self.name in ("phi_rad", "phi_odo_rad") else d
 
+    def spans(self) -> list[float]:
+        """Range of the recorded values within each replay window."""
+        if self.seg is None or self.rec.size == 0:
+            return [float(np.ptp(self.rec))] if self.rec.size else [0.0]
+        return [float(np.ptp(self.rec[self.seg == s])) for s in np.unique(self.seg)]
 
-def channels(prep: PreparedRun, sim: Mapping[str, np.ndarray], mode: str = "duty"
-             ) -> dict[str, Channel]:
+
+def channels(prep: PreparedRun, sim, mode: str = "duty") -> dict[str, Channel]:
+    """Recording against simulation on common channels.  ``sim`` is one simulation of the whole
+    run (:meth:`OpenLoopReplay.simulate`) or the windows of :meth:`~OpenLoopReplay.simulate_windows`;
+    windows are compared each from its own start and concatenated."""
+    n = prep.run.telemetry["t_s"].size
+    if not isinstance(sim, WindowSims):
+        return _channels_window(prep, sim, 0, n, None)
+    parts = [_channels_window(prep, s, *prep.windows[w], w) for w, s in sim]
+    out: dict[str, Channel] = {}
+    for name in CHANNELS:
+        got = [c[name] for c in parts if name in c]
+        if not got:
+            continue
+        out[name] = Channel(name, np.concatenate([c.t for c in got]),
+                            np.concatenate([c.rec for c in got]),
+                            np.concatenate([c.sim for c in got]), got[0].unit,
+                            np.concatenate([c.seg for c in got]))
+    return out
+
+
+def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int, i_b: int,
+                     w: int | None) -> dict[str, Channel]:
+    """Channels of the frames [i_a, i_b) against ``sim``.  A window that does not start the run
+    is compared as increments from its first frame (counts, odometry, camera pose)."""
     run = prep.run
     tel = run.telemetry
-    t = tel["t_s"]
+    t_all = tel["t_s"]
+    t = t_all[i_a:i_b]
     g = np.asarray(sim["t_s"], float)
+    anchored = i_a > 0
 
     def at(name: str, times: np.ndarray) -> np.ndarray:
         return np.interp(times, g, np.asarray(sim[name], float))
 
+    def seg(size: int) -> np.ndarray | None:
+        return None if w is None else np.full(size, w, dtype=np.int32)
+
     k = 2 * np.pi / prep.ppr
     th_r, th_l = at("theta_r_rad", t), at("theta_l_rad", t)
     out: dict[str, Channel] = {}
-    dt = np.diff(t)
-    for side, th in (("r", th_r), ("l", th_l)):
+    # wheel speeds: count differences over each telemetry period that the simulation covers
+    lo = max(i_a, 1)
+    while lo < i_b and t_all[lo - 1] < g[0] - 1e-9:
+        lo += 1
+    kk = np.arange(lo, i_b)
+    dt = t_all[kk] - t_all[kk - 1]
+    for side in ("r", "l"):
         enc = tel[f"enc_{side}"]
-        out[f"omega_{side}"] = Channel(f"omega_{side}", t[1:], np.diff(enc) * k / dt,
-                                       np.diff(th) / dt, "rad/s")
-        out[f"enc_{side}"] = Channel(f"enc_{side}", t, enc - enc[0], (th - th[0]) / k, "counts")
-    # odometry of the simulated encoders (quantized like the real ones)
-    pose0 = (tel["x_odo_m"][0], tel["y_odo_m"][0], tel["phi_odo_rad"][0])
+        th = at(f"theta_{side}_rad", t_all[kk])
+        th_prev = at(f"theta_{side}_rad", t_all[kk - 1])
+        out[f"omega_{side}"] = Channel(f"omega_{side}", t_all[kk], (enc[kk] - enc[kk - 1]) * k / dt,
+                                       (th - th_prev) / dt, "rad/s", seg(kk.size))
+    for side, th in (("r", th_r), ("l", th_l)):
+        enc = tel[f"enc_{side}"][i_a:i_b]
+        out[f"enc_{side}"] = Channel(f"enc_{side}", t, enc - enc[0], (th - th[0]) / k, "counts",
+                                     seg(t.size))
+    # odometry of the simulated encoders (quantized like the real ones), from the recorded pose
+    # at the window's first frame
+    pose0 = (tel["x_odo_m"][i_a], tel["y_odo_m"][i_a], tel["phi_odo_rad"][i_a])
     xo, yo, po = _replay_odometry(prep, sim, t, th_r[0], th_l[0], pose0)
-    out["x_odo_m"] = Channel("x_odo_m", t, tel["x_odo_m"], xo, "m")
-    out["y_odo_m"] = Channel("y_odo_m", t, tel["y_odo_m"], yo, "m")
-    out["phi_odo_rad"] = Channel("phi_odo_rad", t, tel["phi_odo_rad"], po, "rad")
+    out["x_odo_m"] = Channel("x_odo_m", t, tel["x_odo_m"][i_a:i_b], xo, "m", seg(t.size))
+    out["y_odo_m"] = Channel("y_odo_m", t, tel["y_odo_m"][i_a:i_b], yo, "m", seg(t.size))
+    out["phi_odo_rad"] = Channel("phi_odo_rad", t, tel["phi_odo_rad"][i_a:i_b], po, "rad",
+                                 seg(t.size))
     # The recorded torque command is what the controller wanted; an open-loop replay only knows
     # the torque the plant delivered, so tau_cmd is compared by the closed-loop replay only.
+    # Motor current: the shield reports its magnitude.
+    if "i_r_a" in sim:
+        for side in ("r", "l"):
+            col = f"current_{side}_a"
+            cur = tel.get(col)
+            # a constant column (e.g. all zero) is a sensor that is not there
+            if cur is not None and cur.dtype.kind == "f" and np.ptp(cur) > 0:
+                out[col] = Channel(col, t, np.asarray(tel[col][i_a:i_b], float),
+                                   np.abs(at(f"i_{side}_a", t)), "A", seg(t.size))
     gt = run.groundtruth
     if gt is not None:
-        tg = gt["t_s"]
-        inside = (tg >= g[0]) & (tg <= g[-1])
-        tg = tg[inside]
+        tg_all = gt["t_s"]
+        t_hi = t_all[i_b] if i_b < t_all.size else t_all[-1] + 1e-9
+        inside = (tg_all >= max(g[0], t[0])) & (tg_all < t_hi) & (tg_all <= g[-1])
+        tg = tg_all[inside]
         if tg.size >= 3:
-            out["x_m"] = Channel("x_m", tg, gt["x_m"][inside], at("x_m", tg), "m")
-            out["y_m"] = Channel("y_m", tg, gt["y_m"][inside], at("y_m", tg), "m")
+            an = _gt_anchor(gt, float(t[0])) if anchored else None
+            for c in ("x_m", "y_m"):
+                sv = at(c, tg)
+                if anchored:
+                    ref = an[c] if an is not None else float(gt[c][inside][0])
+                    sv = sv - float(at(c, t[:1])[0]) + ref
+                out[c] = Channel(c, tg, gt[c][inside], sv, "m", seg(tg.size))
             ph = gt["phi_rad"][inside]
             ok = np.isfinite(ph)
             if ok.sum() >= 3:
-                # unwrap the simulated heading continuously, compare modulo 2 pi
-                out["phi_rad"] = Channel("phi_rad", tg[ok], ph[ok], at("phi_rad", tg[ok]), "rad")
+                # compared modulo 2 pi (Channel.resid wraps)
+                sv = at("phi_rad", tg[ok])
+                if anchored:
+                    ref = (an or {}).get("phi_rad")
+                    if ref is None:
+                        ref = float(ph[ok][0])
+                    sv = sv - float(at("phi_rad", t[:1])[0]) + ref
+                out["phi_rad"] = Channel("phi_rad", tg[ok], ph[ok], sv, "rad", seg(int(ok.sum())))
     return out
 
 

@@ -43,12 +43,10 @@ def report_dict(an: Analysis) -> dict:
             for k, v in ps.items():
                 key = k if len(c.effects) == 1 else f"{e}.{k}"
                 entry["params"][key] = _r(v, 5)
-        i = 0
-        for e, ps in c.fit.params.items():
-            for k in ps:
-                key = k if len(c.effects) == 1 else f"{e}.{k}"
-                entry["param_std"][key] = _r(c.fit.std[i])
-                i += 1
+        # 1-sigma uncertainty of each fitted coordinate (e.g. mu_k_over_mu_s for friction)
+        for (e, k), sd in zip(c.fit.coords, c.fit.std):
+            key = k if len(c.effects) == 1 else f"{e}.{k}"
+            entry["param_std"][key] = _r(sd)
         cands.append(entry)
     return _finite({
         "format": REPORT_FORMAT,
