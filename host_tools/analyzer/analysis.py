@@ -26,6 +26,17 @@ REPORT_FORMAT = "mismatch-report/1"
 
 # Decision thresholds (normalized residual = residual / noise floor over the fit channels).
 STRONG_WINDOW = 3.0      # a window whose RMS is this many floors is a mismatch on its own
+# ... on a recording of STRONG_REF_S in all (four 3 s runs).  A longer recording offers more
+# windows, and the largest of N noise-like excursions grows like sqrt(2 ln N): the threshold is
+# raised by that law, so that the chance of a false alarm per analysis stays what it is on
+# STRONG_REF_S (12 s: 3.0 floors; 120 s: 3.7; 600 s: 4.1).
+STRONG_REF_S = 12.0
+
+
+def strong_threshold(total_s: float) -> float:
+    return math.sqrt(STRONG_WINDOW ** 2 + 2 * math.log(max(1.0, total_s / STRONG_REF_S)))
+
+
 MISMATCH_RMS = 1.25      # otherwise the overall normalized RMS must exceed this
 # After the update: explained when the residual is back within the noise floor (normalized RMS
 # <= 1).  Detection keeps a margin above the floor against false alarms; a claim of explanation
@@ -355,7 +366,9 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     r0 = problem.residual({}, runs_idx, full=True)
     rss0 = float(np.sum(r0 ** 2))
     nrms0 = math.sqrt(rss0 / max(r0.size, 1))
-    strong0 = [e for e in sig_fit if e["rms"] >= STRONG_WINDOW * e["noise_floor"]]
+    total_s = sum(float(p.run.telemetry["t_s"][-1] - p.run.telemetry["t_s"][0]) for p in preps)
+    strong_k = strong_threshold(total_s)
+    strong0 = [e for e in sig_fit if e["rms"] >= strong_k * e["noise_floor"]]
     mismatch_seen = bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
     sig_t = [e for e in entries_t if e["channel"] in fit_chans]
     if mismatch_seen and not sig_t:
@@ -383,7 +396,7 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
         final_effects = dict(best_single.fit.params)
     if mismatch_seen:
         # is one effect enough?  try pairs when something significant remains
-        remaining = _remaining_windows(problem, final_effects, fit_chans)
+        remaining = _remaining_windows(problem, final_effects, fit_chans, strong_k)
         nrms1 = math.sqrt(_excess(problem, final_effects))
         if not final_effects or remaining or nrms1 > EXPLAINED_RMS:
             # the best singles by BIC, accepted or not: in a pair case each single may fail
@@ -467,7 +480,7 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
         final_effects = {}
     else:
         nrms1 = math.sqrt(_excess(problem, final_effects))
-        remaining = _remaining_windows(problem, final_effects, fit_chans)
+        remaining = _remaining_windows(problem, final_effects, fit_chans, strong_k)
         explained = bool(selected) and nrms1 <= EXPLAINED_RMS
         verdict = "explained" if explained else "unexplained"
         if not explained:

@@ -273,7 +273,86 @@ def prepare_timed(run: Run) -> PreparedRun:
     prep.extras["timing"] = ("board wheel speeds against recorded counts" if phase is not None
                              else "centre of the input-change arc" if arc is not None
                              else "frame times")
+    rec = recorder_odometry(prep)
+    prep.extras["recorder_odometry"] = rec
+    prep.extras["odo_schedule"] = rec.get("schedule", "ticks")
     return prep
+
+
+def _tick_of_frame(prep: PreparedRun, t: np.ndarray) -> np.ndarray | None:
+    """Time of the latest inner tick at or before each time in ``t`` (None: phase unknown)."""
+    phase = prep.extras.get("tick_phase")
+    period = float(prep.extras.get("inner_period") or 0.0)
+    if phase is None or period <= 0:
+        return None
+    return phase + np.floor((t - phase) / period + 1e-9) * period
+
+
+def odometry_times(prep: PreparedRun) -> np.ndarray:
+    """When the pose that each telemetry frame reports was computed: the latest inner tick for
+    a recorder that integrates at its ticks (this project's firmware), the frame itself for one
+    that integrates at the frames (see :func:`recorder_odometry`)."""
+    t = prep.run.telemetry["t_s"]
+    if prep.extras.get("odo_schedule") == "frames":
+        return t
+    tk = _tick_of_frame(prep, t)
+    return t if tk is None else np.maximum(tk, t[0])
+
+
+def recorder_odometry(prep: PreparedRun) -> dict:
+    """How the recorder's odometry columns relate to its own encoder counts, from the recording
+    alone: lib/control's odometry (exact arc, III.2-III.4) of the recorded counts is computed
+    at the inner ticks (counts interpolated there; a frame reports the latest tick's pose, as
+    this project's firmware does) and at the frames, each window by window from the recorded
+    pose, and compared with the recorded odometry.  The better schedule is taken; if even it
+    differs by more than a few counts of wheel travel, the recorder computes odometry
+    differently (integration rule, wheel geometry, schedule) and that is a finding about the
+    recorder, not about the physics."""
+    tel = prep.run.telemetry
+    t = tel["t_s"]
+    r, b, ppr = float(prep.robot["r"]), float(prep.robot["b"]), prep.ppr
+    k = 2 * np.pi / ppr
+    tol_m, tol_rad = 10 * r * k, 10 * r * k / (2 * b)   # ten counts of wheel travel
+    wins = prep.windows or [(0, t.size)]
+    ticks_all = _tick_of_frame(prep, t)
+    errs: dict[str, list[np.ndarray]] = {"frames": [], "ticks": []}
+    for i_a, i_b in wins:
+        tw = t[i_a:i_b]
+        if tw.size < 2:
+            continue
+        pose0 = (tel["x_odo_m"][i_a], tel["y_odo_m"][i_a], tel["phi_odo_rad"][i_a])
+        rec = np.column_stack([tel["x_odo_m"][i_a:i_b], tel["y_odo_m"][i_a:i_b],
+                               tel["phi_odo_rad"][i_a:i_b]])
+        cand = {"frames": _odometry(tel["enc_r"][i_a:i_b], tel["enc_l"][i_a:i_b], tw, r, b, ppr,
+                                    pose0)}
+        if ticks_all is not None:
+            tk = ticks_all[i_a:i_b]
+            uniq, idx = np.unique(tk, return_inverse=True)
+            # counts at the ticks, interpolated over the whole run (the first tick of a window
+            # lies before its first frame)
+            at_t = np.maximum(uniq, t[0])
+            cr = np.floor(np.interp(at_t, t, tel["enc_r"]) + 1e-9)
+            cl = np.floor(np.interp(at_t, t, tel["enc_l"]) + 1e-9)
+            if uniq.size >= 2:
+                xo, yo, po = _odometry(cr, cl, at_t + 1e-9 * np.arange(at_t.size), r, b, ppr,
+                                       pose0)
+                cand["ticks"] = (xo[idx], yo[idx], po[idx])
+        for name, (xo, yo, po) in cand.items():
+            errs[name].append(np.column_stack([rec[:, 0] - xo, rec[:, 1] - yo,
+                                               _wrap(rec[:, 2] - po)]))
+    out: dict = {}
+    for name, e in errs.items():
+        if not e:
+            continue
+        e = np.vstack(e)
+        out[name] = {"rms_m": float(np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2))),
+                     "rms_rad": float(np.sqrt(np.mean(e[:, 2] ** 2)))}
+    if not out:
+        return {}
+    best = min(out, key=lambda n: out[n]["rms_m"] / tol_m + out[n]["rms_rad"] / tol_rad)
+    res = {"schedule": best, "tolerance_m": tol_m, "tolerance_rad": tol_rad, "by_schedule": out}
+    res["agrees"] = bool(out[best]["rms_m"] <= tol_m and out[best]["rms_rad"] <= tol_rad)
+    return res
 
 
 def _zoh(t_in: np.ndarray, v: np.ndarray, grid: np.ndarray) -> np.ndarray:
@@ -371,37 +450,72 @@ class WindowSims(list):
     """[(window index, plant outputs)] of a windowed replay."""
 
 
-def _local_fit(t: np.ndarray, v: np.ndarray, at: float, half: float = 0.2) -> float | None:
-    """Value at ``at`` of a straight line fitted to the samples within ``half`` seconds (noise
-    of a single camera sample reduced); None with fewer than two samples there."""
-    m = np.abs(t - at) <= half
-    m &= np.isfinite(v)
-    if m.sum() < 2:
-        return None
-    tt, vv = t[m] - at, v[m]
-    if np.ptp(tt) <= 0:
-        return float(np.mean(vv))
+def _line_at(t: np.ndarray, v: np.ndarray, at: float) -> float:
+    """Value at ``at`` of a straight line fitted to (t, v)."""
+    tt = t - at
+    if tt.size < 2 or np.ptp(tt) <= 0:
+        return float(np.mean(v))
     A = np.column_stack([np.ones_like(tt), tt])
-    return float(np.linalg.lstsq(A, vv, rcond=None)[0][0])
+    return float(np.linalg.lstsq(A, v, rcond=None)[0][0])
 
 
-def _gt_anchor(gt: Mapping[str, np.ndarray] | None, at: float) -> dict[str, float] | None:
-    """Camera pose at ``at`` (local straight-line fit; heading unwrapped locally)."""
+ANCHOR_HALF_S = 1.5
+MIN_SPREAD_M = 0.1
+
+
+def _gt_anchor(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
+               ) -> dict[str, float] | None:
+    """The true pose at board time ``at``, for re-anchoring a replay window: the recorder's
+    odometry there, corrected by the camera-minus-odometry offset fitted as a straight line over
+    ``half`` seconds either side.  Odometry is precise over a short time but drifts; the camera
+    does not drift but is noisy sample by sample; their offset changes slowly, so a fit over
+    many camera samples removes most of the camera's noise (a single camera heading, 0.01 rad,
+    would turn a 2 m window by 2 cm).  None without camera samples there."""
+    gt = prep.run.groundtruth
     if gt is None:
         return None
+    tel = prep.run.telemetry
+    t = tel["t_s"]
     tg = gt["t_s"]
-    out = {}
-    for c in ("x_m", "y_m"):
-        v = _local_fit(tg, gt[c], at)
-        if v is None:
-            return None
-        out[c] = v
+    m = (np.abs(tg - at) <= half) & (tg >= t[0]) & (tg <= t[-1])
+    if m.sum() < 3:
+        return None
+    tm = tg[m]
+    po = np.unwrap(tel["phi_odo_rad"])
+    # the recorded pose at the time it was computed (a tick or the frame)
+    to, keep = np.unique(odometry_times(prep), return_index=True)
+    xo_, yo_, po_ = tel["x_odo_m"][keep], tel["y_odo_m"][keep], po[keep]
+    odo = {"x_m": np.interp(tm, to, xo_), "y_m": np.interp(tm, to, yo_),
+           "phi_rad": np.interp(tm, to, po_)}
+    here = {"x_m": float(np.interp(at, to, xo_)), "y_m": float(np.interp(at, to, yo_)),
+            "phi_rad": float(np.interp(at, to, po_))}
+    # camera = R(delta) odometry + c over the span.  delta from the positions (2-D Procrustes)
+    # when the robot travels far enough for the direction of travel to pin it down better than
+    # the camera's headings do (1 mm over a 0.3 m spread: ~0.5 mrad), else from the headings
+    # (a straight line in time); c a straight line in time
+    gx, gy = gt["x_m"][m], gt["y_m"][m]
     ph = gt.get("phi_rad")
-    if ph is not None:
-        m = (np.abs(tg - at) <= 0.2) & np.isfinite(ph)
-        if m.sum() >= 2:
-            ref = ph[m][0]
-            out["phi_rad"] = _local_fit(tg[m], ref + _wrap(ph[m] - ref), at)
+    ok = np.isfinite(ph[m]) if ph is not None else np.zeros(tm.size, bool)
+    ox, oy = odo["x_m"] - odo["x_m"].mean(), odo["y_m"] - odo["y_m"].mean()
+    spread = float(np.sqrt(np.mean(ox ** 2 + oy ** 2)))
+    if spread >= MIN_SPREAD_M or ok.sum() < 3:
+        qx, qy = gx - gx.mean(), gy - gy.mean()
+        delta_at = float(np.arctan2(np.sum(ox * qy - oy * qx), np.sum(ox * qx + oy * qy)))
+        delta = np.full(tm.size, delta_at)
+    else:
+        d = ph[m][ok] - odo["phi_rad"][ok]
+        d0 = float(np.median(_wrap(d)))
+        dl = d0 + _wrap(d - d0)
+        A = np.column_stack([np.ones(ok.sum()), tm[ok] - at])
+        coef = np.linalg.lstsq(A, dl, rcond=None)[0] if np.ptp(tm[ok]) > 0 else [np.mean(dl), 0]
+        delta = coef[0] + coef[1] * (tm - at)
+        delta_at = float(coef[0])
+    cx = gx - (np.cos(delta) * odo["x_m"] - np.sin(delta) * odo["y_m"])
+    cy = gy - (np.sin(delta) * odo["x_m"] + np.cos(delta) * odo["y_m"])
+    ca, sa = math.cos(delta_at), math.sin(delta_at)
+    out = {"x_m": ca * here["x_m"] - sa * here["y_m"] + _line_at(tm, cx, at),
+           "y_m": sa * here["x_m"] + ca * here["y_m"] + _line_at(tm, cy, at)}
+    out["phi_rad"] = here["phi_rad"] + delta_at
     return out
 
 
@@ -431,7 +545,7 @@ def window_start(prep: PreparedRun, w: int) -> tuple[float, tuple, tuple | None]
     vel = (r * (w_r + w_l) / 2, 0.0, r * (w_r - w_l) / (2 * b), w_r, w_l)
     pose = (float(tel["x_odo_m"][first]), float(tel["y_odo_m"][first]),
             float(tel["phi_odo_rad"][first]))
-    an = _gt_anchor(prep.run.groundtruth, float(t[first]))
+    an = _gt_anchor(prep, float(t[first]))
     if an is not None:
         pose = (an["x_m"], an["y_m"], an.get("phi_rad", pose[2]))
     return float(t[first]), pose, vel
@@ -685,7 +799,7 @@ def _replay_odometry(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.nda
     r, b = float(prep.robot["r"]), float(prep.robot["b"])
     phase = prep.extras.get("tick_phase")
     period = float(prep.extras.get("inner_period") or 0.0)
-    if phase is None or period <= 0:
+    if phase is None or period <= 0 or prep.extras.get("odo_schedule") == "frames":
         q_r = np.floor((_theta_at(sim, "r", t) - th0_r) / k)
         q_l = np.floor((_theta_at(sim, "l", t) - th0_l) / k)
         return _odometry(q_r, q_l, t, r, b, prep.ppr, pose0)
@@ -803,7 +917,7 @@ def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int,
         inside = (tg_all >= max(g[0], t[0])) & (tg_all < t_hi) & (tg_all <= g[-1])
         tg = tg_all[inside]
         if tg.size >= 3:
-            an = _gt_anchor(gt, float(t[0])) if anchored else None
+            an = _gt_anchor(prep, float(t[0])) if anchored else None
             for c in ("x_m", "y_m"):
                 sv = at(c, tg)
                 if anchored:
