@@ -12,6 +12,7 @@ law in Python; both live in C++ behind the C ABI of ``libddrobot.so``).
 from __future__ import annotations
 
 import ctypes
+import math
 from typing import Mapping
 
 import numpy as np
@@ -249,3 +250,37 @@ class ClosedLoop:
         self._check(self._lib.cl_state(self._h, out, len(out)), "state")
         return dict(zip(self.row_columns, out))
 
+
+def resimulate_from_rest(kind, accel, cruise, radius, *, fixed_point, clamp, t0, n, ppr=1856,
+                         start_pose=(0.0, 0.0, 0.0), effects=None, actuator="duty", sub=1,
+                         T=0.025, dt_s=5e-4, ctl_params=None, outer_every=2):
+    """The closed loop without the driver, kept as the reference that :class:`ClosedLoop` is
+    tested and benchmarked against: at tick k the plant is re-simulated from rest
+    (``Plant.simulate``) over ticks 0..k with the inputs so far (``sub`` rows per tick), its wheel
+    angles give the counts, then the controller's inner and (every ``outer_every`` ticks) outer
+    step run through ``ctl_*``.  O(ticks^2) plant steps.  Returns (per-tick controller columns
+    and wheel angles, the last re-simulation's plant rows)."""
+    plant = _native.Plant()
+    for name, ps in (effects or {}).items():
+        plant.set_effect(name, **ps)
+    ctl = Controller(fixed_point=fixed_point, clamp=clamp, params=ctl_params)
+    ctl.set_reference(kind, accel, cruise, radius)
+    ctl.reset(0, 0, start_pose)
+    u_r, u_l = np.zeros(n), np.zeros(n)
+    rows, th, st = [], np.zeros((n, 2)), None
+    for k in range(n):
+        if k > 0:
+            tg = t0 + (T / sub) * np.arange(k * sub + 1)
+            st = plant.simulate(tg, np.append(np.repeat(u_r[:k], sub), 0.0),
+                                np.append(np.repeat(u_l[:k], sub), 0.0), mode=actuator,
+                                dt_s=dt_s, start_pose=start_pose)
+            th[k] = st["theta_r_rad"][-1], st["theta_l_rad"][-1]
+        o = ctl.inner(*(int(math.floor(a * ppr / (2 * math.pi))) for a in th[k]), T)
+        if k % outer_every == 0:
+            ctl.outer(k * T)
+        u_r[k], u_l[k] = ((o["pwm_r"], o["pwm_l"]) if actuator == "duty"
+                          else (o["tau_cmd_r"], o["tau_cmd_l"]))
+        rows.append(o)
+    out = {c: np.array([r[c] for r in rows]) for c in rows[0]}
+    out["theta_r_rad"], out["theta_l_rad"] = th[:, 0], th[:, 1]
+    return out, st

@@ -1,10 +1,8 @@
-"""lib/closedloop's driver (C ABI ``cl_*``, bound by host_tools.control.ClosedLoop) against the
-way the closed loop was run before it: the lib/control binding stepped from Python, the plant
-re-simulated from rest through ``Plant.simulate`` at every tick (O(ticks^2)).  Both use the same
-C++ (lib/control, lib/slipmodel), so they must agree to rounding."""
+"""lib/closedloop's driver (C ABI ``cl_*``, bound by host_tools.control.ClosedLoop) against
+host_tools.control.resimulate_from_rest, the way the closed loop was run before it (the
+lib/control binding stepped from Python, the plant re-simulated from rest at every tick).  Both
+use the same C++ (lib/control, lib/slipmodel), so they must agree to rounding."""
 from __future__ import annotations
-
-import math
 
 import numpy as np
 import pytest
@@ -12,7 +10,7 @@ import pytest
 try:
     from host_tools import _native
     _native.effect_vocabulary()
-    from host_tools.control import ClosedLoop, Controller
+    from host_tools.control import ClosedLoop, resimulate_from_rest
     HAVE_NATIVE = True
 except Exception:  # pragma: no cover - the native library could not be built here
     HAVE_NATIVE = False
@@ -22,39 +20,6 @@ pytestmark = pytest.mark.skipif(not HAVE_NATIVE, reason="native library not buil
 CTL_COLS = ("pwm_r", "pwm_l", "tau_cmd_r", "tau_cmd_l", "tau_max_r", "tau_max_l", "clamped_r",
             "sat_r", "omega_r", "omega_l", "x_odo_m", "y_odo_m", "phi_odo_rad", "v_d_m_s",
             "omega_d_rad_s", "e_x_m", "e_y_m", "e_phi_rad")
-
-
-def resimulate(kind, accel, cruise, radius, *, fixed_point, clamp, t0, n, ppr=1856,
-               start_pose=(0.0, 0.0, 0.0), effects=None, actuator="duty", sub=1, T=0.025,
-               dt_s=5e-4, ctl_params=None, outer_every=2):
-    """The closed loop as the analyzer's replay and truth.py ran it before the driver: at tick
-    k the plant is re-simulated from rest over ticks 0..k with the inputs so far (``sub`` rows
-    per tick), its wheel angles give the counts, then the inner and (every other tick) the outer
-    step of the controller."""
-    plant = _native.Plant()
-    for name, ps in (effects or {}).items():
-        plant.set_effect(name, **ps)
-    ctl = Controller(fixed_point=fixed_point, clamp=clamp, params=ctl_params)
-    ctl.set_reference(kind, accel, cruise, radius)
-    ctl.reset(0, 0, start_pose)
-    u_r, u_l = np.zeros(n), np.zeros(n)
-    rows, th, st = [], np.zeros((n, 2)), None
-    for k in range(n):
-        if k > 0:
-            tg = t0 + (T / sub) * np.arange(k * sub + 1)
-            st = plant.simulate(tg, np.append(np.repeat(u_r[:k], sub), 0.0),
-                                np.append(np.repeat(u_l[:k], sub), 0.0), mode=actuator,
-                                dt_s=dt_s, start_pose=start_pose)
-            th[k] = st["theta_r_rad"][-1], st["theta_l_rad"][-1]
-        o = ctl.inner(*(int(math.floor(a * ppr / (2 * math.pi))) for a in th[k]), T)
-        if k % outer_every == 0:
-            ctl.outer(k * T)
-        u_r[k], u_l[k] = ((o["pwm_r"], o["pwm_l"]) if actuator == "duty"
-                          else (o["tau_cmd_r"], o["tau_cmd_l"]))
-        rows.append(o)
-    out = {c: np.array([r[c] for r in rows]) for c in rows[0]}
-    out["theta_r_rad"], out["theta_l_rad"] = th[:, 0], th[:, 1]
-    return out, st
 
 
 @pytest.mark.parametrize("case", [
@@ -69,7 +34,7 @@ def resimulate(kind, accel, cruise, radius, *, fixed_point, clamp, t0, n, ppr=18
 ])
 def test_driver_matches_the_resimulation_from_rest(case):
     n = 60  # 1.5 s
-    old, st = resimulate(n=n, **case)
+    old, st = resimulate_from_rest(n=n, **case)
     ctl_params = case.get("ctl_params") or {}
     loop = ClosedLoop(case["kind"], case["accel"], case["cruise"], case["radius"],
                       fixed_point=case["fixed_point"], clamp=case["clamp"],
