@@ -637,16 +637,16 @@ _CTL_KEYS = ("mu_s", "mu_k", "b", "e", "d", "g", "h", "m_r", "I_rz", "I_wz", "I_
 
 
 class ClosedLoopReplay:
-    """Closed-loop replay through lib/control: the firmware's fixed-point cascade (its C ABI
-    ``ctl_*``, bound by :class:`host_tools.truth.Controller`), configured with the run's nominal
-    parameters, reference and clamp setting, drives the lib/slipmodel plant (with or without
-    candidate effects) on the firmware's schedule: an inner step every ``periods_s.inner`` on
-    the plant's encoder counts (floor of angle x ppr / 2 pi), an outer step every
-    ``periods_s.outer`` after the inner step of the same tick.  It reproduces the torque and
-    duty the firmware should have commanded.
+    """Closed-loop replay through lib/control: the firmware's fixed-point cascade, configured
+    with the run's nominal parameters, reference and clamp setting, drives the lib/slipmodel
+    plant (with or without candidate effects) on the firmware's schedule: an inner step every
+    ``periods_s.inner`` on the plant's encoder counts (floor of angle x ppr / 2 pi), an outer
+    step every ``periods_s.outer`` after the inner step of the same tick.  It reproduces the
+    torque and duty the firmware should have commanded.
 
-    ``Plant.simulate`` restarts from rest, so every tick re-simulates the duty history
-    (O(ticks^2) plant steps, about 0.2 s for a 3 s run)."""
+    The loop is lib/closedloop's driver (C ABI ``cl_*``, bound by
+    :class:`host_tools.control.ClosedLoop`), which steps plant and controller forward tick by
+    tick: cost linear in the run length."""
 
     name = "closed-loop"
 
@@ -656,7 +656,7 @@ class ClosedLoopReplay:
     @staticmethod
     def available() -> tuple[bool, str]:
         try:
-            from host_tools.truth import Controller  # noqa: F401  (lib/control C ABI)
+            from host_tools.control import ClosedLoop  # noqa: F401  (lib/closedloop C ABI)
         except Exception as exc:  # pragma: no cover - depends on the build
             return False, f"the lib/control C ABI could not be loaded: {exc}"
         return True, ""
@@ -682,45 +682,26 @@ class ClosedLoopReplay:
     def simulate(self, prep: "PreparedRun", effects: Mapping[str, Mapping[str, float]],
                  setup: dict | None = None) -> dict[str, np.ndarray]:
         """Per tick: ``t_s`` (board time), the controller's columns (``tau_cmd_r`` ... ``pwm_l``)
-        and the plant's wheel angles.  Raises ValueError when the run lacks what the replay
-        needs (see :func:`closed_loop_setup`)."""
-        from host_tools import _native
-        from host_tools.truth import Controller
+        and the plant's state at the tick (wheel angles ``theta_r_rad``, ``theta_l_rad``, ...).
+        Raises ValueError when the run lacks what the replay needs (see
+        :func:`closed_loop_setup`)."""
+        from host_tools.control import ClosedLoop  # lib/closedloop through its C ABI
         if setup is None:
             setup, problems, _ = self.setup(prep)
             if setup is None:
                 raise ValueError("closed-loop replay impossible: " + "; ".join(problems))
         meta = prep.run.meta
-        params = {k: float(v) for part in ("robot", "motor") for k, v in meta[part].items()
-                  if k in _CTL_KEYS}
-        ctl = Controller(fixed_point=True, clamp=setup["clamp"], params=params)
-        ctl.set_reference(setup["kind"], setup["accel"], setup["cruise"], setup["radius"])
-        ctl.reset(0, 0, prep.start_pose)
-        plant = _native.Plant(robot=prep.robot, motor=prep.motor)
-        for name, ps in effects.items():
-            plant.set_effect(name, **{k: float(v) for k, v in ps.items()})
+        ctl = {part: {k: float(v) for k, v in meta[part].items() if k in _CTL_KEYS}
+               for part in ("robot", "motor")}
         T, t0 = setup["inner_s"], setup["t0_s"]
         t_end = float(prep.run.telemetry["t_s"][-1])
         n = int(math.floor((t_end - t0) / T + 1e-9)) + 1
-        k_ppr = prep.ppr / (2 * math.pi)
-        duty_r, duty_l = np.zeros(n), np.zeros(n)
-        rows = []
-        th_r, th_l = np.zeros(n), np.zeros(n)
-        for k in range(n):
-            if k > 0:
-                tg = t0 + T * np.arange(k + 1)
-                st = plant.simulate(tg, np.append(duty_r[:k], 0.0), np.append(duty_l[:k], 0.0),
-                                    mode="duty", dt_s=self.dt_s, start_pose=prep.start_pose)
-                th_r[k], th_l[k] = st["theta_r_rad"][-1], st["theta_l_rad"][-1]
-            o = ctl.inner(int(math.floor(th_r[k] * k_ppr)), int(math.floor(th_l[k] * k_ppr)), T)
-            if k % setup["outer_every"] == 0:
-                ctl.outer(k * T)
-            duty_r[k], duty_l[k] = o["pwm_r"], o["pwm_l"]
-            rows.append(o)
-        out = {c: np.array([r[c] for r in rows]) for c in rows[0]}
-        out["t_s"] = t0 + T * np.arange(n)
-        out["theta_r_rad"], out["theta_l_rad"] = th_r, th_l
-        return out
+        loop = ClosedLoop(setup["kind"], setup["accel"], setup["cruise"], setup["radius"],
+                          fixed_point=True, clamp=setup["clamp"], ctl_robot=ctl["robot"],
+                          ctl_motor=ctl["motor"], plant_robot=prep.robot, plant_motor=prep.motor,
+                          effects=effects, t0_s=t0, inner_s=T, outer_every=setup["outer_every"],
+                          ppr=prep.ppr, plant_dt_s=self.dt_s, start_pose=prep.start_pose)
+        return loop.run(n)
 
 
 def closed_loop_channels(prep: "PreparedRun", sim: Mapping[str, np.ndarray]) -> dict:

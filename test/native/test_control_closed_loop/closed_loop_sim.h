@@ -1,12 +1,15 @@
-// Closed-loop harness: slip::Plant (0.5 ms Euler steps) driven by the control cascade on the
-// 25 ms inner / 50 ms outer schedule, with encoder counts quantised as on the robot
-// (floor(theta * 1856 / 2pi), int32). Test code, host only.
+// Closed-loop harness: lib/closedloop's driver (slip::Plant in 0.5 ms Euler steps driven by the
+// control cascade on the 25 ms inner / 50 ms outer schedule, encoder counts quantised as on the
+// robot: floor(theta * 1856 / 2pi)) and the figures the closed-loop tests check. The adapters
+// below choose the cascade (float or fixed) and drive it directly where a test compares its
+// C ABI with the C++ path. Test code, host only.
 #ifndef TEST_CONTROL_CLOSED_LOOP_SIM_H
 #define TEST_CONTROL_CLOSED_LOOP_SIM_H
 
 #include <math.h>
 #include <stdint.h>
 
+#include <closedloop/driver.h>
 #include <control/cascade.h>
 #include <control/reference.h>
 #include <slipmodel/plant.h>
@@ -35,43 +38,38 @@ inline int32_t counts(double theta_rad) {
   return static_cast<int32_t>(floor(theta_rad * 1856.0 / (2.0 * kPi)));
 }
 
-/// Adapter interface: the float Controller is used directly; the fixed one through the same
-/// calls (see the fixed test).
+/// The closed loop from (x0, y0, phi0) for T_s with the adapter's cascade (float or fixed) and
+/// configuration, run by cl::Driver (the same driver the host tools use).
 template <typename Adapter>
-Result run(Adapter& ctl, const ctl::ReferenceSpec& ref, double x0, double y0, double phi0, double T_s) {
-  slip::Plant plant{slip::RobotParams(), slip::MotorParams()};
-  plant.reset(x0, y0, phi0);
-  ctl.reset(0, 0, x0, y0, phi0);
+Result run(const Adapter& ad, const ctl::ReferenceSpec& ref, double x0, double y0, double phi0, double T_s) {
+  cl::DriverConfig dc;
+  dc.fixed_point = Adapter::kFixed;
+  dc.ctl = ad.fcfg;
+  dc.ref = ref;
+  dc.plant_dt_s = kPlantDt;
+  cl::Driver drv(dc);
+  drv.reset(x0, y0, phi0);
   Result res;
-  double u_r = 0, u_l = 0;
   const int n_inner = static_cast<int>(lround(T_s / 0.025));
   for (int k = 0; k < n_inner; ++k) {
     const double t = k * 0.025;
-    const slip::PlantState& s = plant.state();
     // Firmware order in one 25 ms tick: the inner step reads the counts (odometry + velocity
     // loop, using the last velocity command), then, every other tick, the outer step runs on
-    // the fresh pose and sets the command for the next inner steps.
-    ctl.inner(counts(s.theta_r_rad), counts(s.theta_l_rad), &u_r, &u_l);
-    double ox, oy;
-    ctl.odo_xy(&ox, &oy);
-    res.max_odo_err_m = fmax(res.max_odo_err_m, hypot(ox - s.x_m, oy - s.y_m));
-    if (k % 2 == 0) ctl.outer(ref, t);
-    res.max_tau_cmd_nm = fmax(res.max_tau_cmd_nm, fmax(fabs(ctl.tau_r()), fabs(ctl.tau_l())));
-    res.clamp_steps += ctl.clamped();
-    res.sat_steps += ctl.saturated();
-    for (int j = 0; j < kPlantPerInner; ++j) {
-      plant.step_duty(u_r, u_l, kPlantDt);
-      if (plant.state().slipping_r || plant.state().slipping_l) {
-        if (res.slip_steps == 0) res.first_slip_t_s = plant.state().t_s;
-        ++res.slip_steps;
-      }
-    }
+    // the fresh pose and sets the command for the next inner steps; then the plant moves.
+    const cl::TickOut& o = drv.step();
+    res.max_odo_err_m = fmax(res.max_odo_err_m, hypot(o.ctl.x_odo_m - o.plant.x_m, o.ctl.y_odo_m - o.plant.y_m));
+    res.max_tau_cmd_nm = fmax(res.max_tau_cmd_nm, fmax(fabs(o.ctl.tau_cmd_r), fabs(o.ctl.tau_cmd_l)));
+    res.clamp_steps += o.ctl.clamped_r || o.ctl.clamped_l;
+    res.sat_steps += o.ctl.sat_r || o.ctl.sat_l;
+    if (o.slip_steps > 0 && res.slip_steps == 0) res.first_slip_t_s = o.first_slip_t_s;
+    res.slip_steps += o.slip_steps;
     const ctl::RefSample rs = ctl::reference_at(ref, static_cast<float>(t + 0.025));
-    const double err = hypot(plant.state().x_m - rs.x_m, plant.state().y_m - rs.y_m);
+    const slip::PlantState& s = drv.plant().state();
+    const double err = hypot(s.x_m - rs.x_m, s.y_m - rs.y_m);
     res.max_pos_err_m = fmax(res.max_pos_err_m, err);
     if (k >= 3 * n_inner / 4) res.max_tail_err_m = fmax(res.max_tail_err_m, err);
   }
-  const slip::PlantState& s = plant.state();
+  const slip::PlantState& s = drv.plant().state();
   const ctl::RefSample rs = ctl::reference_at(ref, static_cast<float>(n_inner * 0.025));
   const double dx = rs.x_m - s.x_m, dy = rs.y_m - s.y_m;
   res.e_x = cos(s.phi_rad) * dx + sin(s.phi_rad) * dy;
@@ -85,8 +83,10 @@ Result run(Adapter& ctl, const ctl::ReferenceSpec& ref, double x0, double y0, do
 
 /// Adapter for the float Controller.
 struct FloatAdapter {
+  static const bool kFixed = false;
+  ctl::ControlConfig fcfg;
   ctl::Controller c;
-  explicit FloatAdapter(const ctl::ControlConfig& cfg) : c(cfg) {}
+  explicit FloatAdapter(const ctl::ControlConfig& cfg) : fcfg(cfg), c(cfg) {}
   void reset(int32_t er, int32_t el, double x, double y, double phi) {
     c.reset(er, el, ctl::Pose{static_cast<float>(x), static_cast<float>(y), static_cast<float>(phi)});
   }
@@ -113,10 +113,12 @@ namespace sim {
 
 /// Adapter for the fixed-point ControllerQ (reference also generated in fixed point).
 struct FixedAdapter {
+  static const bool kFixed = true;
+  ctl::ControlConfig fcfg;
   ctl::ControlConfigQ cfg;
   ctl::ControllerQ c;
   ctl::ReferenceSpecQ spec_q{ctl::ReferenceSpec{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f}};
-  explicit FixedAdapter(const ctl::ControlConfig& f) : cfg(f), c(cfg) {}
+  explicit FixedAdapter(const ctl::ControlConfig& f) : fcfg(f), cfg(f), c(cfg) {}
   void reset(int32_t er, int32_t el, double x, double y, double phi) {
     const double turns = phi / (2 * kPi);
     const uint32_t phi_b32 = static_cast<uint32_t>(static_cast<int64_t>(llround(turns * 4294967296.0)));

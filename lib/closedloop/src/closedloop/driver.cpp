@@ -1,0 +1,160 @@
+#if !defined(__AVR__)
+
+#include <closedloop/driver.h>
+
+#include <math.h>
+
+namespace cl {
+
+namespace {
+
+const double kTwoPi = 6.283185307179586476925;
+
+uint32_t to_b32(double rad) {
+  const double turns = rad / kTwoPi;
+  return static_cast<uint32_t>(static_cast<int64_t>(llround((turns - floor(turns)) * 4294967296.0)));
+}
+
+double from_b32(uint32_t a) { return static_cast<int32_t>(a) * (kTwoPi / 4294967296.0); }
+
+// Reference time in the fixed-point reference's milliseconds.
+uint32_t ref_ms(double t_s) { return static_cast<uint32_t>(llround(fmin(t_s, 32000.0) * 1000.0)); }
+
+int32_t counts(double theta_rad, int32_t ppr) {
+  return static_cast<int32_t>(floor(theta_rad * ppr / kTwoPi));
+}
+
+void copy_dynamic(const slip::PlantState& from, slip::PlantState* to) {
+  to->tau_r_nm = from.tau_r_nm;
+  to->tau_l_nm = from.tau_l_nm;
+  to->N_r = from.N_r;
+  to->N_l = from.N_l;
+  to->N_c = from.N_c;
+  to->F_r_n = from.F_r_n;
+  to->F_l_n = from.F_l_n;
+  to->L_r_n = from.L_r_n;
+  to->L_l_n = from.L_l_n;
+}
+
+}  // namespace
+
+const char* DriverConfig::check() const {
+  if (!(inner_s > 0.0 && inner_s <= 1.0)) return "inner period must be in (0, 1] s";
+  if (outer_every < 1) return "the outer step must run every N >= 1 inner ticks";
+  if (ppr <= 0) return "encoder counts per turn must be > 0";
+  if (!(plant_dt_s > 0.0 && plant_dt_s <= 1.0)) return "plant step must be in (0, 1] s";
+  if (rows_per_tick < 1 || rows_per_tick > 1000) return "rows per tick must be in [1, 1000]";
+  if (!isfinite(t0_s) || fabs(t0_s) > 1e9) return "t0 must be finite (|t0| <= 1e9 s)";
+  if (!ref.valid()) return "invalid reference (accel in (0,20], cruise in [0,4], |R| in [0.05,100])";
+  if (fixed_point && !ctl::ControlConfigQ(ctl).ok) return "configuration does not fit the fixed-point formats";
+  return "";
+}
+
+Driver::Driver(const DriverConfig& cfg, const slip::RobotParams& plant_robot,
+               const slip::MotorParams& plant_motor)
+    : cfg_(cfg),
+      cfg_q_(cfg.ctl),
+      ref_q_(cfg.ref),
+      fc_(cfg.ctl),
+      qc_(cfg_q_),
+      plant_(plant_robot, plant_motor),
+      k_(0),
+      out_() {
+  reset(0.0, 0.0, 0.0);
+}
+
+void Driver::reset(double x_m, double y_m, double phi_rad) {
+  plant_.reset(x_m, y_m, phi_rad);
+  plant_.set_time(cfg_.t0_s);
+  fc_.reset(0, 0, ctl::Pose{static_cast<float>(x_m), static_cast<float>(y_m), static_cast<float>(phi_rad)});
+  qc_.reset(0, 0, ctl::PoseQ{static_cast<int32_t>(llround(x_m * 1048576.0)),
+                             static_cast<int32_t>(llround(y_m * 1048576.0)), to_b32(phi_rad)});
+  k_ = 0;
+}
+
+void Driver::read_ctl(CtlRow* o) const {
+  if (cfg_.fixed_point) {
+    const ctl::InnerOutQ& i = qc_.inner();
+    const ctl::KinematicOutQ& k = qc_.kinematic();
+    const ctl::OdometryQ& od = qc_.odometry();
+    *o = CtlRow{i.pwm_r_q15 / 32768.0, i.pwm_l_q15 / 32768.0, i.tau_r_q16 / 65536.0, i.tau_l_q16 / 65536.0,
+                i.tau_max_r_q16 / 65536.0, i.tau_max_l_q16 / 65536.0, i.clamped_r, i.clamped_l,
+                i.sat_r, i.sat_l, od.omega_r_q8() / 256.0, od.omega_l_q8() / 256.0,
+                od.pose().x_q20 / 1048576.0, od.pose().y_q20 / 1048576.0, from_b32(od.pose().phi_b32),
+                k.v_d_q12 / 4096.0, k.omega_d_q11 / 2048.0, k.e_x_q12 / 4096.0, k.e_y_q12 / 4096.0,
+                from_b32(static_cast<uint32_t>(k.e_phi_b32)), static_cast<int>(i.odo)};
+  } else {
+    const ctl::InnerOut& i = fc_.inner();
+    const ctl::KinematicOut& k = fc_.kinematic();
+    const ctl::Odometry& od = fc_.odometry();
+    *o = CtlRow{i.pwm_r, i.pwm_l, i.tau_r_nm, i.tau_l_nm, i.tau_max_r_nm, i.tau_max_l_nm,
+                i.clamped_r, i.clamped_l, i.sat_r, i.sat_l, od.omega_r_rad_s(), od.omega_l_rad_s(),
+                od.pose().x_m, od.pose().y_m, od.pose().phi_rad, k.v_d_m_s, k.omega_d_rad_s,
+                k.e_x_m, k.e_y_m, k.e_phi_rad, static_cast<int>(i.odo)};
+  }
+}
+
+const TickOut& Driver::step(slip::PlantState* rows) {
+  const int64_t k = k_;
+  const double T = cfg_.inner_s;
+  TickOut& o = out_;
+  o.k = k;
+  o.t_s = cfg_.t0_s + T * static_cast<double>(k);
+  o.plant = plant_.state();
+  o.enc_r = counts(o.plant.theta_r_rad, cfg_.ppr);
+  o.enc_l = counts(o.plant.theta_l_rad, cfg_.ppr);
+  const bool outer = k % cfg_.outer_every == 0;
+  // The row is read after the inner step, before the outer step (as ctl_inner reports it).
+  if (cfg_.fixed_point) {
+    qc_.inner_step(o.enc_r, o.enc_l, static_cast<uint32_t>(llround(T * 1e6)));
+    read_ctl(&o.ctl);
+    if (outer) qc_.outer_step(ctl::reference_at_q(ref_q_, ref_ms(static_cast<double>(k) * T)));
+  } else {
+    fc_.inner_step(o.enc_r, o.enc_l, static_cast<float>(T));
+    read_ctl(&o.ctl);
+    if (outer) fc_.outer_step(ctl::reference_at(cfg_.ref, static_cast<float>(static_cast<double>(k) * T)));
+  }
+  const bool torque = cfg_.actuator == Actuator::kTorque;
+  const double in_r = torque ? o.ctl.tau_cmd_r : o.ctl.pwm_r;
+  const double in_l = torque ? o.ctl.tau_cmd_l : o.ctl.pwm_l;
+  // Rows on the global grid t0 + i*(T/m), i = k*m + j, so that the row times do not depend on
+  // how the run is cut into ticks.
+  const int m = cfg_.rows_per_tick;
+  const double h_row = T / m;
+  o.slip_steps = 0;
+  o.first_slip_t_s = -1.0;
+  for (int j = 0; j < m; ++j) {
+    const int64_t i = k * m + j;
+    const double t_a = cfg_.t0_s + h_row * static_cast<double>(i);
+    const double t_b = cfg_.t0_s + h_row * static_cast<double>(i + 1);
+    if (rows) {
+      rows[j] = plant_.state();
+      rows[j].t_s = t_a;
+    }
+    const double span = t_b - t_a;
+    long steps = static_cast<long>(ceil(span / cfg_.plant_dt_s - 1e-9));
+    if (steps < 1) steps = 1;
+    const double h = span / static_cast<double>(steps);
+    for (long s = 0; s < steps; ++s) {
+      if (torque) plant_.step_torque(in_r, in_l, h);
+      else plant_.step_duty(in_r, in_l, h);
+      const slip::PlantState& st = plant_.state();
+      if (s == 0) {
+        if (rows) copy_dynamic(st, &rows[j]);
+        if (j == 0) copy_dynamic(st, &o.plant);
+      }
+      if (st.slipping_r || st.slipping_l) {
+        if (o.slip_steps == 0) o.first_slip_t_s = st.t_s;
+        ++o.slip_steps;
+      }
+    }
+    plant_.set_time(t_b);
+  }
+  o.plant.t_s = o.t_s;
+  ++k_;
+  return o;
+}
+
+}  // namespace cl
+
+#endif  // !__AVR__
