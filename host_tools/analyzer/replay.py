@@ -154,6 +154,15 @@ def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
     if not np.isfinite(sc).any() or np.ptp(sc[np.isfinite(sc)]) <= 1e-12 * (1 + np.nanmin(sc)):
         return None
     j = int(np.nanargmin(sc))
+    # Only a recorder whose wheel speed is the count difference over the last inner period
+    # (III.1, this project's firmware) pins the phase down; at the best phase its speeds then
+    # agree with the counts to about one count per period.  Another recorder (a filtered speed,
+    # another period, speeds at the frames) must not move the input timing: that could shift
+    # the inputs by most of a period and hide an actuation delay.
+    tick = phases[j] + np.floor((t - phases[j]) / period + 1e-9) * period
+    n_ok = 2 * int(np.sum(tick - period >= t[0]))
+    if n_ok < 6 or math.sqrt(sc[j] / n_ok) > 1.5 * k / period:
+        return None
     best = float(phases[j])
     if 0 < j < phases.size - 1 and np.all(np.isfinite(sc[j - 1:j + 2])):
         # parabola through the minimum and its neighbours
@@ -612,6 +621,11 @@ def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np
         t0 = 0.0
         assumptions.append("reference.t0_s not in meta.json: the controller's first tick (reference "
                            "time 0) is taken at board time 0")
+        if float(t[0]) - t0 > 10.0 * inner * max(ratio, 1):
+            problems.append(f"reference.t0_s not in meta.json and the first telemetry frame is at "
+                            f"board time {float(t[0]):g} s, not near 0: the board clock does not "
+                            f"start with the experiment, so the controller's first tick is unknown")
+            return None, problems, assumptions
     t0 = float(t0)
     if t0 > float(t[0]) + inner:
         problems.append(f"reference.t0_s = {t0} s is after the first telemetry frame's tick")
