@@ -199,6 +199,8 @@ class Analysis:
     closed_loop: dict = field(default_factory=dict)      # report section (see docs/analyzer.md)
     cl_nominal: list = field(default_factory=list)       # per run: channel -> Channel, or {}
     cl_updated: list = field(default_factory=list)
+    recorder: dict = field(default_factory=dict)         # findings about the recorder
+    localization: list = field(default_factory=list)     # where in time the mismatch is
 
 
 def _window_entries(preps, chans_per_run, floors, channel_names, replay_name,
@@ -470,6 +472,8 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                     equiv.append(alt[0])
             selected.append({"effect": e, "params": {k: _r(v, 5) for k, v in
                                                     sel.fit.params[e].items()},
+                             "unidentified": [u.split(".", 1)[1] for u in sel.fit.unidentified
+                                              if u.startswith(e + ".")],
                              "equivalent": equiv,
                              "separating_measurement": {q: fx.separator(e, q) for q in equiv}})
     # verdict
@@ -545,6 +549,8 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
         "updated_effects": {k: dict(v) for k, v in final_effects.items()},
         "mismatch": cl_entries,
         "used_for_decisions": False}
+    recorder = recorder_findings(preps, nominal, floors, notes)
+    localization = localize(preps, nominal, updated, floors, fit_chans, strong_k)
     model = updated_model(runs[0].meta, final_effects, [r.path for r in runs])
     all_c = cands + pair_cands
     all_c.sort(key=lambda c: c.delta_bic)
@@ -553,6 +559,7 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                   all_c, selected, verdict, fit_table, hint, model, notes, windows=wins)
     an.torque_mismatch = entries_t
     an.closed_loop = closed_loop
+    an.recorder, an.localization = recorder, localization
     an.cl_nominal, an.cl_updated = cl_nominal, cl_updated
     for (i, c), w in cl_wins.items():
         an.windows[(i, c)] = w
@@ -562,11 +569,90 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     return an
 
 
+def recorder_findings(preps: Sequence[PreparedRun], nominal: Sequence[Mapping], floors: Mapping,
+                      notes: list[str]) -> dict:
+    """What the recording says about its recorder (not about the physics): how its odometry
+    columns relate to its own counts (replay.recorder_odometry), and whether the derived
+    odometry channels disagree with the replay while the counts agree."""
+    runs = []
+    for prep, chans in zip(preps, nominal):
+        rec = dict(prep.extras.get("recorder_odometry") or {})
+        entry = {"run": prep.name, "odometry_schedule": rec.get("schedule"),
+                 "odometry_matches_lib_control": rec.get("agrees"),
+                 "odometry_vs_lib_control": {k: {q: _r(v) for q, v in d.items()}
+                                             for k, d in rec.get("by_schedule", {}).items()},
+                 "input_timing": prep.extras.get("timing")}
+        enc_ok = all(c in chans and floors.get(c) and
+                     float(np.sqrt(np.mean(chans[c].resid ** 2))) <= floors[c]
+                     for c in ("enc_r", "enc_l"))
+        odo_bad = [c for c in DERIVED if c in chans and floors.get(c) and
+                   float(np.sqrt(np.mean(chans[c].resid ** 2))) > floors[c]]
+        entry["derived_disagree_while_counts_agree"] = bool(enc_ok and odo_bad)
+        if rec and not rec.get("agrees"):
+            best = rec["by_schedule"][rec["schedule"]]
+            notes.append(f"{prep.name}: the recorder's odometry differs from lib/control's "
+                         f"integration of its own counts by {best['rms_m'] * 1e3:.2g} mm / "
+                         f"{best['rms_rad'] * 1e3:.2g} mrad RMS at its best-matching schedule "
+                         f"({rec['schedule']}): it computes odometry differently (integration "
+                         "rule, wheel geometry or schedule). A finding about the recorder; its "
+                         "odometry columns are not used as evidence about the physics")
+        elif enc_ok and odo_bad:
+            notes.append(f"{prep.name}: odometry channels {', '.join(odo_bad)} disagree with "
+                         "the replay while the encoder counts agree: the recorder computes "
+                         "odometry differently from lib/control (a recorder finding)")
+        runs.append(entry)
+    return {"runs": runs, "derived_channels": list(DERIVED),
+            "derived_used_for_decisions": False}
+
+
+def localize(preps: Sequence[PreparedRun], nominal: Sequence[Mapping],
+             updated: Sequence[Mapping] | None, floors: Mapping, fit_chans: Sequence[str],
+             strong_k: float, merge_s: float = 0.5) -> list[dict]:
+    """Where in time the recordings disagree with the nominal model: significant windows of the
+    fit channels merged across channels (gaps under ``merge_s``), each with its peak in noise
+    floors and whether it remains after the update (an effect that holds for part of a run,
+    such as a patch of floor, shows as a span that the update does not remove)."""
+    out = []
+    for i, prep in enumerate(preps):
+        spans = []
+        for c in fit_chans:
+            ch = nominal[i].get(c)
+            if ch is None:
+                continue
+            w, _ = sg.significant_windows(ch.t, ch.resid, floors[c])
+            spans += [(x.t_start_s, x.t_end_s, x.rms / floors[c], c) for x in w]
+        spans.sort()
+        merged: list[list] = []
+        for a, b, pk, c in spans:
+            if merged and a <= merged[-1][1] + merge_s:
+                m = merged[-1]
+                m[1], m[2] = max(m[1], b), max(m[2], pk)
+                m[3].add(c)
+            else:
+                merged.append([a, b, pk, {c}])
+        for a, b, pk, cs in merged:
+            after = None
+            if updated is not None:
+                after = 0.0
+                for c in cs:
+                    ch = updated[i].get(c)
+                    if ch is None:
+                        continue
+                    m = (ch.t >= a) & (ch.t <= b)
+                    if m.any():
+                        after = max(after, float(np.sqrt(np.mean(ch.resid[m] ** 2))) / floors[c])
+            out.append({"run": prep.name, "t_start_s": round(a, 3), "t_end_s": round(b, 3),
+                        "peak_noise_floors": _r(pk), "channels": sorted(cs),
+                        "strong": bool(pk >= strong_k),
+                        "rms_after_update_noise_floors": None if after is None else _r(after)})
+    return out
+
+
 def _pair_bic(pair: Candidate, single: Candidate, problem: Problem) -> float:
     from host_tools.analyzer.fit import delta_bic, effective_n
     r = problem.residual(single.fit.params, list(range(len(problem.preps))))
     return delta_bic(pair.fit.rss, single.fit.rss, effective_n(r),
-                     len(pair.fit.values) - len(single.fit.values))
+                     pair.fit.n_free - single.fit.n_free)
 
 
 def _remaining_windows(problem: Problem, effects: Mapping, fit_chans: Sequence[str],

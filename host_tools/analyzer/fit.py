@@ -72,6 +72,12 @@ class FitResult:
     ok: bool = True
     message: str = ""
     coords: list[tuple[str, str]] = field(default_factory=list)  # (effect, fitted coordinate)
+    fixed: dict = field(default_factory=dict)       # coordinate index -> pinned value in [0, 1]
+    unidentified: list[str] = field(default_factory=list)   # "effect.coordinate" pinned
+
+    @property
+    def n_free(self) -> int:
+        return len(self.values) - len(self.fixed)
 
 
 class Problem:
@@ -200,41 +206,62 @@ class Problem:
     # ----------------------------------------------------------------------- fit
 
     def fit(self, names: Sequence[str], runs: Sequence[int], part: str = "all",
-            x0: np.ndarray | None = None, max_nfev: int = 60, grid: int = 7) -> FitResult:
+            x0: np.ndarray | None = None, max_nfev: int = 60, grid: int = 7,
+            fixed: Mapping[int, float] | None = None) -> FitResult:
+        """Fit the coordinates of ``names`` (bounded, after a coarse grid).  ``fixed`` pins
+        coordinates (index -> value in [0, 1]).  Without ``fixed``, a coordinate that the data
+        do not identify (1-sigma uncertainty above UNIDENTIFIED of its search range) while
+        another one is identified is pinned at its neutral value and the rest refitted; the
+        result names it in ``unidentified``."""
         params = params_for(names, self.meta, self.vocab)
-        k = len(params)
+        k_all = len(params)
+        fixed = dict(fixed or {})
+        free = [i for i in range(k_all) if i not in fixed]
+        k = len(free)
+        full0 = np.array([np.clip(p.to_x(p.neutral), 0, 1) for p in params])
+        for i, v in fixed.items():
+            full0[i] = v
 
-        def fun(x):
+        def expand(xf):
+            x = full0.copy()
+            x[free] = xf
+            return x
+
+        def fun(xf):
+            x = expand(xf)
             return self.residual(effects_dict(params, [p.from_x(v) for p, v in zip(params, x)]),
                                  runs, part)
 
         nfev = 0
-        if x0 is None:
+        if x0 is not None:
+            x0 = np.asarray(x0, float)
+            x0 = x0[free] if x0.size == k_all else x0
+        else:
             # coarse multi-start: the neutral point and a grid along each parameter
-            starts = [np.array([np.clip(p.to_x(p.neutral), 0, 1) for p in params])]
+            starts = [full0[free].copy()]
             base = starts[0]
             levels = np.linspace(0.0, 1.0, grid)
             for j in range(k):
                 for lv in levels:
-                    s = base.copy()
-                    s[j] = lv
-                    starts.append(s)
+                    s_ = base.copy()
+                    s_[j] = lv
+                    starts.append(s_)
             best, best_c = None, math.inf
-            for s in starts:
-                c = float(np.sum(fun(s) ** 2))
+            for s_ in starts:
+                c = float(np.sum(fun(s_) ** 2))
                 nfev += 1
                 if c < best_c:
-                    best, best_c = s, c
+                    best, best_c = s_, c
             x0 = best
             # for 2-parameter effects refine the second coordinate around the best first one
             if k == 2:
                 for lv in levels:
-                    s = x0.copy()
-                    s[1] = lv
-                    c = float(np.sum(fun(s) ** 2))
+                    s_ = x0.copy()
+                    s_[1] = lv
+                    c = float(np.sum(fun(s_) ** 2))
                     nfev += 1
                     if c < best_c:
-                        best, best_c = s, c
+                        best, best_c = s_, c
                 x0 = best
         x0 = np.clip(np.asarray(x0, float), 1e-6, 1 - 1e-6)
         try:
@@ -265,21 +292,38 @@ class Problem:
                 ok, msg = bool(res.status >= 0), str(res.message)
         except Exception as exc:  # a simulation blew up: keep the best start, mark it
             x, r, J, ok, msg = x0, fun(x0), None, False, f"{type(exc).__name__}: {exc}"
-        values = [p.from_x(v) for p, v in zip(params, x)]
-        std = [math.inf] * k
+        xfull = expand(x)
+        values = [p.from_x(v) for p, v in zip(params, xfull)]
+        std = [math.nan] * k_all
+        for i in free:
+            std[i] = math.inf
         if J is not None and r.size > k:
             # parameter covariance, inflated for correlated residuals
             n_eff = effective_n(r)
             s2 = float(np.sum(r ** 2)) / max(r.size - k, 1)
             try:
                 cov = np.linalg.pinv(J.T @ J) * s2 * (r.size / max(n_eff, 1.0))
-                std = [float(np.sqrt(max(cov[i, i], 0.0))) * (p.hi - p.lo)
-                       for i, p in enumerate(params)]
+                for jj, i in enumerate(free):
+                    std[i] = float(np.sqrt(max(cov[jj, jj], 0.0))) * (params[i].hi - params[i].lo)
             except np.linalg.LinAlgError:
                 pass
-        return FitResult(list(names), effects_dict(params, values), values, np.asarray(x),
-                         float(np.sum(r ** 2)), int(r.size), std, nfev, ok, msg,
-                         [(p.effect, p.name) for p in params])
+        out = FitResult(list(names), effects_dict(params, values), values, np.asarray(xfull),
+                        float(np.sum(r ** 2)), int(r.size), std, nfev, ok, msg,
+                        [(p.effect, p.name) for p in params], fixed=fixed)
+        out.unidentified = [f"{params[i].effect}.{params[i].name}" for i in fixed]
+        if not fixed and k >= 2 and ok:
+            unid = [i for i in free if not (std[i] <= UNIDENTIFIED * (params[i].hi - params[i].lo))]
+            if unid and len(unid) < k:
+                re = self.fit(names, runs, part, x0=None, max_nfev=max_nfev, grid=grid,
+                              fixed={i: float(full0[i]) for i in unid})
+                re.nfev += out.nfev
+                return re
+        return out
+
+
+# A fitted coordinate is unidentified when its 1-sigma uncertainty exceeds this fraction of its
+# search range: the data say nothing about it.
+UNIDENTIFIED = 0.5
 
 
 def effective_n(r: np.ndarray) -> float:
@@ -342,7 +386,7 @@ def evaluate_candidate(problem: Problem, names: Sequence[str], base: Mapping | N
     r_ref = problem.residual(ref_effects, runs)
     rss_ref = float(np.sum(r_ref ** 2)) if ref_rss is None else ref_rss
     n_eff = effective_n(r_ref)
-    k = len(full.values)
+    k = full.n_free
     dbic = delta_bic(full.rss, rss_ref, n_eff, k)
     # held-out
     folds: list[tuple[list[int], list[int], str, str]] = []
@@ -360,7 +404,7 @@ def evaluate_candidate(problem: Problem, names: Sequence[str], base: Mapping | N
     res_b: dict[str, list[np.ndarray]] = {}
     res_a: dict[str, list[np.ndarray]] = {}
     for train, test, ptrain, ptest in folds:
-        f = problem.fit(names, train, part=ptrain, x0=full.x, max_nfev=25)
+        f = problem.fit(names, train, part=ptrain, x0=full.x, max_nfev=25, fixed=full.fixed)
         fold_values.append(f.values)
         rb = problem.residual(ref_effects, test, ptest)
         ra = problem.residual(f.params, test, ptest)

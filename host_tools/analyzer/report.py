@@ -38,7 +38,7 @@ def report_dict(an: Analysis) -> dict:
                  "heldout_per_channel": {ch: {q: (_r(x) if isinstance(x, float) else x)
                                               for q, x in v.items()}
                                          for ch, v in c.heldout_per_channel.items()},
-                 "param_std": {}}
+                 "param_std": {}, "unidentified": list(c.fit.unidentified)}
         for e, ps in c.fit.params.items():
             for k, v in ps.items():
                 key = k if len(c.effects) == 1 else f"{e}.{k}"
@@ -58,6 +58,8 @@ def report_dict(an: Analysis) -> dict:
         "hint": an.hint,
         "torque_replay_mismatch": an.torque_mismatch,
         "closed_loop": an.closed_loop,
+        "recorder": an.recorder,
+        "localization": an.localization,
         "notes": an.notes,
         "runs": [r.path for r in an.runs],
         "heldout_rmse_units": "candidates' heldout_rmse_* are normalized: RMS of residual / "
@@ -126,6 +128,8 @@ def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
         for s in an.selected:
             ps = ", ".join(f"{k} = {v:g}" for k, v in s["params"].items())
             sep = "; ".join(f"{k}: {v}" for k, v in s.get("separating_measurement", {}).items())
+            if s.get("unidentified"):
+                ps += f" ({', '.join(s['unidentified'])}: not identified by these data, kept nominal)"
             L.append(f"| {s['effect']} | {ps} | {', '.join(s['equivalent']) or '-'} | "
                      f"{sep or '-'} |")
         L.append("")
@@ -145,6 +149,17 @@ def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
     else:
         L.append("No significant window: the recordings agree with the nominal model within "
                  "the noise floors below.")
+    if an.localization:
+        L += ["", "### In time (fit channels merged)", "",
+              "| run | span [s] | peak (noise floors) | channels | after the update (noise floors) |",
+              "|---|---|---|---|---|"]
+        for z in an.localization[:40]:
+            aft = z["rms_after_update_noise_floors"]
+            L.append(f"| {z['run']} | {z['t_start_s']:.2f}–{z['t_end_s']:.2f} | "
+                     f"{z['peak_noise_floors']:.3g} | {', '.join(z['channels'])} | "
+                     f"{'-' if aft is None else f'{aft:.3g}'} |")
+        if len(an.localization) > 40:
+            L.append(f"| … {len(an.localization) - 40} more in report.json | | | | |")
     L += ["", "## Errors before and after (RMSE per channel)", "",
           f"Held-out method: {an.fit_table['heldout_method']}.", "",
           f"Held-out rule: {an.fit_table.get('heldout_rule', '-')}.", "",
@@ -154,7 +169,8 @@ def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
     hc = ft.get("heldout_check", {})
     for c in ft["rmse_before"]:
         g = lambda d: (f"{d[c]:.4g}" if d.get(c) is not None else "-")  # noqa: E731
-        lim = ("ok" if hc[c]["ok"] else "WORSE") if c in hc else "-"
+        lim = (("worse (derived: no veto)" if hc[c].get("worse") else "ok") if hc[c]["ok"]
+               else "WORSE") if c in hc else "-"
         L.append(f"| {c} | {g(ft['noise_floor'])} | {g(ft['rmse_before'])} | "
                  f"{g(ft['rmse_after'])} | {g(ft['heldout_rmse_before'])} | "
                  f"{g(ft['heldout_rmse_after'])} | {lim} |")
