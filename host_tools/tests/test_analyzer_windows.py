@@ -1,0 +1,76 @@
+"""Long recordings: the replay in windows re-anchored to the recording (multiple shooting), the
+recorder's odometry schedule found from the recording, and the fit on informative windows."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+try:
+    from host_tools import _native
+    _native.effect_vocabulary()
+    HAVE_NATIVE = True
+except Exception:  # pragma: no cover - the native library could not be built here
+    HAVE_NATIVE = False
+
+pytestmark = pytest.mark.skipif(not HAVE_NATIVE, reason="native library not buildable")
+
+from host_tools.analyzer import replay as R  # noqa: E402
+from host_tools.analyzer import synth  # noqa: E402
+from host_tools.runfmt import load_run  # noqa: E402
+
+
+def test_windows_cover_the_run_and_split_at_gaps():
+    t = np.arange(0.0, 2.9, 0.02)
+    assert R.make_windows(t) == [(0, t.size)]            # a short run: one window
+    t = np.arange(0.0, 40.0, 0.02)
+    w = R.make_windows(t)
+    assert w[0][0] == 0 and w[-1][1] == t.size and len(w) == 10
+    assert all(a1 == b0 for (_, a1), (b0, _) in zip(w[:-1], w[1:]))   # contiguous
+    spans = [t[b - 1] - t[a] for a, b in w]
+    assert max(spans) < 4.1 and min(spans) > 3.9
+    tg = np.concatenate([np.arange(0.0, 2.0, 0.02), 100.0 + np.arange(0.0, 2.0, 0.02)])
+    w = R.make_windows(tg)                               # a gap ends a window
+    assert w == [(0, 100), (100, 200)]
+
+
+class _SlightlyNarrow:
+    """The nominal plant with a track width 0.05 % narrower (50 um): far below the effect's floor,
+    the kind of difference two integrations of one robot always have."""
+
+    def __new__(cls, meta):
+        p = _native.Plant.from_meta(meta)
+        p.set("robot.b", float(meta["robot"]["b"]) * 0.9995)
+        return p
+
+
+def test_a_long_null_stays_a_null_in_windows(tmp_path):
+    path = synth.make_run(tmp_path / "long", "turn", duration_s=40.0, seed=3,
+                          plant_factory=_SlightlyNarrow)
+    prep = R.prepare_timed(load_run(path))
+    assert len(prep.windows) == 10
+    rp = R.OpenLoopReplay("duty")
+    one = R.channels(prep, rp.simulate(prep, {}))                  # one integration over 40 s
+    win = R.channels(prep, rp.simulate_windows(prep, {}))
+    rms = lambda c: float(np.sqrt(np.mean(c.resid ** 2)))  # noqa: E731
+    # one integration drifts by centimetres; windows stay at the camera noise (1 mm)
+    assert max(rms(one["x_m"]), rms(one["y_m"])) > 3e-3
+    assert rms(win["x_m"]) < 1.5e-3 and rms(win["y_m"]) < 1.5e-3
+    # the recorder (synth integrates at the ticks) is recognised as such
+    rec = prep.extras["recorder_odometry"]
+    assert rec["schedule"] == "ticks" and rec["agrees"]
+
+
+def test_fit_windows_hold_the_mismatch_and_a_spread(tmp_path):
+    from host_tools.analyzer.analysis import noise_floors
+    from host_tools.analyzer.fit import Problem
+    path = synth.make_run(tmp_path / "emf", "turn", {"motor_back_emf": {"ke_ratio": 1.15}},
+                          duration_s=60.0, seed=4)
+    prep = R.prepare_timed(load_run(path))
+    nominal = [R.channels(prep, R.OpenLoopReplay("duty").simulate_windows(prep, {}))]
+    floors = noise_floors([prep], nominal)
+    pb = Problem([prep], floors, _native.effect_vocabulary())
+    sel = pb.select_windows(nominal, budget_s=16.0)
+    assert sel is not None and 3 <= len(sel[0]) <= 5 and len(prep.windows) == 15
+    # the fit on those windows finds the effect
+    fit = pb.fit(["motor_back_emf"], [0])
+    assert abs(fit.params["motor_back_emf"]["ke_ratio"] - 1.15) < 0.02
