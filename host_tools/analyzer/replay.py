@@ -566,6 +566,8 @@ _NEEDED = {"x_m", "y_m", "phi_rad", "theta_r_rad", "theta_l_rad", "dtheta_r_rad_
 
 
 REF_KINDS = ("line", "arc", "figure_eight")
+# meta.json "controller" values that mean lib/control's cascade (absent: assumed)
+REPLAYABLE_CONTROLLERS = ("improved", "cascade")
 CLOSED_LOOP_CHANNELS = ("tau_cmd_r", "tau_cmd_l", "pwm_r", "pwm_l")
 
 
@@ -583,6 +585,10 @@ def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np
     the recorded torque command must fall in a telemetry interval that contains a tick."""
     problems: list[str] = []
     assumptions: list[str] = []
+    ctl = meta.get("controller")
+    if ctl is not None and ctl not in REPLAYABLE_CONTROLLERS:
+        return None, [f"meta.json controller {ctl!r} is not one that lib/control replays "
+                      f"({', '.join(REPLAYABLE_CONTROLLERS)})"], []
     ref = meta.get("reference")
     if not isinstance(ref, Mapping):
         msg = ("meta.json has no structured 'reference' ({kind, accel, cruise, radius}); "
