@@ -358,7 +358,9 @@ TELEMETRY_SPEC_COLUMNS = ("t_s", "enc_r", "enc_l", "omega_r", "omega_l", "tau_cm
                           "pwm_r", "pwm_l", "x_odo_m", "y_odo_m", "phi_odo_rad")
 
 #: the Motor Shield R3's current sense (protocol/protocol.json, Telemetry current_r/current_l):
-#: 1.65 V/A, magnitude only, read by the 10-bit ADC against AVcc = 5 V: A = raw * 5 / 1024 / 1.65
+#: 1.65 V/A, magnitude only, read by the 10-bit ADC against AVcc = 5 V: A = raw * 5 / 1024 / 1.65.
+#: meta.json's "current_sense" holds these and the nominal motor's stall current "stall_a" (not
+#: under "motor", whose keys readers hand to the nominal plant, which has no stall current).
 CURRENT_SENSE = {"volts_per_amp": 1.65, "adc_bits": 10, "adc_vref_v": 5.0, "magnitude_only": True}
 
 #: The recorder: what the robot's board runs and logs. The defaults are this project's firmware
@@ -549,8 +551,6 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
     ref_meta = ({"kind": kind, **{k: float(v) for k, v in reference.items() if k != "kind"}}
                 if kind != "segments" else reference)
     motor = dict(NOMINAL_META_MOTOR)
-    if rec["current"]:
-        motor["stall_a"] = TruthSim().get("motor.stall_a")  # the nominal stall current
     meta = {"format": "ddrun/1",
             "experiment": experiment or f"{'PI wheel-speed loop' if pi else 'closed loop'}: {ref_desc}",
             "source": "simulator", "torque_clamp": bool(clamp) and not pi,
@@ -565,8 +565,8 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
     else:
         meta["reference"] = ref_meta
     meta["duration_s"] = duration_s
-    if rec["current"]:
-        meta["current_sense"] = dict(CURRENT_SENSE)
+    if rec["current"]:  # with the nominal stall current (the truth's default)
+        meta["current_sense"] = dict(CURRENT_SENSE, stall_a=TruthSim().get("motor.stall_a"))
     telemetry = {c: tel[c] for c in TELEMETRY_SPEC_COLUMNS}
     telemetry["t_s"] = np.round(telemetry["t_s"], 6)
     for c in ("enc_r", "enc_l"):

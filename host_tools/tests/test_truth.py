@@ -203,7 +203,7 @@ def test_logged_current_is_the_shields_adc(tmp_path):
         err = a - np.abs(tr[f"true_i_{side}_a"])
         assert np.abs(err).max() < 6 * lsb and 0.3 * lsb < err.std() < 2 * lsb  # ~1 LSB noise
         assert a.max() > 0.1
-    assert r.meta["motor"]["stall_a"] == 2.0
+    assert r.meta["current_sense"]["stall_a"] == 2.0 and "stall_a" not in r.meta["motor"]
     assert r.meta["current_sense"]["volts_per_amp"] == 1.65
     r2 = truth.simulate_run(tmp_path / "nc", {"kind": "line"}, duration_s=0.5,
                             recorder={"current": False})
