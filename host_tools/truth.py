@@ -8,7 +8,10 @@
 * :func:`build_truth`, :class:`TruthSim`, :func:`simulate_run` — the independent truth simulator
   of ``sim/truth`` (the one deliberate second implementation of the physics, see
   ``sim/truth/truth.h``), compiled with the firmware's ``lib/control`` into
-  ``.build/truth/libtruth.so``.
+  ``.build/truth/libtruth.so``; :data:`RECORDER_DEFAULTS` are the recorder variants (the
+  firmware pipeline by default; the truth's own PI loop and odometry, other periods, jitter,
+  lost frames, camera rate and noise, wrapped headings), :func:`tour_reference` a long
+  reference, and the motor current is logged like the Motor Shield R3 does.
 """
 from __future__ import annotations
 
@@ -142,6 +145,7 @@ def _tlib() -> ctypes.CDLL:
                 ("tr_key_count", ctypes.c_int, []), ("tr_key_name", ctypes.c_char_p, [ctypes.c_int]),
                 ("tr_set", ctypes.c_int, [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_double]),
                 ("tr_get", ctypes.c_int, [ctypes.c_void_p, ctypes.c_char_p, dp]),
+                ("tr_set_segments", ctypes.c_int, [ctypes.c_void_p, ctypes.c_int, dp, dp, dp]),
                 ("tr_tel_cols", ctypes.c_int, []), ("tr_tel_col_name", ctypes.c_char_p, [ctypes.c_int]),
                 ("tr_cam_cols", ctypes.c_int, []), ("tr_cam_col_name", ctypes.c_char_p, [ctypes.c_int]),
                 ("tr_run", ctypes.c_int, [ctypes.c_void_p, ctypes.c_int, dp, ip, ctypes.c_int, dp, ip])):
@@ -153,7 +157,8 @@ def _tlib() -> ctypes.CDLL:
 
 class TruthSim:
     """One configured truth simulator. Keys: :meth:`keys` (``robot.*``/``motor.*`` = the TRUE
-    robot, ``ctl.*`` = the controller's nominal configuration, ``ref.*``, ``sim.*``, effects)."""
+    robot, ``ctl.*`` = the controller's nominal configuration, ``ref.*``, ``sim.*``, ``rec.*``
+    and ``pi.*`` = the recorder, effects)."""
 
     def __init__(self):
         self._lib = _tlib()
@@ -182,6 +187,20 @@ class TruthSim:
             raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}")
         return out.value
 
+    def set_segments(self, segments) -> None:
+        """The segment list of ``ref.kind`` 3: ``[{"duration_s", "v", "omega"}, ...]``."""
+        try:
+            arr = np.array([[float(sg["duration_s"]), float(sg.get("v", 0.0)),
+                             float(sg.get("omega", 0.0))] for sg in segments], dtype=float)
+        except (KeyError, TypeError, ValueError):
+            raise ValueError("segments: a list of {duration_s, v, omega} objects") from None
+        arr = np.ascontiguousarray(arr.reshape(-1, 3).T)
+        dp = ctypes.POINTER(ctypes.c_double)
+        rc = self._lib.tr_set_segments(self._h, arr.shape[1], arr[0].ctypes.data_as(dp),
+                                       arr[1].ctypes.data_as(dp), arr[2].ctypes.data_as(dp))
+        if rc != 0:
+            raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}")
+
     def set_effect(self, name: str, **params: float) -> None:
         """Switch on a vocabulary effect (run-format.md names) or one of :data:`EXTRA_EFFECTS`."""
         vocab = _native.effect_vocabulary()
@@ -203,7 +222,7 @@ class TruthSim:
     def run(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Simulate; returns (telemetry columns incl. hidden ``true_*``, camera true poses)."""
         T = self.get("sim.duration")
-        n_tel = int(T / self.get("sim.tel_period")) + 3
+        n_tel = int(T / self.get("sim.tel_period")) + 8
         n_cam = int(T / self.get("sim.cam_period")) + 3
         tc, cc = self._lib.tr_tel_cols(), self._lib.tr_cam_cols()
         tel = np.zeros((n_tel, tc))
@@ -228,60 +247,233 @@ NOMINAL_META_MOTOR = dict(runfmt.DEFAULT_META["motor"])
 TELEMETRY_SPEC_COLUMNS = ("t_s", "enc_r", "enc_l", "omega_r", "omega_l", "tau_cmd_r", "tau_cmd_l",
                           "pwm_r", "pwm_l", "x_odo_m", "y_odo_m", "phi_odo_rad")
 
+#: the Motor Shield R3's current sense (protocol/protocol.json, Telemetry current_r/current_l):
+#: 1.65 V/A, magnitude only, read by the 10-bit ADC against AVcc = 5 V: A = raw * 5 / 1024 / 1.65.
+#: meta.json's "current_sense" holds these and the nominal motor's stall current "stall_a" (not
+#: under "motor", whose keys readers hand to the nominal plant, which has no stall current).
+CURRENT_SENSE = {"volts_per_amp": 1.65, "adc_bits": 10, "adc_vref_v": 5.0, "magnitude_only": True}
+
+#: The recorder: what the robot's board runs and logs. The defaults are this project's firmware
+#: pipeline (lib/control's cascade and odometry, 25/50 ms, 50 Hz telemetry, 30 Hz camera).
+RECORDER_DEFAULTS = {
+    "controller": "cascade",    # cascade (lib/control) | pi (the truth's own PI wheel-speed loop)
+    "odometry": "firmware",     # firmware (lib/control, at the ticks) | ticks | frames (own code)
+    "integration": "arc",       # own odometry: arc (exact arc) | midpoint
+    "inner_s": 0.025,           # inner period; the outer period is twice it
+    "tel_jitter_s": 0.0,        # telemetry frame times jitter uniformly by +- this
+    "tel_drop": 0.0,            # fraction of telemetry frames dropped (plus one burst when > 0)
+    "cam_hz": 30.0,             # camera rate
+    "cam_noise_m": 1e-3,        # camera position noise (standard deviation)
+    "cam_noise_rad": 0.01,      # camera heading noise
+    "cam_dropout": 0.05,        # fraction of camera frames lost (plus one burst)
+    "heading_tel": "unwrapped",  # phi_odo_rad: unwrapped | wrapped (to (-pi, pi])
+    "heading_gt": "unwrapped",   # groundtruth phi_rad: unwrapped | wrapped
+    "current": True,            # log current_r_a, current_l_a like the Motor Shield R3
+    "adc_noise_lsb": 1.0,       # current ADC noise (standard deviation, LSB)
+}
+_RECORDER_CHOICES = {"controller": ("cascade", "pi"), "odometry": ("firmware", "ticks", "frames"),
+                     "integration": ("arc", "midpoint"), "heading_tel": ("unwrapped", "wrapped"),
+                     "heading_gt": ("unwrapped", "wrapped")}
+_RECORDER_RANGES = {"inner_s": (0.001, 0.5), "tel_jitter_s": (0.0, 0.5), "tel_drop": (0.0, 0.5),
+                    "cam_hz": (1.0, 1000.0), "cam_noise_m": (0.0, 1.0),
+                    "cam_noise_rad": (0.0, 1.0), "cam_dropout": (0.0, 0.9),
+                    "adc_noise_lsb": (0.0, 100.0)}
+
+
+def recorder_config(recorder: Mapping | None = None, **overrides) -> dict:
+    """:data:`RECORDER_DEFAULTS` updated by ``recorder`` and ``overrides`` and checked (the PI
+    loop's odometry defaults to the recorder's own at the ticks)."""
+    rec = dict(RECORDER_DEFAULTS)
+    for src in (recorder or {}), overrides:
+        for k, v in src.items():
+            if k not in rec:
+                raise ValueError(f"unknown recorder option '{k}'; known: {sorted(rec)}")
+            rec[k] = v
+    if rec["controller"] == "pi" and "odometry" not in {**(recorder or {}), **overrides}:
+        rec["odometry"] = "ticks"  # the PI recorder has no lib/control odometry
+    for k, choices in _RECORDER_CHOICES.items():
+        if rec[k] not in choices:
+            raise ValueError(f"recorder {k} must be one of {list(choices)}, got {rec[k]!r}")
+    for k, (lo, hi) in _RECORDER_RANGES.items():
+        try:
+            rec[k] = float(rec[k])
+        except (TypeError, ValueError):
+            raise ValueError(f"recorder {k}: {rec[k]!r} is not a number") from None
+        if not lo <= rec[k] <= hi:
+            raise ValueError(f"recorder {k} = {rec[k]:g} is outside [{lo:g}, {hi:g}]")
+    rec["current"] = bool(rec["current"])
+    if rec["controller"] == "pi" and rec["odometry"] == "firmware":
+        raise ValueError("the PI recorder has no lib/control odometry: odometry must be "
+                         "'ticks' or 'frames'")
+    return rec
+
+
+def tour_reference(duration_s: float, seed: int = 0, accel: float = 0.6,
+                   alpha: float = 2.0) -> dict:
+    """A long reference: a seeded sequence of speed ramps, cruises, arcs, stops and turns on
+    the spot that fills ``duration_s`` and ends at rest (a ``segments`` reference)."""
+    rng = np.random.default_rng(seed)
+    segs: list[dict] = []
+    t = 0.0
+    end = max(duration_s - 2.0, 1.0)
+    while t < end:
+        kind = "cruise" if not segs else str(rng.choice(["cruise", "arc", "stop", "spin"],
+                                                         p=[0.35, 0.3, 0.15, 0.2]))
+        if kind == "cruise":
+            sg = {"duration_s": float(rng.uniform(2.0, 6.0)), "v": float(rng.uniform(0.15, 0.6)),
+                  "omega": 0.0}
+        elif kind == "arc":
+            v = float(rng.uniform(0.15, 0.5))
+            R = float(rng.uniform(0.4, 1.5)) * (1 if rng.random() < 0.5 else -1)
+            sg = {"duration_s": float(rng.uniform(2.0, 5.0)), "v": v, "omega": v / R}
+        elif kind == "stop":
+            sg = {"duration_s": float(rng.uniform(1.0, 2.0)), "v": 0.0, "omega": 0.0}
+        else:
+            sg = {"duration_s": float(rng.uniform(1.0, 3.0)), "v": 0.0,
+                  "omega": float(rng.uniform(0.8, 1.5)) * (1 if rng.random() < 0.5 else -1)}
+        sg = {k: round(v, 4) for k, v in sg.items()}
+        sg["duration_s"] = min(sg["duration_s"], round(end - t, 4)) or 0.1
+        segs.append(sg)
+        t += sg["duration_s"]
+    segs.append({"duration_s": round(max(duration_s - t, 0.1), 4), "v": 0.0, "omega": 0.0})
+    return {"kind": "segments", "accel": accel, "alpha": alpha, "segments": segs}
+
+
+def wrap_heading(phi) -> np.ndarray:
+    """Headings wrapped to (-pi, pi]."""
+    return math.pi - np.mod(math.pi - np.asarray(phi, dtype=float), 2 * math.pi)
+
+
+def _shield_current(i_a: np.ndarray, rng: np.random.Generator, noise_lsb: float) -> np.ndarray:
+    """What the firmware logs of an armature current: |I| through the shield's 1.65 V/A sense
+    output, read by the 10-bit ADC (AVcc 5 V) with Gaussian noise of ``noise_lsb``."""
+    cs = CURRENT_SENSE
+    lsb_v = cs["adc_vref_v"] / 2 ** cs["adc_bits"]
+    raw = np.abs(i_a) * cs["volts_per_amp"] / lsb_v + rng.normal(0.0, noise_lsb, i_a.size)
+    raw = np.clip(np.round(raw), 0, 2 ** cs["adc_bits"] - 1)
+    return raw * lsb_v / cs["volts_per_amp"]
+
 
 def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping | None = None,
                  clamp: bool = True, duration_s: float = 2.0, seed: int = 0,
-                 cam_noise_m: float = 1e-3, cam_noise_rad: float = 0.01, cam_dropout: float = 0.05,
+                 cam_noise_m: float | None = None, cam_noise_rad: float | None = None,
+                 cam_dropout: float | None = None,
                  experiment: str | None = None, hidden_dir: str | os.PathLike | None = None,
-                 overwrite: bool = False) -> str:
+                 overwrite: bool = False, recorder: Mapping | None = None) -> str:
     """Simulate one closed-loop run with the truth simulator and write it as a ``ddrun/1`` run
     folder at ``path`` (meta.json with the NOMINAL parameters, telemetry.csv with the spec
-    columns, groundtruth.csv from a noisy camera with dropouts). The true state (``true_*``
-    columns) goes to ``hidden_dir/<run name>.truth.csv`` when ``hidden_dir`` is given — never
-    into the run folder.
+    columns and the shield's motor current, groundtruth.csv from a noisy camera with dropouts).
+    The true state (``true_*`` columns) goes to ``hidden_dir/<run name>.truth.csv`` when
+    ``hidden_dir`` is given — never into the run folder.
 
     ``reference``: ``{"kind": "line"|"arc"|"figure_eight", "accel": m/s², "cruise": m/s,
-    "radius": m}``; ``effects``: ``{name: {param: value}}`` (vocabulary or EXTRA_EFFECTS)."""
-    from host_tools import runfmt
+    "radius": m}`` or ``{"kind": "segments", "accel": m/s², "alpha": rad/s², "segments":
+    [{"duration_s", "v", "omega"}, ...]}`` or ``{"kind": "tour"}`` (:func:`tour_reference` for
+    ``duration_s`` and ``seed``); ``effects``: ``{name: {param: value}}`` (vocabulary or
+    EXTRA_EFFECTS); ``recorder``: options of :data:`RECORDER_DEFAULTS` (the camera arguments
+    override the recorder's camera noise and dropout when given)."""
+    rec = recorder_config(recorder, **{k: v for k, v in (("cam_noise_m", cam_noise_m),
+                                                         ("cam_noise_rad", cam_noise_rad),
+                                                         ("cam_dropout", cam_dropout))
+                                       if v is not None})
     rng = np.random.default_rng(seed)
+    rng_rec = np.random.default_rng([seed, 16])  # the recorder's variants draw from their own stream
     sim = TruthSim()
+    reference = dict(reference)
     kind = reference.get("kind", "line")
-    if kind not in _REF_KINDS:
-        raise ValueError(f"reference kind must be one of {list(_REF_KINDS)}, got {kind!r}")
-    sim.set("ref.kind", _REF_KINDS[kind])
-    sim.set("ref.accel", reference.get("accel", 0.5))
-    sim.set("ref.cruise", reference.get("cruise", 0.5))
-    sim.set("ref.radius", reference.get("radius", 1.0))
-    sim.set("ctl.clamp", 1.0 if clamp else 0.0)
+    if kind == "tour":
+        reference = tour_reference(duration_s, seed, **{k: reference[k] for k in ("accel", "alpha")
+                                                        if k in reference})
+        kind = "segments"
+    if kind == "segments":
+        sim.set("ref.kind", 3)
+        sim.set("ref.accel", reference.get("accel", 0.6))
+        sim.set("ref.alpha", reference.get("alpha", 2.0))
+        sim.set_segments(reference.get("segments") or [])
+        reference = {"kind": "segments", "accel": float(reference.get("accel", 0.6)),
+                     "alpha": float(reference.get("alpha", 2.0)),
+                     "segments": [{"duration_s": float(sg["duration_s"]), "v": float(sg.get("v", 0.0)),
+                                   "omega": float(sg.get("omega", 0.0))}
+                                  for sg in reference["segments"]]}
+    elif kind in _REF_KINDS:
+        sim.set("ref.kind", _REF_KINDS[kind])
+        sim.set("ref.accel", reference.get("accel", 0.5))
+        sim.set("ref.cruise", reference.get("cruise", 0.5))
+        sim.set("ref.radius", reference.get("radius", 1.0))
+    else:
+        raise ValueError(f"reference kind must be one of {list(_REF_KINDS) + ['segments', 'tour']}, "
+                         f"got {kind!r}")
+    pi = rec["controller"] == "pi"
+    sim.set("ctl.clamp", 1.0 if clamp and not pi else 0.0)
     sim.set("sim.duration", duration_s)
-    # the board's telemetry phase against its 25 ms tick, and the camera's own clock
+    inner = rec["inner_s"]
+    sim.set("sim.inner_period", inner)
+    sim.set("rec.controller", 1.0 if pi else 0.0)
+    sim.set("rec.odometry", {"firmware": 0, "ticks": 1, "frames": 2}[rec["odometry"]])
+    sim.set("rec.midpoint", 1.0 if rec["integration"] == "midpoint" else 0.0)
+    sim.set("rec.tel_jitter", rec["tel_jitter_s"])
+    sim.set("rec.seed", float(rng_rec.integers(0, 2 ** 32)))
+    # the board's telemetry phase against its tick, and the camera's own clock
     sim.set("sim.tel_phase", float(rng.choice([0.002, 0.004, 0.006, 0.008, 0.012])))
-    sim.set("sim.cam_phase", float(rng.uniform(0.0, 1.0 / 30.0)))
+    sim.set("sim.cam_period", 1.0 / rec["cam_hz"])
+    sim.set("sim.cam_phase", float(rng.uniform(0.0, 1.0 / rec["cam_hz"])))
     for name, params in (effects or {}).items():
         sim.set_effect(name, **dict(params))
     tel, cam = sim.run()
     # camera: noise and dropouts (independent drops plus one short burst)
-    keep = rng.random(cam["t_s"].size) > cam_dropout
+    keep = rng.random(cam["t_s"].size) > rec["cam_dropout"]
     if cam["t_s"].size > 20:
         b0 = int(rng.integers(5, cam["t_s"].size - 10))
         keep[b0:b0 + int(rng.integers(2, 6))] = False
     gt = {"t_s": np.round(cam["t_s"][keep], 6),
-          "x_m": cam["x_m"][keep] + rng.normal(0, cam_noise_m, keep.sum()),
-          "y_m": cam["y_m"][keep] + rng.normal(0, cam_noise_m, keep.sum()),
-          "phi_rad": cam["phi_rad"][keep] + rng.normal(0, cam_noise_rad, keep.sum())}
-    ref_desc = (f"{kind}, accel {reference.get('accel', 0.5)} m/s^2, cruise "
-                f"{reference.get('cruise', 0.5)} m/s" +
-                (f", radius {reference.get('radius')} m" if kind != "line" else ""))
-    meta = {"format": "ddrun/1", "experiment": experiment or f"closed loop: {ref_desc}",
-            "source": "simulator", "torque_clamp": bool(clamp),
-            "robot": dict(NOMINAL_META_ROBOT), "motor": dict(NOMINAL_META_MOTOR),
-            "encoder_ppr": PPR, "periods_s": {"inner": INNER_S, "outer": 0.05, "telemetry": 0.02},
-            "reference": {"kind": kind, **{k: float(v) for k, v in reference.items() if k != "kind"}},
-            "duration_s": duration_s}
+          "x_m": cam["x_m"][keep] + rng.normal(0, rec["cam_noise_m"], keep.sum()),
+          "y_m": cam["y_m"][keep] + rng.normal(0, rec["cam_noise_m"], keep.sum()),
+          "phi_rad": cam["phi_rad"][keep] + rng.normal(0, rec["cam_noise_rad"], keep.sum())}
+    if rec["heading_gt"] == "wrapped":
+        gt["phi_rad"] = wrap_heading(gt["phi_rad"])
+    if kind == "segments":
+        ref_desc = (f"segments: {len(reference['segments'])} speed ramps, cruises, arcs, stops "
+                    f"and turns over {sum(s['duration_s'] for s in reference['segments']):g} s")
+    else:
+        ref_desc = (f"{kind}, accel {reference.get('accel', 0.5)} m/s^2, cruise "
+                    f"{reference.get('cruise', 0.5)} m/s" +
+                    (f", radius {reference.get('radius')} m" if kind != "line" else ""))
+    ref_meta = ({"kind": kind, **{k: float(v) for k, v in reference.items() if k != "kind"}}
+                if kind != "segments" else reference)
+    motor = dict(NOMINAL_META_MOTOR)
+    meta = {"format": "ddrun/1",
+            "experiment": experiment or f"{'PI wheel-speed loop' if pi else 'closed loop'}: {ref_desc}",
+            "source": "simulator", "torque_clamp": bool(clamp) and not pi,
+            "robot": dict(NOMINAL_META_ROBOT), "motor": motor,
+            "encoder_ppr": PPR, "periods_s": {"inner": inner, "outer": 2 * inner, "telemetry": 0.02},
+            "controller": "pi" if pi else "cascade"}
+    if pi:
+        # no lib/control reference: the closed loop is not lib/control's and cannot be replayed
+        # with it; the PI loop's own reference and gains are written instead
+        meta["speed_reference"] = ref_meta
+        meta["pi"] = {k: sim.get(f"pi.{k}") for k in ("kp", "ki", "j_ff", "tau_limit")}
+    else:
+        meta["reference"] = ref_meta
+    meta["duration_s"] = duration_s
+    if rec["current"]:  # with the nominal stall current (the truth's default)
+        meta["current_sense"] = dict(CURRENT_SENSE, stall_a=TruthSim().get("motor.stall_a"))
     telemetry = {c: tel[c] for c in TELEMETRY_SPEC_COLUMNS}
     telemetry["t_s"] = np.round(telemetry["t_s"], 6)
     for c in ("enc_r", "enc_l"):
         telemetry[c] = telemetry[c].astype(np.int64)
+    if rec["current"]:
+        telemetry["current_r_a"] = _shield_current(tel["true_i_r_a"], rng_rec, rec["adc_noise_lsb"])
+        telemetry["current_l_a"] = _shield_current(tel["true_i_l_a"], rng_rec, rec["adc_noise_lsb"])
+    if rec["heading_tel"] == "wrapped":
+        telemetry["phi_odo_rad"] = wrap_heading(telemetry["phi_odo_rad"])
+    if rec["tel_drop"] > 0:  # lost frames: independent drops plus one burst; first and last kept
+        n = telemetry["t_s"].size
+        keep_t = rng_rec.random(n) > rec["tel_drop"]
+        if n > 40:
+            b0 = int(rng_rec.integers(10, n - 20))
+            keep_t[b0:b0 + int(rng_rec.integers(3, 11))] = False
+        keep_t[0] = keep_t[-1] = True
+        telemetry = {c: v[keep_t] for c, v in telemetry.items()}
     runfmt.write_run(path, meta, telemetry, gt, overwrite=overwrite)
     if hidden_dir is not None:
         os.makedirs(hidden_dir, exist_ok=True)
@@ -308,32 +500,95 @@ def _parse_effect(text: str) -> tuple[str, dict[str, float]]:
     return name.strip(), params
 
 
+def add_recorder_arguments(ap) -> None:
+    """The recorder variants as command-line options (shared with the suite's generator)."""
+    d = RECORDER_DEFAULTS
+    g = ap.add_argument_group("recorder variants (defaults: this project's firmware pipeline)")
+    g.add_argument("--controller", choices=_RECORDER_CHOICES["controller"], default=d["controller"],
+                   help="cascade: lib/control's cascade; pi: the truth's own PI wheel-speed loop "
+                        "(meta says 'controller': 'pi' and has no lib/control reference)")
+    g.add_argument("--odometry", choices=_RECORDER_CHOICES["odometry"], default=None,
+                   help="firmware: lib/control's odometry at the inner ticks; ticks / frames: the "
+                        "recorder's own odometry updated at the inner ticks / at the telemetry "
+                        "frames (default: firmware, or ticks with --controller pi)")
+    g.add_argument("--integration", choices=_RECORDER_CHOICES["integration"], default=d["integration"],
+                   help="own odometry's rule: exact arc or midpoint")
+    g.add_argument("--inner-ms", type=float, default=1e3 * d["inner_s"],
+                   help="inner period in ms (e.g. 10, 20, 25); the outer period is twice it")
+    g.add_argument("--tel-jitter-ms", type=float, default=0.0,
+                   help="telemetry frame times jitter uniformly by +- this (ms)")
+    g.add_argument("--tel-drop", type=float, default=0.0,
+                   help="fraction of telemetry frames dropped (plus one burst of 3-10)")
+    g.add_argument("--cam-hz", type=float, default=d["cam_hz"], help="camera rate (e.g. 30, 100)")
+    g.add_argument("--cam-noise-mm", type=float, default=1e3 * d["cam_noise_m"],
+                   help="camera position noise, mm (standard deviation)")
+    g.add_argument("--cam-noise-mrad", type=float, default=1e3 * d["cam_noise_rad"],
+                   help="camera heading noise, mrad")
+    g.add_argument("--cam-dropout", type=float, default=d["cam_dropout"],
+                   help="fraction of camera frames lost (plus one burst)")
+    g.add_argument("--heading-tel", choices=_RECORDER_CHOICES["heading_tel"], default=d["heading_tel"],
+                   help="phi_odo_rad unwrapped or wrapped to (-pi, pi]")
+    g.add_argument("--heading-gt", choices=_RECORDER_CHOICES["heading_gt"], default=d["heading_gt"],
+                   help="groundtruth phi_rad unwrapped or wrapped to (-pi, pi]")
+    g.add_argument("--no-current", action="store_true", help="do not log the motor current")
+    g.add_argument("--adc-noise-lsb", type=float, default=d["adc_noise_lsb"],
+                   help="current ADC noise, LSB (standard deviation)")
+
+
+def recorder_from_args(a) -> dict:
+    """The recorder options of :func:`add_recorder_arguments`'s parsed arguments."""
+    odo = a.odometry or ("ticks" if a.controller == "pi" else "firmware")
+    return recorder_config(controller=a.controller, odometry=odo, integration=a.integration,
+                           inner_s=a.inner_ms / 1e3, tel_jitter_s=a.tel_jitter_ms / 1e3,
+                           tel_drop=a.tel_drop, cam_hz=a.cam_hz, cam_noise_m=a.cam_noise_mm / 1e3,
+                           cam_noise_rad=a.cam_noise_mrad / 1e3, cam_dropout=a.cam_dropout,
+                           heading_tel=a.heading_tel, heading_gt=a.heading_gt,
+                           current=not a.no_current, adc_noise_lsb=a.adc_noise_lsb)
+
+
 def main(argv=None) -> int:
-    """``python -m host_tools.truth RUN_DIR [--ref line|arc|figure_eight] [--accel A]
-    [--cruise V] [--radius R] [--no-clamp] [--duration T] [--seed N]
-    [--effect name:p=v,...]... [--hidden DIR]``: one closed-loop run of the truth simulator
-    written as a run folder (true state to --hidden, never into the run)."""
+    """``python -m host_tools.truth RUN_DIR [--ref line|arc|figure_eight|tour|segments]
+    [--accel A] [--cruise V] [--radius R] [--segments FILE] [--no-clamp] [--duration T]
+    [--seed N] [--effect name:p=v,...]... [--hidden DIR] [recorder variants]``: one closed-loop
+    run of the truth simulator written as a run folder (true state to --hidden, never into the
+    run). ``--ref tour``: a seeded sequence of speed ramps, stops and turns filling --duration;
+    ``--ref segments --segments FILE``: a JSON list of {duration_s, v, omega} (ramps at --accel
+    and --alpha)."""
     import argparse
     import sys
     ap = argparse.ArgumentParser(prog="python -m host_tools.truth", description=main.__doc__)
     ap.add_argument("run_dir")
-    ap.add_argument("--ref", default="line", choices=list(_REF_KINDS))
-    ap.add_argument("--accel", type=float, default=1.0, help="m/s^2")
+    ap.add_argument("--ref", default="line", choices=list(_REF_KINDS) + ["tour", "segments"])
+    ap.add_argument("--accel", type=float, default=None,
+                    help="m/s^2 (default 1.0; 0.6 for tour and segments)")
     ap.add_argument("--cruise", type=float, default=0.6, help="m/s")
     ap.add_argument("--radius", type=float, default=0.5, help="m (arc: > 0 turns left)")
+    ap.add_argument("--alpha", type=float, default=2.0, help="rad/s^2 (tour, segments)")
+    ap.add_argument("--segments", default=None, metavar="FILE",
+                    help="JSON list of {duration_s, v, omega} for --ref segments")
     ap.add_argument("--no-clamp", action="store_true", help="tau_max clamp off")
     ap.add_argument("--duration", type=float, default=2.0, help="s")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...")
     ap.add_argument("--hidden", default=None, help="folder for the true state (csv)")
     ap.add_argument("--overwrite", action="store_true")
+    add_recorder_arguments(ap)
     a = ap.parse_args(argv)
     try:
         effects = dict(_parse_effect(e) for e in a.effect)
-        path = simulate_run(a.run_dir, {"kind": a.ref, "accel": a.accel, "cruise": a.cruise,
-                                        "radius": a.radius}, effects, clamp=not a.no_clamp,
+        if a.ref in ("tour", "segments"):
+            ref = {"kind": a.ref, "accel": 0.6 if a.accel is None else a.accel, "alpha": a.alpha}
+            if a.ref == "segments":
+                if not a.segments:
+                    raise ValueError("--ref segments needs --segments FILE")
+                with open(a.segments) as fh:
+                    ref["segments"] = json.load(fh)
+        else:
+            ref = {"kind": a.ref, "accel": 1.0 if a.accel is None else a.accel,
+                   "cruise": a.cruise, "radius": a.radius}
+        path = simulate_run(a.run_dir, ref, effects, clamp=not a.no_clamp,
                             duration_s=a.duration, seed=a.seed, hidden_dir=a.hidden,
-                            overwrite=a.overwrite)
+                            overwrite=a.overwrite, recorder=recorder_from_args(a))
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -1,4 +1,7 @@
-"""``python -m host_tools.suite {list,generate,bench}`` — the concealed-effect suite."""
+"""``python -m host_tools.suite {list,generate,conceal,bench,score} [--set tuning|heldback]`` —
+the concealed-effect suite. The tuning set (default) is where analyzer rules may be settled;
+the held-back set (other seeds, effect sizes and recorders, long runs) is only scored and its
+figures are the ones that count (docs/suite.md)."""
 from __future__ import annotations
 
 import argparse
@@ -6,7 +9,28 @@ import os
 import sys
 
 
+def _recorder_option(text: str, profiles: dict) -> tuple[dict, str]:
+    """``--recorder`` value: a profile name or ``key=value,...`` -> (options, name)."""
+    from host_tools import truth
+    if text in profiles:
+        return dict(profiles[text]), text
+    opts: dict = {}
+    for item in filter(None, text.split(",")):
+        k, eq, v = item.partition("=")
+        if not eq:
+            raise ValueError(f"--recorder {text!r}: a profile ({', '.join(profiles)}) or "
+                             "key=value[,key=value]")
+        k = k.strip()
+        try:
+            opts[k] = float(v) if k not in ("current",) else bool(int(v))
+        except ValueError:
+            opts[k] = v.strip()
+    truth.recorder_config(opts)  # checks names and values
+    return opts, text
+
+
 def main(argv=None) -> int:
+    from host_tools.suite import cases as C
     ap = argparse.ArgumentParser(prog="python -m host_tools.suite", description=__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
     for name, help_ in (("list", "list the cases"), ("generate", "write the runs and hidden labels"),
@@ -14,30 +38,59 @@ def main(argv=None) -> int:
                         ("conceal", "how much each case differs from the nominal truth, per channel"),
                         ("score", "summarize the scores of earlier bench runs (no analysis)")):
         p = sub.add_parser(name, help=help_)
-        p.add_argument("--fast", action="store_true", help="only the fast subset (CI)")
+        p.add_argument("--set", dest="which", choices=C.SETS, default="tuning",
+                       help="tuning (rules may be settled on it) or heldback (only scored)")
+        p.add_argument("--fast", action="store_true", help="only the set's fast subset (CI)")
+        p.add_argument("--no-long", action="store_true",
+                       help="leave out the 10-minute cases (held-back set)")
         p.add_argument("--cases", default=None, help="comma-separated case names")
         if name != "list":
-            p.add_argument("--out", default="out/suite", help="data folder (default out/suite)")
+            p.add_argument("--out", default=None,
+                           help="data folder (default out/suite, or out/suite-heldback)")
             p.add_argument("--seed-offset", type=int, default=0,
                            help="add to every case's seed (other noise, phases; same physics)")
+            p.add_argument("--recorder", default=None, metavar="PROFILE|KEY=VALUE,...",
+                           help="record the selected cases with another recorder: a profile ("
+                                + ", ".join(C.RECORDERS) + ") or options of "
+                                "host_tools.truth.RECORDER_DEFAULTS (controller=cascade|pi, "
+                                "odometry=firmware|ticks|frames, integration=arc|midpoint, "
+                                "inner_s, tel_jitter_s, tel_drop, cam_hz, cam_noise_m, "
+                                "cam_noise_rad, cam_dropout, heading_tel=unwrapped|wrapped, "
+                                "heading_gt=unwrapped|wrapped, current=0|1, adc_noise_lsb), "
+                                "applied over each case's own")
         if name == "score":
             p.add_argument("--rescore", action="store_true",
                            help="score again from the stored reports and labels")
         if name == "bench":
             p.add_argument("--jobs", type=int, default=2, help="analyzer processes (default 2)")
             p.add_argument("--reuse", action="store_true", help="reuse runs already generated")
+            p.add_argument("--timeout", type=float, default=None,
+                           help="analyzer time limit per case, s (default 300; a case past it "
+                                "is stopped and scored as a timeout)")
     a = ap.parse_args(argv)
-    from host_tools.suite import cases as C
     try:
-        sel = C.get(a.cases.split(",") if a.cases else None, fast=a.fast)
+        sel = C.get(a.cases.split(",") if a.cases else None, fast=a.fast, which=a.which,
+                    long=not a.no_long)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if getattr(a, "out", "") is None:
+        a.out = "out/suite" if a.which == "tuning" else "out/suite-heldback"
     for c in sel:
         c.seed += getattr(a, "seed_offset", 0)
+    if getattr(a, "recorder", None):
+        try:
+            extra, name = _recorder_option(a.recorder, C.RECORDERS)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        for c in sel:
+            c.recorder = {**c.recorder, **extra}
+            c.recorder_name = name if c.recorder_name == "firmware" else f"{c.recorder_name}+{name}"
     if a.cmd == "list":
         for c in sel:
-            print(f"{c.name:<28} expect {c.expect:<12} {len(c.experiments)} runs  "
+            print(f"{c.name:<32} expect {c.expect:<12} {len(c.experiments)} runs "
+                  f"{c.length:<6} {c.recorder_name:<18} {'long ' if c.long else ''}"
                   f"{','.join(c.concealment) or '-':<28} {c.effects}")
         print(f"{len(sel)} cases")
         return 0
@@ -51,11 +104,11 @@ def main(argv=None) -> int:
     if a.cmd == "conceal":
         from host_tools.suite.conceal import evidence
         from host_tools.suite.generate import generate_case
-        print(f"{'case':<28} {'concealment':<28} {'track':>6} {'null':>6} {'late':>6} {'null':>6} {'odo mm':>7} {'omega':>6} {'duty':>6}")
+        print(f"{'case':<32} {'concealment':<28} {'track':>6} {'null':>6} {'late':>6} {'null':>6} {'odo mm':>7} {'omega':>6} {'duty':>6}")
         for c in sel:
             generate_case(c, a.out, overwrite=True)
             e = evidence(c, a.out)
-            print(f"{c.name:<28} {','.join(c.concealment) or '-':<28} {1e3 * e['track_m']:6.1f} {1e3 * e['track_null_m']:6.1f} {1e3 * e['late_m']:6.1f} {1e3 * e['late_null_m']:6.1f} "
+            print(f"{c.name:<32} {','.join(c.concealment) or '-':<28} {1e3 * e['track_m']:6.1f} {1e3 * e['track_null_m']:6.1f} {1e3 * e['late_m']:6.1f} {1e3 * e['late_null_m']:6.1f} "
                   f"{1e3 * e['odo_m']:7.1f} {e['omega']:6.2f} {e['duty']:6.3f}", flush=True)
         print("track/null: max tracking error |p_true - p_ref| (mm) of the case and of the nominal "
               "truth with the same experiments (camera noise 1 mm), over the whole run and over its last 40 %; then max differences from the "
@@ -69,12 +122,17 @@ def main(argv=None) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         text, _ = summarize(res, sum(r.get("case_s", 0.0) for r in res))
+        print(f"set: {a.which}")
         print(text)
         print("(total time = sum of the cases' analysis and generation times)")
         return 0
     from host_tools.suite.bench import bench
+    from host_tools.suite.bench import DEFAULT_TIMEOUT_S
     _, m, text = bench(a.out, sel, jobs=a.jobs, regenerate=not a.reuse,
-                       out=lambda s: print(s, flush=True))
+                       out=lambda s: print(s, flush=True),
+                       timeout_s=a.timeout if a.timeout is not None else DEFAULT_TIMEOUT_S)
+    print(f"set: {a.which}" + (" (fast subset)" if a.fast else "") +
+          (" (without the 10-minute cases)" if a.no_long else ""))
     print(text)
     print(f"results: {os.path.join(a.out, 'bench.txt')}, {os.path.join(a.out, 'bench.json')}")
     return 0

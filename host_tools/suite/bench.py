@@ -1,13 +1,17 @@
 """Run the analyzer on every suite case and score it against the hidden labels.
 
 Prints the confusion matrix (true effect vs named), parameter errors, false alarms on nulls,
-held-out improvement and total time, each with issue 9's target. The analyzer is called as the
-acceptance harness calls it: ``python -m host_tools analyze RUN... --out DIR``.
+held-out improvement, physically impossible fits, the analysis time and peak memory of the
+long runs, and total time, each with issue 16's target. The analyzer is called as the
+acceptance harness calls it: ``python -m host_tools analyze RUN... --out DIR``; its wall time
+and the peak resident memory of its process tree (sampled every 0.1 s) are measured.
 """
 from __future__ import annotations
 
 import json
+import math
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -16,23 +20,131 @@ from host_tools.suite import cases as C
 from host_tools.suite.generate import generate_case
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-TARGETS = {"null_ok": 1.0, "named": 0.90, "param": 0.80, "oov_ok": 1.0, "heldout_worse": 0}
+#: issue 16's targets (the held-back set's figures are the ones that count, docs/suite.md)
+TARGETS = {"null_ok": 1.0, "named": 0.90, "param": 0.85, "oov_ok": 1.0, "impossible": 0,
+           "long_s": 60.0, "long_mb": 1024.0}
+#: analyzer time limit per case: past it the case is stopped and scored as a timeout
+DEFAULT_TIMEOUT_S = 300.0
 
 
-def run_analyzer(runs: list[str], out_dir: str, jobs: int = 2, log=None) -> tuple[int, dict | None]:
+def _tree_rss_kb(root: int) -> int:
+    """Resident memory of a process and all its descendants (kB), from /proc."""
+    children: dict[int, list[int]] = {}
+    rss: dict[int, int] = {}
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as fh:
+                st = fh.read()
+            ppid = int(st[st.rindex(")") + 2:].split()[1])
+            with open(f"/proc/{d}/statm") as fh:
+                pages = int(fh.read().split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+        children.setdefault(ppid, []).append(int(d))
+        rss[int(d)] = pages * (os.sysconf("SC_PAGE_SIZE") // 1024)
+    total, todo = 0, [root]
+    while todo:
+        p = todo.pop()
+        total += rss.get(p, 0)
+        todo.extend(children.get(p, []))
+    return total
+
+
+def run_analyzer(runs: list[str], out_dir: str, jobs: int = 2, log=None,
+                 timeout_s: float | None = None) -> tuple[int, dict | None, dict]:
+    """Run ``python -m host_tools analyze``; returns (exit code, report, {wall_s, peak_rss_mb,
+    timeout}). The exit code is -9 when it ran past ``timeout_s`` and was stopped."""
     cmd = [sys.executable, "-m", "host_tools", "analyze", *runs, "--out", out_dir,
            "--jobs", str(jobs)]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
-    if log is not None:
-        log.write(proc.stdout + proc.stderr)
+    os.makedirs(out_dir, exist_ok=True)
     rp = os.path.join(out_dir, "report.json")
+    if os.path.isfile(rp):
+        os.remove(rp)
+    err_path = os.path.join(out_dir, ".analyzer.stderr")
+    t0 = time.time()
+    peak = 0
+    timed_out = False
+    with open(err_path, "w+") as err, open(os.path.join(out_dir, ".analyzer.stdout"), "w+") as so:
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=so, stderr=err, start_new_session=True)
+        while proc.poll() is None:
+            peak = max(peak, _tree_rss_kb(proc.pid))
+            if timeout_s is not None and time.time() - t0 > timeout_s:
+                timed_out = True
+                os.killpg(proc.pid, signal.SIGKILL)  # the analyzer's own process group
+                proc.wait()
+                break
+            time.sleep(0.1)
+        wall = time.time() - t0
+        so.seek(0)
+        err.seek(0)
+        out_text, err_text = so.read(), err.read()
+    for f in (err_path, os.path.join(out_dir, ".analyzer.stdout")):
+        os.remove(f)
+    if log is not None:
+        log.write(out_text + err_text)
+        if timed_out:
+            log.write(f"\nstopped after {timeout_s:g} s (bench time limit)\n")
+    rc = -9 if timed_out else proc.returncode
     report = None
-    if proc.returncode == 0 and os.path.isfile(rp):
+    if rc == 0 and os.path.isfile(rp):
         with open(rp) as fh:
             report = json.load(fh)
-    elif proc.returncode != 0:
-        sys.stderr.write(proc.stderr[-2000:])
-    return proc.returncode, report
+    elif rc != 0 and not timed_out:
+        sys.stderr.write(err_text[-2000:])
+    return rc, report, {"wall_s": wall, "peak_rss_mb": peak / 1024.0, "timeout": timed_out}
+
+
+#: parameters that must be positive (> 0) or non-negative (>= 0) to be physical
+_POSITIVE = {("friction_coefficient", "mu_s"), ("friction_coefficient", "mu_k"),
+             ("wheel_radius", "r_eff"), ("track_width", "b_eff"), ("motor_back_emf", "ke_ratio"),
+             ("stribeck", "v_s"), ("motor_gain_asymmetry", "ratio")}
+_NON_NEGATIVE = {("driver_voltage_drop", "volts"), ("actuation_delay", "delay_s"),
+                 ("motor_lag", "tau_s"), ("axle_viscous", "c"), ("axle_coulomb", "torque"),
+                 ("caster_drag", "mu"), ("load_transfer", "h"), ("stribeck", "mu_k0"),
+                 ("deadband", "volts")}
+
+
+def _fits(report: dict) -> list[tuple[str, str, dict]]:
+    """(where, effect, {param: value}) of every reported fit, pairs split into their effects."""
+    out = []
+    for where in ("selected", "candidates"):
+        for s in report.get(where, []) or []:
+            eff, params = s.get("effect", ""), s.get("params") or {}
+            by: dict[str, dict] = {}
+            for k, v in params.items():
+                e, _, p = k.rpartition(".") if "." in k else (eff, "", k)
+                by.setdefault(e, {})[p] = v
+            for e, ps in by.items():
+                out.append((where, e, ps))
+    return out
+
+
+def impossible_fits(report: dict | None) -> list[str]:
+    """Reported fits (selected or candidates) that no physical robot has: mu_k > mu_s,
+    negative masses, friction, delays or lags, non-positive radii or ratios, non-finite
+    values, a slope beyond +-90 degrees."""
+    bad = []
+    for where, eff, ps in _fits(report or {}):
+        for p, v in ps.items():
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+                bad.append(f"{where} {eff}.{p} = {v!r}")
+            elif (eff, p) in _POSITIVE and v <= 0:
+                bad.append(f"{where} {eff}.{p} = {v:.4g} <= 0")
+            elif (eff, p) in _NON_NEGATIVE and v < 0:
+                bad.append(f"{where} {eff}.{p} = {v:.4g} < 0")
+            elif eff == "floor_slope" and abs(v) >= math.pi / 2:
+                bad.append(f"{where} {eff}.{p} = {v:.4g}")
+            elif (p.startswith("m_") or p.startswith("I_")) and v <= 0:
+                bad.append(f"{where} {eff}.{p} = {v:.4g} <= 0")
+        mu_s, mu_k = ps.get("mu_s"), ps.get("mu_k")
+        if isinstance(mu_s, (int, float)) and isinstance(mu_k, (int, float)) and mu_k > mu_s:
+            bad.append(f"{where} {eff}: mu_k {mu_k:.4g} > mu_s {mu_s:.4g}")
+        if eff == "stribeck" and isinstance(ps.get("mu_k0"), (int, float)) and \
+                isinstance(mu_s, (int, float)) and ps["mu_k0"] > mu_s:
+            bad.append(f"{where} stribeck: mu_k0 {ps['mu_k0']:.4g} > mu_s {mu_s:.4g}")
+    return bad
 
 
 def _named(report: dict) -> set[str]:
@@ -64,7 +176,10 @@ def score_case(label: dict, rc: int, report: dict | None) -> dict:
     res = {"case": label["case"], "expect": label["expect"], "rc": rc,
            "true": "+".join(label["true_effects"]) or
            ("+".join(label["effects"]) if label["effects"] else "null"),
-           "verdict": report.get("verdict") if report else f"error (exit {rc})",
+           "length": label.get("length", "short"), "long": label.get("long", False),
+           "recorder": label.get("recorder_name", "firmware"),
+           "verdict": (report.get("verdict") if report else
+                       "timeout" if rc == -9 else f"error (exit {rc})"),
            "selected": [s.get("effect") for s in (report or {}).get("selected", [])],
            "named": sorted(_named(report)) if report else []}
     if label["expect"] == "no_mismatch":
@@ -100,6 +215,7 @@ def score_case(label: dict, rc: int, report: dict | None) -> dict:
         res["heldout_worse_channels"] = sorted(ch for ch in before if ch in after and
                                                after[ch] > before[ch])
         res["elapsed_s"] = report.get("elapsed_s")
+    res["impossible"] = impossible_fits(report)
     return res
 
 
@@ -121,7 +237,8 @@ def collect(data_dir: str, case_list: list, rescore: bool = False) -> list[dict]
                     report = json.load(fh)
             with open(os.path.join(data_dir, "labels", f"{c.name}.json")) as fh:
                 label = json.load(fh)
-            r = dict(score_case(label, r.get("rc", 1), report), case_s=r.get("case_s", 0.0))
+            r = dict(score_case(label, r.get("rc", 1), report),
+                     **{k: r[k] for k in ("case_s", "analysis_s", "peak_rss_mb") if k in r})
             with open(p, "w") as fh:
                 json.dump(r, fh, indent=2)
         out.append(r)
@@ -163,6 +280,12 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
     m["null_ok"] = sum(r["ok"] for r in nulls) / max(1, len(nulls))
     m["named"] = sum(r.get("named_all", False) for r in effs) / max(1, len(effs))
     m["named_any"] = sum(r.get("named_any", False) for r in effs) / max(1, len(effs))
+    # stricter than the target: the verdict is 'explained' and no effect but the true ones is
+    # selected (equivalents allowed). An 'unexplained' case that lists a dozen equivalents
+    # names the true effect without telling it apart.
+    m["named_exact"] = sum(1 for r in effs if r.get("named_all") and r["verdict"] == "explained"
+                           and {p for e in r["selected"] for p in (e or "").split("+")}
+                           <= set(r["true"].split("+"))) / max(1, len(effs))
     perr = [r["param"].get("rel_err_deviation") for r in effs]
     perr_v = [r["param"].get("rel_err_value") for r in effs]
     m["param"] = sum(1 for e in perr if e is not None and e <= 0.25) / max(1, len(effs))
@@ -188,18 +311,56 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
             L.append(f"  {r['case']:<{w}} {r.get('heldout_overall_ratio') or float('nan'):.3f}  "
                      f"worst {r['heldout_worst_ratio']:.3f}"
                      + (f"  WORSE: {','.join(r['heldout_worse_channels'])}" if r["heldout_worse_channels"] else ""))
+    imp = [r for r in results if r.get("impossible")]
+    if imp:
+        L.append("")
+        L.append("physically impossible fits")
+        for r in imp:
+            L.append(f"  {r['case']:<{w}} " + "; ".join(r["impossible"][:4]) +
+                     (f" (+{len(r['impossible']) - 4})" if len(r["impossible"]) > 4 else ""))
+    m["impossible"] = len(imp)
+    m["impossible_selected"] = sum(1 for r in imp if any(x.startswith("selected") for x in r["impossible"]))
+    # analysis time and peak memory by run length (the time target is issue 16's)
+    lengths = [ln for ln in ("20 s", "2 min", "10 min") if any(r.get("length") == ln for r in results)]
+    if any(r.get("analysis_s") is not None for r in results):
+        L.append("")
+        L.append("analysis time (wall) and peak memory of the analyzer's process tree, by run length")
+        for ln in ["short"] + lengths:
+            rs = [r for r in results if r.get("length", "short") == ln and r.get("analysis_s") is not None]
+            if rs:
+                L.append(f"  {ln:<7} {len(rs):3d} cases: max {max(r['analysis_s'] for r in rs):7.1f} s "
+                         f"(median {sorted(r['analysis_s'] for r in rs)[len(rs) // 2]:.1f} s), peak "
+                         f"{max(r.get('peak_rss_mb', 0.0) for r in rs):6.0f} MB"
+                         + (f", {sum(1 for r in rs if r.get('rc') == -9)} stopped at the time limit"
+                            if any(r.get("rc") == -9 for r in rs) else ""))
     L.append("")
     L.append(f"{'figure':<52} {'measured':>10} {'target':>10}")
     m["false_alarms"] = sum(1 for r in nulls if not r["ok"])
-    rows = [("nulls giving no_mismatch", f"{100 * m['null_ok']:.0f} %", "100 %", m["null_ok"] >= 1.0),
+    def pct(key, group):  # a share of a group of cases, or "no cases"
+        return f"{100 * m[key]:.0f} %" if group else "no cases"
+    rows = [("nulls giving no_mismatch", pct("null_ok", nulls), "100 %", m["null_ok"] >= 1.0 or not nulls),
             ("false alarms on nulls", f"{m['false_alarms']}/{len(nulls)}", "0", m["false_alarms"] == 0),
-            ("effect cases naming every true effect (sel./equiv.)", f"{100 * m['named']:.0f} %", ">= 90 %", m["named"] >= 0.9),
-            ("effect cases naming at least one true effect", f"{100 * m['named_any']:.0f} %", "—", True),
-            ("main parameter within 25 % (deviation from nominal)", f"{100 * m['param']:.0f} %", ">= 80 %", m["param"] >= 0.8),
-            ("main parameter within 25 % (value)", f"{100 * m['param_value']:.0f} %", "—", True),
-            ("out-of-vocabulary cases giving unexplained", f"{100 * m['oov_ok']:.0f} %", "100 %", m["oov_ok"] >= 1.0),
+            ("effect cases naming every true effect (sel./equiv.)", pct("named", effs), ">= 90 %", m["named"] >= 0.9 or not effs),
+            ("effect cases naming at least one true effect", pct("named_any", effs), "—", True),
+            ("  ... explained, only true effects selected", pct("named_exact", effs), "—", True),
+            ("main parameter within 25 % (deviation from nominal)", pct("param", effs), ">= 85 %", m["param"] >= TARGETS["param"] or not effs),
+            ("main parameter within 25 % (value)", pct("param_value", effs), "—", True),
+            ("out-of-vocabulary cases giving unexplained", pct("oov_ok", oovs), "100 %", m["oov_ok"] >= 1.0 or not oovs),
             ("cases whose held-out error got worse (all channels)", f"{m['heldout_worse_overall']}", "0", m["heldout_worse_overall"] == 0),
-            ("cases with a channel whose held-out error got worse", f"{m['heldout_worse']}", "0", m["heldout_worse"] == 0)]
+            ("cases with a channel whose held-out error got worse", f"{m['heldout_worse']}", "—", True),
+            ("cases with a physically impossible fit (any reported)", f"{m['impossible']}", "0", m["impossible"] == 0),
+            ("  of which in a selected effect", f"{m['impossible_selected']}", "0", m["impossible_selected"] == 0)]
+    for ln in lengths:
+        rs = [r for r in results if r.get("length") == ln and r.get("analysis_s") is not None]
+        if not rs:
+            continue
+        t_max = max(r["analysis_s"] for r in rs)
+        mb_max = max(r.get("peak_rss_mb", 0.0) for r in rs)
+        stopped = any(r.get("rc") == -9 for r in rs)
+        m[f"time_{ln}"], m[f"mb_{ln}"] = t_max, mb_max
+        rows.append((f"{ln} runs: slowest analysis (s)", (">" if stopped else "") + f"{t_max:.0f}",
+                     "<= 60", t_max <= TARGETS["long_s"] and not stopped))
+        rows.append((f"{ln} runs: peak memory (MB)", f"{mb_max:.0f}", "<= 1024", mb_max <= TARGETS["long_mb"]))
     for name, val, tgt, ok in rows:
         L.append(f"{name:<52} {val:>10} {tgt:>10}  {'met' if ok else 'MISSED'}")
     L.append(f"cases: {len(results)} ({len(nulls)} nulls, {len(effs)} effect, {len(oovs)} outside the "
@@ -209,7 +370,7 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
 
 
 def bench(data_dir: str, case_list: list, jobs: int = 2, regenerate: bool = True,
-          out=print) -> tuple[list[dict], dict, str]:
+          out=print, timeout_s: float | None = DEFAULT_TIMEOUT_S) -> tuple[list[dict], dict, str]:
     t0 = time.time()
     results = []
     for i, case in enumerate(case_list):
@@ -224,14 +385,17 @@ def bench(data_dir: str, case_list: list, jobs: int = 2, regenerate: bool = True
         rep_dir = os.path.join(data_dir, "reports", case.name)
         os.makedirs(rep_dir, exist_ok=True)
         with open(os.path.join(rep_dir, "analyzer.log"), "w") as log:
-            rc, report = run_analyzer(runs, rep_dir, jobs=jobs, log=log)
+            rc, report, perf = run_analyzer(runs, rep_dir, jobs=jobs, log=log, timeout_s=timeout_s)
         r = score_case(label, rc, report)
         r["case_s"] = time.time() - tc
+        r["analysis_s"] = perf["wall_s"]
+        r["peak_rss_mb"] = perf["peak_rss_mb"]
         with open(os.path.join(rep_dir, "score.json"), "w") as fh:
             json.dump(r, fh, indent=2)
         results.append(r)
         out(f"[{i + 1}/{len(case_list)}] {case.name}: {'OK' if r['ok'] else 'MISS'} "
-            f"verdict {r['verdict']} named {r['named']} ({r['case_s']:.0f} s)")
+            f"verdict {r['verdict']} named {r['named']} (analysis {r['analysis_s']:.0f} s, "
+            f"{r['peak_rss_mb']:.0f} MB; case {r['case_s']:.0f} s)")
     text, m = summarize(results, time.time() - t0)
     with open(os.path.join(data_dir, "bench.json"), "w") as fh:
         json.dump({"results": results, "metrics": m}, fh, indent=2)

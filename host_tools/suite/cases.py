@@ -1,8 +1,15 @@
 """Case definitions of the concealed-effect suite.
 
 A case is a hidden truth (effects switched on in the truth simulator) plus the experiments
-(closed-loop references) recorded from it. The label (:meth:`Case.label`) is what the scorer
-knows and the analyzer never sees: it is written under ``labels/``, apart from ``runs/``.
+(closed-loop references) recorded from it, and the recorder that recorded them. The label
+(:meth:`Case.label`) is what the scorer knows and the analyzer never sees: it is written under
+``labels/``, apart from ``runs/``.
+
+Two sets (docs/suite.md, "Tuning set and held-back set"):
+- ``tuning`` (:func:`all_cases`): 44 cases recorded by this project's firmware pipeline at their
+  own seeds; analyzer rules may be settled on them;
+- ``heldback`` (:func:`heldback_cases`): other seeds, other effect sizes and other recorders
+  (the truth simulator's recorder variants), long runs; only scored.
 
 Concealment kinds (issue 9):
 - ``compensation``: the closed loop hides the effect in tracking; it shows only in the duty or
@@ -65,6 +72,19 @@ class Case:
     note: str = ""
     fast: bool = False
     seed: int = 0
+    recorder: dict = field(default_factory=dict)  # host_tools.truth.RECORDER_DEFAULTS overrides
+    recorder_name: str = "firmware"
+    long: bool = False                # 10-minute case (bench --no-long skips it)
+    set: str = "tuning"
+
+    @property
+    def length(self) -> str:
+        """Run-length class: 'short' (<= 3 s runs), '20 s', '2 min' or '10 min' (total)."""
+        total = sum(d for _, _, d in self.experiments)
+        longest = max(d for _, _, d in self.experiments)
+        if longest <= 5.0:
+            return "short"
+        return "10 min" if total >= 590 else "2 min" if longest >= 100 else "20 s"
 
     @property
     def true_effects(self) -> list[str]:
@@ -78,7 +98,8 @@ class Case:
                                 "value": self.effects[self.true_effects[0]][MAIN_PARAM[self.true_effects[0]]],
                                 "nominal": NEUTRAL[self.true_effects[0]][MAIN_PARAM[self.true_effects[0]]]}
                                if self.true_effects else None),
-                "note": self.note,
+                "note": self.note, "set": self.set, "length": self.length, "long": self.long,
+                "recorder_name": self.recorder_name, "recorder": self.recorder,
                 "experiments": [{"reference": r, "clamp": c, "duration_s": d}
                                 for r, c, d in self.experiments]}
 
@@ -168,16 +189,139 @@ def all_cases() -> list[Case]:
     return cases
 
 
-def get(names: list[str] | None = None, fast: bool = False) -> list[Case]:
-    cases = all_cases()
+# ------------------------------------------------------------------ the held-back set
+# Recorder variants (host_tools.truth.RECORDER_DEFAULTS overrides). None of them is the
+# firmware pipeline the tuning set was recorded with.
+RECORDERS = {
+    "frames_mid": {"odometry": "frames", "integration": "midpoint"},
+    "loop10": {"inner_s": 0.010},
+    "loop20": {"inner_s": 0.020, "odometry": "ticks"},
+    "pi": {"controller": "pi", "odometry": "ticks"},
+    "pi_frames": {"controller": "pi", "odometry": "frames", "integration": "midpoint"},
+    "jitter": {"tel_jitter_s": 0.003, "tel_drop": 0.03},
+    "cam100": {"cam_hz": 100.0, "cam_noise_m": 0.002, "cam_noise_rad": 0.02, "cam_dropout": 0.02},
+    "wrapped": {"heading_tel": "wrapped", "heading_gt": "unwrapped"},
+    "wrapped_gt": {"heading_tel": "unwrapped", "heading_gt": "wrapped"},
+    "cam100_wrapped": {"cam_hz": 100.0, "cam_noise_m": 0.0005, "cam_noise_rad": 0.005,
+                       "heading_tel": "wrapped", "heading_gt": "wrapped"},
+    "frames_mid_jitter": {"odometry": "frames", "integration": "midpoint",
+                          "tel_jitter_s": 0.002, "tel_drop": 0.02},
+    "loop10_frames": {"inner_s": 0.010, "odometry": "frames", "integration": "arc"},
+}
+# the order in which the effect cases take them
+_ROTATION = ["frames_mid", "loop10", "pi", "jitter", "cam100_wrapped", "loop20", "loop10_frames",
+             "wrapped", "frames_mid_jitter", "cam100", "pi_frames", "wrapped_gt"]
+
+# other effect sizes than the tuning set's
+_HELDBACK_SIZES = {
+    "friction_coefficient": ({"mu_s": 0.18, "mu_k": 0.17}, {"mu_s": 0.21, "mu_k": 0.205}),
+    "wheel_radius": ({"r_eff": 0.0382}, {"r_eff": 0.0374}),
+    "track_width": ({"b_eff": 0.113}, {"b_eff": 0.109}),
+    "motor_back_emf": ({"ke_ratio": 1.12}, {"ke_ratio": 1.05}),
+    "driver_voltage_drop": ({"volts": 1.0}, {"volts": 0.4}),
+    "actuation_delay": ({"delay_s": 0.05}, {"delay_s": 0.02}),
+    "motor_lag": ({"tau_s": 0.04}, {"tau_s": 0.015}),
+    "axle_viscous": ({"c": 0.002}, {"c": 0.0008}),
+    "axle_coulomb": ({"torque": 0.025}, {"torque": 0.01}),
+    "caster_drag": ({"mu": 0.08}, {"mu": 0.04}),
+    "load_transfer": ({"h": 0.05}, {"h": 0.03}),
+    "stribeck": ({"mu_k0": 0.14, "v_s": 0.15}, {"mu_k0": 0.19, "v_s": 0.08}),
+    "deadband": ({"volts": 1.0}, {"volts": 0.5}),
+    "motor_gain_asymmetry": ({"ratio": 1.12}, {"ratio": 1.04}),
+    "floor_slope": ({"rad": 0.035}, {"rad": 0.012}),
+}
+
+
+def _short(exps: list, extra: tuple | None = None) -> list:
+    """The same experiments as runs of 1.5 s, and one more run."""
+    out = [(r, c, 1.5) for r, c, _ in exps]
+    return out + ([extra[:2] + (1.5,)] if extra else [])
+
+
+TOUR = {"kind": "tour", "accel": 0.6, "alpha": 2.0}  # host_tools.truth.tour_reference, per run seed
+LONG_20S = [(TOUR, True, 20.0), (TOUR, True, 20.0)]
+LONG_2MIN = [(TOUR, True, 120.0), (TOUR, True, 120.0)]
+
+
+def heldback_cases() -> list[Case]:
+    """The held-back set: other seeds, effect sizes and recorders than the tuning set, plus long
+    runs. Only scored (docs/suite.md)."""
+    cases: list[Case] = []
+
+    def add(name, effects, exps, expect, rec, conc=(), note="", fast=False, long=False):
+        cases.append(Case(name, effects, exps, expect, list(conc), note, fast=fast,
+                          recorder=dict(RECORDERS.get(rec, {})), recorder_name=rec, long=long,
+                          set="heldback"))
+    extra_std = ({"kind": "line", "accel": 0.8, "cruise": 0.5}, True, 1.5)
+    nulls = (("null_std", _short(STD, extra_std), "pi_frames"), ("null_slip", SLIP, "loop10"),
+             ("null_slow", SLOW, "jitter"), ("null_eight", EIGHT, "cam100_wrapped"),
+             ("null_std_frames", STD, "frames_mid"))
+    for name, exps, rec in nulls:
+        add(f"hb_{name}", {}, exps, "no_mismatch", rec, note="no effect", fast=(name == "null_std"))
+    i = 0
+    for eff, (strong, weak) in _HELDBACK_SIZES.items():
+        _, _, exps, conc, note = _SINGLE[eff]
+        for size, params in (("strong", strong), ("weak", weak)):
+            rec = _ROTATION[i % len(_ROTATION)]
+            # every other case records runs of 1.5 s (four where the set has three)
+            e = _short(exps, extra_std if len(exps) < 4 else None) if i % 2 else exps
+            add(f"hb_{eff}_{size}", {eff: params}, e, "explained", rec, conc, note,
+                fast=(eff == "motor_back_emf" and size == "strong"))
+            i += 1
+    add("hb_pair_emf_viscous", {"motor_back_emf": {"ke_ratio": 1.1}, "axle_viscous": {"c": 0.001}},
+        STD, "explained", "loop20", ["confounded", "compensation"],
+        "both lower the torque in proportion to speed; the current separates them")
+    add("hb_pair_delay_lag", {"actuation_delay": {"delay_s": 0.03}, "motor_lag": {"tau_s": 0.02}},
+        STD, "explained", "frames_mid", ["confounded", "regime"], "both retard the torque")
+    add("hb_oov_eccentric", {"eccentric_wheel": {"eps": 0.04}}, STD, "unexplained", "pi",
+        ["regime"], "rolling radius varies with the wheel angle", fast=True)
+    add("hb_oov_eccentric_weak", {"eccentric_wheel": {"eps": 0.03}}, _short(STD, extra_std),
+        "unexplained", "wrapped", ["regime"], "rolling radius varies with the wheel angle")
+    add("hb_oov_battery_sag", {"battery_sag": {"r_int": 1.2, "v_per_as": 0.6}}, STD,
+        "unexplained", "jitter", ["compensation"], "supply falls with current and charge")
+    add("hb_oov_friction_patch", {"friction_patch": {"x0": 0.4, "x1": 1.0, "factor": 0.45}},
+        SLIP, "unexplained", "loop10", ["regime"], "a slippery patch of floor")
+    # long runs: speed ramps, cruises, arcs, stops and turns (a 'segments' reference)
+    add("hb_long_null_20s", {}, LONG_20S, "no_mismatch", "jitter", note="no effect, 2 x 20 s")
+    add("hb_long_emf_20s", {"motor_back_emf": {"ke_ratio": 1.15}}, LONG_20S, "explained",
+        "frames_mid", ["compensation"], "back-EMF x1.15 over 2 x 20 s")
+    add("hb_long_null_2min", {}, LONG_2MIN, "no_mismatch", "loop20", note="no effect, 2 x 2 min")
+    add("hb_long_viscous_2min", {"axle_viscous": {"c": 0.0015}}, LONG_2MIN, "explained",
+        "firmware", ["compensation"], "axle viscous friction over 2 x 2 min")
+    add("hb_long_battery_2min", {"battery_sag": {"r_int": 0.5, "v_per_as": 0.02}}, LONG_2MIN,
+        "unexplained", "cam100", ["compensation"],
+        "the supply falls with the charge drawn: the shortfall grows over the run")
+    add("hb_long_null_10min", {}, [(TOUR, True, 600.0)], "no_mismatch", "firmware",
+        note="no effect, one run of 10 min", long=True)
+    add("hb_long_emf_10min", {"motor_back_emf": {"ke_ratio": 1.15}},
+        [(TOUR, True, 300.0), (TOUR, True, 300.0)], "explained", "firmware", ["compensation"],
+        "back-EMF x1.15 over 2 x 5 min", long=True)
+    for k, c in enumerate(cases):
+        c.seed = 90000 + 37 * k
+    return cases
+
+
+SETS = ("tuning", "heldback")
+
+
+def get(names: list[str] | None = None, fast: bool = False, which: str = "tuning",
+        long: bool = True) -> list[Case]:
+    """Cases of a set (``tuning`` or ``heldback``); ``fast``: its CI subset; ``long=False``:
+    without the 10-minute cases; ``names``: those cases of the set."""
+    if which not in SETS:
+        raise ValueError(f"set must be one of {list(SETS)}, got {which!r}")
+    pool = all_cases() if which == "tuning" else heldback_cases()
+    cases = pool
     if fast:
         cases = [c for c in cases if c.fast]
     if names:
-        known = {c.name: c for c in all_cases()}
+        known = {c.name: c for c in pool}
         bad = [n for n in names if n not in known]
         if bad:
-            raise ValueError(f"unknown case(s) {bad}; known: {sorted(known)}")
+            raise ValueError(f"unknown case(s) {bad} in the {which} set; known: {sorted(known)}")
         cases = [known[n] for n in names]
+    if not long:
+        cases = [c for c in cases if not c.long]
     return cases
 
 

@@ -21,10 +21,38 @@ def _null_runs(case: Case, tmp: str) -> list[tuple[dict, dict]]:
     for k, (ref, clamp, dur) in enumerate(case.experiments):
         p = os.path.join(tmp, f"null-{k}")
         truth.simulate_run(p, ref, {}, clamp=clamp, duration_s=dur, seed=case.seed + k,
-                           hidden_dir=tmp)
+                           hidden_dir=tmp, recorder=case.recorder)
         out.append((runfmt.load_run(p).telemetry,
                     np.genfromtxt(os.path.join(tmp, f"null-{k}.truth.csv"), delimiter=",", names=True)))
     return out
+
+
+def _segments_position(meta: dict, t: np.ndarray, dt: float = 2e-4) -> np.ndarray:
+    """Reference position of a 'segments' reference (meta.json's reference or speed_reference)
+    at times t: v and omega ramp toward each segment's targets at accel and alpha, and the pose
+    is their integral (trapezoid on fine steps)."""
+    ref = meta.get("reference") or meta.get("speed_reference")
+    tg = np.arange(0.0, float(t[-1]) + 2 * dt, dt)
+    v = np.zeros(tg.size)
+    w = np.zeros(tg.size)
+    t0, v0, w0 = 0.0, 0.0, 0.0
+    segs = ref["segments"]
+    for i, sg in enumerate(segs):
+        t1 = t0 + sg["duration_s"] if i + 1 < len(segs) else np.inf
+        m = (tg >= t0) & (tg < t1)
+        tau = tg[m] - t0
+        v[m] = v0 + np.sign(sg["v"] - v0) * np.minimum(ref["accel"] * tau, abs(sg["v"] - v0))
+        w[m] = w0 + np.sign(sg["omega"] - w0) * np.minimum(ref["alpha"] * tau, abs(sg["omega"] - w0))
+        d = sg["duration_s"]
+        v0 = v0 + np.sign(sg["v"] - v0) * min(ref["accel"] * d, abs(sg["v"] - v0))
+        w0 = w0 + np.sign(sg["omega"] - w0) * min(ref["alpha"] * d, abs(sg["omega"] - w0))
+        t0 = t1
+    phi = np.concatenate([[0.0], np.cumsum(0.5 * dt * (w[1:] + w[:-1]))])
+    phm = phi[:-1] + 0.25 * dt * (w[1:] + w[:-1])
+    vm = 0.5 * (v[1:] + v[:-1])
+    x = np.concatenate([[0.0], np.cumsum(dt * vm * np.cos(phm))])
+    y = np.concatenate([[0.0], np.cumsum(dt * vm * np.sin(phm))])
+    return np.column_stack([np.interp(t, tg, x), np.interp(t, tg, y)])
 
 
 def evidence(case: Case, data_dir: str) -> dict:
@@ -43,10 +71,14 @@ def evidence(case: Case, data_dir: str) -> dict:
             def d(a_t, a, b_t, b):
                 return float(np.max(np.abs(np.interp(t, a_t, a) - np.interp(t, b_t, b))))
             ref, clamp, dur = case.experiments[k]
-            ctl = truth.Controller()
-            ctl.set_reference(ref["kind"], ref["accel"], ref["cruise"], ref.get("radius", 1.0))
-            pr = np.array([ctl.reference(tt)[:2] for tt in tr["t_s"]])
-            pn = np.array([ctl.reference(tt)[:2] for tt in ntr["t_s"]])
+            if ref["kind"] not in ("line", "arc", "figure_eight"):
+                pr = _segments_position(runfmt.load_meta(run), tr["t_s"])
+                pn = _segments_position(runfmt.load_meta(run), ntr["t_s"])
+            else:
+                ctl = truth.Controller()
+                ctl.set_reference(ref["kind"], ref["accel"], ref["cruise"], ref.get("radius", 1.0))
+                pr = np.array([ctl.reference(tt)[:2] for tt in tr["t_s"]])
+                pn = np.array([ctl.reference(tt)[:2] for tt in ntr["t_s"]])
             res["track_m"] = max(res["track_m"], float(np.max(np.hypot(
                 tr["true_x_m"] - pr[:, 0], tr["true_y_m"] - pr[:, 1]))))
             res["track_null_m"] = max(res["track_null_m"], float(np.max(np.hypot(

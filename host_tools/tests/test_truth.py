@@ -141,3 +141,232 @@ def test_command_line(tmp_path, capsys):
     assert truth.main([str(tmp_path / "x"), "--accel", "50"]) == 2
     assert "outside" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+# ------------------------------------------------------------------ motor current (issue 16)
+
+def _current_relation(effects, u=0.6):
+    """Open loop at duty u: the truth's armature current against its own DC motor model,
+    I = stall_a (V_eff/supply_v - ke_ratio omega/no_load), at the frames from 0.1 s (spin-up
+    included)."""
+    s = truth.TruthSim()
+    for k, v in {"sim.open_loop": 1, "sim.u_r": u, "sim.u_l": u, "sim.duration": 1.5,
+                 "sim.tel_phase": 0.0}.items():
+        s.set(k, v)
+    for name, p in effects.items():
+        s.set_effect(name, **p)
+    tel, _ = s.run()
+    m = tel["t_s"] >= 0.1
+    return tel["true_i_r_a"][m], tel["true_dtheta_r"][m], s
+
+
+@pytest.mark.parametrize("effects,v_eff,ke", [
+    ({}, 0.6 * 12.0, 1.0),
+    ({"axle_viscous": {"c": 0.004}}, 0.6 * 12.0, 1.0),
+    ({"axle_coulomb": {"torque": 0.03}}, 0.6 * 12.0, 1.0),
+    ({"motor_back_emf": {"ke_ratio": 1.2}}, 0.6 * 12.0, 1.2),
+    ({"driver_voltage_drop": {"volts": 1.5}}, 0.6 * 10.5, 1.0),
+    ({"deadband": {"volts": 1.0}}, 0.6 * 12.0 - 1.0, 1.0),
+])
+def test_current_is_the_electrical_side(effects, v_eff, ke):
+    i, w, s = _current_relation(effects)
+    assert s.get("motor.stall_a") == 2.0  # thesis III.1: 12 V, 2 A maximum
+    model = 2.0 * (v_eff / 12.0 - ke * w / 36.65)
+    # a third of an ADC LSB (2.96 mA): the logged current is the drive step's before the
+    # frame, whose wheel speed is 0.2 ms older (< 0.6 mA from 0.1 s on, 3 mA at 0.02 s)
+    assert np.abs(i - model).max() < 1e-3
+    assert i.max() > 0.15  # a real current flows (not a trivially zero column)
+
+
+def test_axle_friction_lowers_the_speed_not_the_current_law():
+    i0, w0, _ = _current_relation({})
+    i1, w1, _ = _current_relation({"axle_viscous": {"c": 0.004}})
+    # at the same duty the wheel turns slower, so more current flows (less back-EMF) ...
+    assert w1[-1] < w0[-1] - 1.0 and i1[-1] > i0[-1] + 0.05
+    # ... and the back-EMF case at the same duty differs although the current law is the same
+    i2, w2, _ = _current_relation({"motor_back_emf": {"ke_ratio": 1.2}})
+    assert abs(i2 - i0).max() > 0.01
+
+
+def test_logged_current_is_the_shields_adc(tmp_path):
+    run = tmp_path / "r"
+    truth.simulate_run(run, {"kind": "arc", "accel": 1.0, "cruise": 0.6, "radius": 0.5},
+                       {"motor_back_emf": {"ke_ratio": 1.15}}, duration_s=2.0, seed=1,
+                       hidden_dir=tmp_path / "h")
+    r = runfmt.load_run(run)
+    tr = np.genfromtxt(tmp_path / "h" / "r.truth.csv", delimiter=",", names=True)
+    lsb = 5.0 / 1024 / 1.65
+    for side in ("r", "l"):
+        a = r.telemetry[f"current_{side}_a"]
+        raw = a / lsb
+        assert np.all(a >= 0) and np.allclose(raw, np.round(raw), atol=1e-9)
+        err = a - np.abs(tr[f"true_i_{side}_a"])
+        assert np.abs(err).max() < 6 * lsb and 0.3 * lsb < err.std() < 2 * lsb  # ~1 LSB noise
+        assert a.max() > 0.1
+    assert r.meta["current_sense"]["stall_a"] == 2.0 and "stall_a" not in r.meta["motor"]
+    assert r.meta["current_sense"]["volts_per_amp"] == 1.65
+    r2 = truth.simulate_run(tmp_path / "nc", {"kind": "line"}, duration_s=0.5,
+                            recorder={"current": False})
+    assert "current_r_a" not in runfmt.load_run(r2).telemetry
+
+
+# ------------------------------------------------------------------ recorder variants (issue 16)
+
+ARC = {"kind": "arc", "accel": 0.8, "cruise": 0.5, "radius": 0.5}
+
+
+def _rec_run(tmp_path, name, rec, ref=ARC, T=3.0, seed=4, effects=None):
+    p = truth.simulate_run(tmp_path / name, ref, effects, duration_s=T, seed=seed,
+                           hidden_dir=tmp_path / "h", recorder=rec)
+    tr = np.genfromtxt(tmp_path / "h" / f"{name}.truth.csv", delimiter=",", names=True)
+    return runfmt.load_run(p), tr
+
+
+def _odometry(enc_r, enc_l, midpoint):
+    """Independent re-computation of odometry from counts (nominal r, b)."""
+    k = 2 * np.pi / 1856 * 0.0365
+    x = y = phi = 0.0
+    out = [(0.0, 0.0, 0.0)]
+    for i in range(1, enc_r.size):
+        dr, dl = (enc_r[i] - enc_r[i - 1]) * k, (enc_l[i] - enc_l[i - 1]) * k
+        ds, dp = 0.5 * (dr + dl), (dr - dl) / (2 * 0.105)
+        if midpoint or abs(dp) < 1e-9:
+            x += ds * np.cos(phi + dp / 2)
+            y += ds * np.sin(phi + dp / 2)
+        else:
+            x += ds / dp * (np.sin(phi + dp) - np.sin(phi))
+            y -= ds / dp * (np.cos(phi + dp) - np.cos(phi))
+        phi += dp
+        out.append((x, y, phi))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("midpoint", [False, True])
+def test_frame_odometry_is_the_recorders_own(tmp_path, midpoint):
+    rec = {"odometry": "frames", "integration": "midpoint" if midpoint else "arc"}
+    r, _ = _rec_run(tmp_path, "f", rec)
+    t = r.telemetry
+    first = np.flatnonzero((t["enc_r"] != 0) | (t["enc_l"] != 0))[0] - 1
+    mine = _odometry(t["enc_r"][first:], t["enc_l"][first:], midpoint)
+    assert np.abs(mine[:, 0] - t["x_odo_m"][first:]).max() < 1e-9
+    assert np.abs(mine[:, 2] - t["phi_odo_rad"][first:]).max() < 1e-9
+    other = _odometry(t["enc_r"][first:], t["enc_l"][first:], not midpoint)
+    assert np.abs(other[:, 1] - t["y_odo_m"][first:]).max() > 1e-7  # the rule matters
+    # the firmware's odometry (at the ticks) reports a different, older pose
+    fw, _ = _rec_run(tmp_path, "fw", {})
+    assert np.abs(fw.telemetry["x_odo_m"] - t["x_odo_m"]).max() > 2e-3
+
+
+def test_tick_odometry_and_inner_periods(tmp_path):
+    for inner in (0.010, 0.020, 0.025):
+        r, tr = _rec_run(tmp_path, f"i{int(inner * 1e3)}", {"inner_s": inner, "odometry": "ticks"})
+        assert r.meta["periods_s"] == {"inner": inner, "outer": 2 * inner, "telemetry": 0.02}
+        t = r.telemetry
+        # the torque command changes only at ticks: between two frames that hold no tick it
+        # stays; with 10 ms ticks every frame interval holds one
+        changed = np.flatnonzero(np.diff(t["tau_cmd_r"]) != 0)
+        assert changed.size > 10
+        if inner == 0.025:
+            ticks = np.floor(t["t_s"] / inner + 1e-9)
+            assert np.all(ticks[changed + 1] > ticks[changed])
+        # the own odometry at the ticks follows the true pose within what a tick's age explains
+        xo = np.interp(t["t_s"], tr["t_s"], tr["true_x_m"])
+        assert np.abs(t["x_odo_m"] - xo).max() < 0.6 * inner + 2e-3
+
+
+def test_pi_recorder(tmp_path):
+    r, tr = _rec_run(tmp_path, "pi", {"controller": "pi"}, T=3.0)
+    m = r.meta
+    assert m["controller"] == "pi" and "reference" not in m and m["speed_reference"]["kind"] == "arc"
+    assert m["torque_clamp"] is False and m["pi"]["kp"] > 0
+    t = r.telemetry
+    # the duty logged is the one the PI's torque asked for through the datasheet motor
+    u = np.clip(t["tau_cmd_r"] / 0.77 + t["omega_r"] / 36.65, -1, 1)
+    assert np.abs(u - t["pwm_r"]).max() < 1e-12
+    # its speed estimate is a count difference over the 25 ms tick: a multiple of one count
+    q = t["omega_r"] * 0.025 / (2 * np.pi / 1856)
+    assert np.abs(t["omega_r"]).max() > 5 and np.allclose(q, np.round(q), atol=1e-6)
+    # and the loop tracks: the wheel speed reaches the reference's (v + b omega)/r at cruise
+    late = tr["t_s"] > 2.0
+    w_ref = (0.5 + 0.105 * 0.5 / 0.5) / 0.0365
+    assert abs(np.mean(tr["true_dtheta_r"][late]) - w_ref) < 0.3
+    # it differs from the cascade's recording of the same experiment
+    c, _ = _rec_run(tmp_path, "c", {}, T=3.0)
+    assert np.abs(c.telemetry["pwm_r"] - t["pwm_r"]).max() > 0.01
+
+
+def test_jitter_drops_camera_and_headings(tmp_path):
+    spin = {"kind": "segments", "accel": 0.6, "alpha": 3.0,
+            "segments": [{"duration_s": 4.0, "v": 0.1, "omega": 2.0},
+                         {"duration_s": 1.0, "v": 0.0, "omega": 0.0}]}
+    base, _ = _rec_run(tmp_path, "b", {}, ref=spin, T=5.0)
+    r, _ = _rec_run(tmp_path, "j", {"tel_jitter_s": 0.004, "tel_drop": 0.05, "cam_hz": 100,
+                                    "heading_tel": "wrapped", "heading_gt": "unwrapped"},
+                    ref=spin, T=5.0)
+    dt = np.diff(r.telemetry["t_s"])
+    assert dt.min() < 0.0165 and dt.max() > 0.06  # jitter, and a burst of lost frames
+    assert 0.85 * 250 < r.telemetry["t_s"].size < 0.99 * 250
+    assert 0.9 * 500 < r.groundtruth["t_s"].size <= 500  # 100 Hz camera
+    phi = r.telemetry["phi_odo_rad"]
+    assert phi.max() <= np.pi and phi.min() > -np.pi and np.ptp(base.telemetry["phi_odo_rad"]) > 6
+    assert np.ptp(r.groundtruth["phi_rad"]) > 6  # ground truth left unwrapped
+    w, _ = _rec_run(tmp_path, "w", {"heading_gt": "wrapped"}, ref=spin, T=5.0)
+    assert np.abs(np.unwrap(w.groundtruth["phi_rad"]) - base.groundtruth["phi_rad"]).max() < 1e-9
+    assert np.array_equal(w.telemetry["phi_odo_rad"], base.telemetry["phi_odo_rad"])
+
+
+def test_segment_reference_is_tracked_and_written(tmp_path):
+    from host_tools.suite.conceal import _segments_position
+    r, tr = _rec_run(tmp_path, "s", {}, ref={"kind": "tour"}, T=30.0, seed=7)
+    ref = r.meta["reference"]
+    assert ref["kind"] == "segments" and len(ref["segments"]) >= 5
+    assert abs(sum(s["duration_s"] for s in ref["segments"]) - 30.0) < 1e-6
+    assert {"accel", "alpha"} <= set(ref)
+    kinds = {("stop" if s["v"] == 0 and s["omega"] == 0 else "spin" if s["v"] == 0 else
+              "arc" if s["omega"] else "cruise") for s in ref["segments"]}
+    assert len(kinds) >= 3
+    p = _segments_position(r.meta, tr["t_s"])
+    err = np.hypot(tr["true_x_m"] - p[:, 0], tr["true_y_m"] - p[:, 1])
+    assert np.ptp(p[:, 0]) > 1.0 and err.max() < 0.05  # the cascade follows the truth's reference
+    # the same tour under the PI loop (no pose feedback) ends elsewhere but moves as much
+    pi, tr2 = _rec_run(tmp_path, "sp", {"controller": "pi"}, ref={"kind": "tour"}, T=30.0, seed=7)
+    assert pi.meta["speed_reference"] == ref
+
+
+def test_long_run_with_delay(tmp_path):
+    # the actuation delay's command history is a ring: long runs at 10 ms ticks work
+    r, tr = _rec_run(tmp_path, "long", {"inner_s": 0.01}, ref={"kind": "tour"}, T=120.0,
+                     effects={"actuation_delay": {"delay_s": 0.05}})
+    assert r.telemetry["t_s"].size == 6000 and abs(tr["t_s"][-1] - 119.992) < 0.02
+
+
+def test_recorder_options_refused(tmp_path):
+    with pytest.raises(ValueError, match="unknown recorder option"):
+        truth.recorder_config({"odometer": "frames"})
+    with pytest.raises(ValueError, match="odometry must be one of"):
+        truth.recorder_config({"odometry": "camera"})
+    with pytest.raises(ValueError, match="no lib/control odometry"):
+        truth.recorder_config({"controller": "pi", "odometry": "firmware"})
+    assert truth.recorder_config({"controller": "pi"})["odometry"] == "ticks"
+    with pytest.raises(ValueError, match="outside"):
+        truth.recorder_config({"tel_drop": 0.9})
+    s = truth.TruthSim()
+    s.set("ref.kind", 3)
+    with pytest.raises(ValueError, match="segment list"):
+        s.run()
+    with pytest.raises(ValueError, match="segment 0"):
+        s.set_segments([{"duration_s": -1, "v": 0.2, "omega": 0}])
+
+
+def test_command_line_variants(tmp_path):
+    run = tmp_path / "v"
+    assert truth.main([str(run), "--ref", "tour", "--duration", "6", "--controller", "pi",
+                       "--odometry", "frames", "--integration", "midpoint", "--inner-ms", "20",
+                       "--tel-jitter-ms", "2", "--tel-drop", "0.05", "--cam-hz", "100",
+                       "--cam-noise-mm", "2", "--heading-tel", "wrapped"]) == 0
+    r = runfmt.load_run(run)
+    assert r.meta["controller"] == "pi" and r.meta["periods_s"]["inner"] == 0.02
+    assert r.meta["speed_reference"]["kind"] == "segments"
+    assert r.groundtruth["t_s"].size > 450
+    assert truth.main([str(tmp_path / "x"), "--ref", "segments"]) == 2
+    assert truth.main([str(tmp_path / "x"), "--controller", "pi", "--odometry", "firmware"]) == 2

@@ -7,6 +7,8 @@
 #include <stdio.h>
 #include <string.h>
 
+#include <vector>
+
 #include <control/cascade.h>
 #include <control/cascade_q.h>
 #include <control/reference.h>
@@ -25,32 +27,53 @@ struct KeyDef {
 // Every setting. robot.* / motor.*: the TRUE robot; ctl.*: what the firmware's controller is
 // configured with (the nominal values written to meta.json). Effect keys use run-format.md's
 // names; the out-of-vocabulary ones are eccentric_wheel, battery_sag and friction_patch.
+// The defaults of the robot and the datasheet motor are lib/slipmodel's parameter code (Table
+// II.2), not copies: the truth and the nominal model start from the same numbers.
+const slip::RobotParams kR = slip::table_ii2();
+const slip::MotorParams kM = slip::datasheet_motor();
+
 const KeyDef kKeys[] = {
-    {"robot.mu_s", 0.241, 1e-3, 100},      {"robot.mu_k", 0.239, 1e-3, 100},
-    {"robot.b", 0.105, 0.01, 1},           {"robot.e", 0.095, 0, 1},
-    {"robot.d", 0.055, 0, 1},              {"robot.g", 9.81, 0.1, 100},
-    {"robot.h", 0.0216, 0, 1},             {"robot.m_r", 1.5, 0.01, 100},
-    {"robot.I_rz", 0.009753, 1e-6, 10},    {"robot.I_wz", 0.000584, 0, 1},
-    {"robot.I_wy", 0.001168, 1e-6, 1},     {"robot.r", 0.0365, 0.005, 0.5},
-    {"robot.m_w", 0.064, 0, 10},           {"motor.supply_v", 12.0, 0.1, 100},
-    {"motor.no_load_rad_s", 36.65, 0.1, 1e4}, {"motor.stall_nm", 0.77, 1e-3, 100},
-    {"ctl.mu_s", 0.241, 1e-3, 100},        {"ctl.mu_k", 0.239, 1e-3, 100},
-    {"ctl.b", 0.105, 0.01, 1},             {"ctl.e", 0.095, 0, 1},
-    {"ctl.d", 0.055, 0, 1},                {"ctl.g", 9.81, 0.1, 100},
-    {"ctl.h", 0.0216, 0, 1},               {"ctl.m_r", 1.5, 0.01, 100},
-    {"ctl.I_rz", 0.009753, 1e-6, 10},      {"ctl.I_wz", 0.000584, 0, 1},
-    {"ctl.I_wy", 0.001168, 1e-6, 1},       {"ctl.r", 0.0365, 0.005, 0.5},
-    {"ctl.m_w", 0.064, 0, 10},             {"ctl.supply_v", 12.0, 0.1, 100},
-    {"ctl.no_load_rad_s", 36.65, 0.1, 1e4}, {"ctl.stall_nm", 0.77, 1e-3, 100},
+    {"robot.mu_s", kR.mu_s, 1e-3, 100},    {"robot.mu_k", kR.mu_k, 1e-3, 100},
+    {"robot.b", kR.b, 0.01, 1},            {"robot.e", kR.e, 0, 1},
+    {"robot.d", kR.d, 0, 1},               {"robot.g", kR.g, 0.1, 100},
+    {"robot.h", kR.h, 0, 1},               {"robot.m_r", kR.m_r, 0.01, 100},
+    {"robot.I_rz", kR.I_rz, 1e-6, 10},     {"robot.I_wz", kR.I_wz, 0, 1},
+    {"robot.I_wy", kR.I_wy, 1e-6, 1},      {"robot.r", kR.r, 0.005, 0.5},
+    {"robot.m_w", kR.m_w, 0, 10},          {"motor.supply_v", kM.supply_v, 0.1, 100},
+    {"motor.no_load_rad_s", kM.no_load_rad_s, 0.1, 1e4}, {"motor.stall_nm", kM.stall_nm, 1e-3, 100},
+    // stall current at supply_v: thesis III.1, "12 V supply with 2 A maximum current"
+    {"motor.stall_a", 2.0, 1e-3, 100},
+    {"ctl.mu_s", kR.mu_s, 1e-3, 100},      {"ctl.mu_k", kR.mu_k, 1e-3, 100},
+    {"ctl.b", kR.b, 0.01, 1},              {"ctl.e", kR.e, 0, 1},
+    {"ctl.d", kR.d, 0, 1},                 {"ctl.g", kR.g, 0.1, 100},
+    {"ctl.h", kR.h, 0, 1},                 {"ctl.m_r", kR.m_r, 0.01, 100},
+    {"ctl.I_rz", kR.I_rz, 1e-6, 10},       {"ctl.I_wz", kR.I_wz, 0, 1},
+    {"ctl.I_wy", kR.I_wy, 1e-6, 1},        {"ctl.r", kR.r, 0.005, 0.5},
+    {"ctl.m_w", kR.m_w, 0, 10},            {"ctl.supply_v", kM.supply_v, 0.1, 100},
+    {"ctl.no_load_rad_s", kM.no_load_rad_s, 0.1, 1e4}, {"ctl.stall_nm", kM.stall_nm, 1e-3, 100},
     {"ctl.clamp", 1, 0, 1},                {"ctl.fixed", 1, 0, 1},
-    {"ref.kind", 0, 0, 2},                 {"ref.accel", 0.5, 1e-3, 20},
+    // 0 line, 1 arc, 2 figure eight (lib/control's reference for the cascade); 3 segments: the
+    // truth's own speed profile, given by tr_set_segments
+    {"ref.kind", 0, 0, 3},                 {"ref.accel", 0.5, 1e-3, 20},
     {"ref.cruise", 0.5, 0, 4},             {"ref.radius", 1.0, -100, 100},
-    {"sim.duration", 2.0, 0.01, 600},      {"sim.dt", 2e-4, 1e-5, 1e-3},
+    {"ref.alpha", 2.0, 1e-3, 100},         // segments: yaw-rate ramp, rad/s^2
+    {"sim.duration", 2.0, 0.01, 3600},     {"sim.dt", 2e-4, 1e-5, 1e-3},
     {"sim.inner_period", 0.025, 1e-3, 1},  {"sim.tel_period", 0.02, 1e-3, 1},
     {"sim.tel_phase", 0.002, 0, 1},        {"sim.cam_period", 1.0 / 30.0, 1e-3, 10},
     {"sim.cam_phase", 0.01, 0, 10},
     {"sim.open_loop", 0, 0, 1},              // 1: constant duties sim.u_r, sim.u_l (no controller)
     {"sim.u_r", 0, -1, 1},                   {"sim.u_l", 0, -1, 1},
+    // ---- the recorder (what the robot's board runs and logs); the defaults are this project's
+    // firmware pipeline
+    {"rec.controller", 0, 0, 1},             // 0: lib/control's cascade; 1: the truth's own PI loop
+    {"rec.odometry", 0, 0, 2},               // 0: lib/control's (at ticks); 1: own, at ticks; 2: own, at frames
+    {"rec.midpoint", 0, 0, 1},               // own odometry: 0 exact arc, 1 midpoint rule
+    {"rec.tel_jitter", 0.0, 0, 0.5},         // telemetry frame time jitter, uniform +-, s
+    {"rec.seed", 0, 0, 4294967295.0},        // seed of the jitter
+    {"pi.kp", 0.04, 0, 10},                  // N m per rad/s
+    {"pi.ki", 0.3, 0, 100},                  // N m per rad
+    {"pi.j_ff", 0.0023, 0, 1},               // acceleration feed-forward, kg m^2 (per wheel)
+    {"pi.tau_limit", 0.77, 1e-3, 100},       // N m
     {"motor_back_emf.ke_ratio", 1.0, 0.1, 10},
     {"driver_voltage_drop.volts", 0.0, 0, 50},
     {"actuation_delay.delay_s", 0.0, 0, 1},
@@ -81,7 +104,7 @@ const char* const kTelCols[] = {
     // hidden truth (never written to telemetry.csv)
     "true_x_m", "true_y_m", "true_phi_rad", "true_dtheta_r", "true_dtheta_l", "true_slip_r",
     "true_slip_l", "true_tau_r_nm", "true_tau_l_nm", "true_N_r", "true_N_l", "true_N_c",
-    "true_v_batt", "clamped"};
+    "true_v_batt", "clamped", "true_i_r_a", "true_i_l_a"};
 const int kTelColCount = static_cast<int>(sizeof(kTelCols) / sizeof(kTelCols[0]));
 const char* const kCamCols[] = {"t_s", "x_m", "y_m", "phi_rad"};
 const int kCamColCount = 4;
@@ -89,6 +112,7 @@ const int kCamColCount = 4;
 struct Handle {
   double v[sizeof(kKeys) / sizeof(kKeys[0])];
   char err[256];
+  std::vector<double> seg_dur, seg_v, seg_w;  // ref.kind 3: segment durations, targets v, omega
   Handle() {
     for (int i = 0; i < kKeyCount; ++i) v[i] = kKeys[i].def;
     err[0] = '\0';
@@ -194,6 +218,147 @@ struct CtlIO {  // what the board reports after an inner step
   int clamped = 0;
 };
 
+
+// ------------------------------------------------------------------ the recorder's own code
+// Everything below up to tr_new is the truth simulator's own recorder: a reference speed
+// profile, odometry and a PI wheel-speed loop that are NOT lib/control's, so that recordings
+// can come from a board that is not this project's firmware.
+
+uint64_t splitmix64(uint64_t& s) {
+  uint64_t z = (s += 0x9E3779B97F4A7C15ull);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+  return z ^ (z >> 31);
+}
+double uniform01(uint64_t& s) { return (splitmix64(s) >> 11) * (1.0 / 9007199254740992.0); }
+
+// A speed step toward a target at a bounded rate: value at time tau after the step's start.
+void ramp(double from, double to, double rate, double tau, double* val, double* der) {
+  const double dist = fabs(to - from), t_end = dist / rate;
+  if (tau >= t_end) {
+    *val = to;
+    *der = 0.0;
+  } else {
+    const double sg = to > from ? 1.0 : -1.0;
+    *val = from + sg * rate * tau;
+    *der = sg * rate;
+  }
+}
+
+// The truth's own reference speeds (v, omega and their derivatives) for every kind:
+//  * line/arc/figure eight: the same definitions as lib/control's reference.h (accelerate at
+//    accel to cruise; curvature 0, 1/R, cos(2 pi s/L)/R with L = 2 pi beta |R|), computed here
+//    in double precision (used by the PI loop, whose reference is wheel speeds);
+//  * segments: from rest, segment i (start T_i, duration D_i) ramps v toward v_i at +-accel
+//    and omega toward omega_i at +-alpha, then holds; after the last segment its targets hold.
+//    The reference pose is the integral of (v, omega) from the origin facing +x.
+struct SpeedRef {
+  int kind = 0;
+  double accel = 0.5, cruise = 0.5, radius = 1.0, alpha = 2.0;
+  std::vector<double> T, D, V, W, v0, w0;  // segment starts, durations, targets, start values
+
+  void init(const Handle& H) {
+    kind = static_cast<int>(lround(H("ref.kind")));
+    accel = H("ref.accel"); cruise = H("ref.cruise"); radius = H("ref.radius"); alpha = H("ref.alpha");
+    D = H.seg_dur; V = H.seg_v; W = H.seg_w;
+    T.assign(D.size(), 0.0); v0.assign(D.size(), 0.0); w0.assign(D.size(), 0.0);
+    double t = 0.0, v = 0.0, w = 0.0, dv, dw;
+    for (size_t i = 0; i < D.size(); ++i) {
+      T[i] = t; v0[i] = v; w0[i] = w;
+      ramp(v, V[i], accel, D[i], &v, &dv);
+      ramp(w, W[i], alpha, D[i], &w, &dw);
+      t += D[i];
+    }
+  }
+  // v, omega, dv/dt, domega/dt at time t >= 0
+  void at(double t, double* v, double* w, double* dv, double* dw) const {
+    if (t < 0) t = 0;
+    if (kind == 3) {
+      size_t i = 0;
+      while (i + 1 < D.size() && t >= T[i + 1]) ++i;
+      ramp(v0[i], V[i], accel, t - T[i], v, dv);
+      ramp(w0[i], W[i], alpha, t - T[i], w, dw);
+      return;
+    }
+    const double t_r = cruise / accel;
+    double s;
+    if (t < t_r) { *v = accel * t; *dv = accel; s = 0.5 * accel * t * t; }
+    else { *v = cruise; *dv = 0.0; s = 0.5 * cruise * t_r + cruise * (t - t_r); }
+    double kappa = 0.0, dkappa = 0.0;
+    if (kind == 1) {
+      kappa = 1.0 / radius;
+    } else if (kind == 2) {
+      const double L = 2.0 * kPi * ctl::kEightBeta * fabs(radius), a = 2.0 * kPi * s / L;
+      kappa = cos(a) / radius;
+      dkappa = -sin(a) * (2.0 * kPi / L) / radius;
+    }
+    *w = *v * kappa;
+    *dw = *dv * kappa + *v * *v * dkappa;
+  }
+};
+
+// Recorder odometry from the encoder counts with the nominal r and b (double precision):
+// distance steps d_r, d_l, ds = (d_r + d_l)/2, dphi = (d_r - d_l)/(2b); the exact arc
+// (x += ds/dphi (sin(phi + dphi) - sin phi), ...) or the midpoint rule (heading phi + dphi/2).
+struct OwnOdometry {
+  double r = 0.0365, b = 0.105;
+  bool midpoint = false;
+  int32_t er = 0, el = 0;
+  double x = 0, y = 0, phi = 0;
+  void update(int32_t enc_r, int32_t enc_l) {
+    const double k = 2.0 * kPi / slip::kEncoderPpr * r;
+    const double dr = (enc_r - er) * k, dl = (enc_l - el) * k;
+    er = enc_r; el = enc_l;
+    const double ds = 0.5 * (dr + dl), dphi = (dr - dl) / (2.0 * b);
+    if (midpoint || fabs(dphi) < 1e-9) {
+      x += ds * cos(phi + 0.5 * dphi);
+      y += ds * sin(phi + 0.5 * dphi);
+    } else {
+      const double R = ds / dphi;
+      x += R * (sin(phi + dphi) - sin(phi));
+      y -= R * (cos(phi + dphi) - cos(phi));
+    }
+    phi += dphi;
+  }
+};
+
+// A PI wheel-speed loop per wheel (not lib/control's cascade): wheel-speed references
+// (v +- b omega)/r from the reference, speed estimate = count difference over the inner period,
+// torque = j_ff dw_ref + kp e + ki integral(e) limited to +-tau_limit (the integral stops while
+// the torque is limited and the error would drive it further), duty from the datasheet motor:
+// u = tau/stall + w/no_load, limited to [-1, 1].
+struct PiLoop {
+  double kp = 0.04, ki = 0.3, j_ff = 0.0023, tau_lim = 0.77, r = 0.0365, b = 0.105;
+  double stall = 0.77, no_load = 36.65, period = 0.025;
+  int32_t last[2] = {0, 0};
+  bool first = true;
+  double integ[2] = {0, 0}, omega[2] = {0, 0}, tau[2] = {0, 0}, duty[2] = {0, 0};
+  int limited = 0;
+  void step(int32_t enc_r, int32_t enc_l, double v, double w, double dv, double dw) {
+    const int32_t enc[2] = {enc_r, enc_l};
+    const double ref[2] = {(v + b * w) / r, (v - b * w) / r};
+    const double dref[2] = {(dv + b * dw) / r, (dv - b * dw) / r};
+    limited = 0;
+    for (int i = 0; i < 2; ++i) {
+      omega[i] = first ? 0.0 : (enc[i] - last[i]) * (2.0 * kPi / slip::kEncoderPpr) / period;
+      last[i] = enc[i];
+      const double e = ref[i] - omega[i];
+      const double trial_i = integ[i] + e * period;
+      double t = j_ff * dref[i] + kp * e + ki * trial_i;
+      if (fabs(t) > tau_lim) {
+        limited |= 1 << i;
+        // anti-windup: keep the integral unless the error pulls the torque back inside
+        if (!((t > 0) == (e > 0))) integ[i] = trial_i;
+        t = t > 0 ? tau_lim : -tau_lim;
+      } else {
+        integ[i] = trial_i;
+      }
+      tau[i] = t;
+      duty[i] = fmax(-1.0, fmin(1.0, t / stall + omega[i] / no_load));
+    }
+    first = false;
+  }
+};
 }  // namespace
 
 extern "C" {
@@ -224,6 +389,21 @@ int tr_set(void* p, const char* key, double value) {
   return 0;
 }
 
+int tr_set_segments(void* p, int n, const double* dur, const double* v, const double* w) {
+  if (!p || n < 0 || (n > 0 && (!dur || !v || !w))) return -3;
+  Handle* h = static_cast<Handle*>(p);
+  for (int i = 0; i < n; ++i) {
+    if (!isfinite(dur[i]) || dur[i] <= 0 || !isfinite(v[i]) || fabs(v[i]) > 4 || !isfinite(w[i]) || fabs(w[i]) > 16) {
+      snprintf(h->err, sizeof h->err, "segment %d: duration > 0, |v| <= 4 m/s, |omega| <= 16 rad/s", i);
+      return -2;
+    }
+  }
+  h->seg_dur.assign(dur, dur + n);
+  h->seg_v.assign(v, v + n);
+  h->seg_w.assign(w, w + n);
+  return 0;
+}
+
 int tr_get(void* p, const char* key, double* out) {
   if (!p || !key || !out) return -3;
   Handle* h = static_cast<Handle*>(p);
@@ -248,6 +428,7 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   const double Iw = H("robot.I_wy"), r0 = H("robot.r");
   const double V0 = H("motor.supply_v"), w0 = H("motor.no_load_rad_s"), stall = H("motor.stall_nm");
   const double k_t = V0 / w0;  // SI motor constant (torque per ampere = volts per rad/s)
+  const double stall_a = H("motor.stall_a");
   const double ke_ratio = H("motor_back_emf.ke_ratio"), v_drop = H("driver_voltage_drop.volts");
   const double delay = H("actuation_delay.delay_s"), lag = H("motor_lag.tau_s");
   const double c_visc = H("axle_viscous.c"), T_coul = H("axle_coulomb.torque");
@@ -278,12 +459,21 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   cm.supply_v = H("ctl.supply_v"); cm.no_load_rad_s = H("ctl.no_load_rad_s"); cm.stall_nm = H("ctl.stall_nm");
   const bool fixed = H("ctl.fixed") != 0.0;
   const ctl::ControlConfig cfg = ctl::make_control_config(cr, cm, ctl::default_gains(), H("ctl.clamp") != 0.0);
-  const ctl::ControlConfigQ cfg_q(cfg);
+  const uint32_t inner_us = static_cast<uint32_t>(llround(inner_n * dt * 1e6));
+  const ctl::ControlConfigQ cfg_q(cfg, inner_us);
   if (fixed && !cfg_q.ok) {
     snprintf(H.err, sizeof H.err, "controller configuration does not fit the fixed-point formats");
     return -2;
   }
-  const ctl::ReferenceSpec ref{static_cast<ctl::PathKind>(lround(H("ref.kind"))), static_cast<float>(H("ref.accel")),
+  const int ref_kind = static_cast<int>(lround(H("ref.kind")));
+  const bool segments = ref_kind == 3;
+  if (segments && H.seg_dur.empty()) {
+    snprintf(H.err, sizeof H.err, "ref.kind 3 (segments) needs a segment list (tr_set_segments)");
+    return -2;
+  }
+  SpeedRef sref;
+  sref.init(H);
+  const ctl::ReferenceSpec ref{static_cast<ctl::PathKind>(segments ? 0 : ref_kind), static_cast<float>(H("ref.accel")),
                                static_cast<float>(H("ref.cruise")), static_cast<float>(H("ref.radius"))};
   if (!ref.valid()) {
     snprintf(H.err, sizeof H.err, "invalid reference (accel in (0,20], cruise in [0,4], |R| in [0.05,100])");
@@ -294,6 +484,30 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   ctl::ControllerQ qc(cfg_q);
   fc.reset(0, 0, ctl::Pose{0.0f, 0.0f, 0.0f});
   qc.reset(0, 0, ctl::PoseQ{0, 0, 0});
+  // ---- the recorder
+  const bool pi_mode = H("rec.controller") != 0.0;
+  const int odo_mode = static_cast<int>(lround(H("rec.odometry")));
+  if (pi_mode && odo_mode == 0) {
+    snprintf(H.err, sizeof H.err, "the PI recorder has no lib/control odometry: rec.odometry must be 1 or 2");
+    return -2;
+  }
+  OwnOdometry own_odo;
+  own_odo.r = cr.r; own_odo.b = cr.b; own_odo.midpoint = H("rec.midpoint") != 0.0;
+  PiLoop pi;
+  pi.kp = H("pi.kp"); pi.ki = H("pi.ki"); pi.j_ff = H("pi.j_ff"); pi.tau_lim = H("pi.tau_limit");
+  pi.r = cr.r; pi.b = cr.b; pi.stall = cm.stall_nm; pi.no_load = cm.no_load_rad_s; pi.period = inner_n * dt;
+  // reference pose of a segment profile (the cascade's outer loop needs it): the integral of
+  // (v, omega), advanced every simulation step with the trapezoid rule on omega and the
+  // midpoint heading for the position (v and omega are piecewise linear in time)
+  double ref_x = 0.0, ref_y = 0.0, ref_phi = 0.0, ref_v = 0.0, ref_w = 0.0, ref_dv = 0.0, ref_dw = 0.0;
+  sref.at(0.0, &ref_v, &ref_w, &ref_dv, &ref_dw);
+  const double jitter = H("rec.tel_jitter");
+  uint64_t rng = static_cast<uint64_t>(H("rec.seed"));
+  auto next_frame = [&](long j) -> long {  // step of telemetry frame j (jittered, on the grid)
+    long n = tel_0 + j * tel_n;
+    if (jitter > 0.0) n += lround((2.0 * uniform01(rng) - 1.0) * jitter / dt);
+    return n;
+  };
 
   // ---- state: c in world coordinates; the robot starts at rest with o at the origin, facing +x
   double X = d, Y = 0.0, phi = 0.0;
@@ -304,10 +518,11 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   double tau_del_r = 0.0, tau_del_l = 0.0;  // delivered torques (after the lag)
   double lat_prev = 0.0, ax_prev = 0.0;     // body-frame lateral friction force, forward accel of c
   double charge_as = 0.0, v_batt = V0, N_r = 0, N_l = 0, N_c = 0;
-  // command history for the actuation delay (commands change only at ticks)
+  // command history for the actuation delay (commands change only at ticks): a ring of the
+  // last kHist ticks (>= 4.096 s at the shortest inner period, 1 ms; the delay is <= 1 s)
   const int kHist = 4096;
-  static thread_local double hist_t[4096], hist_r[4096], hist_l[4096];
-  int hist_n = 0;
+  std::vector<double> hist_t(kHist), hist_r(kHist), hist_l(kHist);
+  long hist_n = 0;
   CtlIO io;
   double phi_odo_unwrapped = 0.0;
   uint32_t phi_odo_last = 0;
@@ -315,6 +530,8 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   long next_cam_j = 0;
   const double cam_T = H("sim.cam_period"), cam_0 = H("sim.cam_phase");
   double last_tau_r = 0, last_tau_l = 0;
+  double cur_r = 0.0, cur_l = 0.0;  // armature currents (after the lag), A
+  long tel_j = 0, tel_next = next_frame(0), tel_prev = -1;
 
   for (long n = 0; n <= n_steps; ++n) {
     const double t = n * dt;
@@ -324,10 +541,32 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
     if (n % inner_n == 0) {
       const long k = n / inner_n;
       const int32_t er = counts(th_r), el = counts(th_l);
-      uint32_t phi_b32;
-      if (fixed) {
+      uint32_t phi_b32 = 0;
+      ctl::RefSample rs{};
+      ctl::RefSampleQ rq{};
+      if (segments && k % 2 == 0) {  // the truth's own reference in the controller's formats
+        rs = ctl::RefSample{static_cast<float>(ref_x), static_cast<float>(ref_y), static_cast<float>(ref_phi),
+                            static_cast<float>(ref_v), static_cast<float>(ref_w), static_cast<float>(ref_dv),
+                            static_cast<float>(ref_dw)};
+        rq.x_q20 = static_cast<int32_t>(llround(ref_x * 1048576.0));
+        rq.y_q20 = static_cast<int32_t>(llround(ref_y * 1048576.0));
+        rq.phi_b32 = to_b32(ref_phi);
+        rq.v_q12 = static_cast<int16_t>(llround(ref_v * 4096.0));
+        rq.omega_q11 = static_cast<int16_t>(llround(ref_w * 2048.0));
+        rq.dv_q12 = static_cast<int16_t>(llround(ref_dv * 4096.0));
+        rq.domega_q11 = static_cast<int16_t>(llround(ref_dw * 2048.0));
+      }
+      if (pi_mode) {
+        double v, w, dv, dw;
+        sref.at(t, &v, &w, &dv, &dw);
+        pi.step(er, el, v, w, dv, dw);
+        io.pwm_r = pi.duty[0]; io.pwm_l = pi.duty[1]; io.tau_r = pi.tau[0]; io.tau_l = pi.tau[1];
+        io.clamped = pi.limited;
+        io.omega_r = pi.omega[0]; io.omega_l = pi.omega[1];
+      } else if (fixed) {
         const ctl::InnerOutQ& o = qc.inner_step(er, el, static_cast<uint32_t>(llround(inner_n * dt * 1e6)));
-        if (k % 2 == 0) qc.outer_step(ctl::reference_at_q(ref_q, static_cast<uint32_t>(llround(k * inner_n * dt * 1000.0))));
+        if (k % 2 == 0)
+          qc.outer_step(segments ? rq : ctl::reference_at_q(ref_q, static_cast<uint32_t>(llround(k * inner_n * dt * 1000.0))));
         io.pwm_r = o.pwm_r_q15 / 32768.0; io.pwm_l = o.pwm_l_q15 / 32768.0;
         io.tau_r = o.tau_r_q16 / 65536.0; io.tau_l = o.tau_l_q16 / 65536.0;
         io.clamped = (o.clamped_r ? 1 : 0) + (o.clamped_l ? 2 : 0);
@@ -336,31 +575,40 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
         phi_b32 = qc.odometry().pose().phi_b32;
       } else {
         const ctl::InnerOut& o = fc.inner_step(er, el, static_cast<float>(inner_n * dt));
-        if (k % 2 == 0) fc.outer_step(ctl::reference_at(ref, static_cast<float>(k * inner_n * dt)));
+        if (k % 2 == 0) fc.outer_step(segments ? rs : ctl::reference_at(ref, static_cast<float>(k * inner_n * dt)));
         io.pwm_r = o.pwm_r; io.pwm_l = o.pwm_l; io.tau_r = o.tau_r_nm; io.tau_l = o.tau_l_nm;
         io.clamped = (o.clamped_r ? 1 : 0) + (o.clamped_l ? 2 : 0);
         io.omega_r = fc.odometry().omega_r_rad_s(); io.omega_l = fc.odometry().omega_l_rad_s();
         io.x = fc.odometry().pose().x_m; io.y = fc.odometry().pose().y_m;
         phi_b32 = to_b32(fc.odometry().pose().phi_rad);
       }
-      phi_odo_unwrapped += static_cast<int32_t>(phi_b32 - phi_odo_last) * (2.0 * kPi / 4294967296.0);
-      phi_odo_last = phi_b32;
-      io.phi = phi_odo_unwrapped;
-      if (hist_n >= kHist) {
-        snprintf(H.err, sizeof H.err, "run too long for the command history (%d ticks)", kHist);
-        return -2;
+      if (odo_mode == 0) {
+        phi_odo_unwrapped += static_cast<int32_t>(phi_b32 - phi_odo_last) * (2.0 * kPi / 4294967296.0);
+        phi_odo_last = phi_b32;
+        io.phi = phi_odo_unwrapped;
+      } else if (odo_mode == 1) {  // the recorder's own odometry at the ticks
+        own_odo.update(er, el);
+        io.x = own_odo.x; io.y = own_odo.y; io.phi = own_odo.phi;
       }
       if (H("sim.open_loop") != 0.0) { io.pwm_r = H("sim.u_r"); io.pwm_l = H("sim.u_l"); }
-      hist_t[hist_n] = t; hist_r[hist_n] = io.pwm_r; hist_l[hist_n] = io.pwm_l; ++hist_n;
+      const long slot = hist_n % kHist;
+      hist_t[slot] = t; hist_r[slot] = io.pwm_r; hist_l[slot] = io.pwm_l; ++hist_n;
     }
     const double xo = X - d * ct, yo = Y - d * st;
-    if (n >= tel_0 && (n - tel_0) % tel_n == 0) {
+    while (tel_next <= tel_prev || tel_next < 0) tel_next = next_frame(++tel_j);  // frames stay in order
+    if (n == tel_next) {
+      tel_prev = n;
+      tel_next = next_frame(++tel_j);
       if (nt >= max_tel) { snprintf(H.err, sizeof H.err, "telemetry buffer too small"); return -3; }
+      if (odo_mode == 2) {  // the recorder's own odometry at the frames
+        own_odo.update(counts(th_r), counts(th_l));
+        io.x = own_odo.x; io.y = own_odo.y; io.phi = own_odo.phi;
+      }
       double* row = tel + static_cast<long>(nt) * kTelColCount;
       const double vals[] = {t, double(counts(th_r)), double(counts(th_l)), io.omega_r, io.omega_l, io.tau_r, io.tau_l,
                              io.pwm_r, io.pwm_l, io.x, io.y, io.phi, xo, yo, phi, q[3], q[4],
                              stuck_r ? 0.0 : 1.0, stuck_l ? 0.0 : 1.0, last_tau_r, last_tau_l, N_r, N_l, N_c,
-                             v_batt, double(io.clamped)};
+                             v_batt, double(io.clamped), cur_r, cur_l};
       memcpy(row, vals, sizeof vals);
       ++nt;
     }
@@ -377,15 +625,15 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
 
     // ---- drive: delayed duty -> voltage (battery, driver drop, deadband) -> motor -> lag
     double u_r = 0.0, u_l = 0.0;
-    for (int i = hist_n - 1; i >= 0; --i)
-      if (hist_t[i] <= t - delay + 1e-12) { u_r = hist_r[i]; u_l = hist_l[i]; break; }
+    for (long i = hist_n - 1; i >= 0 && i >= hist_n - kHist; --i)
+      if (hist_t[i % kHist] <= t - delay + 1e-12) { u_r = hist_r[i % kHist]; u_l = hist_l[i % kHist]; break; }
     u_r = fmax(-1.0, fmin(1.0, u_r));
     u_l = fmax(-1.0, fmin(1.0, u_l));
     const double i_draw = (fabs(tau_del_r) + fabs(tau_del_l)) / k_t;
     charge_as += i_draw * dt;
     v_batt = V0 - r_int * i_draw - v_per_as * charge_as;
     const double v_avail = fmax(0.0, v_batt - v_drop);
-    double tau_cmd[2];
+    double tau_cmd[2], i_cmd[2];
     const double uu[2] = {u_r, u_l}, ww[2] = {q[3], q[4]};
     for (int i = 0; i < 2; ++i) {
       double V = uu[i] * v_avail;
@@ -394,16 +642,24 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
       double tau = stall * (V - ke_ratio * (V0 / w0) * ww[i]) / V0;
       tau = fmax(-stall, fmin(stall, tau));
       tau_cmd[i] = tau;
+      // the same armature current in amperes (1/R = stall_a/V0): the electrical side, before the
+      // axle's friction; the gain asymmetry below is one of torque per ampere, not of current
+      double cur = stall_a * (V - ke_ratio * (V0 / w0) * ww[i]) / V0;
+      i_cmd[i] = fmax(-stall_a, fmin(stall_a, cur));
     }
     tau_cmd[0] *= sqrt(asym);
     tau_cmd[1] /= sqrt(asym);
-    if (lag > 0.0) {
+    if (lag > 0.0) {  // the lag is the armature's: current and torque follow it together
       const double a = 1.0 - exp(-dt / lag);
       tau_del_r += a * (tau_cmd[0] - tau_del_r);
       tau_del_l += a * (tau_cmd[1] - tau_del_l);
+      cur_r += a * (i_cmd[0] - cur_r);
+      cur_l += a * (i_cmd[1] - cur_l);
     } else {
       tau_del_r = tau_cmd[0];
       tau_del_l = tau_cmd[1];
+      cur_r = i_cmd[0];
+      cur_l = i_cmd[1];
     }
     last_tau_r = tau_del_r;
     last_tau_l = tau_del_l;
@@ -495,6 +751,15 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
     phi += dt * q[2];
     th_r += dt * q[3];
     th_l += dt * q[4];
+    if (segments) {
+      double v1, w1, dv1, dw1;
+      sref.at(t + dt, &v1, &w1, &dv1, &dw1);
+      const double phi_mid = ref_phi + 0.25 * dt * (ref_w + w1);
+      ref_x += dt * 0.5 * (ref_v + v1) * cos(phi_mid);
+      ref_y += dt * 0.5 * (ref_v + v1) * sin(phi_mid);
+      ref_phi += 0.5 * dt * (ref_w + w1);
+      ref_v = v1; ref_w = w1; ref_dv = dv1; ref_dw = dw1;
+    }
     if (!isfinite(X) || !isfinite(Y) || !isfinite(phi)) {
       snprintf(H.err, sizeof H.err, "state diverged at t = %g s", t);
       return -2;

@@ -19,15 +19,28 @@
 //     the wheel angle), battery sag (supply voltage falling with the current and the charge
 //     drawn), and a floor patch of different friction.
 //
-// The closed loop is the firmware's: lib/control's ControllerQ (fixed point) is linked in and
-// driven like the firmware, inner step every 25 ms with the quantised encoder counts, outer step
-// every 50 ms after the inner step. lib/control uses lib/slipmodel's parameters, tau_max and
-// motor inverse — that is the firmware's code, not the truth's physics; nothing in truth.cpp
-// calls lib/slipmodel's plant, traction or motor functions.
+// The recorder (what the robot's board runs and logs) is by default this project's firmware:
+// lib/control's ControllerQ (fixed point) is linked in and driven like the firmware, inner step
+// every sim.inner_period (25 ms) with the quantised encoder counts, outer step every second
+// tick after the inner step. lib/control uses lib/slipmodel's parameters, tau_max and motor
+// inverse — that is the firmware's code, not the truth's physics; nothing in truth.cpp calls
+// lib/slipmodel's plant, traction or motor functions. Recorder variants that are NOT the
+// firmware (rec.*, pi.*): the truth's own PI wheel-speed loop instead of the cascade; the
+// truth's own odometry (exact arc or midpoint rule) updated at the ticks or at the telemetry
+// frames; inner periods other than 25 ms; telemetry frame times with jitter. A reference
+// of ref.kind 3 is the truth's own segment list (speed ramps, cruises, arcs, stops, turns),
+// fed to the cascade in its reference formats.
+//
+// Motor current: the armature current of the truth's DC motor, I = stall_a (V_eff/supply_v -
+// ke_ratio omega/no_load) limited to +-stall_a, with the battery, driver drop, deadband and
+// back-EMF acting on V_eff and the same lag as the torque; axle friction acts on the wheel, not
+// on this law (hidden columns true_i_r_a, true_i_l_a; host_tools/truth.py logs |I| through the
+// Motor Shield R3's 1.65 V/A sense and 10-bit ADC).
 //
 // Sensors: encoder counts floor(theta*ppr/2pi) read live at each tick and telemetry frame;
 // 50 Hz telemetry (phase 2 ms as in src/app.cpp); the camera's exact poses at its own times
-// (host_tools/truth.py adds the camera noise and dropouts).
+// (host_tools/truth.py adds the camera noise and dropouts, lost telemetry frames and wrapped
+// headings).
 //
 // C ABI (ctypes, host_tools/truth.py). Keys: see tr_key_count()/tr_key_name(); negative return
 // codes: -1 unknown key, -2 bad value, -3 bad argument; tr_last_error() says why.
@@ -45,6 +58,8 @@ int tr_key_count(void);
 const char* tr_key_name(int i);
 int tr_set(void* h, const char* key, double value);
 int tr_get(void* h, const char* key, double* out);
+/// The segment list of ref.kind 3: n segments of dur[i] s with targets v[i] m/s, w[i] rad/s.
+int tr_set_segments(void* h, int n, const double* dur, const double* v, const double* w);
 /// Telemetry columns (tr_tel_cols) and camera/true-pose columns (tr_cam_cols).
 int tr_tel_cols(void);
 const char* tr_tel_col_name(int i);
