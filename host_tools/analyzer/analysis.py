@@ -19,7 +19,7 @@ from host_tools.analyzer.fit import (HELDOUT_RULE, Candidate, Problem, evaluate_
                                     heldout_channel_check, judge, params_for)
 from host_tools.analyzer.replay import (CHANNELS, CLOSED_LOOP_CHANNELS, CUMULATIVE, DERIVED,
                                         FIT_CHANNELS, ClosedLoopReplay, OpenLoopReplay,
-                                        PreparedRun, channels, closed_loop_channels,
+                                        PreparedRun, channels, closed_loop_channels, split_after_slip,
                                         prepare_timed, state_table)
 
 REPORT_FORMAT = "mismatch-report/1"
@@ -311,6 +311,11 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     duty = OpenLoopReplay("duty", dt_s=dt_s)
     torque = OpenLoopReplay("torque", dt_s=dt_s)
     preps = [prepare_timed(r) for r in runs]
+    n_slip = 0
+    for p in preps:
+        n_slip += split_after_slip(p, duty.simulate_windows(p, {}))
+    if n_slip:
+        log(f"pose re-anchored after the nominal replay's slip episodes in {n_slip} run(s)")
     nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
     nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
     n_win = sum(len(p.windows) for p in preps)
