@@ -462,8 +462,12 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
         pool = cands if len(sel.effects) == 1 else pair_cands
 
         def _close(c: Candidate, me: Candidate) -> bool:
-            return ((c.delta_bic - me.delta_bic) < 10.0 and c.fit.rss < rss0 and
-                    bool(c.checks.get("heldout")) and
+            # an alternative that explains about as much and would itself be worth adopting
+            # (BIC, held-out gain, size, physically possible); not the per-channel veto, which
+            # is what picked one of them
+            worth = all(c.checks.get(k, True) for k in ("bic", "heldout", "size", "physical",
+                                                        "adds"))
+            return ((c.delta_bic - me.delta_bic) < 10.0 and c.fit.rss < rss0 and worth and
                     c.heldout_after <= max(1.25 * me.heldout_after, me.heldout_after + 0.1))
 
         for e in sel.effects:

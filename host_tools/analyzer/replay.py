@@ -294,8 +294,17 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
     # the torque command is set at the same ticks as the duty
     t_in_tau = reconstruct_input_times(t, [tel["tau_cmd_r"], tel["tau_cmd_l"]], period,
                                        arc_position, phase)
+    # a first frame that already carries a command reports the tick before it: the robot
+    # started moving there (the replay starts at rest at that tick, not at the first frame)
+    if phase is not None and period > 0:
+        tick0 = phase + math.floor((t[0] - phase) / period + 1e-9) * period
+        if t[0] - period < tick0 < t[0]:
+            if tel["pwm_r"][0] != 0 or tel["pwm_l"][0] != 0:
+                t_in[0] = tick0
+            if tel["tau_cmd_r"][0] != 0 or tel["tau_cmd_l"][0] != 0:
+                t_in_tau[0] = tick0
     # the input takes effect at t_in[k] and holds until the next one; the simulation is sampled
-    # at the union of input times and telemetry times, from the first frame on
+    # at the union of input times and telemetry times
     grid = np.unique(np.concatenate([t, t_in, t_in_tau]))
     return PreparedRun(run=run, t_in=t_in, t_in_tau=t_in_tau, windows=make_windows(t),
                        duty=(tel["pwm_r"], tel["pwm_l"]),
@@ -579,7 +588,7 @@ def window_start(prep: PreparedRun, w: int) -> tuple[float, tuple, tuple | None]
     t = tel["t_s"]
     i_a, _ = prep.windows[w]
     if w == 0 or i_a == 0:
-        return float(t[0]), prep.start_pose, None
+        return float(prep.t_grid[0]), prep.start_pose, None
     first = i_a
     while first > 0 and t[first] - t[first - 1] <= GAP_S and t[i_a] - t[first - 1] <= BURN_IN_S:
         first -= 1

@@ -54,8 +54,8 @@ void fill_dynamic(const slip::Plant& pl, double* row) {
   row[19] = s.F_l_n;
   row[20] = s.L_r_n;
   row[21] = s.L_l_n;
-  row[22] = slip::motor_current_a(pl.motor(), s.tau_r_nm);
-  row[23] = slip::motor_current_a(pl.motor(), s.tau_l_nm);
+  row[22] = pl.current_a(0);
+  row[23] = pl.current_a(1);
 }
 
 void fill_kinematic(const slip::PlantState& s, double* row) {

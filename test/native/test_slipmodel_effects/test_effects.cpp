@@ -9,6 +9,7 @@
 
 #include <slipmodel/effects.h>
 #include <slipmodel/keys.h>
+#include <slipmodel/motor.h>
 #include <slipmodel/plant.h>
 #include <slipmodel/rolling.h>
 #include <slipmodel/traction.h>
@@ -266,6 +267,13 @@ static void test_motor_gain_asymmetry(void) {
   d.set_effect(kMotorGainAsymmetry, true, 1.2);
   run(d, 1, 0.1, 0.1, 0.5);
   TEST_ASSERT_TRUE(d.state().phi_rad > 0.0);
+  // the asymmetry is one of torque per ampere: the currents are the motor model's, so with equal
+  // duties and (at rest) equal speeds both wheels draw the same current
+  Plant c;
+  c.set_effect(kMotorGainAsymmetry, true, 1.2);
+  run(c, 1, 0.3, 0.3, 0.0005);
+  EXPECT_NEAR(1e-9, c.current_a(0), c.current_a(1));
+  EXPECT_NEAR(1e-9, motor_current_a(c.motor(), motor_torque_nm(c.motor(), 0.3, 0.0)), c.current_a(0));
 }
 
 static void test_floor_slope(void) {

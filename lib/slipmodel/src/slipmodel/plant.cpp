@@ -148,6 +148,15 @@ void Plant::step_torque(double tau_r_nm, double tau_l_nm, double dt_s) {
 
 void Plant::step_duty(double u_r, double u_l, double dt_s) { step(1, u_r, u_l, dt_s); }
 
+double Plant::current_a(int wheel) const {
+  double tau = wheel == 0 ? s_.tau_r_nm : s_.tau_l_nm;
+  if (fx_.on(kMotorGainAsymmetry) && fx_.p[kMotorGainAsymmetry][0] > 0.0) {
+    const double k = sqrt(fx_.p[kMotorGainAsymmetry][0]);
+    tau = wheel == 0 ? tau / k : tau * k;
+  }
+  return motor_current_a(motor_, tau);
+}
+
 void Plant::step(int mode, double in_r, double in_l, double dt) {
   if (!(dt > 0.0) || !isfinite(dt)) return;
   in_r = finite_or_zero(in_r);

@@ -57,6 +57,10 @@ class Plant {
   void step_duty(double u_r, double u_l, double dt_s);
 
   const PlantState& state() const { return s_; }
+  /// Motor current of wheel 0 (right) or 1 (left) in the last step, A: the armature current
+  /// behind the delivered torque (motor_current_a), with the motor_gain_asymmetry effect taken
+  /// as one of torque per ampere (the current is the one the motor model gives, before it).
+  double current_a(int wheel) const;
 
   RobotParams& robot() { return robot_; }
   const RobotParams& robot() const { return robot_; }
