@@ -19,7 +19,7 @@ from host_tools.analyzer.fit import (HELDOUT_RULE, Candidate, Problem, evaluate_
                                     heldout_channel_check, judge, params_for)
 from host_tools.analyzer.replay import (CHANNELS, CLOSED_LOOP_CHANNELS, CUMULATIVE, DERIVED,
                                         FIT_CHANNELS, ClosedLoopReplay, OpenLoopReplay,
-                                        PreparedRun, channels, closed_loop_channels, split_after_slip,
+                                        PreparedRun, channels, closed_loop_channels, note_slip_episodes,
                                         prepare_timed, state_table)
 
 REPORT_FORMAT = "mismatch-report/1"
@@ -311,11 +311,9 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     duty = OpenLoopReplay("duty", dt_s=dt_s)
     torque = OpenLoopReplay("torque", dt_s=dt_s)
     preps = [prepare_timed(r) for r in runs]
-    n_slip = 0
     for p in preps:
-        n_slip += split_after_slip(p, duty.simulate_windows(p, {}))
-    if n_slip:
-        log(f"pose re-anchored after the nominal replay's slip episodes in {n_slip} run(s)")
+        if len(p.windows) > 1:
+            note_slip_episodes(p, duty.simulate_windows(p, {}))
     nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
     nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
     n_win = sum(len(p.windows) for p in preps)
@@ -388,9 +386,13 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     log(f"nominal replay: {len(entries)} significant window(s) "
         f"({len(sig_fit)} in fit channels {', '.join(fit_chans)})")
 
-    tasks = [([e], None, {}) for e in vocab_fit]
-    log(f"fitting {len(tasks)} candidate effect(s) on {jobs} process(es)")
-    cands = _run_tasks(problem, tasks, jobs, "candidate")
+    # nothing to explain: no candidate is fitted (the verdict does not depend on them)
+    tasks = [([e], None, {}) for e in vocab_fit] if mismatch_seen else []
+    if tasks:
+        log(f"fitting {len(tasks)} candidate effect(s) on {jobs} process(es)")
+    else:
+        notes.append("no mismatch beyond the noise floors: no candidate effect was fitted")
+    cands = _run_tasks(problem, tasks, jobs, "candidate") if tasks else []
     for c in cands:
         judge(problem, c)
     cands.sort(key=lambda c: c.delta_bic)

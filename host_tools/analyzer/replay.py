@@ -214,46 +214,25 @@ BURN_IN_S = 0.5
 GAP_S = 0.5
 
 
-# Wheel slip is where two careful models of one robot differ most (the truth simulator and the
-# plant, both Coulomb contacts, turn by ~8 mrad apart while one wheel of a turning robot slips),
-# and where a real robot's contact is least known.  After each slip episode of the nominal
-# replay the pose is therefore re-anchored to the recording: a new window starts SLIP_MARGIN_S
-# after the episode ends (not within MIN_WINDOW_S of another window edge).  The slip itself
-# stays inside a window, so what slip does to the wheels and to the pose while it lasts is
-# still compared; only its after-effect on the pose is not carried to the end of the run.
-SLIP_MARGIN_S = 0.1
-MIN_WINDOW_S = 0.5
-
-
-def split_after_slip(prep: "PreparedRun", sims: "WindowSims") -> bool:
-    """Add window edges after the slip episodes of a nominal replay ``sims``; True if any."""
-    t = prep.run.telemetry["t_s"]
-    cuts = []
+def note_slip_episodes(prep: "PreparedRun", sims: "WindowSims") -> int:
+    """Record the slip episodes of a nominal replay ``sims`` (``extras["slip_episodes"]``, board
+    times): across a slip the recorder's odometry stops following the body, so a window's
+    camera anchor is fitted within the slip-free span around it.  Returns their number."""
+    episodes = []
     for _, sim in sims:
         slip = (np.asarray(sim.get("slip_r", 0)) > 0) | (np.asarray(sim.get("slip_l", 0)) > 0)
         if not np.any(slip):
             continue
         g = sim["t_s"]
+        starts = np.flatnonzero(~slip[:-1] & slip[1:]) + 1
+        if slip[0]:
+            starts = np.concatenate([[0], starts])
         ends = np.flatnonzero(slip[:-1] & ~slip[1:])
-        for e in ends:
-            cuts.append(float(g[e + 1]) + SLIP_MARGIN_S)
-    if not cuts:
-        return False
-    edges = sorted({a for a, _ in prep.windows})
-    added = False
-    for c in cuts:
-        i = int(np.searchsorted(t, c))
-        if i <= 0 or i >= t.size:
-            continue
-        near = [e for e in edges + [t.size] if abs(t[min(e, t.size - 1)] - t[i]) < MIN_WINDOW_S]
-        if near or t[-1] - t[i] < MIN_WINDOW_S:
-            continue
-        edges.append(i)
-        edges.sort()
-        added = True
-    if added:
-        prep.windows = [(a, b) for a, b in zip(edges, edges[1:] + [t.size]) if b > a]
-    return added
+        for a in starts:
+            later = ends[ends >= a]
+            episodes.append((float(g[a]), float(g[later[0] + 1]) if later.size else float(g[-1])))
+    prep.extras["slip_episodes"] = sorted(episodes)
+    return len(episodes)
 
 
 def make_windows(t: np.ndarray, single_s: float = SINGLE_WINDOW_S, window_s: float = WINDOW_S,
@@ -537,7 +516,14 @@ def _gt_anchor(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
     tel = prep.run.telemetry
     t = tel["t_s"]
     tg = gt["t_s"]
-    m = (np.abs(tg - at) <= half) & (tg >= t[0]) & (tg <= t[-1])
+    # within the slip-free span around ``at`` (across a slip the odometry stops following the body)
+    lo, hi = at - half, at + half
+    for a, b in prep.extras.get("slip_episodes", ()):
+        if b <= at:
+            lo = max(lo, b)
+        elif a >= at:
+            hi = min(hi, a)
+    m = (tg >= lo) & (tg <= hi) & (tg >= t[0]) & (tg <= t[-1])
     if m.sum() < 3:
         return None
     tm = tg[m]
