@@ -133,7 +133,8 @@ def counts(theta_rad) -> np.ndarray:
 def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_m: float = 1.0,
                         clamp: bool = True, T_s: float = 3.0, plant: _native.Plant | None = None,
                         fixed_point: bool = True, dt_s: float = 5e-4,
-                        actuator: str = "duty") -> dict[str, np.ndarray]:
+                        actuator: str = "duty",
+                        params: Mapping[str, float] | None = None) -> dict[str, np.ndarray]:
     """The firmware's controller in closed loop with the nominal ``lib/slipmodel`` plant, on the
     25 ms / 50 ms schedule with quantised encoders. ``actuator="duty"`` (default) applies the
     controller's PWM duty through the datasheet motor (torque-speed line, saturation), as the
@@ -141,11 +142,13 @@ def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_
     ideal torque source, as the thesis's Simulink model does (II.6). Returns per-tick arrays:
     ``t_s``, true pose ``x_m, y_m, phi_rad``, reference ``x_ref, y_ref``, controller columns
     (``pwm_r`` ... ``odo_status``), and plant columns at the tick (``slip_r``, ``slip_l``,
-    ``dtheta_r_rad_s`` ...), plus ``slip_any`` (any slipping internal step in the tick)."""
+    ``dtheta_r_rad_s`` ...), plus ``slip_any`` (any slipping internal step in the tick).
+    ``params``: controller keys (``ctl_describe``), e.g. ``{"controller": 1}`` for the thesis's
+    velocity loop."""
     if actuator not in ("duty", "torque"):
         raise ValueError(f"actuator must be 'duty' or 'torque', got {actuator!r}")
     plant = plant or _native.Plant()
-    ctl = Controller(fixed_point=fixed_point, clamp=clamp)
+    ctl = Controller(fixed_point=fixed_point, clamp=clamp, params=params)
     ctl.set_reference(kind, accel_m_s2, cruise_m_s, radius_m)
     ctl.reset(0, 0, (0.0, 0.0, 0.0))
     n = int(round(T_s / INNER_S))

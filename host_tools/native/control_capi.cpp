@@ -44,14 +44,16 @@ struct Key {
   const char* name;
   const char* unit;
 };
-// Settable keys: Table II.2 names, the datasheet motor, the gains, the clamp switch.
+// Settable keys: Table II.2 names, the datasheet motor, the gains, the clamp switch, the
+// velocity-loop variant ("controller": 0 improved, 1 thesis; setting it loads that variant's
+// default gains, which later "k_*" keys may override).
 const Key kKeys[] = {{"mu_s", "1"},       {"mu_k", "1"},       {"b", "m"},         {"e", "m"},
                      {"d", "m"},          {"g", "m/s^2"},      {"h", "m"},         {"m_r", "kg"},
                      {"I_rz", "kg m^2"},  {"I_wz", "kg m^2"},  {"I_wy", "kg m^2"}, {"r", "m"},
                      {"m_w", "kg"},       {"supply_v", "V"},   {"no_load_rad_s", "rad/s"},
                      {"stall_nm", "N m"}, {"k_x", "1/s"},      {"k_y", "1/m^2"},   {"k_phi", "1/s"},
                      {"k_l", "N s/m"},    {"k_a", "N m s"},    {"k_il", "N/m"},    {"k_ia", "N m"},
-                     {"clamp", "0/1"}};
+                     {"clamp", "0/1"},    {"controller", "0 improved, 1 thesis"}};
 const int kKeyCount = static_cast<int>(sizeof(kKeys) / sizeof(kKeys[0]));
 
 struct Handle {
@@ -60,6 +62,7 @@ struct Handle {
   slip::MotorParams motor;
   ctl::Gains gains;
   bool clamp;
+  ctl::Variant variant;
   ctl::ReferenceSpec ref;
   ctl::ControlConfig cfg;
   ctl::ControlConfigQ cfg_q;
@@ -74,8 +77,9 @@ struct Handle {
         motor(),
         gains(ctl::default_gains()),
         clamp(clamp_on),
+        variant(ctl::Variant::kImproved),
         ref{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f},
-        cfg(ctl::make_control_config(robot, motor, gains, clamp)),
+        cfg(ctl::make_control_config(robot, motor, gains, clamp, variant)),
         cfg_q(cfg),
         ref_q(ref),
         fc(cfg),
@@ -99,7 +103,7 @@ struct Handle {
   }
   // Rebuild both configurations (the controllers are reset).
   int rebuild() {
-    cfg = ctl::make_control_config(robot, motor, gains, clamp);
+    cfg = ctl::make_control_config(robot, motor, gains, clamp, variant);
     cfg_q = ctl::ControlConfigQ(cfg);
     fc = ctl::Controller(cfg);
     qc = ctl::ControllerQ(cfg_q);
@@ -135,7 +139,8 @@ const char* ctl_describe(void) {
     double def = 0.0;
     if (i < 16) def = *tmp.field(kKeys[i].name);
     else if (i < 23) def = *tmp.gain(kKeys[i].name);
-    else def = 1.0;
+    else if (strcmp(kKeys[i].name, "clamp") == 0) def = 1.0;
+    else def = static_cast<double>(static_cast<uint8_t>(tmp.variant));
     n += snprintf(buf + n, sizeof buf - n, "%s{\"name\": \"%s\", \"unit\": \"%s\", \"default\": %.9g}",
                   i ? ", " : "", kKeys[i].name, kKeys[i].unit, def);
   }
@@ -179,6 +184,13 @@ int ctl_set(void* h, const char* key, double value) {
     *g = static_cast<float>(value);
   } else if (strcmp(key, "clamp") == 0) {
     p->clamp = value != 0.0;
+  } else if (strcmp(key, "controller") == 0) {
+    if (value != 0.0 && value != 1.0) {
+      snprintf(p->err, sizeof p->err, "controller must be 0 (improved) or 1 (thesis)");
+      return CTL_ERR_VALUE;
+    }
+    p->variant = static_cast<ctl::Variant>(static_cast<uint8_t>(value));
+    p->gains = ctl::gains_for(p->variant);
   } else {
     snprintf(p->err, sizeof p->err, "unknown key %s", key);
     return CTL_ERR_KEY;
@@ -192,6 +204,7 @@ int ctl_get(void* h, const char* key, double* out) {
   if (double* f = p->field(key)) *out = *f;
   else if (float* g = p->gain(key)) *out = *g;
   else if (strcmp(key, "clamp") == 0) *out = p->clamp ? 1.0 : 0.0;
+  else if (strcmp(key, "controller") == 0) *out = static_cast<double>(static_cast<uint8_t>(p->variant));
   else {
     snprintf(p->err, sizeof p->err, "unknown key %s", key);
     return CTL_ERR_KEY;

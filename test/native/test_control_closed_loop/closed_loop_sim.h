@@ -29,7 +29,13 @@ struct Result {
   double final_x_m = 0;          ///< true final x
   double final_x_ref_m = 0;
   int clamp_steps = 0, sat_steps = 0;
+  double mean_wheel_accel_0_5 = 0;  ///< true mean wheel acceleration over 0-0.5 s (both wheels)
 };
+
+/// What the controller's command drives: the duty through the datasheet motor (the robot), or
+/// its torque after the clamp applied directly (an ideal torque source, as the thesis's
+/// Simulink model in II.6).
+enum class Actuator { kDuty, kTorque };
 
 inline int32_t counts(double theta_rad) {
   return static_cast<int32_t>(floor(theta_rad * 1856.0 / (2.0 * kPi)));
@@ -38,7 +44,8 @@ inline int32_t counts(double theta_rad) {
 /// Adapter interface: the float Controller is used directly; the fixed one through the same
 /// calls (see the fixed test).
 template <typename Adapter>
-Result run(Adapter& ctl, const ctl::ReferenceSpec& ref, double x0, double y0, double phi0, double T_s) {
+Result run(Adapter& ctl, const ctl::ReferenceSpec& ref, double x0, double y0, double phi0, double T_s,
+           Actuator act = Actuator::kDuty) {
   slip::Plant plant{slip::RobotParams(), slip::MotorParams()};
   plant.reset(x0, y0, phi0);
   ctl.reset(0, 0, x0, y0, phi0);
@@ -59,8 +66,10 @@ Result run(Adapter& ctl, const ctl::ReferenceSpec& ref, double x0, double y0, do
     res.max_tau_cmd_nm = fmax(res.max_tau_cmd_nm, fmax(fabs(ctl.tau_r()), fabs(ctl.tau_l())));
     res.clamp_steps += ctl.clamped();
     res.sat_steps += ctl.saturated();
+    const double tr = ctl.tau_r(), tl = ctl.tau_l();
     for (int j = 0; j < kPlantPerInner; ++j) {
-      plant.step_duty(u_r, u_l, kPlantDt);
+      if (act == Actuator::kTorque) plant.step_torque(tr, tl, kPlantDt);
+      else plant.step_duty(u_r, u_l, kPlantDt);
       if (plant.state().slipping_r || plant.state().slipping_l) {
         if (res.slip_steps == 0) res.first_slip_t_s = plant.state().t_s;
         ++res.slip_steps;
@@ -70,6 +79,8 @@ Result run(Adapter& ctl, const ctl::ReferenceSpec& ref, double x0, double y0, do
     const double err = hypot(plant.state().x_m - rs.x_m, plant.state().y_m - rs.y_m);
     res.max_pos_err_m = fmax(res.max_pos_err_m, err);
     if (k >= 3 * n_inner / 4) res.max_tail_err_m = fmax(res.max_tail_err_m, err);
+    if (k + 1 == 20)  // t = 0.5 s
+      res.mean_wheel_accel_0_5 = 0.5 * (plant.state().dtheta_r_rad_s + plant.state().dtheta_l_rad_s) / 0.5;
   }
   const slip::PlantState& s = plant.state();
   const ctl::RefSample rs = ctl::reference_at(ref, static_cast<float>(n_inner * 0.025));

@@ -102,6 +102,39 @@ void test_ii62_clamp_off_slip_threshold() {
   }
 }
 
+// II.6.2 with the thesis's controller (II.47 as printed: feed-forward m_t alone, P gains, no
+// integral; thesis_gains()), an ideal torque source and the clamp off, as the thesis simulated
+// it: no slip at 44, slip at 48 and 72 rad/s^2, and the peak commanded torques within 0.01 N m
+// of the captions (0.09, 0.1, 0.13 N m). The controller lags the profile: the wheels do not
+// accelerate at 44 rad/s^2 (rolling at 44 would need 0.0991 N m > tau_max).
+void test_ii62_thesis_controller() {
+  const float accels[] = {44.0f, 48.0f, 72.0f};
+  const double caption[] = {0.09, 0.1, 0.13};
+  const bool slips[] = {false, true, true};
+  for (int i = 0; i < 3; ++i) {
+    sim::FloatAdapter ad(make_control_config(slip::RobotParams(), slip::MotorParams(), thesis_gains(), false,
+                                             Variant::kThesis));
+    const sim::Result r = sim::run(ad, straight_profile(0.0365f, accels[i]), 0, 0, 0, 3.0, sim::Actuator::kTorque);
+    char m[200];
+    snprintf(m, sizeof m, "II.6.2 thesis controller %.0f rad/s^2: slip steps %d, peak tau %.4f N m (caption %.2f), "
+             "mean wheel acceleration 0-0.5 s %.1f rad/s^2, lost to slip %.4f m",
+             accels[i], r.slip_steps, r.max_tau_cmd_nm, caption[i], r.mean_wheel_accel_0_5, r.max_odo_err_m);
+    printf("%s\n", m);
+    TEST_ASSERT_TRUE_MESSAGE((r.slip_steps > 0) == slips[i], m);
+    TEST_ASSERT_TRUE_MESSAGE(fabs(r.max_tau_cmd_nm - caption[i]) <= 0.01, m);
+    TEST_ASSERT_TRUE_MESSAGE(r.mean_wheel_accel_0_5 < accels[i], m);  // it lags the profile
+  }
+  // The improved controller follows the profile (its feed-forward includes the wheels' spin
+  // inertia), so it slips at all three.
+  for (int i = 0; i < 3; ++i) {
+    sim::FloatAdapter ad(config(false));
+    const sim::Result r = sim::run(ad, straight_profile(0.0365f, accels[i]), 0, 0, 0, 3.0, sim::Actuator::kTorque);
+    printf("II.6.2 improved controller %.0f rad/s^2, torque source: slip steps %d, peak tau %.4f N m, "
+           "mean wheel acceleration %.1f rad/s^2\n", accels[i], r.slip_steps, r.max_tau_cmd_nm, r.mean_wheel_accel_0_5);
+    TEST_ASSERT_TRUE(r.slip_steps > 0);
+  }
+}
+
 // II.6.3 at 72 rad/s^2, with and without the clamp.
 void test_ii63_clamp_prevents_slip_at_72() {
   const ReferenceSpec ref = straight_profile(0.0365f, 72.0f);
@@ -144,6 +177,7 @@ int main() {
   RUN_TEST(test_arc_converges_from_offset);
   RUN_TEST(test_figure_eight_converges_from_offset);
   RUN_TEST(test_ii62_clamp_off_slip_threshold);
+  RUN_TEST(test_ii62_thesis_controller);
   RUN_TEST(test_ii63_clamp_prevents_slip_at_72);
   RUN_TEST(test_ii63_clamp_at_48);
   return UNITY_END();

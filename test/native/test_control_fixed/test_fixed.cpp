@@ -23,6 +23,7 @@ double b32(uint32_t a) { return static_cast<int32_t>(a) * (2 * kPi / 4294967296.
 uint32_t to_b32(double rad) {
   return static_cast<uint32_t>(static_cast<int64_t>(llround(rad / (2 * kPi) * 4294967296.0)));
 }
+int16_t q16c_ref(double v, int shift) { return static_cast<int16_t>(lround(v * ldexp(1.0, shift))); }
 double urand(double lo, double hi) { return lo + (hi - lo) * (rand() / static_cast<double>(RAND_MAX)); }
 
 
@@ -186,6 +187,45 @@ void test_fixed_ii63_at_72() {
   TEST_ASSERT_TRUE(on.final_pos_err_m < 0.01);
 }
 
+// The thesis variant in fixed point: its configuration has no coupling and no integral terms,
+// and II.6.2 (torque source, clamp off) gives the float path's result: no slip at 44, slip at
+// 48 and 72 rad/s^2, peak torques within 0.01 N m of the captions and within 1e-3 N m of the
+// float controller; II.6.3 with the clamp (motor): no slip, odometry true, and the error
+// shrinking (the P-only loop catches up only at v_max - v_r = 2 % of the cruise speed).
+void test_fixed_thesis_variant() {
+  const ControlConfig fc =
+      make_control_config(slip::RobotParams(), slip::MotorParams(), thesis_gains(), false, Variant::kThesis);
+  const ControlConfigQ q(fc);
+  TEST_ASSERT_TRUE(q.ok);
+  TEST_ASSERT_EQUAL_INT16(0, q.g_c_q23);
+  TEST_ASSERT_EQUAL_INT16(0, q.g_cv_q20);
+  TEST_ASSERT_EQUAL_INT16(0, q.g_il_us_q34);
+  TEST_ASSERT_EQUAL_INT16(0, q.g_ia_us_q37);
+  TEST_ASSERT_EQUAL_INT16(q16c_ref(slip::RobotParams().r / 2.0 * static_cast<float>(slip::RobotParams().m_t()), 18), q.g_ffv_q18);
+  const float accels[] = {44.0f, 48.0f, 72.0f};
+  const double caption[] = {0.09, 0.1, 0.13};
+  for (int i = 0; i < 3; ++i) {
+    const ReferenceSpec ref = straight_profile(0.0365f, accels[i]);
+    sim::FixedAdapter fa(fc);
+    sim::FloatAdapter fl(fc);
+    const sim::Result r = sim::run(fa, ref, 0, 0, 0, 3.0, sim::Actuator::kTorque);
+    const sim::Result rf = sim::run(fl, ref, 0, 0, 0, 3.0, sim::Actuator::kTorque);
+    printf("fixed II.6.2 thesis %.0f rad/s^2: slip steps %d (float %d), peak tau %.4f N m (float %.4f)\n",
+           accels[i], r.slip_steps, rf.slip_steps, r.max_tau_cmd_nm, rf.max_tau_cmd_nm);
+    TEST_ASSERT_EQUAL(i > 0, r.slip_steps > 0);
+    TEST_ASSERT_TRUE(fabs(r.max_tau_cmd_nm - caption[i]) <= 0.01);
+    TEST_ASSERT_TRUE(fabs(r.max_tau_cmd_nm - rf.max_tau_cmd_nm) <= 1e-3);
+  }
+  sim::FixedAdapter on_a(
+      make_control_config(slip::RobotParams(), slip::MotorParams(), thesis_gains(), true, Variant::kThesis));
+  const sim::Result on = sim::run(on_a, straight_profile(0.0365f, 72.0f), 0, 0, 0, 20.0);
+  printf("fixed II.6.3 thesis, clamp on: slip %d max %.3f final %.4f, odometry drift %.4f\n", on.slip_steps,
+         on.max_pos_err_m, on.final_pos_err_m, on.max_odo_err_m);
+  TEST_ASSERT_EQUAL_INT(0, on.slip_steps);
+  TEST_ASSERT_TRUE(on.max_odo_err_m < 0.005);
+  TEST_ASSERT_TRUE(on.final_pos_err_m < 0.6 * on.max_pos_err_m);
+}
+
 // Inner step: fixed vs float from identical states, across the input range; and saturation:
 // wheel speeds up to full motor speed (and 3x beyond), torque requests up to 10x nominal and
 // far beyond. A wrapped intermediate would show up as a duty or torque of the wrong sign.
@@ -291,6 +331,7 @@ int main() {
   RUN_TEST(test_kinematic_fixed_vs_float);
   RUN_TEST(test_fixed_closed_loop_converges);
   RUN_TEST(test_fixed_ii63_at_72);
+  RUN_TEST(test_fixed_thesis_variant);
   RUN_TEST(test_inner_step_range_and_saturation);
   RUN_TEST(test_integrators_both_paths);
   return UNITY_END();

@@ -21,15 +21,32 @@ Gains default_gains() {
   return Gains{2.0f, 6.0f, 3.0f, 20.0f, 0.22f, 30.0f, 0.33f};
 }
 
+Gains thesis_gains() {
+  const slip::RobotParams p;
+  const float k_l = 5.0f;
+  const float k_a = static_cast<float>(k_l * p.I_t() / p.m_t());  // 0.0379 N m s for Table II.2
+  return Gains{2.0f, 6.0f, 3.0f, k_l, k_a, 0.0f, 0.0f};
+}
+
+Gains gains_for(Variant v) { return v == Variant::kThesis ? thesis_gains() : default_gains(); }
+
 ControlConfig make_control_config(const slip::RobotParams& robot, const slip::MotorParams& motor,
-                                  const Gains& gains, bool clamp_enabled) {
+                                  const Gains& gains, bool clamp_enabled, Variant variant) {
   ControlConfig c;
   c.robot = robot;
   c.motor = motor;
   c.gains = gains;
   c.counts_per_rev = slip::kEncoderPpr;
-  c.m_eff_kg = static_cast<float>(slip::rolling_mass_kg(robot));
-  c.I_eff_kgm2 = static_cast<float>(slip::rolling_yaw_inertia_kgm2(robot));
+  c.variant = variant;
+  if (variant == Variant::kThesis) {  // II.47: m_t and I_t alone, no coupling terms
+    c.m_ff_kg = static_cast<float>(robot.m_t());
+    c.I_ff_kgm2 = static_cast<float>(robot.I_t());
+    c.mtd_ff_kg_m = 0.0f;
+  } else {
+    c.m_ff_kg = static_cast<float>(slip::rolling_mass_kg(robot));
+    c.I_ff_kgm2 = static_cast<float>(slip::rolling_yaw_inertia_kgm2(robot));
+    c.mtd_ff_kg_m = static_cast<float>(robot.m_t() * robot.d);
+  }
   c.v_max_m_s = static_cast<float>(robot.r * motor.no_load_rad_s);
   c.omega_max_rad_s = static_cast<float>(robot.r * motor.no_load_rad_s / robot.b);
   // Integrators may hold at most the force/moment of half the stall torque on both wheels.
@@ -123,13 +140,13 @@ const InnerOut& Controller::inner_step(int32_t enc_r, int32_t enc_l, float dt_s)
   out_.odo = odo_.update(enc_r, enc_l, dt_s);
   const float v = odo_.v_m_s(), w = odo_.omega_rad_s();
   const float r = static_cast<float>(cfg_.robot.r), b = static_cast<float>(cfg_.robot.b);
-  const float m_t = static_cast<float>(cfg_.robot.m_t()), d = static_cast<float>(cfg_.robot.d);
+  const float mtd = cfg_.mtd_ff_kg_m;
   const Gains& g = cfg_.gains;
 
   const float e_v = kin_.v_d_m_s - v;
   const float e_w = kin_.omega_d_rad_s - w;
-  const float force = cfg_.m_eff_kg * dv_ff_ - m_t * d * w * w + g.k_l * e_v + i_v_;
-  const float moment = cfg_.I_eff_kgm2 * dw_ff_ + m_t * d * w * v + g.k_a * e_w + i_w_;
+  const float force = cfg_.m_ff_kg * dv_ff_ - mtd * w * w + g.k_l * e_v + i_v_;
+  const float moment = cfg_.I_ff_kgm2 * dw_ff_ + mtd * w * v + g.k_a * e_w + i_w_;
   const WheelPair tau = split_torque(r, b, force, moment);
 
   const float big = static_cast<float>(cfg_.motor.stall_nm) * 10.0f;

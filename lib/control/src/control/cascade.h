@@ -25,6 +25,8 @@
 //     M = I_eff dw_ff + m_t d omega v + k_a e_w + I_w,   dI_w = k_ia e_w dt
 //   where dv_ff, dw_ff are the reference accelerations (the derivative of the kinematic
 //   correction is left out: in discrete time it is noise).
+//   The thesis variant (Variant::kThesis) is II.47 as printed: m_t and I_t in place of m_eff
+//   and I_eff, no m_t d terms, and (thesis_gains()) no integral.
 // * Split (II.49 re-derived for the conventions above; II.12/II.49 have the sign of the yaw
 //   term reversed and a factor 2 wrong):
 //     tau_r = (r/2) (F + M/b),  tau_l = (r/2) (F - M/b)
@@ -54,9 +56,28 @@ struct Gains {
   float k_ia;   ///< N m        inner: integral of e_omega
 };
 
+/// Which velocity loop the cascade runs (the kinematic law, split, clamp, PWM and odometry are
+/// the same for both).
+///  * kImproved: this project's loop, feed-forward with slipmodel's rolling masses m_eff, I_eff
+///    (wheel spin inertia included) and the m_t d coupling terms, plus an integral term.
+///  * kThesis: II.47 as printed, feed-forward with m_t and I_t alone, P gains, no coupling
+///    terms; with thesis_gains() no integral term.
+enum class Variant : uint8_t { kImproved = 0, kThesis = 1 };
+static const uint8_t kVariantCount = 2;
+
 /// Default gains: velocity loop about 6 rad/s (k_l/m_eff, k_a/I_eff), well inside the 25 ms
 /// sample rate; outer loop 2-3 rad/s; e_y loop damping about 0.8 at v_r = 0.8 m/s.
 Gains default_gains();
+
+/// Gains of the thesis's controller (II.44, II.47). The thesis states none; k_l = 5 N s/m with
+/// k_x = 2 1/s is chosen so that II.6.2 (torque source, clamp off) reproduces the captions'
+/// peak torques 0.09 / 0.1 / 0.13 N m (criterion and sensitivity in lib/control/README.md);
+/// k_a = k_l I_t / m_t (the same 3.1 rad/s bandwidth for omega); k_y, k_phi as default_gains();
+/// no integral (k_il = k_ia = 0).
+Gains thesis_gains();
+
+/// The gains a variant uses by default.
+Gains gains_for(Variant v);
 
 /// Constant configuration of the cascade (float path).
 struct ControlConfig {
@@ -64,8 +85,10 @@ struct ControlConfig {
   slip::MotorParams motor;
   Gains gains;
   int32_t counts_per_rev;
-  float m_eff_kg;        ///< slip::rolling_mass_kg
-  float I_eff_kgm2;      ///< slip::rolling_yaw_inertia_kgm2
+  Variant variant;
+  float m_ff_kg;         ///< feed-forward mass: slip::rolling_mass_kg (improved), m_t (thesis)
+  float I_ff_kgm2;       ///< feed-forward yaw inertia: slip::rolling_yaw_inertia_kgm2 (improved), I_t (thesis)
+  float mtd_ff_kg_m;     ///< m_t d in the coupling terms (improved), 0 (thesis)
   float v_max_m_s;       ///< |v_d| limit (r * no-load speed)
   float omega_max_rad_s; ///< |omega_d| limit
   float integ_max_n;     ///< |I_v| limit, N
@@ -75,7 +98,8 @@ struct ControlConfig {
 
 /// Builds the configuration from the physics library (one source of truth).
 ControlConfig make_control_config(const slip::RobotParams& robot, const slip::MotorParams& motor,
-                                  const Gains& gains, bool clamp_enabled = true);
+                                  const Gains& gains, bool clamp_enabled = true,
+                                  Variant variant = Variant::kImproved);
 
 /// Outer-loop result.
 struct KinematicOut {

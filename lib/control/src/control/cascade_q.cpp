@@ -85,7 +85,7 @@ void ControllerQ::integrate_long_dt(uint32_t dt_us, int16_t e_v, int16_t e_w) {
 
 const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
   kin_ = kinematic_law_q(cfg_, odo_.pose(), ref);
-  // The feed-forward terms change only here: P_ff = (r/2) m_eff dv_ff, Q_ff = (r/2b) I_eff dw_ff.
+  // The feed-forward terms change only here: P_ff = (r/2) m_ff dv_ff, Q_ff = (r/2b) I_ff dw_ff.
   p_ff_q16_ = fx::mul16<14>(ref.dv_q12, cfg_.g_ffv_q18);      // Q12*Q18 -> Q16
   q_ff_q16_ = fx::mul16<16>(ref.domega_q11, cfg_.g_ffw_q21);  // Q11*Q21 -> Q16
   // Per-wheel tau_max, refreshed at the outer rate (the load transfer changes slowly):
@@ -120,8 +120,9 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   // The velocity loop directly in wheel-torque units (Q16 N m): with the split
   // tau_r = (r/2)(F + M/b), tau_l = (r/2)(F - M/b), P = (r/2) F and Q = (r/2b) M give
   // tau_r = P + Q, tau_l = P - Q; every gain below already carries its r/2 or r/2b.
-  //   P = (r/2) [m_eff dv_ff - m_t d w^2 + k_l e_v + I_v]
-  //   Q = (r/2b)[I_eff dw_ff + m_t d w v + k_a e_w + I_w]
+  //   P = (r/2) [m_ff dv_ff - mtd_ff w^2 + k_l e_v + I_v]
+  //   Q = (r/2b)[I_ff dw_ff + mtd_ff w v + k_a e_w + I_w]
+  // (improved: m_ff = m_eff, I_ff = I_eff, mtd_ff = m_t d; thesis: m_t, I_t, 0)
   // Each product term is below 2^19 (8 N m), the integrators below 64 N m (config check): the
   // sums cannot overflow.
   const int16_t w2_q6 = fx::hi16(fx::mul_ss(w, w));   // <= 256 (rad/s)^2
