@@ -23,8 +23,8 @@ Gains default_gains() {
 
 Gains thesis_gains() {
   const slip::RobotParams p;
-  const float k_l = 5.0f;
-  const float k_a = static_cast<float>(k_l * p.I_t() / p.m_t());  // 0.0379 N m s for Table II.2
+  const float k_l = 6.0f;
+  const float k_a = static_cast<float>(k_l * p.I_t() / p.m_t());  // 0.0455 N m s for Table II.2
   return Gains{2.0f, 6.0f, 3.0f, k_l, k_a, 0.0f, 0.0f};
 }
 

@@ -69,11 +69,12 @@ static const uint8_t kVariantCount = 2;
 /// sample rate; outer loop 2-3 rad/s; e_y loop damping about 0.8 at v_r = 0.8 m/s.
 Gains default_gains();
 
-/// Gains of the thesis's controller (II.44, II.47). The thesis states none; k_l = 5 N s/m with
-/// k_x = 2 1/s is chosen so that II.6.2 (torque source, clamp off) reproduces the captions'
-/// peak torques 0.09 / 0.1 / 0.13 N m (criterion and sensitivity in lib/control/README.md);
-/// k_a = k_l I_t / m_t (the same 3.1 rad/s bandwidth for omega); k_y, k_phi as default_gains();
-/// no integral (k_il = k_ia = 0).
+/// Gains of the thesis's controller (II.44, II.47). The thesis states none; k_x = 2 1/s and
+/// k_l = 6 N s/m are the gains of a grid (k_x 1..3, k_l 3..8) with which II.6.2 (torque
+/// source, clamp off) shows the thesis's slip pattern and whose peak torques deviate least from
+/// the captions' 0.09 / 0.1 / 0.13 N m (criterion and sensitivity in lib/control/README.md and
+/// the demo's table); k_a = k_l I_t / m_t (the same 3.7 rad/s bandwidth for omega); k_y, k_phi
+/// as default_gains(); no integral (k_il = k_ia = 0).
 Gains thesis_gains();
 
 /// The gains a variant uses by default.
