@@ -53,9 +53,10 @@ slip::RobotParams g_robot;
 const slip::MotorParams kMotor = slip::datasheet_motor();
 bool g_clamp_on = true;
 bool g_params_default = true;
+ctl::Variant g_variant = ctl::Variant::kImproved;  // velocity loop (SetController)
 
 ctl::ControlConfig make_cfg() {
-    return ctl::make_control_config(g_robot, kMotor, ctl::default_gains(), g_clamp_on);
+    return ctl::make_control_config(g_robot, kMotor, ctl::gains_for(g_variant), g_clamp_on, g_variant);
 }
 
 // ---- state ----
@@ -227,6 +228,14 @@ void handle_frame(const proto::Frame& f) {
                 rebuild_controller();
                 break;
             }
+            case proto::kMsgSetController: {
+                proto::SetController c = proto::SetController();
+                c.decode(f.payload, f.len);  // length and range checked by validate_command
+                if (busy()) { res = proto::kResultBusy; break; }
+                g_variant = c.variant == proto::kControllerThesis ? ctl::Variant::kThesis : ctl::Variant::kImproved;
+                rebuild_controller();
+                break;
+            }
             case proto::kMsgSetMu: {
                 proto::SetMu m = proto::SetMu();
                 m.decode(f.payload, f.len);  // length checked by validate_command
@@ -375,6 +384,7 @@ void telemetry_task() {
         status |= proto::kStatusFailsafe;
     if (!motor_braking()) status |= proto::kStatusMotorsEnabled;
     if (g_params_default) status |= proto::kStatusParamsDefault;
+    if (g_variant == ctl::Variant::kThesis) status |= proto::kStatusThesisController;
     t.status = status;
     t.failsafe = g_failsafe;
     t.reset_cause = boot_reset_cause();
