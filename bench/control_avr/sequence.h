@@ -50,6 +50,8 @@ inline uint32_t checksum_step(uint32_t h, const ctl::ControllerQ& q, const ctl::
   const ctl::InnerOutQ& o = q.inner();
   h = mix(h, static_cast<uint16_t>(o.pwm_r_q15));
   h = mix(h, static_cast<uint16_t>(o.pwm_l_q15));
+  h = mix(h, static_cast<uint16_t>(o.slope_r_q15));
+  h = mix(h, static_cast<uint16_t>(o.slope_l_q15));
   h = mix(h, static_cast<uint32_t>(o.tau_r_q16));
   h = mix(h, static_cast<uint32_t>(o.tau_l_q16));
   h = mix(h, static_cast<uint32_t>(o.tau_max_r_q16));

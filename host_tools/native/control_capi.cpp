@@ -4,7 +4,8 @@
 //
 // Self-describing: ctl_describe() returns a JSON document listing the settable keys with their
 // defaults and units, the reference kinds and the output columns of ctl_inner(); the column
-// order is also available as ctl_column_count()/ctl_column_name(i).
+// order is also available as ctl_column_count()/ctl_column_name(i). pwm_slope_r/l: duty added
+// per millisecond over the coming tick (the firmware ramps the duty by it every millisecond).
 // Never crashes on bad input: unknown keys, NaN values, null pointers and short arrays give a
 // negative return code and a message from ctl_last_error(h).
 //
@@ -37,7 +38,7 @@ const char* const kCols[] = {
     "pwm_r",     "pwm_l",     "tau_cmd_r", "tau_cmd_l",   "tau_max_r", "tau_max_l",
     "clamped_r", "clamped_l", "sat_r",     "sat_l",       "omega_r",   "omega_l",
     "x_odo_m",   "y_odo_m",   "phi_odo_rad", "v_d_m_s",   "omega_d_rad_s", "e_x_m",
-    "e_y_m",     "e_phi_rad", "odo_status"};
+    "e_y_m",     "e_phi_rad", "odo_status", "pwm_slope_r", "pwm_slope_l"};
 const int kColCount = static_cast<int>(sizeof(kCols) / sizeof(kCols[0]));
 
 struct Key {
@@ -302,7 +303,8 @@ int ctl_inner(void* h, int32_t enc_r, int32_t enc_l, double dt_s, double* out, i
                         double(o.sat_r), double(o.sat_l), od.omega_r_q8() / 256.0, od.omega_l_q8() / 256.0,
                         od.pose().x_q20 / 1048576.0, od.pose().y_q20 / 1048576.0, from_b32(od.pose().phi_b32),
                         k.v_d_q12 / 4096.0, k.omega_d_q11 / 2048.0, k.e_x_q12 / 4096.0, k.e_y_q12 / 4096.0,
-                        from_b32(static_cast<uint32_t>(k.e_phi_b32)), double(static_cast<int>(o.odo))};
+                        from_b32(static_cast<uint32_t>(k.e_phi_b32)), double(static_cast<int>(o.odo)),
+                        o.slope_r_q15 / 32768.0, o.slope_l_q15 / 32768.0};
     memcpy(out, v, sizeof v);
     return static_cast<int>(o.odo);
   }
@@ -312,7 +314,8 @@ int ctl_inner(void* h, int32_t enc_r, int32_t enc_l, double dt_s, double* out, i
   const double v[] = {o.pwm_r, o.pwm_l, o.tau_r_nm, o.tau_l_nm, o.tau_max_r_nm, o.tau_max_l_nm,
                       double(o.clamped_r), double(o.clamped_l), double(o.sat_r), double(o.sat_l),
                       od.omega_r_rad_s(), od.omega_l_rad_s(), od.pose().x_m, od.pose().y_m, od.pose().phi_rad,
-                      k.v_d_m_s, k.omega_d_rad_s, k.e_x_m, k.e_y_m, k.e_phi_rad, double(static_cast<int>(o.odo))};
+                      k.v_d_m_s, k.omega_d_rad_s, k.e_x_m, k.e_y_m, k.e_phi_rad, double(static_cast<int>(o.odo)),
+                      o.pwm_slope_r, o.pwm_slope_l};
   memcpy(out, v, sizeof v);
   return static_cast<int>(o.odo);
 }

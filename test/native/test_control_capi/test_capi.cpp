@@ -18,9 +18,10 @@ void test_describe_and_columns() {
   TEST_ASSERT_NOT_NULL(strstr(d, "\"name\": \"mu_s\""));
   TEST_ASSERT_NOT_NULL(strstr(d, "\"figure_eight\": 2"));
   TEST_ASSERT_NOT_NULL(strstr(d, "{\"name\": \"controller\", \"unit\": \"0 improved, 1 thesis\", \"default\": 0}"));
-  TEST_ASSERT_EQUAL_INT(21, ctl_column_count());
+  TEST_ASSERT_EQUAL_INT(23, ctl_column_count());
   TEST_ASSERT_EQUAL_STRING("pwm_r", ctl_column_name(0));
-  TEST_ASSERT_EQUAL_STRING("odo_status", ctl_column_name(ctl_column_count() - 1));
+  TEST_ASSERT_EQUAL_STRING("odo_status", ctl_column_name(20));
+  TEST_ASSERT_EQUAL_STRING("pwm_slope_l", ctl_column_name(ctl_column_count() - 1));
   TEST_ASSERT_NULL(ctl_column_name(99));
 }
 
@@ -82,13 +83,18 @@ void test_replay_matches_cpp() {
       double u_r, u_l;
       if (fixed) qa.inner(er, el, &u_r, &u_l);
       else fa.inner(er, el, &u_r, &u_l);
-      if (row[0] != u_r || row[1] != u_l) ++max_diff_bits;
+      const double s_r = fixed ? qa.slope_r() : fa.slope_r(), s_l = fixed ? qa.slope_l() : fa.slope_l();
+      if (row[0] != u_r || row[1] != u_l || row[21] != s_r || row[22] != s_l) ++max_diff_bits;
       if (k % 2 == 0) {
         TEST_ASSERT_EQUAL_INT(0, ctl_outer(h, k * 0.025));
         if (fixed) qa.outer(spec, k * 0.025);
         else fa.outer(spec, k * 0.025);
       }
-      for (int j = 0; j < sim::kPlantPerInner; ++j) plant.step_duty(row[0], row[1], sim::kPlantDt);
+      for (int j = 0; j < sim::kPlantPerInner; ++j) {  // the duty ramps every millisecond
+        const double ms = floor(j * sim::kPlantDt / 1e-3 + 1e-9);
+        plant.step_duty(fmin(fmax(row[0] + row[21] * ms, -1.0), 1.0), fmin(fmax(row[1] + row[22] * ms, -1.0), 1.0),
+                        sim::kPlantDt);
+      }
     }
     TEST_ASSERT_EQUAL_INT(0, max_diff_bits);
     double ref[7];

@@ -30,6 +30,8 @@ struct Result {
   double final_x_ref_m = 0;
   int clamp_steps = 0, sat_steps = 0;
   double mean_wheel_accel_0_5 = 0;  ///< true mean wheel acceleration over 0-0.5 s (both wheels)
+  double clamped_cmd_nm = 0, clamped_delivered_nm = 0;  ///< sums of slip::tau_max and delivered |torque| over plant steps while clamped
+  double utilisation() const { return clamped_cmd_nm > 0 ? clamped_delivered_nm / clamped_cmd_nm : 0; }
 };
 
 /// What the controller's command drives: the duty through the datasheet motor (the robot), or
@@ -67,9 +69,16 @@ Result run(Adapter& ctl, const ctl::ReferenceSpec& ref, double x0, double y0, do
     res.clamp_steps += ctl.clamped();
     res.sat_steps += ctl.saturated();
     const double tr = ctl.tau_r(), tl = ctl.tau_l();
+    const double sr = ctl.slope_r(), sl = ctl.slope_l();
     for (int j = 0; j < kPlantPerInner; ++j) {
+      // the firmware advances the duty along its slope every millisecond
+      const double ms = floor(j * kPlantDt / 1e-3 + 1e-9);
       if (act == Actuator::kTorque) plant.step_torque(tr, tl, kPlantDt);
-      else plant.step_duty(u_r, u_l, kPlantDt);
+      else plant.step_duty(fmin(fmax(u_r + sr * ms, -1.0), 1.0), fmin(fmax(u_l + sl * ms, -1.0), 1.0), kPlantDt);
+      if (ctl.clamped()) {  // delivered torque over the physical limit slip::tau_max
+        res.clamped_cmd_nm += 0.5 * (ctl.tau_max_phys_r() + ctl.tau_max_phys_l());
+        res.clamped_delivered_nm += 0.5 * (fabs(plant.state().tau_r_nm) + fabs(plant.state().tau_l_nm));
+      }
       if (plant.state().slipping_r || plant.state().slipping_l) {
         if (res.slip_steps == 0) res.first_slip_t_s = plant.state().t_s;
         ++res.slip_steps;
@@ -111,6 +120,10 @@ struct FloatAdapter {
   double tau_l() const { return c.inner().tau_l_nm; }
   bool clamped() const { return c.inner().clamped_r || c.inner().clamped_l; }
   bool saturated() const { return c.inner().sat_r || c.inner().sat_l; }
+  double tau_max_phys_r() const { return c.inner().tau_max_r_nm + (c.config().clamp_enabled ? c.config().margin_nm : 0); }
+  double tau_max_phys_l() const { return c.inner().tau_max_l_nm + (c.config().clamp_enabled ? c.config().margin_nm : 0); }
+  double slope_r() const { return c.inner().pwm_slope_r; }
+  double slope_l() const { return c.inner().pwm_slope_l; }
   void odo_xy(double* x, double* y) const { *x = c.odometry().pose().x_m; *y = c.odometry().pose().y_m; }
 };
 
@@ -147,6 +160,10 @@ struct FixedAdapter {
   double tau_l() const { return c.inner().tau_l_q16 / 65536.0; }
   bool clamped() const { return c.inner().clamped_r || c.inner().clamped_l; }
   bool saturated() const { return c.inner().sat_r || c.inner().sat_l; }
+  double tau_max_phys_r() const { return (c.inner().tau_max_r_q16 + cfg.margin_q16) / 65536.0; }
+  double tau_max_phys_l() const { return (c.inner().tau_max_l_q16 + cfg.margin_q16) / 65536.0; }
+  double slope_r() const { return c.inner().slope_r_q15 / 32768.0; }
+  double slope_l() const { return c.inner().slope_l_q15 / 32768.0; }
   void odo_xy(double* x, double* y) const {
     *x = c.odometry().pose().x_q20 / 1048576.0;
     *y = c.odometry().pose().y_q20 / 1048576.0;

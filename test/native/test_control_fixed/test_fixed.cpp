@@ -179,9 +179,11 @@ void test_fixed_ii63_at_72() {
   sim::FixedAdapter off_a(config(false)), on_a(config(true));
   const sim::Result off = sim::run(off_a, ref, 0, 0, 0, 20.0);
   const sim::Result on = sim::run(on_a, ref, 0, 0, 0, 20.0);
-  printf("fixed II.6.3: clamp off slip %d max %.3f final %.3f; clamp on slip %d max %.3f final %.4f\n",
+  printf("fixed II.6.3: clamp off slip %d max %.3f final %.3f; clamp on slip %d max %.3f final %.4f, "
+         "delivered / tau_max while clamped %.3f\n",
          off.slip_steps, off.max_pos_err_m, off.final_pos_err_m, on.slip_steps, on.max_pos_err_m,
-         on.final_pos_err_m);
+         on.final_pos_err_m, on.utilisation());
+  TEST_ASSERT_TRUE(on.utilisation() >= 0.95);
   TEST_ASSERT_TRUE(off.slip_steps > 100 && off.final_pos_err_m > 0.15);
   TEST_ASSERT_EQUAL_INT(0, on.slip_steps);
   TEST_ASSERT_TRUE(on.final_pos_err_m < 0.01);
@@ -232,7 +234,7 @@ void test_fixed_thesis_variant() {
 void test_inner_step_range_and_saturation() {
   srand(99);
   double max_du = 0, max_dtau = 0;
-  int n_sat = 0, n_clamp = 0;
+  int n_sat = 0, n_clamp = 0, n_flag_differs = 0;
   for (int clamp = 0; clamp < 2; ++clamp) {
     const ControlConfig fc = config(clamp != 0);
     const ControlConfigQ qc(fc);
@@ -256,8 +258,13 @@ void test_inner_step_range_and_saturation() {
                           static_cast<int16_t>(lround(rf.dv_m_s2 * 4096)),
                           static_cast<int16_t>(lround(rf.domega_rad_s2 * 2048))};
       // One inner step to establish the wheel speeds, then outer, then the inner step compared.
-      f.inner_step(dr, dl, 0.025f);
-      q.inner_step(dr, dl, 25000);
+      const InnerOut of1 = f.inner_step(dr, dl, 0.025f);
+      const InnerOutQ oq1 = q.inner_step(dr, dl, 25000);
+      // A clamped wheel's duty carries the speed advance of a wheel clamped in the step before;
+      // where the two paths round a torque at the clamp limit to different sides (in either
+      // step), that advance (the slope over half a tick, ~0.014 of duty) is in one duty and not
+      // the other: those cases are counted, not compared.
+      const bool same_flags = of1.clamped_r == oq1.clamped_r && of1.clamped_l == oq1.clamped_l;
       f.outer_step(rf);
       q.outer_step(rq);
       const InnerOut& of = f.inner_step(2 * dr, 2 * dl, 0.025f);
@@ -268,7 +275,9 @@ void test_inner_step_range_and_saturation() {
       // In range (speeds up to full motor speed, pose errors inside the +-8 m of Q12):
       // agreement with the float path.
       if (fabs(dr) <= 270 && fabs(dl) <= 270 && i % 3 != 0) {
-        max_du = fmax(max_du, fmax(fabs(uq_r - of.pwm_r), fabs(uq_l - of.pwm_l)));
+        if (same_flags && of.clamped_r == oq.clamped_r && of.clamped_l == oq.clamped_l)
+          max_du = fmax(max_du, fmax(fabs(uq_r - of.pwm_r), fabs(uq_l - of.pwm_l)));
+        else ++n_flag_differs;
         max_dtau = fmax(max_dtau, fmax(fabs(oq.tau_r_q16 / 65536.0 - of.tau_r_nm), fabs(oq.tau_l_q16 / 65536.0 - of.tau_l_nm)));
       } else {  // beyond full speed the fixed omega saturates at 16 rad/s (float does not), so
                 // only bounds are checked: torques within the limits, duties within [-1, 1].
@@ -283,7 +292,9 @@ void test_inner_step_range_and_saturation() {
     }
   }
   printf("inner step over the range: max |duty fixed - float| %.2e, max |tau fixed - float| %.2e N m; "
-         "%d saturated and %d clamped wheel-steps exercised\n", max_du, max_dtau, n_sat, n_clamp);
+         "%d saturated and %d clamped wheel-steps exercised; %d cases with a clamp flag at the limit "
+         "differing (duty not compared)\n", max_du, max_dtau, n_sat, n_clamp, n_flag_differs);
+  TEST_ASSERT_TRUE(n_flag_differs < 100);
   TEST_ASSERT_TRUE(max_du < 2e-3);
   // Stated bound: the Q12 pose error and Q15 trigonometry of the outer law move v_d by up to
   // ~5e-4 m/s, which k_l turns into ~2e-4 N m; all rounding together stays below 1e-3 N m

@@ -53,6 +53,11 @@ ControlConfig make_control_config(const slip::RobotParams& robot, const slip::Mo
   c.integ_max_n = static_cast<float>(motor.stall_nm / robot.r);
   c.integ_max_nm = static_cast<float>(motor.stall_nm * robot.b / robot.r);
   c.clamp_enabled = clamp_enabled;
+  const double r2 = robot.r * robot.r;
+  c.wheel_accel_per_nm = static_cast<float>(2.0 / (r2 * slip::rolling_mass_kg(robot)));
+  c.count_rad = static_cast<float>(2.0 * 3.14159265358979323846 / slip::kEncoderPpr);
+  // kBackEmfMarginCounts counts per nominal 25 ms tick as back-EMF torque
+  c.margin_nm = static_cast<float>(motor.stall_nm / motor.no_load_rad_s * kBackEmfMarginCounts * c.count_rad / 0.025);
   return c;
 }
 
@@ -111,9 +116,10 @@ Controller::Controller(const ControlConfig& cfg)
 void Controller::reset(int32_t enc_r, int32_t enc_l, const Pose& p) {
   odo_.reset(enc_r, enc_l, p);
   kin_ = KinematicOut{0, 0, 0, 0, 0};
-  out_ = InnerOut{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kOk};
+  out_ = InnerOut{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kOk, 0, 0};
   dv_ff_ = dw_ff_ = 0.0f;
   i_v_ = i_w_ = 0.0f;
+  was_r_ = was_l_ = 0;
   update_tau_max();
 }
 
@@ -132,8 +138,10 @@ void Controller::update_tau_max() {
   const float m_t = static_cast<float>(cfg_.robot.m_t()), d = static_cast<float>(cfg_.robot.d);
   const float lat_n = m_t * (odo_.v_m_s() * odo_.omega_rad_s() + d * dw_ff_);
   const slip::NormalForces nf = slip::normal_forces(cfg_.robot, lat_n);
-  out_.tau_max_r_nm = static_cast<float>(slip::tau_max(cfg_.robot, nf.N_r));
-  out_.tau_max_l_nm = static_cast<float>(slip::tau_max(cfg_.robot, nf.N_l));
+  // the clamp's limit: tau_max less the back-EMF margin (cascade.h; 0 with the clamp off)
+  const float mg = cfg_.clamp_enabled ? cfg_.margin_nm : 0.0f;
+  out_.tau_max_r_nm = fmaxf(static_cast<float>(slip::tau_max(cfg_.robot, nf.N_r)) - mg, 0.0f);
+  out_.tau_max_l_nm = fmaxf(static_cast<float>(slip::tau_max(cfg_.robot, nf.N_l)) - mg, 0.0f);
 }
 
 const InnerOut& Controller::inner_step(int32_t enc_r, int32_t enc_l, float dt_s) {
@@ -150,6 +158,7 @@ const InnerOut& Controller::inner_step(int32_t enc_r, int32_t enc_l, float dt_s)
   const WheelPair tau = split_torque(r, b, force, moment);
 
   const float big = static_cast<float>(cfg_.motor.stall_nm) * 10.0f;
+  const float half_dt = (dt_s > 0.0f && dt_s < 1.0f) ? 0.5f * dt_s : 0.0f;
   if (cfg_.clamp_enabled) {
     out_.tau_r_nm = clamp_torque(tau.r, out_.tau_max_r_nm, &out_.clamped_r);
     out_.tau_l_nm = clamp_torque(tau.l, out_.tau_max_l_nm, &out_.clamped_l);
@@ -157,8 +166,23 @@ const InnerOut& Controller::inner_step(int32_t enc_r, int32_t enc_l, float dt_s)
     out_.tau_r_nm = clamp_torque(tau.r, big, &out_.clamped_r);
     out_.tau_l_nm = clamp_torque(tau.l, big, &out_.clamped_l);
   }
-  out_.pwm_r = torque_to_pwm(cfg_.motor, out_.tau_r_nm, odo_.omega_r_rad_s(), &out_.sat_r);
-  out_.pwm_l = torque_to_pwm(cfg_.motor, out_.tau_l_nm, odo_.omega_l_rad_s(), &out_.sat_l);
+  // Torque->PWM over the coming tick. A clamped wheel gets all of its limit: its back-EMF term
+  // follows the speed at the tick's start, i.e. the measured mean speed (that of half a tick
+  // ago) advanced over half a tick at the clamped torque's acceleration if it was clamped (same
+  // sign) in the last tick too, and its duty ramps at that acceleration over the tick.
+  const float ms_over_nl = static_cast<float>(1e-3 / cfg_.motor.no_load_rad_s);
+  const int8_t sg_r = out_.clamped_r ? (tau.r > 0.0f ? 1 : -1) : 0;
+  const int8_t sg_l = out_.clamped_l ? (tau.l > 0.0f ? 1 : -1) : 0;
+  const float alpha_r = sg_r != 0 ? cfg_.wheel_accel_per_nm * out_.tau_r_nm : 0.0f;
+  const float alpha_l = sg_l != 0 ? cfg_.wheel_accel_per_nm * out_.tau_l_nm : 0.0f;
+  const float adv_r = (sg_r != 0 && sg_r == was_r_) ? alpha_r * half_dt : 0.0f;
+  const float adv_l = (sg_l != 0 && sg_l == was_l_) ? alpha_l * half_dt : 0.0f;
+  out_.pwm_r = torque_to_pwm(cfg_.motor, out_.tau_r_nm, odo_.omega_r_rad_s() + adv_r, &out_.sat_r);
+  out_.pwm_l = torque_to_pwm(cfg_.motor, out_.tau_l_nm, odo_.omega_l_rad_s() + adv_l, &out_.sat_l);
+  out_.pwm_slope_r = alpha_r * ms_over_nl;
+  out_.pwm_slope_l = alpha_l * ms_over_nl;
+  was_r_ = sg_r;
+  was_l_ = sg_l;
 
   // Anti-windup by conditional integration: an integrator is frozen when a wheel it drives is
   // limited (clamp or duty) and the error would push that wheel further into the limit.

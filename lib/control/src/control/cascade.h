@@ -33,7 +33,17 @@
 // * Clamp (II.51): |tau_i| <= tau_max(N_i), N_i from slip::normal_forces with the lateral force
 //   m_t (v omega + d domega) that the wheels must supply in a turn (II.28 load transfer).
 // * PWM: u_i = slip::motor_duty_for_torque(motor, tau_i, dtheta_i) = tau/stall + dtheta/no_load,
-//   saturated to [-1, 1].
+//   saturated to [-1, 1]. A clamped wheel gets all of its limit: its back-EMF term follows the
+//   wheel speed over the coming tick. The measured speed (the mean over the last tick, i.e. the
+//   speed half a tick ago) advanced over half a tick by the last tick's model acceleration gives
+//   the speed at the tick's start, and the duty then ramps with the model acceleration of the
+//   clamped torque, alpha = tau / (m_eff r^2 / 2) (slipmodel's rolling model, straight line;
+//   pwm_slope_*: duty per millisecond, applied by the firmware every millisecond). The clamp
+//   limit is tau_max less a margin, the back-EMF torque of kBackEmfMarginCounts encoder counts
+//   per tick: the speed measurement's error (below one count) must not push the delivered
+//   torque above tau_max. In a turn the straight-line model misses (a_Q - a_P) Q of the
+//   acceleration (a_P = 2/(r^2 m_eff), a_Q = 2 b^2/(r^2 I_eff): 444 and 452 rad/s^2 per N m
+//   with Table II.2), inside the margin. lib/control/README.md has the figures.
 #ifndef CONTROL_CASCADE_H
 #define CONTROL_CASCADE_H
 
@@ -44,6 +54,9 @@
 #include <slipmodel/params.h>
 
 namespace ctl {
+
+/// Margin of the back-EMF term of a clamped wheel, in encoder counts per inner tick.
+constexpr float kBackEmfMarginCounts = 1.25f;
 
 /// Controller gains (SI units).
 struct Gains {
@@ -95,6 +108,9 @@ struct ControlConfig {
   float integ_max_n;     ///< |I_v| limit, N
   float integ_max_nm;    ///< |I_w| limit, N m
   bool clamp_enabled;    ///< tau_max clamp on/off (II.6.3 compares both)
+  float wheel_accel_per_nm;  ///< 2/(r^2 m_eff): a wheel's rolling acceleration per N m (straight line)
+  float count_rad;       ///< one encoder count, 2 pi / ppr
+  float margin_nm;       ///< the clamp's margin below tau_max (back-EMF torque of kBackEmfMarginCounts per 25 ms)
 };
 
 /// Builds the configuration from the physics library (one source of truth).
@@ -131,10 +147,11 @@ float torque_to_pwm(const slip::MotorParams& m, float tau_nm, float dtheta_rad_s
 struct InnerOut {
   float pwm_r, pwm_l;            ///< duty in [-1, 1]
   float tau_r_nm, tau_l_nm;      ///< requested wheel torque after the clamp
-  float tau_max_r_nm, tau_max_l_nm;
-  bool clamped_r, clamped_l;     ///< the tau_max clamp acted
+  float tau_max_r_nm, tau_max_l_nm;  ///< the clamp's limit: slip::tau_max less the back-EMF margin
+  bool clamped_r, clamped_l;     ///< the clamp acted
   bool sat_r, sat_l;             ///< the duty saturated
   OdoStatus odo;
+  float pwm_slope_r, pwm_slope_l;  ///< duty per millisecond over the coming tick (clamped wheels; 0 otherwise)
 };
 
 /// The whole cascade with its state (float path). No heap; 250 bytes on the AVR.
@@ -155,6 +172,7 @@ class Controller {
   float integ_v_n() const { return i_v_; }
   float integ_w_nm() const { return i_w_; }
   ControlConfig& config() { return cfg_; }
+  const ControlConfig& config() const { return cfg_; }
 
  private:
   void update_tau_max();
@@ -166,6 +184,7 @@ class Controller {
   InnerOut out_;
   float dv_ff_, dw_ff_;
   float i_v_, i_w_;
+  int8_t was_r_, was_l_;  // the sign a wheel was clamped with in the last tick (+1, -1, 0)
 };
 
 }  // namespace ctl

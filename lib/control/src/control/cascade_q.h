@@ -66,6 +66,11 @@ struct ControlConfigQ {
   /// run-time division (OdometryConfigQ::rate_for): ControllerQ::reset() starts from it, so a
   /// first step with dt within +-63 us of the nominal dt does not divide.
   RateQ rate_nominal;
+  // Torque->PWM of a clamped wheel over the coming tick (cascade.h): duty slope per ms per N m
+  // (rolling acceleration / no-load speed), the clamp's margin below tau_max, the nominal tick.
+  int16_t slope_q19;                 // duty/ms per N m
+  int16_t margin_q16;                // N m
+  uint8_t tick_ms;                   // nominal tick in ms (the prediction covers half of it)
 
   /// nominal_dt_us: the inner loop's sample period (0: no precomputed rate).
   constexpr explicit ControlConfigQ(const ControlConfig& c, uint32_t nominal_dt_us = kNominalInnerDtUs)
@@ -116,8 +121,12 @@ struct ControlConfigQ {
            c.robot.r / 2.0 * c.gains.k_il * 1e-6 * fx::pow2(34) < 16384.0 &&
            c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia * 1e-6 * fx::pow2(37) < 16384.0 &&
            c.robot.r / 2.0 * c.integ_max_n < 64.0 && c.robot.r / (2.0 * c.robot.b) * c.integ_max_nm < 64.0 &&
-           2.0 / c.robot.r < 32000.0 && 2.0 * c.robot.b / c.robot.r < 32000.0),
-        rate_nominal(odo.rate_for(nominal_dt_us)) {}
+           2.0 / c.robot.r < 32000.0 && 2.0 * c.robot.b / c.robot.r < 32000.0 &&
+           fits16(c.wheel_accel_per_nm * 1e-3 / c.motor.no_load_rad_s, 19)),
+        rate_nominal(odo.rate_for(nominal_dt_us)),
+        slope_q19(q16c(c.wheel_accel_per_nm * 1e-3 / c.motor.no_load_rad_s, 19)),
+        margin_q16(q16c(c.clamp_enabled ? c.margin_nm : 0.0, 16)),
+        tick_ms(static_cast<uint8_t>((nominal_dt_us + 500u) / 1000u > 255u ? 255u : (nominal_dt_us + 500u) / 1000u)) {}
 
   static constexpr bool fits16(double v, int shift) {
     return v * fx::pow2(shift) < 32767.0 && v * fx::pow2(shift) > -32768.0;
@@ -137,11 +146,12 @@ struct KinematicOutQ {
 KinematicOutQ kinematic_law_q(const ControlConfigQ& c, const PoseQ& pose, const RefSampleQ& ref);
 
 struct InnerOutQ {
-  int16_t pwm_r_q15, pwm_l_q15;
+  int16_t pwm_r_q15, pwm_l_q15;       ///< duty at the start of the coming tick
   int32_t tau_r_q16, tau_l_q16;       ///< after the clamp
-  int32_t tau_max_r_q16, tau_max_l_q16;
+  int32_t tau_max_r_q16, tau_max_l_q16;  ///< the clamp's limit: slip::tau_max_q16 less the back-EMF margin
   bool clamped_r, clamped_l, sat_r, sat_l;
   OdoStatus odo;
+  int16_t slope_r_q15, slope_l_q15;   ///< duty added per millisecond over the coming tick (clamped wheels)
 };
 
 class ControllerQ {
@@ -178,6 +188,14 @@ class ControllerQ {
 
   int32_t p_ff_q16_, q_ff_q16_;    // (r/2) m_ff dv_ff, (r/2b) I_ff dw_ff: from the outer step
   int32_t j_v_q24_, j_w_q24_;      // (r/2) I_v, (r/2b) I_w
+  // A wheel clamped at +lim (update_limits(), at the outer rate): its duty's torque term lim/stall
+  // alone (first clamped tick) and with the speed advance over half a tick (clamped before, same
+  // sign), and its slope; the sign (+1, -1, 0) the wheel was clamped with in the last tick.
+  int16_t u_lim0_r_q15_, u_lim0_l_q15_, u_lim_r_q15_, u_lim_l_q15_;
+  int16_t slope_lim_r_q15_, slope_lim_l_q15_;
+  int8_t was_r_, was_l_;
+  void update_limits();
+  void duty_clamped();
 };
 
 }  // namespace ctl
