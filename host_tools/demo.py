@@ -61,7 +61,7 @@ def _plt():
 
 # --------------------------------------------------------------------------- part 1: II.6
 
-def thesis_reproduction(out_dir: str, log=print) -> dict:
+def thesis_reproduction(out_dir: str, log=print, with_fil: bool = True) -> dict:
     """Run II.6.1-II.6.3 on the nominal model; write figures, table and results.json."""
     from host_tools import _native
     plt = _plt()
@@ -189,9 +189,10 @@ def thesis_reproduction(out_dir: str, log=print) -> dict:
     res["ii63_parameter_change"] = _ii63_parameter_change(floor, r_wheel)
     res["ii63_parameter_change"]["mu_s_for_target_run"] = _mu_s_for_peak(
         r_wheel, THESIS["ii63_max_err_on_m"], "improved", plant.get("robot.mu_s"), 0.6)
-    by_ctl = {c: _utilisation(r_wheel, j_roll, {"controller": cid}) for c, cid in CONTROLLERS.items()}
-    res["torque_utilisation"] = {"plant": by_ctl["improved"]["utilisation"], "fil": None,
-                                 "controller": "improved", "plant_by_controller": by_ctl}
+    by_ctl = {c: _utilisation(r_wheel, j_roll, tau_max, {"controller": cid}) for c, cid in CONTROLLERS.items()}
+    fil_u = _utilisation_fil(tau_max, log) if with_fil else {"utilisation": None, "error": "skipped"}
+    res["torque_utilisation"] = {"plant": by_ctl["improved"]["utilisation"], "fil": fil_u["utilisation"],
+                                 "controller": "improved", "plant_by_controller": by_ctl, "fil_detail": fil_u}
     log("  II.6.3 done")
 
     with open(os.path.join(out_dir, "results.json"), "w") as fh:
@@ -318,12 +319,13 @@ def _ii63_parameter_change(floor: dict, r_wheel: float) -> dict:
     return out
 
 
-def _utilisation(r_wheel: float, j_roll: float, params: dict) -> dict:
+def _utilisation(r_wheel: float, j_roll: float, tau_max: float, params: dict) -> dict:
     """Torque utilisation during clamp-limited acceleration (II.6.3 profile, clamp on, motor,
     first 2 s): over the ticks in which the clamp acts on both wheels, the torque the wheels
-    receive over the torque commanded (after the clamp). The wheels roll (clamp on: no slip,
-    checked), so the torque a wheel receives over a tick is the rolling inertia times its speed
-    change over the tick divided by the tick."""
+    receive over slipmodel's tau_max (the traction the clamp is there to use; the clamp's own
+    limit is tau_max less the back-EMF margin, lib/control/README.md), and over the commanded
+    torque. The wheels roll (clamp on: no slip, checked), so the torque a wheel receives over a
+    tick is the rolling inertia times its speed change over the tick divided by the tick."""
     from host_tools.truth import INNER_S, nominal_closed_loop
     r = nominal_closed_loop("line", 72.0 * r_wheel, ACCEL_TIME_S * 72.0 * r_wheel, clamp=True,
                             T_s=2.0, actuator="duty", params=params)
@@ -335,10 +337,51 @@ def _utilisation(r_wheel: float, j_roll: float, params: dict) -> dict:
     delivered = j_roll * np.diff(wheel) / INNER_S
     cmd = 0.5 * (r["tau_cmd_r"][:-1] + r["tau_cmd_l"][:-1])
     k = np.flatnonzero(clamped)
-    return {"utilisation": float(delivered[k].sum() / cmd[k].sum()), "clamped_ticks": int(k.size),
-            "t_first_s": float(r["t_s"][k[0]]), "t_last_s": float(r["t_s"][k[-1]] + INNER_S),
+    return {"utilisation": float(delivered[k].mean() / tau_max),
+            "delivered_over_commanded": float(delivered[k].sum() / cmd[k].sum()),
+            "clamped_ticks": int(k.size), "t_first_s": float(r["t_s"][k[0]]),
+            "t_last_s": float(r["t_s"][k[-1]] + INNER_S), "tau_max_nm": tau_max,
             "mean_cmd_nm": float(cmd[k].mean()), "mean_delivered_nm": float(delivered[k].mean()),
             "slipped": False}
+
+
+def _utilisation_fil(tau_max: float, log=print) -> dict:
+    """The same in the firmware in the loop (the real firmware.elf in simavr against the plant,
+    its duty ramped by the 1 kHz tick): 72 rad/s^2 straight, clamp on, 1.5 s. The clamped
+    interval is where telemetry reports the commanded torque at the clamp's limit on both wheels;
+    the delivered torque is the plant's motor torque (plant.csv) over that interval; slip is
+    looked for there (the brake at the end of the experiment skids the wheels)."""
+    import tempfile
+    from pathlib import Path
+
+    from host_tools import fil
+    try:
+        elf = fil.build_firmware()
+        fil.build_sim()
+    except fil.FilError as exc:
+        log(f"  firmware in the loop not available: {exc}")
+        return {"utilisation": None, "error": str(exc)[:300]}
+    exp = {"profile": "straight", "wheel_accel": 72.0, "accel_time": ACCEL_TIME_S, "duration": 1.5,
+           "radius": 0.0}
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "fil72"
+        code, lg, _ = fil.record(out, elf, exp, clamp=True)
+        tel = np.genfromtxt(out / "telemetry.csv", delimiter=",", names=True)
+        pl = np.genfromtxt(out / "plant.csv", delimiter=",", names=True)
+    if code != 0:
+        return {"utilisation": None, "error": f"logger exit {code}: {lg.end_reason}"}
+    on = ((np.abs(tel["tau_cmd_r"]) >= tel["tau_max"] - 2e-4) & (np.abs(tel["tau_cmd_l"]) >= tel["tau_max"] - 2e-4)
+          & (tel["tau_max"] > 0))
+    if not on.any():
+        return {"utilisation": None, "error": "no clamped telemetry frame"}
+    k0 = int(np.argmax(on))
+    k1 = k0 + (int(np.argmin(on[k0:])) if not on[k0:].all() else int(on[k0:].size))
+    t0, t1 = float(tel["t_s"][k0]), float(tel["t_s"][k1 - 1])
+    m = (pl["t_s"] >= t0) & (pl["t_s"] <= t1)
+    delivered = 0.5 * (np.abs(pl["tau_r_nm"][m]) + np.abs(pl["tau_l_nm"][m]))
+    return {"utilisation": float(delivered.mean() / tau_max), "t_first_s": t0, "t_last_s": t1,
+            "telemetry_frames": int(k1 - k0), "mean_delivered_nm": float(delivered.mean()),
+            "tau_max_nm": tau_max, "slipped": bool((pl["slipping_r"][m] > 0).any() or (pl["slipping_l"][m] > 0).any())}
 
 
 def _mu_s_for_peak(r_wheel: float, target_m: float, controller: str, lo: float, hi: float,
@@ -448,13 +491,16 @@ def _thesis_table(res: dict) -> str:
                  f"torque source) peaks at 0.16 m | 0.16 m | μ_s = {run['mu_s']:.3f} (μ_k "
                  f"{run['mu_k']:.3f}): {run['peak_error_m']:.3f} m | — |")
     tu = res["torque_utilisation"]
-    L.append("| torque utilisation, clamp-limited acceleration (II.6.3, clamp on, motor): delivered / "
-             "commanded torque over the clamped ticks | (not stated) | " + "; ".join(
-                 f"{c}: {u['utilisation']:.3f} ({u['clamped_ticks']} ticks, {u['t_first_s']:.3f}–"
-                 f"{u['t_last_s']:.3f} s)" if u.get("utilisation") else f"{c}: —"
-                 for c, u in tu["plant_by_controller"].items())
-             + (f"; firmware in the loop {tu['fil']:.3f}" if isinstance(tu.get("fil"), float)
-                else "; firmware in the loop: not measured here") + " | — |")
+    L.append("| torque utilisation in clamp-limited acceleration (II.6.3, clamp on, motor): delivered "
+             "torque / τmax | (not stated) | " + "; ".join(
+                 f"{c}: {u['utilisation']:.3f} (delivered / commanded {u['delivered_over_commanded']:.3f}; "
+                 f"{u['clamped_ticks']} ticks, {u['t_first_s']:.3f}–{u['t_last_s']:.3f} s)"
+                 if u.get("utilisation") else f"{c}: —" for c, u in tu["plant_by_controller"].items())
+             + (f"; firmware in the loop (improved): {tu['fil']:.3f} "
+                f"({tu['fil_detail']['t_first_s']:.3f}–{tu['fil_detail']['t_last_s']:.3f} s"
+                f"{', slips' if tu['fil_detail'].get('slipped') else ''})"
+                if isinstance(tu.get("fil"), float) else "; firmware in the loop: not measured here")
+             + f" | {'yes (≥ 0.95)' if (tu.get('plant') or 0) >= 0.95 else 'no (< 0.95)'} |")
     L += ["", "II.6.2 through the datasheet motor (clamp off):", "",
           "| controller | α rad/s² | slip | peak τ_cmd N m | mean wheel acceleration rad/s² | lost to slip cm |",
           "|---|---|---|---|---|---|"]

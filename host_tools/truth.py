@@ -152,10 +152,15 @@ def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_
     ctl.set_reference(kind, accel_m_s2, cruise_m_s, radius_m)
     ctl.reset(0, 0, (0.0, 0.0, 0.0))
     n = int(round(T_s / INNER_S))
-    sub = 5  # plant rows per tick, so that slip inside a tick is seen
+    # plant rows per tick, so that slip inside a tick is seen; with the motor one per millisecond,
+    # as the firmware ramps the duty by pwm_slope every millisecond
+    sub = 25 if actuator == "duty" else 5
     t_ticks = np.arange(n + 1) * INNER_S
     duty_r = np.zeros(n + 1)
     duty_l = np.zeros(n + 1)
+    ramp = np.minimum(np.arange(sub) * (INNER_S * 1e3 / sub), INNER_S * 1e3 - 1.0)  # ms since the tick
+    slope_r = np.zeros(n + 1)
+    slope_l = np.zeros(n + 1)
     rows: list[dict[str, float]] = []
     state = None
     for k in range(n + 1):
@@ -163,8 +168,8 @@ def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_
             th_r = th_l = 0.0
         else:
             tg = np.round(np.arange(k * sub + 1) * (INNER_S / sub), 12)
-            ur = np.repeat(duty_r[:k], sub)
-            ul = np.repeat(duty_l[:k], sub)
+            ur = np.clip(np.repeat(duty_r[:k], sub) + np.outer(slope_r[:k], ramp).ravel(), -1.0, 1.0)
+            ul = np.clip(np.repeat(duty_l[:k], sub) + np.outer(slope_l[:k], ramp).ravel(), -1.0, 1.0)
             state = plant.simulate(tg, np.append(ur, 0.0), np.append(ul, 0.0), actuator, dt_s)
             th_r, th_l = state["theta_r_rad"][-1], state["theta_l_rad"][-1]
         if k == n:
@@ -174,6 +179,7 @@ def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_
             ctl.outer(k * INNER_S)
         if actuator == "duty":
             duty_r[k], duty_l[k] = o["pwm_r"], o["pwm_l"]
+            slope_r[k], slope_l[k] = o["pwm_slope_r"], o["pwm_slope_l"]
         else:
             duty_r[k], duty_l[k] = o["tau_cmd_r"], o["tau_cmd_l"]
         rows.append(o)

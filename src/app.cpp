@@ -281,8 +281,9 @@ void inner_task() {
         return;
     }
     const ctl::InnerOutQ& o = g_ctrl->inner_step(g_enc.count_r, g_enc.count_l, dt_us);
-    motor_set_q15(kRight, o.pwm_r_q15);
-    motor_set_q15(kLeft, o.pwm_l_q15);
+    // the duty at the start of the tick, then its ramp every ms until the next tick
+    motor_set_ramp_q15(o.pwm_r_q15, o.slope_r_q15, o.pwm_l_q15, o.slope_l_q15,
+                       static_cast<uint8_t>(proto::kInnerPeriodUs / 1000u - 1u));
     if (sched_ms() - g_exp_start_ms >= g_exp_duration_ms) stop_motors(proto::kFailsafeFinished);
 }
 

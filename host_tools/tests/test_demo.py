@@ -91,14 +91,15 @@ def test_ii63_clamp_removes_slip_and_drift(thesis):
 
 
 def test_ii63_ideal_torque_source(thesis):
-    """Improved controller, torques applied directly: the clamped robot does not slip, peaks no
-    higher than the slipping one (mu_k ~ mu_s: slip costs almost no acceleration), recovers the
+    """Improved controller, torques applied directly: the clamped robot does not slip, peaks
+    about as high as the slipping one (mu_k ~ mu_s: slip costs almost no acceleration; the clamp
+    stays 4 % below tau_max, the back-EMF margin, which costs about 0.02 m), recovers the
     reference, and its error over the run is much smaller."""
     _, res = thesis
     ii63 = res["improved"]["ii63"]
     off, on = ii63["clamp_off_torque_source"], ii63["clamp_on_torque_source"]
     assert off["slipped"] and not on["slipped"]
-    assert on["peak_error_m"] <= off["peak_error_m"] + 0.01
+    assert on["peak_error_m"] <= off["peak_error_m"] + 0.03
     assert on["final_err_m"] < 0.01 < 0.1 < off["final_err_m"]
     assert on["rms_err_m"] < 0.6 * off["rms_err_m"]
 
@@ -138,11 +139,23 @@ def test_ii63_lower_mu_k_raises_only_the_clamp_off_error(thesis):
                - base["clamp_on_torque_source"]["peak_error_m"]) < 0.005
 
 
-def test_torque_utilisation_measured(thesis):
+def test_torque_utilisation(thesis):
+    """In clamp-limited acceleration the wheels receive at least 95 % of tau_max, without slip,
+    in the plant (both controllers) and in the firmware in the loop; the clamped II.6.3 peak
+    error with the motor stays within 0.07 m of the traction floor (0.417 m with the duty held
+    over a tick)."""
     _, res = thesis
-    u = res["torque_utilisation"]["plant_by_controller"]["improved"]
-    assert not u["slipped"] and u["clamped_ticks"] >= 10
-    assert 0.5 < res["torque_utilisation"]["plant"] <= 1.02
+    tu = res["torque_utilisation"]
+    for c in ("thesis", "improved"):
+        u = tu["plant_by_controller"][c]
+        assert not u["slipped"] and u["clamped_ticks"] >= 10, c
+        assert 0.95 <= u["utilisation"] <= 1.0, c
+    assert tu["plant"] == tu["plant_by_controller"]["improved"]["utilisation"]
+    if tu["fil_detail"].get("error"):
+        pytest.skip(f"firmware in the loop not available: {tu['fil_detail']['error']}")
+    assert 0.95 <= tu["fil"] <= 1.0 and not tu["fil_detail"]["slipped"]
+    on = res["improved"]["ii63"]["clamp_on"]
+    assert not on["slipped"] and on["peak_error_m"] < res["ii63_floor_m"] + 0.07
 
 
 def test_analyzer_demo_end_to_end(tmp_path):
