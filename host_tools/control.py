@@ -152,6 +152,8 @@ class ClosedLoop:
     source), in ``rows_per_tick`` rows of Euler steps <= ``plant_dt_s``.
 
     ``ctl_robot``/``ctl_motor``: the controller's nominal parameters (meta.json names);
+    ``ctl_params``: ``controller`` (0 improved, 1 thesis) and gains (``k_x`` ... ``k_ia``);
+    ``duty_ramp``: the firmware's 1 kHz ramp of a clamped wheel's duty (off: held per tick);
     ``plant_robot``/``plant_motor`` and ``effects`` ({name: {param: value}}): the plant's."""
 
     def __init__(self, kind: str, accel_m_s2: float, cruise_m_s: float, radius_m: float = 1.0, *,
@@ -163,7 +165,8 @@ class ClosedLoop:
                  effects: Mapping[str, Mapping[str, float]] | None = None,
                  t0_s: float = 0.0, inner_s: float = INNER_S, outer_every: int = 2,
                  ppr: int = 1856, plant_dt_s: float = 5e-4, rows_per_tick: int = 1,
-                 actuator: str = "duty", start_pose=(0.0, 0.0, 0.0)):
+                 actuator: str = "duty", start_pose=(0.0, 0.0, 0.0),
+                 ctl_params: Mapping[str, float] | None = None, duty_ramp: bool = True):
         if actuator not in ACTUATORS:
             raise ValueError(f"actuator must be 'duty' or 'torque', got {actuator!r}")
         self._lib = _cl_lib()
@@ -176,8 +179,21 @@ class ClosedLoop:
         self.rows_per_tick = int(rows_per_tick)
         for k, v in {"t0_s": t0_s, "inner_s": inner_s, "outer_every": outer_every, "ppr": ppr,
                      "plant_dt_s": plant_dt_s, "rows_per_tick": rows_per_tick,
-                     "actuator": ACTUATORS[actuator]}.items():
+                     "actuator": ACTUATORS[actuator], "duty_ramp": float(bool(duty_ramp))}.items():
             self.set(f"loop.{k}", v)
+        # the velocity loop first (it sets the variant's default gains), then gains, parameters
+        ctl_params = dict(ctl_params or {})
+        if "controller" in ctl_params:
+            self.set("ctl.controller", ctl_params.pop("controller"))
+        for k, v in ctl_params.items():
+            if k.startswith("k_"):
+                self.set(f"ctl.gain.{k}", v)
+            elif f"robot.{k}" in _native.param_keys():
+                self.set(f"ctl.robot.{k}", v)
+            elif f"motor.{k}" in _native.param_keys():
+                self.set(f"ctl.motor.{k}", v)
+            else:
+                self.set(f"ctl.{k}", v)
         for part, values in (("robot", ctl_robot), ("motor", ctl_motor)):
             for k, v in (values or {}).items():
                 self.set(f"ctl.{part}.{k}", v)
@@ -266,20 +282,32 @@ def resimulate_from_rest(kind, accel, cruise, radius, *, fixed_point, clamp, t0,
     ctl = Controller(fixed_point=fixed_point, clamp=clamp, params=ctl_params)
     ctl.set_reference(kind, accel, cruise, radius)
     ctl.reset(0, 0, start_pose)
+    # the duty of a clamped wheel grows by pwm_slope every millisecond after the tick, at most
+    # T/1 ms - 1 times (the firmware's 1 kHz ramp): simulated on 1 ms rows, read at ``sub`` rows
+    n_ms = int(round(T * 1e3))
+    fine = n_ms if actuator == "duty" else sub
+    if fine % sub:
+        raise ValueError(f"sub must divide {fine}")
+    ramp = np.minimum(np.arange(fine), n_ms - 1) if actuator == "duty" else np.zeros(fine)
     u_r, u_l = np.zeros(n), np.zeros(n)
+    s_r, s_l = np.zeros(n), np.zeros(n)
     rows, th, st = [], np.zeros((n, 2)), None
     for k in range(n):
         if k > 0:
-            tg = t0 + (T / sub) * np.arange(k * sub + 1)
-            st = plant.simulate(tg, np.append(np.repeat(u_r[:k], sub), 0.0),
-                                np.append(np.repeat(u_l[:k], sub), 0.0), mode=actuator,
+            tg = t0 + (T / fine) * np.arange(k * fine + 1)
+            ur = np.clip(np.repeat(u_r[:k], fine) + np.outer(s_r[:k], ramp).ravel(), -1, 1)
+            ul = np.clip(np.repeat(u_l[:k], fine) + np.outer(s_l[:k], ramp).ravel(), -1, 1)
+            st = plant.simulate(tg, np.append(ur, 0.0), np.append(ul, 0.0), mode=actuator,
                                 dt_s=dt_s, start_pose=start_pose)
+            st = {c: v[::fine // sub] for c, v in st.items()}
             th[k] = st["theta_r_rad"][-1], st["theta_l_rad"][-1]
         o = ctl.inner(*(int(math.floor(a * ppr / (2 * math.pi))) for a in th[k]), T)
         if k % outer_every == 0:
             ctl.outer(k * T)
         u_r[k], u_l[k] = ((o["pwm_r"], o["pwm_l"]) if actuator == "duty"
                           else (o["tau_cmd_r"], o["tau_cmd_l"]))
+        if actuator == "duty":
+            s_r[k], s_l[k] = o["pwm_slope_r"], o["pwm_slope_l"]
         rows.append(o)
     out = {c: np.array([r[c] for r in rows]) for c in rows[0]}
     out["theta_r_rad"], out["theta_l_rad"] = th[:, 0], th[:, 1]

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import ctypes
+import math
 import fcntl
 import json
 import os
@@ -39,7 +40,8 @@ PPR = runfmt.DEFAULT_META["encoder_ppr"]  # encoder counts per wheel turn
 def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_m: float = 1.0,
                         clamp: bool = True, T_s: float = 3.0, plant: _native.Plant | None = None,
                         fixed_point: bool = True, dt_s: float = 5e-4,
-                        actuator: str = "duty") -> dict[str, np.ndarray]:
+                        actuator: str = "duty",
+                        params: Mapping[str, float] | None = None) -> dict[str, np.ndarray]:
     """The firmware's controller in closed loop with the *nominal* ``lib/slipmodel`` plant (or
     ``plant``'s parameters and effects), on the 25 ms / 50 ms schedule with quantised encoders,
     run by ``lib/closedloop``'s driver (:class:`host_tools.control.ClosedLoop`).
@@ -49,11 +51,14 @@ def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_
     does (II.6). Returns per-tick arrays: ``t_s``, true pose ``x_m, y_m, phi_rad``, reference
     ``x_ref, y_ref``, controller columns (``pwm_r`` ... ``odo_status``), and plant columns at
     the tick (``slip_r``, ``slip_l``, ``dtheta_r_rad_s`` ...), plus ``slip_any`` (a wheel
-    slipping at any of the tick's 5 ms plant rows) and ``slip_fine``/``t_fine`` (per row)."""
+    slipping at any of the tick's plant rows) and ``slip_fine``/``t_fine`` (per row).
+    ``params``: controller keys (``ctl_describe``), e.g. ``{"controller": 1}`` for the thesis's
+    velocity loop, or gains ``k_x`` ... The duty of a clamped wheel is ramped every millisecond
+    as the firmware's 1 kHz tick does (``pwm_slope_r/l``), with 1 ms plant rows."""
     if actuator not in ("duty", "torque"):
         raise ValueError(f"actuator must be 'duty' or 'torque', got {actuator!r}")
     n = int(round(T_s / INNER_S))
-    sub = 5  # plant rows per tick, so that slip inside a tick is seen
+    sub = 25 if actuator == "duty" else 5  # plant rows per tick, so that slip inside one is seen
     plant_robot, plant_motor, effects = {}, {}, {}
     if plant is not None:
         for key, v in plant.params().items():
@@ -62,7 +67,8 @@ def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_
         effects = plant.enabled_effects()
     loop = ClosedLoop(kind, accel_m_s2, cruise_m_s, radius_m, fixed_point=fixed_point,
                       clamp=clamp, plant_robot=plant_robot, plant_motor=plant_motor,
-                      effects=effects, plant_dt_s=dt_s, rows_per_tick=sub, actuator=actuator)
+                      effects=effects, plant_dt_s=dt_s, rows_per_tick=sub, actuator=actuator,
+                      ctl_params=params)
     ticks, rows = loop.run(n, rows=True)
     last = loop.state()
     res: dict[str, np.ndarray] = {"t_s": np.arange(n + 1) * INNER_S}
@@ -76,7 +82,7 @@ def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_
     res["slip_any"] = np.append(slip[:n * sub].reshape(n, sub).any(axis=1), False)
     res["slip_fine"] = slip
     res["t_fine"] = np.append(rows["t_s"], last["t_s"])
-    ref = Controller(fixed_point=fixed_point, clamp=clamp)
+    ref = Controller(fixed_point=fixed_point, clamp=clamp, params=params)
     ref.set_reference(kind, accel_m_s2, cruise_m_s, radius_m)
     refs = np.array([ref.reference(t) for t in res["t_s"]])
     res["x_ref"], res["y_ref"] = refs[:, 0], refs[:, 1]

@@ -12,6 +12,11 @@ enum Wheel : uint8_t { kRight = 0, kLeft = 1 };
 void motor_init();           // timers, ADC; motors stay off (duty 0, brake on)
 // Signed duty in Q15 (-32768..32767 = -1..1), positive = wheel forward. Releases the brake.
 void motor_set_q15(Wheel w, int16_t duty_q15);
+// Both duties, then a ramp: every millisecond (motor_ramp_tick() from the 1 kHz tick ISR) each
+// duty grows by its slope (Q15 per ms), at most `steps` times. The next call, motor_set_q15() or
+// the brake ends it. The controller's torque->PWM map asks for it (lib/control/README.md).
+void motor_set_ramp_q15(int16_t duty_r, int16_t slope_r, int16_t duty_l, int16_t slope_l, uint8_t steps);
+void motor_ramp_tick();
 // Both motors: brake pins high and enable high (L298 both low-side on: terminals shorted).
 void motor_brake();
 bool motor_braking();

@@ -53,9 +53,10 @@ slip::RobotParams g_robot;
 const slip::MotorParams kMotor = slip::datasheet_motor();
 bool g_clamp_on = true;
 bool g_params_default = true;
+ctl::Variant g_variant = ctl::Variant::kImproved;  // velocity loop (SetController)
 
 ctl::ControlConfig make_cfg() {
-    return ctl::make_control_config(g_robot, kMotor, ctl::default_gains(), g_clamp_on);
+    return ctl::make_control_config(g_robot, kMotor, ctl::gains_for(g_variant), g_clamp_on, g_variant);
 }
 
 // ---- state ----
@@ -227,6 +228,14 @@ void handle_frame(const proto::Frame& f) {
                 rebuild_controller();
                 break;
             }
+            case proto::kMsgSetController: {
+                proto::SetController c = proto::SetController();
+                c.decode(f.payload, f.len);  // length and range checked by validate_command
+                if (busy()) { res = proto::kResultBusy; break; }
+                g_variant = c.variant == proto::kControllerThesis ? ctl::Variant::kThesis : ctl::Variant::kImproved;
+                rebuild_controller();
+                break;
+            }
             case proto::kMsgSetMu: {
                 proto::SetMu m = proto::SetMu();
                 m.decode(f.payload, f.len);  // length checked by validate_command
@@ -272,8 +281,9 @@ void inner_task() {
         return;
     }
     const ctl::InnerOutQ& o = g_ctrl->inner_step(g_enc.count_r, g_enc.count_l, dt_us);
-    motor_set_q15(kRight, o.pwm_r_q15);
-    motor_set_q15(kLeft, o.pwm_l_q15);
+    // the duty at the start of the tick, then its ramp every ms until the next tick
+    motor_set_ramp_q15(o.pwm_r_q15, o.slope_r_q15, o.pwm_l_q15, o.slope_l_q15,
+                       static_cast<uint8_t>(proto::kInnerPeriodUs / 1000u - 1u));
     if (sched_ms() - g_exp_start_ms >= g_exp_duration_ms) stop_motors(proto::kFailsafeFinished);
 }
 
@@ -375,6 +385,7 @@ void telemetry_task() {
         status |= proto::kStatusFailsafe;
     if (!motor_braking()) status |= proto::kStatusMotorsEnabled;
     if (g_params_default) status |= proto::kStatusParamsDefault;
+    if (g_variant == ctl::Variant::kThesis) status |= proto::kStatusThesisController;
     t.status = status;
     t.failsafe = g_failsafe;
     t.reset_cause = boot_reset_cause();

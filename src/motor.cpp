@@ -11,6 +11,8 @@
 namespace {
 int16_t g_duty[2];
 bool g_braking = true;
+int16_t g_slope[2];               // duty ramp (Q15 per ms), stepped by motor_ramp_tick()
+volatile uint8_t g_ramp_left;     // ramp steps left (0: no ramp)
 volatile uint16_t g_sense[2];
 volatile uint8_t g_sense_ch;
 
@@ -111,7 +113,34 @@ void motor_set_q15(Wheel w, int16_t duty_q15) {
     g_duty[w] = duty_q15;
 }
 
+void motor_set_ramp_q15(int16_t duty_r, int16_t slope_r, int16_t duty_l, int16_t slope_l, uint8_t steps) {
+    g_ramp_left = 0;  // the tick ISR leaves the duties alone while they change
+    motor_set_q15(kRight, duty_r);
+    motor_set_q15(kLeft, duty_l);
+    if (slope_r == 0 && slope_l == 0) return;
+    uint8_t sreg = SREG;
+    cli();
+    g_slope[0] = slope_r;
+    g_slope[1] = slope_l;
+    g_ramp_left = steps;
+    SREG = sreg;
+}
+
+// From the 1 kHz tick ISR (interrupts enabled: it never runs inside motor_set_q15's cli region,
+// and the main context clears g_ramp_left before it sets duties or brakes).
+void motor_ramp_tick() {
+    if (g_ramp_left == 0 || g_braking) return;
+    g_ramp_left = g_ramp_left - 1;
+    for (uint8_t w = 0; w < 2; ++w) {
+        int32_t d = static_cast<int32_t>(g_duty[w]) + g_slope[w];
+        if (d > 32767) d = 32767;
+        if (d < -32767) d = -32767;
+        motor_set_q15(static_cast<Wheel>(w), static_cast<int16_t>(d));
+    }
+}
+
 void motor_brake() {
+    g_ramp_left = 0;
     uint8_t sreg = SREG;
     cli();
     set_brake(true);

@@ -5,6 +5,7 @@
 #include <avr/sleep.h>
 
 #include "cycles.h"
+#include "motor.h"
 
 namespace {
 const TaskConfig* g_tasks;
@@ -29,7 +30,10 @@ void sat_inc(uint16_t* c) {
 
 // NOBLOCK: interrupts are re-enabled at once, so an encoder edge waits only for the few
 // cycles of the prologue (OCF4A is cleared on entry; the ISR cannot re-enter itself).
-ISR(TIMER4_COMPA_vect, ISR_NOBLOCK) { g_ms = g_ms + 1; }
+ISR(TIMER4_COMPA_vect, ISR_NOBLOCK) {
+    g_ms = g_ms + 1;
+    motor_ramp_tick();  // the duty ramp of the torque->PWM map
+}
 
 namespace {
 void update_next_due() {

@@ -50,6 +50,8 @@ inline uint32_t checksum_step(uint32_t h, const ctl::ControllerQ& q, const ctl::
   const ctl::InnerOutQ& o = q.inner();
   h = mix(h, static_cast<uint16_t>(o.pwm_r_q15));
   h = mix(h, static_cast<uint16_t>(o.pwm_l_q15));
+  h = mix(h, static_cast<uint16_t>(o.slope_r_q15));
+  h = mix(h, static_cast<uint16_t>(o.slope_l_q15));
   h = mix(h, static_cast<uint32_t>(o.tau_r_q16));
   h = mix(h, static_cast<uint32_t>(o.tau_l_q16));
   h = mix(h, static_cast<uint32_t>(o.tau_max_r_q16));
@@ -119,7 +121,7 @@ inline uint32_t checksum_long() {
   X(odo.wheel_rate_q11) X(odo.half_r_q16) X(odo.r_over_2b_q15) X(odo.inv_rate_q32) X(odo.ok)                        \
   X(traction.n_wheel0_q16) X(traction.n_wheels_q16) X(traction.n_c_q16)                         \
   X(traction.lat_gain_q24) X(traction.k_tau_q24) X(k_x_q8) X(k_y_q8) X(k_phi_q8) X(k_l_q8)      \
-  X(k_a_q12) X(k_il_q8) X(k_ia_q12) X(m_eff_q12) X(I_eff_q17) X(m_t_q8) X(mtd_q16) X(mtd_q18)   \
+  X(k_a_q12) X(k_il_q8) X(k_ia_q12) X(m_ff_q12) X(I_ff_q17) X(m_t_q8) X(mtd_q16) X(mtd_q18)   \
   X(inv_b_q8) X(half_r_q16) X(inv_stall_q13) X(inv_no_load_q20) X(v_max_q12) X(omega_max_q11)   \
   X(integ_max_v_q16) X(integ_max_w_q16) X(tau_big_q16) X(g_l_q15) X(g_a_q18) X(g_c_q23)          \
   X(g_cv_q20) X(g_ffv_q18) X(g_ffw_q21) X(g_il_q15) X(g_ia_q18) X(g_il_us_q34) X(g_ia_us_q37)       \

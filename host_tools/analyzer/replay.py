@@ -757,7 +757,9 @@ class ClosedLoopReplay:
                           fixed_point=True, clamp=setup["clamp"], ctl_robot=ctl["robot"],
                           ctl_motor=ctl["motor"], plant_robot=prep.robot, plant_motor=prep.motor,
                           effects=effects, t0_s=t0, inner_s=T, outer_every=setup["outer_every"],
-                          ppr=prep.ppr, plant_dt_s=self.dt_s, start_pose=prep.start_pose)
+                          ppr=prep.ppr, plant_dt_s=self.dt_s, start_pose=prep.start_pose,
+                          # the firmware's 1 kHz duty ramp, where the recorder says it ramps
+                          duty_ramp=bool(prep.run.meta.get("duty_ramp", False)))
         return loop.run(n)
 
 

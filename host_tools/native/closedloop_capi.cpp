@@ -35,7 +35,7 @@ const char* const kCtlCols[] = {
     "pwm_r",     "pwm_l",     "tau_cmd_r", "tau_cmd_l",   "tau_max_r", "tau_max_l",
     "clamped_r", "clamped_l", "sat_r",     "sat_l",       "omega_r",   "omega_l",
     "x_odo_m",   "y_odo_m",   "phi_odo_rad", "v_d_m_s",   "omega_d_rad_s", "e_x_m",
-    "e_y_m",     "e_phi_rad", "odo_status"};
+    "e_y_m",     "e_phi_rad", "odo_status", "pwm_slope_r", "pwm_slope_l"};
 const int kCtlColCount = static_cast<int>(sizeof(kCtlCols) / sizeof(kCtlCols[0]));
 const char* const kPlantCols[] = {"x_m", "y_m", "phi_rad", "v_m_s", "omega_rad_s", "theta_r_rad",
                                   "theta_l_rad", "dtheta_r_rad_s", "dtheta_l_rad_s", "tau_r_nm",
@@ -82,7 +82,8 @@ void tick_row(const cl::TickOut& t, double* o) {
                       c.pwm_r, c.pwm_l, c.tau_cmd_r, c.tau_cmd_l, c.tau_max_r, c.tau_max_l,
                       double(c.clamped_r), double(c.clamped_l), double(c.sat_r), double(c.sat_l),
                       c.omega_r, c.omega_l, c.x_odo_m, c.y_odo_m, c.phi_odo_rad, c.v_d_m_s,
-                      c.omega_d_rad_s, c.e_x_m, c.e_y_m, c.e_phi_rad, double(c.odo_status)};
+                      c.omega_d_rad_s, c.e_x_m, c.e_y_m, c.e_phi_rad, double(c.odo_status),
+                      c.pwm_slope_r, c.pwm_slope_l};
   memcpy(o, v, sizeof v);
   o = plant_row(t.plant, o + 3 + kCtlColCount);
   o[0] = t.slip_steps;
@@ -99,7 +100,7 @@ int set_ctl_param(Handle* h, cl::DriverConfig* next, const char* key, double v) 
     return CL_ERR_VALUE;
   }
   next->ctl = ctl::make_control_config(scratch.robot(), scratch.motor(), next->ctl.gains,
-                                       next->ctl.clamp_enabled);
+                                       next->ctl.clamp_enabled, next->ctl.variant);
   return CL_OK;
 }
 
@@ -112,6 +113,7 @@ int set_loop(cl::DriverConfig* c, const char* k, double v) {
   else if (strcmp(k, "outer_every") == 0 && whole) c->outer_every = static_cast<int>(v);
   else if (strcmp(k, "ppr") == 0 && whole) c->ppr = static_cast<int32_t>(v);
   else if (strcmp(k, "rows_per_tick") == 0 && whole) c->rows_per_tick = static_cast<int>(v);
+  else if (strcmp(k, "duty_ramp") == 0) c->duty_ramp = v != 0.0;
   else if (strcmp(k, "actuator") == 0 && (v == 0.0 || v == 1.0))
     c->actuator = v == 0.0 ? cl::Actuator::kDuty : cl::Actuator::kTorque;
   else if (strcmp(k, "outer_every") == 0 || strcmp(k, "ppr") == 0 || strcmp(k, "rows_per_tick") == 0 ||
@@ -170,6 +172,31 @@ int cl_set(void* p, const char* key, double value) {
     const char* k = key + 4;
     if (strcmp(k, "clamp") == 0) {
       next.ctl.clamp_enabled = value != 0.0;
+      rc = CL_OK;
+    } else if (strncmp(k, "gain.", 5) == 0) {  // ctl.gain.k_x ... k_ia (ctl_set's gain keys)
+      const char* g = k + 5;
+      ctl::Gains gn = next.ctl.gains;
+      float* const f[] = {&gn.k_x, &gn.k_y, &gn.k_phi, &gn.k_l, &gn.k_a, &gn.k_il, &gn.k_ia};
+      const char* const names[] = {"k_x", "k_y", "k_phi", "k_l", "k_a", "k_il", "k_ia"};
+      for (int i = 0; i < 7; ++i) {
+        if (strcmp(g, names[i]) != 0) continue;
+        if (value < 0.0) {
+          snprintf(h->err, sizeof h->err, "%s must be >= 0", key);
+          return CL_ERR_VALUE;
+        }
+        *f[i] = static_cast<float>(value);
+        next.ctl = ctl::make_control_config(next.ctl.robot, next.ctl.motor, gn,
+                                            next.ctl.clamp_enabled, next.ctl.variant);
+        rc = CL_OK;
+      }
+    } else if (strcmp(k, "controller") == 0) {  // 0 improved, 1 thesis (ctl_set's key)
+      if (value != 0.0 && value != 1.0) {
+        snprintf(h->err, sizeof h->err, "ctl.controller must be 0 (improved) or 1 (thesis)");
+        return CL_ERR_VALUE;
+      }
+      const ctl::Variant v = static_cast<ctl::Variant>(static_cast<uint8_t>(value));
+      next.ctl = ctl::make_control_config(next.ctl.robot, next.ctl.motor, ctl::gains_for(v),
+                                          next.ctl.clamp_enabled, v);
       rc = CL_OK;
     } else if (strncmp(k, "robot.", 6) == 0 || strncmp(k, "motor.", 6) == 0) {
       rc = set_ctl_param(h, &next, k, value);

@@ -4,7 +4,8 @@
 //
 // Self-describing: ctl_describe() returns a JSON document listing the settable keys with their
 // defaults and units, the reference kinds and the output columns of ctl_inner(); the column
-// order is also available as ctl_column_count()/ctl_column_name(i).
+// order is also available as ctl_column_count()/ctl_column_name(i). pwm_slope_r/l: duty added
+// per millisecond over the coming tick (the firmware ramps the duty by it every millisecond).
 // Never crashes on bad input: unknown keys, NaN values, null pointers and short arrays give a
 // negative return code and a message from ctl_last_error(h).
 //
@@ -37,21 +38,23 @@ const char* const kCols[] = {
     "pwm_r",     "pwm_l",     "tau_cmd_r", "tau_cmd_l",   "tau_max_r", "tau_max_l",
     "clamped_r", "clamped_l", "sat_r",     "sat_l",       "omega_r",   "omega_l",
     "x_odo_m",   "y_odo_m",   "phi_odo_rad", "v_d_m_s",   "omega_d_rad_s", "e_x_m",
-    "e_y_m",     "e_phi_rad", "odo_status"};
+    "e_y_m",     "e_phi_rad", "odo_status", "pwm_slope_r", "pwm_slope_l"};
 const int kColCount = static_cast<int>(sizeof(kCols) / sizeof(kCols[0]));
 
 struct Key {
   const char* name;
   const char* unit;
 };
-// Settable keys: Table II.2 names, the datasheet motor, the gains, the clamp switch.
+// Settable keys: Table II.2 names, the datasheet motor, the gains, the clamp switch, the
+// velocity-loop variant ("controller": 0 improved, 1 thesis; setting it loads that variant's
+// default gains, which later "k_*" keys may override).
 const Key kKeys[] = {{"mu_s", "1"},       {"mu_k", "1"},       {"b", "m"},         {"e", "m"},
                      {"d", "m"},          {"g", "m/s^2"},      {"h", "m"},         {"m_r", "kg"},
                      {"I_rz", "kg m^2"},  {"I_wz", "kg m^2"},  {"I_wy", "kg m^2"}, {"r", "m"},
                      {"m_w", "kg"},       {"supply_v", "V"},   {"no_load_rad_s", "rad/s"},
                      {"stall_nm", "N m"}, {"k_x", "1/s"},      {"k_y", "1/m^2"},   {"k_phi", "1/s"},
                      {"k_l", "N s/m"},    {"k_a", "N m s"},    {"k_il", "N/m"},    {"k_ia", "N m"},
-                     {"clamp", "0/1"}};
+                     {"clamp", "0/1"},    {"controller", "0 improved, 1 thesis"}};
 const int kKeyCount = static_cast<int>(sizeof(kKeys) / sizeof(kKeys[0]));
 
 struct Handle {
@@ -60,6 +63,7 @@ struct Handle {
   slip::MotorParams motor;
   ctl::Gains gains;
   bool clamp;
+  ctl::Variant variant;
   ctl::ReferenceSpec ref;
   ctl::ControlConfig cfg;
   ctl::ControlConfigQ cfg_q;
@@ -74,8 +78,9 @@ struct Handle {
         motor(),
         gains(ctl::default_gains()),
         clamp(clamp_on),
+        variant(ctl::Variant::kImproved),
         ref{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f},
-        cfg(ctl::make_control_config(robot, motor, gains, clamp)),
+        cfg(ctl::make_control_config(robot, motor, gains, clamp, variant)),
         cfg_q(cfg),
         ref_q(ref),
         fc(cfg),
@@ -99,7 +104,7 @@ struct Handle {
   }
   // Rebuild both configurations (the controllers are reset).
   int rebuild() {
-    cfg = ctl::make_control_config(robot, motor, gains, clamp);
+    cfg = ctl::make_control_config(robot, motor, gains, clamp, variant);
     cfg_q = ctl::ControlConfigQ(cfg);
     fc = ctl::Controller(cfg);
     qc = ctl::ControllerQ(cfg_q);
@@ -135,7 +140,8 @@ const char* ctl_describe(void) {
     double def = 0.0;
     if (i < 16) def = *tmp.field(kKeys[i].name);
     else if (i < 23) def = *tmp.gain(kKeys[i].name);
-    else def = 1.0;
+    else if (strcmp(kKeys[i].name, "clamp") == 0) def = 1.0;
+    else def = static_cast<double>(static_cast<uint8_t>(tmp.variant));
     n += snprintf(buf + n, sizeof buf - n, "%s{\"name\": \"%s\", \"unit\": \"%s\", \"default\": %.9g}",
                   i ? ", " : "", kKeys[i].name, kKeys[i].unit, def);
   }
@@ -179,6 +185,13 @@ int ctl_set(void* h, const char* key, double value) {
     *g = static_cast<float>(value);
   } else if (strcmp(key, "clamp") == 0) {
     p->clamp = value != 0.0;
+  } else if (strcmp(key, "controller") == 0) {
+    if (value != 0.0 && value != 1.0) {
+      snprintf(p->err, sizeof p->err, "controller must be 0 (improved) or 1 (thesis)");
+      return CTL_ERR_VALUE;
+    }
+    p->variant = static_cast<ctl::Variant>(static_cast<uint8_t>(value));
+    p->gains = ctl::gains_for(p->variant);
   } else {
     snprintf(p->err, sizeof p->err, "unknown key %s", key);
     return CTL_ERR_KEY;
@@ -192,6 +205,7 @@ int ctl_get(void* h, const char* key, double* out) {
   if (double* f = p->field(key)) *out = *f;
   else if (float* g = p->gain(key)) *out = *g;
   else if (strcmp(key, "clamp") == 0) *out = p->clamp ? 1.0 : 0.0;
+  else if (strcmp(key, "controller") == 0) *out = static_cast<double>(static_cast<uint8_t>(p->variant));
   else {
     snprintf(p->err, sizeof p->err, "unknown key %s", key);
     return CTL_ERR_KEY;
@@ -289,7 +303,8 @@ int ctl_inner(void* h, int32_t enc_r, int32_t enc_l, double dt_s, double* out, i
                         double(o.sat_r), double(o.sat_l), od.omega_r_q8() / 256.0, od.omega_l_q8() / 256.0,
                         od.pose().x_q20 / 1048576.0, od.pose().y_q20 / 1048576.0, from_b32(od.pose().phi_b32),
                         k.v_d_q12 / 4096.0, k.omega_d_q11 / 2048.0, k.e_x_q12 / 4096.0, k.e_y_q12 / 4096.0,
-                        from_b32(static_cast<uint32_t>(k.e_phi_b32)), double(static_cast<int>(o.odo))};
+                        from_b32(static_cast<uint32_t>(k.e_phi_b32)), double(static_cast<int>(o.odo)),
+                        o.slope_r_q15 / 32768.0, o.slope_l_q15 / 32768.0};
     memcpy(out, v, sizeof v);
     return static_cast<int>(o.odo);
   }
@@ -299,7 +314,8 @@ int ctl_inner(void* h, int32_t enc_r, int32_t enc_l, double dt_s, double* out, i
   const double v[] = {o.pwm_r, o.pwm_l, o.tau_r_nm, o.tau_l_nm, o.tau_max_r_nm, o.tau_max_l_nm,
                       double(o.clamped_r), double(o.clamped_l), double(o.sat_r), double(o.sat_l),
                       od.omega_r_rad_s(), od.omega_l_rad_s(), od.pose().x_m, od.pose().y_m, od.pose().phi_rad,
-                      k.v_d_m_s, k.omega_d_rad_s, k.e_x_m, k.e_y_m, k.e_phi_rad, double(static_cast<int>(o.odo))};
+                      k.v_d_m_s, k.omega_d_rad_s, k.e_x_m, k.e_y_m, k.e_phi_rad, double(static_cast<int>(o.odo)),
+                      o.pwm_slope_r, o.pwm_slope_l};
   memcpy(out, v, sizeof v);
   return static_cast<int>(o.odo);
 }

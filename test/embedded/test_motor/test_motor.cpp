@@ -1,6 +1,6 @@
 // Motor Shield R3 driver on the (simulated) ATmega2560: timer setup (fast PWM, 20 kHz),
 // duty -> compare value and direction pin per wheel, duty 0 = output disconnected and low,
-// brake, and the current-sense conversion sequence A0 then A1.
+// brake, the duty ramp, and the current-sense conversion sequence A0 then A1.
 #include <avr/interrupt.h>
 #include <avr/io.h>
 #include <avr/sleep.h>
@@ -82,6 +82,25 @@ static void test_brake_shorts_both_motors() {
     TEST_ASSERT_EQUAL_INT16(0, motor_duty_q15(kLeft));
 }
 
+// The duty ramp of the torque->PWM map: each tick adds the slope, at most `steps` times, and
+// saturates; the brake ends it and a tick leaves the braked motors alone.
+static void test_duty_ramp() {
+    motor_set_ramp_q15(10000, 100, -10000, -50, 3);
+    for (uint8_t i = 0; i < 5; ++i) motor_ramp_tick();
+    TEST_ASSERT_EQUAL_INT16(10300, motor_duty_q15(kRight));
+    TEST_ASSERT_EQUAL_INT16(-10150, motor_duty_q15(kLeft));
+    TEST_ASSERT_EQUAL_UINT16((800ul * 10300 + 16384) >> 15, motor_compare(kRight));
+    motor_set_ramp_q15(32700, 100, 0, 0, 24);
+    motor_ramp_tick();
+    TEST_ASSERT_EQUAL_INT16(32767, motor_duty_q15(kRight));
+    motor_set_ramp_q15(1000, 10, 1000, 10, 24);
+    motor_brake();
+    motor_ramp_tick();
+    TEST_ASSERT_TRUE(motor_braking());
+    TEST_ASSERT_EQUAL_INT16(0, motor_duty_q15(kRight));
+    TEST_ASSERT_EQUAL_UINT16(800, motor_compare(kRight));
+}
+
 static void test_current_sense_converts_a0_then_a1() {
     motor_sense_start();
     TEST_ASSERT_EQUAL_HEX8(0, ADMUX & 0x1F);  // A0 first
@@ -98,6 +117,7 @@ int main() {
     RUN_TEST(test_fast_pwm_20khz);
     RUN_TEST(test_duty_to_compare_and_direction);
     RUN_TEST(test_brake_shorts_both_motors);
+    RUN_TEST(test_duty_ramp);
     RUN_TEST(test_current_sense_converts_a0_then_a1);
     UNITY_END();
     cli();

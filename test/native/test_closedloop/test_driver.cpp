@@ -24,7 +24,7 @@ cl::DriverConfig eight(bool fixed) {
 }  // namespace
 
 // The float cascade and the plant stepped by hand on the firmware's schedule (inner on the
-// counts, outer after it every other tick, the duty held for 50 Euler steps of 0.5 ms) give
+// counts, outer after it every other tick, the duty ramped per ms over 50 Euler steps) give
 // the driver's numbers bit for bit.
 void test_driver_follows_the_firmware_schedule() {
   const cl::DriverConfig dc = eight(false);
@@ -47,9 +47,14 @@ void test_driver_follows_the_firmware_schedule() {
     if (t.enc_r != er || t.enc_l != el || t.ctl.pwm_r != o.pwm_r || t.ctl.pwm_l != o.pwm_l ||
         t.plant.x_m != p.state().x_m || t.t_s != 3.0 + 0.025 * k)
       ++differ;
-    // the row's span on the clock's grid, in 50 equal steps (<= 0.5 ms), clock re-aligned
+    // the row's span on the clock's grid, in 50 equal steps (<= 0.5 ms), clock re-aligned; the
+    // duty of a clamped wheel grows by its slope every millisecond (the firmware's 1 kHz ramp)
     const double span = (3.0 + 0.025 * (k + 1)) - (3.0 + 0.025 * k);
-    for (int j = 0; j < 50; ++j) p.step_duty(o.pwm_r, o.pwm_l, span / 50);
+    for (int j = 0; j < 50; ++j) {
+      const double ms = fmin(floor(j * (span / 50) * 1e3 + 1e-9), 24.0);
+      p.step_duty(fmin(fmax(o.pwm_r + o.pwm_slope_r * ms, -1.0), 1.0),
+                  fmin(fmax(o.pwm_l + o.pwm_slope_l * ms, -1.0), 1.0), span / 50);
+    }
     p.set_time(3.0 + 0.025 * (k + 1));
   }
   printf("driver vs hand-stepped loop: %d of 400 ticks differ; final x %.6f / %.6f m\n", differ,

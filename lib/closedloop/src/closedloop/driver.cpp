@@ -82,7 +82,8 @@ void Driver::read_ctl(CtlRow* o) const {
                 i.sat_r, i.sat_l, od.omega_r_q8() / 256.0, od.omega_l_q8() / 256.0,
                 od.pose().x_q20 / 1048576.0, od.pose().y_q20 / 1048576.0, from_b32(od.pose().phi_b32),
                 k.v_d_q12 / 4096.0, k.omega_d_q11 / 2048.0, k.e_x_q12 / 4096.0, k.e_y_q12 / 4096.0,
-                from_b32(static_cast<uint32_t>(k.e_phi_b32)), static_cast<int>(i.odo)};
+                from_b32(static_cast<uint32_t>(k.e_phi_b32)), static_cast<int>(i.odo),
+                i.slope_r_q15 / 32768.0, i.slope_l_q15 / 32768.0};
   } else {
     const ctl::InnerOut& i = fc_.inner();
     const ctl::KinematicOut& k = fc_.kinematic();
@@ -90,7 +91,7 @@ void Driver::read_ctl(CtlRow* o) const {
     *o = CtlRow{i.pwm_r, i.pwm_l, i.tau_r_nm, i.tau_l_nm, i.tau_max_r_nm, i.tau_max_l_nm,
                 i.clamped_r, i.clamped_l, i.sat_r, i.sat_l, od.omega_r_rad_s(), od.omega_l_rad_s(),
                 od.pose().x_m, od.pose().y_m, od.pose().phi_rad, k.v_d_m_s, k.omega_d_rad_s,
-                k.e_x_m, k.e_y_m, k.e_phi_rad, static_cast<int>(i.odo)};
+                k.e_x_m, k.e_y_m, k.e_phi_rad, static_cast<int>(i.odo), i.pwm_slope_r, i.pwm_slope_l};
   }
 }
 
@@ -121,6 +122,7 @@ const TickOut& Driver::step(slip::PlantState* rows) {
   // how the run is cut into ticks.
   const int m = cfg_.rows_per_tick;
   const double h_row = T / m;
+  const double ramp_ms = cfg_.duty_ramp ? floor(T * 1e3 + 1e-9) - 1.0 : 0.0;
   o.slip_steps = 0;
   o.first_slip_t_s = -1.0;
   for (int j = 0; j < m; ++j) {
@@ -136,8 +138,16 @@ const TickOut& Driver::step(slip::PlantState* rows) {
     if (steps < 1) steps = 1;
     const double h = span / static_cast<double>(steps);
     for (long s = 0; s < steps; ++s) {
-      if (torque) plant_.step_torque(in_r, in_l, h);
-      else plant_.step_duty(in_r, in_l, h);
+      if (torque) {
+        plant_.step_torque(in_r, in_l, h);
+      } else {
+        // the firmware's 1 kHz tick adds the slope to a clamped wheel's duty every millisecond
+        // after the inner tick, ramp_ms times at most
+        const double tau_ms = (h_row * j + h * static_cast<double>(s)) * 1e3;
+        const double n_ms = fmin(floor(tau_ms + 1e-9), ramp_ms);
+        plant_.step_duty(fmin(fmax(in_r + o.ctl.pwm_slope_r * n_ms, -1.0), 1.0),
+                         fmin(fmax(in_l + o.ctl.pwm_slope_l * n_ms, -1.0), 1.0), h);
+      }
       const slip::PlantState& st = plant_.state();
       if (s == 0) {
         if (rows) copy_dynamic(st, &rows[j]);

@@ -40,6 +40,9 @@ struct DriverConfig {
   double plant_dt_s = 5e-4; ///< largest Euler step
   int rows_per_tick = 1;    ///< plant rows per tick (see TickOut::rows)
   Actuator actuator = Actuator::kDuty;
+  /// The firmware's 1 kHz ramp of a clamped wheel's duty (CtlRow::pwm_slope_*); off: the duty
+  /// is held over the tick (a recorder whose firmware does not ramp, e.g. the truth simulator)
+  bool duty_ramp = true;
 
   /// Empty when usable, else what is wrong.
   const char* check() const;
@@ -58,6 +61,8 @@ struct CtlRow {
                                    ///< outer step before this tick's)
   double e_x_m, e_y_m, e_phi_rad;  ///< tracking errors of that outer step
   int odo_status;                  ///< ctl::OdoStatus
+  double pwm_slope_r, pwm_slope_l; ///< duty added every millisecond over the coming tick
+                                   ///< (clamped wheels; the firmware's 1 kHz ramp)
 };
 
 struct TickOut {

@@ -21,21 +21,43 @@ Gains default_gains() {
   return Gains{2.0f, 6.0f, 3.0f, 20.0f, 0.22f, 30.0f, 0.33f};
 }
 
+Gains thesis_gains() {
+  const slip::RobotParams p;
+  const float k_l = 6.0f;
+  const float k_a = static_cast<float>(k_l * p.I_t() / p.m_t());  // 0.0455 N m s for Table II.2
+  return Gains{2.0f, 6.0f, 3.0f, k_l, k_a, 0.0f, 0.0f};
+}
+
+Gains gains_for(Variant v) { return v == Variant::kThesis ? thesis_gains() : default_gains(); }
+
 ControlConfig make_control_config(const slip::RobotParams& robot, const slip::MotorParams& motor,
-                                  const Gains& gains, bool clamp_enabled) {
+                                  const Gains& gains, bool clamp_enabled, Variant variant) {
   ControlConfig c;
   c.robot = robot;
   c.motor = motor;
   c.gains = gains;
   c.counts_per_rev = slip::kEncoderPpr;
-  c.m_eff_kg = static_cast<float>(slip::rolling_mass_kg(robot));
-  c.I_eff_kgm2 = static_cast<float>(slip::rolling_yaw_inertia_kgm2(robot));
+  c.variant = variant;
+  if (variant == Variant::kThesis) {  // II.47: m_t and I_t alone, no coupling terms
+    c.m_ff_kg = static_cast<float>(robot.m_t());
+    c.I_ff_kgm2 = static_cast<float>(robot.I_t());
+    c.mtd_ff_kg_m = 0.0f;
+  } else {
+    c.m_ff_kg = static_cast<float>(slip::rolling_mass_kg(robot));
+    c.I_ff_kgm2 = static_cast<float>(slip::rolling_yaw_inertia_kgm2(robot));
+    c.mtd_ff_kg_m = static_cast<float>(robot.m_t() * robot.d);
+  }
   c.v_max_m_s = static_cast<float>(robot.r * motor.no_load_rad_s);
   c.omega_max_rad_s = static_cast<float>(robot.r * motor.no_load_rad_s / robot.b);
   // Integrators may hold at most the force/moment of half the stall torque on both wheels.
   c.integ_max_n = static_cast<float>(motor.stall_nm / robot.r);
   c.integ_max_nm = static_cast<float>(motor.stall_nm * robot.b / robot.r);
   c.clamp_enabled = clamp_enabled;
+  const double r2 = robot.r * robot.r;
+  c.wheel_accel_per_nm = static_cast<float>(2.0 / (r2 * slip::rolling_mass_kg(robot)));
+  c.count_rad = static_cast<float>(2.0 * 3.14159265358979323846 / slip::kEncoderPpr);
+  // kBackEmfMarginCounts counts per nominal 25 ms tick as back-EMF torque
+  c.margin_nm = static_cast<float>(motor.stall_nm / motor.no_load_rad_s * kBackEmfMarginCounts * c.count_rad / 0.025);
   return c;
 }
 
@@ -94,9 +116,10 @@ Controller::Controller(const ControlConfig& cfg)
 void Controller::reset(int32_t enc_r, int32_t enc_l, const Pose& p) {
   odo_.reset(enc_r, enc_l, p);
   kin_ = KinematicOut{0, 0, 0, 0, 0};
-  out_ = InnerOut{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kOk};
+  out_ = InnerOut{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kOk, 0, 0};
   dv_ff_ = dw_ff_ = 0.0f;
   i_v_ = i_w_ = 0.0f;
+  was_r_ = was_l_ = 0;
   update_tau_max();
 }
 
@@ -115,24 +138,27 @@ void Controller::update_tau_max() {
   const float m_t = static_cast<float>(cfg_.robot.m_t()), d = static_cast<float>(cfg_.robot.d);
   const float lat_n = m_t * (odo_.v_m_s() * odo_.omega_rad_s() + d * dw_ff_);
   const slip::NormalForces nf = slip::normal_forces(cfg_.robot, lat_n);
-  out_.tau_max_r_nm = static_cast<float>(slip::tau_max(cfg_.robot, nf.N_r));
-  out_.tau_max_l_nm = static_cast<float>(slip::tau_max(cfg_.robot, nf.N_l));
+  // the clamp's limit: tau_max less the back-EMF margin (cascade.h; 0 with the clamp off)
+  const float mg = cfg_.clamp_enabled ? cfg_.margin_nm : 0.0f;
+  out_.tau_max_r_nm = fmaxf(static_cast<float>(slip::tau_max(cfg_.robot, nf.N_r)) - mg, 0.0f);
+  out_.tau_max_l_nm = fmaxf(static_cast<float>(slip::tau_max(cfg_.robot, nf.N_l)) - mg, 0.0f);
 }
 
 const InnerOut& Controller::inner_step(int32_t enc_r, int32_t enc_l, float dt_s) {
   out_.odo = odo_.update(enc_r, enc_l, dt_s);
   const float v = odo_.v_m_s(), w = odo_.omega_rad_s();
   const float r = static_cast<float>(cfg_.robot.r), b = static_cast<float>(cfg_.robot.b);
-  const float m_t = static_cast<float>(cfg_.robot.m_t()), d = static_cast<float>(cfg_.robot.d);
+  const float mtd = cfg_.mtd_ff_kg_m;
   const Gains& g = cfg_.gains;
 
   const float e_v = kin_.v_d_m_s - v;
   const float e_w = kin_.omega_d_rad_s - w;
-  const float force = cfg_.m_eff_kg * dv_ff_ - m_t * d * w * w + g.k_l * e_v + i_v_;
-  const float moment = cfg_.I_eff_kgm2 * dw_ff_ + m_t * d * w * v + g.k_a * e_w + i_w_;
+  const float force = cfg_.m_ff_kg * dv_ff_ - mtd * w * w + g.k_l * e_v + i_v_;
+  const float moment = cfg_.I_ff_kgm2 * dw_ff_ + mtd * w * v + g.k_a * e_w + i_w_;
   const WheelPair tau = split_torque(r, b, force, moment);
 
   const float big = static_cast<float>(cfg_.motor.stall_nm) * 10.0f;
+  const float half_dt = (dt_s > 0.0f && dt_s < 1.0f) ? 0.5f * dt_s : 0.0f;
   if (cfg_.clamp_enabled) {
     out_.tau_r_nm = clamp_torque(tau.r, out_.tau_max_r_nm, &out_.clamped_r);
     out_.tau_l_nm = clamp_torque(tau.l, out_.tau_max_l_nm, &out_.clamped_l);
@@ -140,8 +166,23 @@ const InnerOut& Controller::inner_step(int32_t enc_r, int32_t enc_l, float dt_s)
     out_.tau_r_nm = clamp_torque(tau.r, big, &out_.clamped_r);
     out_.tau_l_nm = clamp_torque(tau.l, big, &out_.clamped_l);
   }
-  out_.pwm_r = torque_to_pwm(cfg_.motor, out_.tau_r_nm, odo_.omega_r_rad_s(), &out_.sat_r);
-  out_.pwm_l = torque_to_pwm(cfg_.motor, out_.tau_l_nm, odo_.omega_l_rad_s(), &out_.sat_l);
+  // Torque->PWM over the coming tick. A clamped wheel gets all of its limit: its back-EMF term
+  // follows the speed at the tick's start, i.e. the measured mean speed (that of half a tick
+  // ago) advanced over half a tick at the clamped torque's acceleration if it was clamped (same
+  // sign) in the last tick too, and its duty ramps at that acceleration over the tick.
+  const float ms_over_nl = static_cast<float>(1e-3 / cfg_.motor.no_load_rad_s);
+  const int8_t sg_r = out_.clamped_r ? (tau.r > 0.0f ? 1 : -1) : 0;
+  const int8_t sg_l = out_.clamped_l ? (tau.l > 0.0f ? 1 : -1) : 0;
+  const float alpha_r = sg_r != 0 ? cfg_.wheel_accel_per_nm * out_.tau_r_nm : 0.0f;
+  const float alpha_l = sg_l != 0 ? cfg_.wheel_accel_per_nm * out_.tau_l_nm : 0.0f;
+  const float adv_r = (sg_r != 0 && sg_r == was_r_) ? alpha_r * half_dt : 0.0f;
+  const float adv_l = (sg_l != 0 && sg_l == was_l_) ? alpha_l * half_dt : 0.0f;
+  out_.pwm_r = torque_to_pwm(cfg_.motor, out_.tau_r_nm, odo_.omega_r_rad_s() + adv_r, &out_.sat_r);
+  out_.pwm_l = torque_to_pwm(cfg_.motor, out_.tau_l_nm, odo_.omega_l_rad_s() + adv_l, &out_.sat_l);
+  out_.pwm_slope_r = alpha_r * ms_over_nl;
+  out_.pwm_slope_l = alpha_l * ms_over_nl;
+  was_r_ = sg_r;
+  was_l_ = sg_l;
 
   // Anti-windup by conditional integration: an integrator is frozen when a wheel it drives is
   // limited (clamp or duty) and the error would push that wheel further into the limit.

@@ -25,13 +25,25 @@
 //     M = I_eff dw_ff + m_t d omega v + k_a e_w + I_w,   dI_w = k_ia e_w dt
 //   where dv_ff, dw_ff are the reference accelerations (the derivative of the kinematic
 //   correction is left out: in discrete time it is noise).
+//   The thesis variant (Variant::kThesis) is II.47 as printed: m_t and I_t in place of m_eff
+//   and I_eff, no m_t d terms, and (thesis_gains()) no integral.
 // * Split (II.49 re-derived for the conventions above; II.12/II.49 have the sign of the yaw
 //   term reversed and a factor 2 wrong):
 //     tau_r = (r/2) (F + M/b),  tau_l = (r/2) (F - M/b)
 // * Clamp (II.51): |tau_i| <= tau_max(N_i), N_i from slip::normal_forces with the lateral force
 //   m_t (v omega + d domega) that the wheels must supply in a turn (II.28 load transfer).
 // * PWM: u_i = slip::motor_duty_for_torque(motor, tau_i, dtheta_i) = tau/stall + dtheta/no_load,
-//   saturated to [-1, 1].
+//   saturated to [-1, 1]. A clamped wheel gets all of its limit: its back-EMF term follows the
+//   wheel speed over the coming tick. The measured speed (the mean over the last tick, i.e. the
+//   speed half a tick ago) advanced over half a tick by the last tick's model acceleration gives
+//   the speed at the tick's start, and the duty then ramps with the model acceleration of the
+//   clamped torque, alpha = tau / (m_eff r^2 / 2) (slipmodel's rolling model, straight line;
+//   pwm_slope_*: duty per millisecond, applied by the firmware every millisecond). The clamp
+//   limit is tau_max less a margin, the back-EMF torque of kBackEmfMarginCounts encoder counts
+//   per tick: the speed measurement's error (below one count) must not push the delivered
+//   torque above tau_max. In a turn the straight-line model misses (a_Q - a_P) Q of the
+//   acceleration (a_P = 2/(r^2 m_eff), a_Q = 2 b^2/(r^2 I_eff): 444 and 452 rad/s^2 per N m
+//   with Table II.2), inside the margin. lib/control/README.md has the figures.
 #ifndef CONTROL_CASCADE_H
 #define CONTROL_CASCADE_H
 
@@ -42,6 +54,9 @@
 #include <slipmodel/params.h>
 
 namespace ctl {
+
+/// Margin of the back-EMF term of a clamped wheel, in encoder counts per inner tick.
+constexpr float kBackEmfMarginCounts = 1.25f;
 
 /// Controller gains (SI units).
 struct Gains {
@@ -54,9 +69,29 @@ struct Gains {
   float k_ia;   ///< N m        inner: integral of e_omega
 };
 
+/// Which velocity loop the cascade runs (the kinematic law, split, clamp, PWM and odometry are
+/// the same for both).
+///  * kImproved: this project's loop, feed-forward with slipmodel's rolling masses m_eff, I_eff
+///    (wheel spin inertia included) and the m_t d coupling terms, plus an integral term.
+///  * kThesis: II.47 as printed, feed-forward with m_t and I_t alone, P gains, no coupling
+///    terms; with thesis_gains() no integral term.
+enum class Variant : uint8_t { kImproved = 0, kThesis = 1 };
+static const uint8_t kVariantCount = 2;
+
 /// Default gains: velocity loop about 6 rad/s (k_l/m_eff, k_a/I_eff), well inside the 25 ms
 /// sample rate; outer loop 2-3 rad/s; e_y loop damping about 0.8 at v_r = 0.8 m/s.
 Gains default_gains();
+
+/// Gains of the thesis's controller (II.44, II.47). The thesis states none; k_x = 2 1/s and
+/// k_l = 6 N s/m are the gains of a grid (k_x 1..3, k_l 3..8) with which II.6.2 (torque
+/// source, clamp off) shows the thesis's slip pattern and whose peak torques deviate least from
+/// the captions' 0.09 / 0.1 / 0.13 N m (criterion and sensitivity in lib/control/README.md and
+/// the demo's table); k_a = k_l I_t / m_t (the same 3.7 rad/s bandwidth for omega); k_y, k_phi
+/// as default_gains(); no integral (k_il = k_ia = 0).
+Gains thesis_gains();
+
+/// The gains a variant uses by default.
+Gains gains_for(Variant v);
 
 /// Constant configuration of the cascade (float path).
 struct ControlConfig {
@@ -64,18 +99,24 @@ struct ControlConfig {
   slip::MotorParams motor;
   Gains gains;
   int32_t counts_per_rev;
-  float m_eff_kg;        ///< slip::rolling_mass_kg
-  float I_eff_kgm2;      ///< slip::rolling_yaw_inertia_kgm2
+  Variant variant;
+  float m_ff_kg;         ///< feed-forward mass: slip::rolling_mass_kg (improved), m_t (thesis)
+  float I_ff_kgm2;       ///< feed-forward yaw inertia: slip::rolling_yaw_inertia_kgm2 (improved), I_t (thesis)
+  float mtd_ff_kg_m;     ///< m_t d in the coupling terms (improved), 0 (thesis)
   float v_max_m_s;       ///< |v_d| limit (r * no-load speed)
   float omega_max_rad_s; ///< |omega_d| limit
   float integ_max_n;     ///< |I_v| limit, N
   float integ_max_nm;    ///< |I_w| limit, N m
   bool clamp_enabled;    ///< tau_max clamp on/off (II.6.3 compares both)
+  float wheel_accel_per_nm;  ///< 2/(r^2 m_eff): a wheel's rolling acceleration per N m (straight line)
+  float count_rad;       ///< one encoder count, 2 pi / ppr
+  float margin_nm;       ///< the clamp's margin below tau_max (back-EMF torque of kBackEmfMarginCounts per 25 ms)
 };
 
 /// Builds the configuration from the physics library (one source of truth).
 ControlConfig make_control_config(const slip::RobotParams& robot, const slip::MotorParams& motor,
-                                  const Gains& gains, bool clamp_enabled = true);
+                                  const Gains& gains, bool clamp_enabled = true,
+                                  Variant variant = Variant::kImproved);
 
 /// Outer-loop result.
 struct KinematicOut {
@@ -106,10 +147,11 @@ float torque_to_pwm(const slip::MotorParams& m, float tau_nm, float dtheta_rad_s
 struct InnerOut {
   float pwm_r, pwm_l;            ///< duty in [-1, 1]
   float tau_r_nm, tau_l_nm;      ///< requested wheel torque after the clamp
-  float tau_max_r_nm, tau_max_l_nm;
-  bool clamped_r, clamped_l;     ///< the tau_max clamp acted
+  float tau_max_r_nm, tau_max_l_nm;  ///< the clamp's limit: slip::tau_max less the back-EMF margin
+  bool clamped_r, clamped_l;     ///< the clamp acted
   bool sat_r, sat_l;             ///< the duty saturated
   OdoStatus odo;
+  float pwm_slope_r, pwm_slope_l;  ///< duty per millisecond over the coming tick (clamped wheels; 0 otherwise)
 };
 
 /// The whole cascade with its state (float path). No heap; 250 bytes on the AVR.
@@ -130,6 +172,7 @@ class Controller {
   float integ_v_n() const { return i_v_; }
   float integ_w_nm() const { return i_w_; }
   ControlConfig& config() { return cfg_; }
+  const ControlConfig& config() const { return cfg_; }
 
  private:
   void update_tau_max();
@@ -141,6 +184,7 @@ class Controller {
   InnerOut out_;
   float dv_ff_, dw_ff_;
   float i_v_, i_w_;
+  int8_t was_r_, was_l_;  // the sign a wheel was clamped with in the last tick (+1, -1, 0)
 };
 
 }  // namespace ctl

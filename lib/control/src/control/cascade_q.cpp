@@ -59,12 +59,14 @@ ControllerQ::ControllerQ(const ControlConfigQ& cfg) : cfg_(cfg), odo_(cfg.odo) {
 void ControllerQ::reset(int32_t enc_r, int32_t enc_l, const PoseQ& p) {
   odo_.reset(enc_r, enc_l, p, cfg_.rate_nominal);  // no division on a first step at the nominal dt
   kin_ = KinematicOutQ{0, 0, 0, 0, 0};
-  out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kOk};
+  out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kOk, 0, 0};
+  was_r_ = was_l_ = 0;
   const slip::NormalForcesQ nf = slip::normal_forces_q16(cfg_.traction, 0);
   out_.tau_max_r_q16 = slip::tau_max_q16(cfg_.traction, nf.N_r_q16);
   out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
   p_ff_q16_ = q_ff_q16_ = 0;
   j_v_q24_ = j_w_q24_ = 0;
+  update_limits();
 }
 
 // Integrators for dt of 65.5 ms to 0.5 s (rare: a late step): dt in Q16 s = dt_us * 4295 /
@@ -85,7 +87,7 @@ void ControllerQ::integrate_long_dt(uint32_t dt_us, int16_t e_v, int16_t e_w) {
 
 const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
   kin_ = kinematic_law_q(cfg_, odo_.pose(), ref);
-  // The feed-forward terms change only here: P_ff = (r/2) m_eff dv_ff, Q_ff = (r/2b) I_eff dw_ff.
+  // The feed-forward terms change only here: P_ff = (r/2) m_ff dv_ff, Q_ff = (r/2b) I_ff dw_ff.
   p_ff_q16_ = fx::mul16<14>(ref.dv_q12, cfg_.g_ffv_q18);      // Q12*Q18 -> Q16
   q_ff_q16_ = fx::mul16<16>(ref.domega_q11, cfg_.g_ffw_q21);  // Q11*Q21 -> Q16
   // Per-wheel tau_max, refreshed at the outer rate (the load transfer changes slowly):
@@ -97,12 +99,65 @@ const KinematicOutQ& ControllerQ::outer_step(const RefSampleQ& ref) {
   const slip::NormalForcesQ nf = slip::normal_forces_q16(cfg_.traction, lat_q16);
   out_.tau_max_r_q16 = slip::tau_max_q16(cfg_.traction, nf.N_r_q16);
   out_.tau_max_l_q16 = slip::tau_max_q16(cfg_.traction, nf.N_l_q16);
+  update_limits();
   return kin_;
+}
+
+// The clamp's limits (with the clamp on, tau_max less the back-EMF margin: the speed
+// measurement's error must not push the delivered torque above tau_max; cascade.h), and the
+// duty slope of a wheel clamped at +lim with its advance over half a tick.
+void ControllerQ::update_limits() {
+  const int32_t r = out_.tau_max_r_q16 - cfg_.margin_q16, l = out_.tau_max_l_q16 - cfg_.margin_q16;
+  out_.tau_max_r_q16 = r > 0 ? r : 0;
+  out_.tau_max_l_q16 = l > 0 ? l : 0;
+  if (!cfg_.clamp_enabled) {
+    u_lim0_r_q15_ = u_lim0_l_q15_ = u_lim_r_q15_ = u_lim_l_q15_ = slope_lim_r_q15_ = slope_lim_l_q15_ = 0;
+    return;
+  }
+  // tau_max < 8 N m: Q12 fits (rounded toward zero, as the inner step's torques); the slope is
+  // rounded down (a smaller ramp delivers less torque); the advance is the slope over half a tick.
+  const int16_t lr = q16_to_q12_toward_zero(out_.tau_max_r_q16), ll = q16_to_q12_toward_zero(out_.tau_max_l_q16);
+  slope_lim_r_q15_ = fx::hi16(fx::mul_ss(lr, cfg_.slope_q19));
+  slope_lim_l_q15_ = fx::hi16(fx::mul_ss(ll, cfg_.slope_q19));
+  u_lim0_r_q15_ = static_cast<int16_t>(fx::mul16<10>(lr, cfg_.inv_stall_q13));
+  u_lim0_l_q15_ = static_cast<int16_t>(fx::mul16<10>(ll, cfg_.inv_stall_q13));
+  u_lim_r_q15_ = fx::sat16(u_lim0_r_q15_ + (fx::mul_ss(slope_lim_r_q15_, cfg_.tick_ms) >> 1));
+  u_lim_l_q15_ = fx::sat16(u_lim0_l_q15_ + (fx::mul_ss(slope_lim_l_q15_, cfg_.tick_ms) >> 1));
+}
+
+// The duty of a clamped wheel (|tau| = lim): it gets all of its limit. Its back-EMF term
+// follows the speed at the start of the coming tick, i.e. the measured mean speed (that of half
+// a tick ago) advanced over half a tick at the clamped torque's acceleration if it was clamped
+// with the same sign in the last tick too, and its duty ramps at that acceleration over the tick
+// (cascade.h). A wheel not clamped keeps the duty inner_step formed, with no slope. The
+// anti-windup saw inner_step's saturation flags: for a clamped wheel the clamp flag decides.
+__attribute__((noinline)) void ControllerQ::duty_clamped() {
+  // (the two wheels written out: a shared per-wheel helper made this step 40 cycles longer)
+  if (out_.clamped_r) {
+    const int8_t sg = out_.tau_r_q16 > 0 ? 1 : -1;
+    const int16_t b = was_r_ == sg ? u_lim_r_q15_ : u_lim0_r_q15_;
+    out_.pwm_r_q15 = duty_q15((sg > 0 ? b : -b) + fx::mul16<13>(odo_.omega_r_q8(), cfg_.inv_no_load_q20), &out_.sat_r);
+    out_.slope_r_q15 = sg > 0 ? slope_lim_r_q15_ : static_cast<int16_t>(-slope_lim_r_q15_);
+    was_r_ = sg;
+  } else {
+    out_.slope_r_q15 = 0;
+    was_r_ = 0;
+  }
+  if (out_.clamped_l) {
+    const int8_t sg = out_.tau_l_q16 > 0 ? 1 : -1;
+    const int16_t b = was_l_ == sg ? u_lim_l_q15_ : u_lim0_l_q15_;
+    out_.pwm_l_q15 = duty_q15((sg > 0 ? b : -b) + fx::mul16<13>(odo_.omega_l_q8(), cfg_.inv_no_load_q20), &out_.sat_l);
+    out_.slope_l_q15 = sg > 0 ? slope_lim_l_q15_ : static_cast<int16_t>(-slope_lim_l_q15_);
+    was_l_ = sg;
+  } else {
+    out_.slope_l_q15 = 0;
+    was_l_ = 0;
+  }
 }
 
 const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
   if (!cfg_.ok) {  // refuse to drive with a configuration that did not convert
-    out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kBadConfig};
+    out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kBadConfig, 0, 0};
 
     return out_;
   }
@@ -120,8 +175,9 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
   // The velocity loop directly in wheel-torque units (Q16 N m): with the split
   // tau_r = (r/2)(F + M/b), tau_l = (r/2)(F - M/b), P = (r/2) F and Q = (r/2b) M give
   // tau_r = P + Q, tau_l = P - Q; every gain below already carries its r/2 or r/2b.
-  //   P = (r/2) [m_eff dv_ff - m_t d w^2 + k_l e_v + I_v]
-  //   Q = (r/2b)[I_eff dw_ff + m_t d w v + k_a e_w + I_w]
+  //   P = (r/2) [m_ff dv_ff - mtd_ff w^2 + k_l e_v + I_v]
+  //   Q = (r/2b)[I_ff dw_ff + mtd_ff w v + k_a e_w + I_w]
+  // (improved: m_ff = m_eff, I_ff = I_eff, mtd_ff = m_t d; thesis: m_t, I_t, 0)
   // Each product term is below 2^19 (8 N m), the integrators below 64 N m (config check): the
   // sums cannot overflow.
   const int16_t w2_q6 = fx::hi16(fx::mul_ss(w, w));   // <= 256 (rad/s)^2
@@ -183,6 +239,14 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
     }
   }
   CTL_PROBE(0);
+  // A clamped wheel: its duty over the coming tick (out of line and last, so that the common
+  // step stays as it was; the clamped steps do not integrate).
+  if (out_.clamped_r || out_.clamped_l) {
+    duty_clamped();
+  } else if (was_r_ != 0 || was_l_ != 0) {  // the first step after a clamped one
+    out_.slope_r_q15 = out_.slope_l_q15 = 0;
+    was_r_ = was_l_ = 0;
+  }
   return out_;
 }
 

@@ -35,8 +35,8 @@ struct ControlConfigQ {
   int16_t k_a_q12;                   // N m s
   int16_t k_il_q8;                   // N/m
   int16_t k_ia_q12;                  // N m
-  int16_t m_eff_q12;                 // kg (< 8)
-  int16_t I_eff_q17;                 // kg m^2 (< 0.25)
+  int16_t m_ff_q12;                  // feed-forward mass, kg (< 8)
+  int16_t I_ff_q17;                  // feed-forward yaw inertia, kg m^2 (< 0.25)
   int16_t m_t_q8;                    // kg
   int16_t mtd_q16;                   // m_t d, kg m
   int16_t mtd_q18;                   // m_t d, kg m (< 0.125)
@@ -50,10 +50,10 @@ struct ControlConfigQ {
   // The velocity loop in wheel-torque units (P = (r/2) F, Q = (r/2b) M):
   int16_t g_l_q15;                   // (r/2) k_l             N m s/m
   int16_t g_a_q18;                   // (r/2b) k_a            N m s
-  int16_t g_c_q23;                   // (r/2) m_t d           kg m^2
-  int16_t g_cv_q20;                  // (r/2b) m_t d          kg m^2 / m
-  int16_t g_ffv_q18;                 // (r/2) m_eff           kg m
-  int16_t g_ffw_q21;                 // (r/2b) I_eff          kg m^2
+  int16_t g_c_q23;                   // (r/2) mtd_ff          kg m^2 (m_t d; 0: thesis)
+  int16_t g_cv_q20;                  // (r/2b) mtd_ff         kg m^2 / m
+  int16_t g_ffv_q18;                 // (r/2) m_ff            kg m
+  int16_t g_ffw_q21;                 // (r/2b) I_ff           kg m^2
   int16_t g_il_q15;                  // (r/2) k_il            N m/m
   int16_t g_ia_q18;                  // (r/2b) k_ia           N m
   int16_t g_il_us_q34;               // (r/2) k_il 1e-6 (k dt for dt in us; < 2^14: k dt fits Q19)
@@ -66,6 +66,11 @@ struct ControlConfigQ {
   /// run-time division (OdometryConfigQ::rate_for): ControllerQ::reset() starts from it, so a
   /// first step with dt within +-63 us of the nominal dt does not divide.
   RateQ rate_nominal;
+  // Torque->PWM of a clamped wheel over the coming tick (cascade.h): duty slope per ms per N m
+  // (rolling acceleration / no-load speed), the clamp's margin below tau_max, the nominal tick.
+  int16_t slope_q19;                 // duty/ms per N m
+  int16_t margin_q16;                // N m
+  uint8_t tick_ms;                   // nominal tick in ms (the prediction covers half of it)
 
   /// nominal_dt_us: the inner loop's sample period (0: no precomputed rate).
   constexpr explicit ControlConfigQ(const ControlConfig& c, uint32_t nominal_dt_us = kNominalInnerDtUs)
@@ -74,7 +79,7 @@ struct ControlConfigQ {
         k_x_q8(q16c(c.gains.k_x, 8)), k_y_q8(q16c(c.gains.k_y, 8)), k_phi_q8(q16c(c.gains.k_phi, 8)),
         k_l_q8(q16c(c.gains.k_l, 8)), k_a_q12(q16c(c.gains.k_a, 12)),
         k_il_q8(q16c(c.gains.k_il, 8)), k_ia_q12(q16c(c.gains.k_ia, 12)),
-        m_eff_q12(q16c(c.m_eff_kg, 12)), I_eff_q17(q16c(c.I_eff_kgm2, 17)),
+        m_ff_q12(q16c(c.m_ff_kg, 12)), I_ff_q17(q16c(c.I_ff_kgm2, 17)),
         m_t_q8(q16c(c.robot.m_t(), 8)), mtd_q16(q16c(c.robot.m_t() * c.robot.d, 16)),
         mtd_q18(q16c(c.robot.m_t() * c.robot.d, 18)),
         inv_b_q8(q16c(1.0 / c.robot.b, 8)), half_r_q16(q16c(c.robot.r / 2.0, 16)),
@@ -85,10 +90,10 @@ struct ControlConfigQ {
         tau_big_q16(fx::q_const(10.0 * c.motor.stall_nm, 16)),
         g_l_q15(q16c(c.robot.r / 2.0 * c.gains.k_l, 15)),
         g_a_q18(q16c(c.robot.r / (2.0 * c.robot.b) * c.gains.k_a, 18)),
-        g_c_q23(q16c(c.robot.r / 2.0 * c.robot.m_t() * c.robot.d, 23)),
-        g_cv_q20(q16c(c.robot.r / (2.0 * c.robot.b) * c.robot.m_t() * c.robot.d, 20)),
-        g_ffv_q18(q16c(c.robot.r / 2.0 * c.m_eff_kg, 18)),
-        g_ffw_q21(q16c(c.robot.r / (2.0 * c.robot.b) * c.I_eff_kgm2, 21)),
+        g_c_q23(q16c(c.robot.r / 2.0 * c.mtd_ff_kg_m, 23)),
+        g_cv_q20(q16c(c.robot.r / (2.0 * c.robot.b) * c.mtd_ff_kg_m, 20)),
+        g_ffv_q18(q16c(c.robot.r / 2.0 * c.m_ff_kg, 18)),
+        g_ffw_q21(q16c(c.robot.r / (2.0 * c.robot.b) * c.I_ff_kgm2, 21)),
         g_il_q15(q16c(c.robot.r / 2.0 * c.gains.k_il, 15)),
         g_ia_q18(q16c(c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia, 18)),
         g_il_us_q34(q16c(c.robot.r / 2.0 * c.gains.k_il * 1e-6, 34)),
@@ -102,22 +107,26 @@ struct ControlConfigQ {
                                                     c.counts_per_rev}) &&
            fits16(c.gains.k_x, 8) && fits16(c.gains.k_y, 8) && fits16(c.gains.k_phi, 8) &&
            fits16(c.gains.k_l, 8) && fits16(c.gains.k_a, 12) && fits16(c.gains.k_il, 8) &&
-           fits16(c.gains.k_ia, 12) && fits16(c.m_eff_kg, 12) && fits16(c.I_eff_kgm2, 17) &&
+           fits16(c.gains.k_ia, 12) && fits16(c.m_ff_kg, 12) && fits16(c.I_ff_kgm2, 17) &&
            fits16(c.robot.m_t() * c.robot.d, 18) && fits16(1.0 / c.robot.b, 8) &&
            fits16(1.0 / c.motor.stall_nm, 13) && c.motor.stall_nm * 10.0 < 7.99 && fits16(1.0 / c.motor.no_load_rad_s, 20) &&
            fits16(c.v_max_m_s, 12) && fits16(c.omega_max_rad_s, 11) && c.gains.k_x >= 0 &&
            c.gains.k_y >= 0 && c.gains.k_phi >= 0 && c.gains.k_l >= 0 && c.gains.k_a >= 0 &&
            c.gains.k_il >= 0 && c.gains.k_ia >= 0 &&
            fits16(c.robot.r / 2.0 * c.gains.k_l, 15) && fits16(c.robot.r / (2.0 * c.robot.b) * c.gains.k_a, 18) &&
-           fits16(c.robot.r / 2.0 * c.robot.m_t() * c.robot.d, 23) &&
-           fits16(c.robot.r / (2.0 * c.robot.b) * c.robot.m_t() * c.robot.d, 20) &&
-           fits16(c.robot.r / 2.0 * c.m_eff_kg, 18) && fits16(c.robot.r / (2.0 * c.robot.b) * c.I_eff_kgm2, 21) &&
+           fits16(c.robot.r / 2.0 * c.mtd_ff_kg_m, 23) &&
+           fits16(c.robot.r / (2.0 * c.robot.b) * c.mtd_ff_kg_m, 20) &&
+           fits16(c.robot.r / 2.0 * c.m_ff_kg, 18) && fits16(c.robot.r / (2.0 * c.robot.b) * c.I_ff_kgm2, 21) &&
            fits16(c.robot.r / 2.0 * c.gains.k_il, 15) && fits16(c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia, 18) &&
            c.robot.r / 2.0 * c.gains.k_il * 1e-6 * fx::pow2(34) < 16384.0 &&
            c.robot.r / (2.0 * c.robot.b) * c.gains.k_ia * 1e-6 * fx::pow2(37) < 16384.0 &&
            c.robot.r / 2.0 * c.integ_max_n < 64.0 && c.robot.r / (2.0 * c.robot.b) * c.integ_max_nm < 64.0 &&
-           2.0 / c.robot.r < 32000.0 && 2.0 * c.robot.b / c.robot.r < 32000.0),
-        rate_nominal(odo.rate_for(nominal_dt_us)) {}
+           2.0 / c.robot.r < 32000.0 && 2.0 * c.robot.b / c.robot.r < 32000.0 &&
+           fits16(c.wheel_accel_per_nm * 1e-3 / c.motor.no_load_rad_s, 19)),
+        rate_nominal(odo.rate_for(nominal_dt_us)),
+        slope_q19(q16c(c.wheel_accel_per_nm * 1e-3 / c.motor.no_load_rad_s, 19)),
+        margin_q16(q16c(c.clamp_enabled ? c.margin_nm : 0.0, 16)),
+        tick_ms(static_cast<uint8_t>((nominal_dt_us + 500u) / 1000u > 255u ? 255u : (nominal_dt_us + 500u) / 1000u)) {}
 
   static constexpr bool fits16(double v, int shift) {
     return v * fx::pow2(shift) < 32767.0 && v * fx::pow2(shift) > -32768.0;
@@ -137,11 +146,12 @@ struct KinematicOutQ {
 KinematicOutQ kinematic_law_q(const ControlConfigQ& c, const PoseQ& pose, const RefSampleQ& ref);
 
 struct InnerOutQ {
-  int16_t pwm_r_q15, pwm_l_q15;
+  int16_t pwm_r_q15, pwm_l_q15;       ///< duty at the start of the coming tick
   int32_t tau_r_q16, tau_l_q16;       ///< after the clamp
-  int32_t tau_max_r_q16, tau_max_l_q16;
+  int32_t tau_max_r_q16, tau_max_l_q16;  ///< the clamp's limit: slip::tau_max_q16 less the back-EMF margin
   bool clamped_r, clamped_l, sat_r, sat_l;
   OdoStatus odo;
+  int16_t slope_r_q15, slope_l_q15;   ///< duty added per millisecond over the coming tick (clamped wheels)
 };
 
 class ControllerQ {
@@ -176,8 +186,16 @@ class ControllerQ {
     return static_cast<int32_t>(x > lim_q16 ? lim_q16 : (x < -lim_q16 ? -lim_q16 : x));
   }
 
-  int32_t p_ff_q16_, q_ff_q16_;    // (r/2) m_eff dv_ff, (r/2b) I_eff dw_ff: from the outer step
+  int32_t p_ff_q16_, q_ff_q16_;    // (r/2) m_ff dv_ff, (r/2b) I_ff dw_ff: from the outer step
   int32_t j_v_q24_, j_w_q24_;      // (r/2) I_v, (r/2b) I_w
+  // A wheel clamped at +lim (update_limits(), at the outer rate): its duty's torque term lim/stall
+  // alone (first clamped tick) and with the speed advance over half a tick (clamped before, same
+  // sign), and its slope; the sign (+1, -1, 0) the wheel was clamped with in the last tick.
+  int16_t u_lim0_r_q15_, u_lim0_l_q15_, u_lim_r_q15_, u_lim_l_q15_;
+  int16_t slope_lim_r_q15_, slope_lim_l_q15_;
+  int8_t was_r_, was_l_;
+  void update_limits();
+  void duty_clamped();
 };
 
 }  // namespace ctl

@@ -63,6 +63,11 @@ enum Profile : uint8_t {
     kProfileArc = 1,
     kProfileFigureEight = 2,
 };
+// velocity loop of the cascade (SetController): improved = rolling-mass feed-forward with coupling terms and integral, thesis = II.47 as printed (lib/control/README.md)
+enum Controller : uint8_t {
+    kControllerImproved = 0,
+    kControllerThesis = 1,
+};
 // why the motors were stopped by the firmware (telemetry.failsafe)
 enum Failsafe : uint8_t {
     kFailsafeNone = 0,
@@ -79,6 +84,7 @@ static const uint8_t kStatusClampOn = 1u << 1;
 static const uint8_t kStatusFailsafe = 1u << 2;
 static const uint8_t kStatusMotorsEnabled = 1u << 3;
 static const uint8_t kStatusParamsDefault = 1u << 4;
+static const uint8_t kStatusThesisController = 1u << 5;
 // MCUSR at boot (telemetry.reset_cause)
 static const uint8_t kResetCausePowerOn = 1u << 0;
 static const uint8_t kResetCauseExternal = 1u << 1;
@@ -97,6 +103,7 @@ enum MsgType : uint8_t {
     kMsgSetMu = 19,  // host_to_robot
     kMsgRequestParams = 20,  // host_to_robot
     kMsgHeartbeat = 21,  // host_to_robot
+    kMsgSetController = 22,  // host_to_robot
 };
 
 // Telemetry (robot_to_host, type 1, 81 payload bytes): sent every telemetry period (20 ms) while powered
@@ -541,6 +548,26 @@ struct Heartbeat {
     }
 };
 
+// SetController (host_to_robot, type 22, 1 payload bytes): velocity loop of the cascade (default improved); busy while running
+struct SetController {
+    enum : uint8_t { kType = 22, kSize = 1 };
+    uint8_t variant;  // enum Controller; valid [0, 1]
+    void encode(uint8_t* p) const {
+        put_u8(p + 0, variant);
+    }
+    // false (and nothing read) when len is not kSize
+    bool decode(const uint8_t* p, uint8_t len) {
+        if (len != kSize) return false;
+        variant = get_u8(p + 0);
+        return true;
+    }
+    Result validate(uint8_t* detail) const {
+        *detail = 255;
+        if (variant > 1) { *detail = 0; return kResultOutOfRange; }
+        return kResultOk;
+    }
+};
+
 // Payload size of a message type, or -1 for an unknown type.
 inline int16_t payload_size(uint8_t type) {
     switch (type) {
@@ -553,6 +580,7 @@ inline int16_t payload_size(uint8_t type) {
         case kMsgSetMu: return 4;
         case kMsgRequestParams: return 0;
         case kMsgHeartbeat: return 0;
+        case kMsgSetController: return 1;
         default: return -1;
     }
 }
@@ -589,6 +617,11 @@ inline Result validate_command(uint8_t type, const uint8_t* payload, uint8_t len
         }
         case kMsgHeartbeat: {
             Heartbeat msg;
+            if (!msg.decode(payload, len)) return kResultBadLength;
+            return msg.validate(detail);
+        }
+        case kMsgSetController: {
+            SetController msg;
             if (!msg.decode(payload, len)) return kResultBadLength;
             return msg.validate(detail);
         }
