@@ -814,12 +814,15 @@ class RunWriter:
 
     def close(self) -> None:
         if self._fh is not None:
-            if not self._header_written:  # no rows: still leave a valid header
-                self._columns = list(TELEMETRY_COLUMNS)
-                self._write_header()
-            self._fh.flush()
-            self._fh.close()
-            self._fh = None
+            fh, self._fh = self._fh, None
+            try:
+                if not self._header_written:  # no rows: still leave a valid header
+                    self._columns = list(TELEMETRY_COLUMNS)
+                    fh.write(",".join(self._columns) + "\n")
+                    self._header_written = True
+                fh.flush()
+            finally:
+                fh.close()
 
     def __enter__(self) -> "RunWriter":
         return self

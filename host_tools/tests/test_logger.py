@@ -690,40 +690,49 @@ def test_groundtruth_start_pose_from_tracker(tmp_path, capsys):
     assert "needs the phi_rad column" in capsys.readouterr().err
 
 
-def test_cli_sigint_end_to_end(tmp_path):
-    """python -m host_tools log in a subprocess, stopped with a real SIGINT (Ctrl-C)."""
-    import signal
+def log_until_rows_then_signal(out, sig, min_rows=20, extra=(), period=0.01):
+    """``python -m host_tools log`` in a subprocess against a fake robot on a pty, stopped
+    with signal ``sig`` once ``min_rows`` rows are on disk.  Returns (returncode, stderr)."""
     import subprocess
     import sys
     from pathlib import Path
 
-    robot, path, fds = robot_on_pty(period=0.01)
-    out = tmp_path / "run"
+    robot, path, fds = robot_on_pty(period=period)
     root = Path(__file__).resolve().parents[2]
-    proc = subprocess.Popen([sys.executable, "-m", "host_tools", "log", "--port", path, "--out", str(out)],
-                            cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "host_tools", "log", "--port", path, "--out",
+                             str(out), *extra], cwd=root, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 20
         tpath = out / "telemetry.csv"
         while time.monotonic() < deadline:  # wait until rows are on disk (flushed as it goes)
-            if tpath.exists() and len(tpath.read_text().splitlines()) > 20:
+            if tpath.exists() and len(tpath.read_text().splitlines()) > min_rows:
                 break
-            time.sleep(0.1)
-        proc.send_signal(signal.SIGINT)
+            time.sleep(0.05)
+        proc.send_signal(sig)
         _, err = proc.communicate(timeout=20)
     finally:
         if proc.poll() is None:
             proc.kill()
         robot.stop_flag.set()
         robot.join(2)
-    assert proc.returncode == 0, err
+        for fd in fds:
+            os.close(fd)
+    return proc.returncode, err
+
+
+def test_cli_sigint_end_to_end(tmp_path):
+    """python -m host_tools log in a subprocess, stopped with a real SIGINT (Ctrl-C)."""
+    import signal
+
+    out = tmp_path / "run"
+    rc, err = log_until_rows_then_signal(out, signal.SIGINT)
+    assert rc == 0, err
     assert "frames/s" in err  # the live status line
     meta = json.load(open(out / "meta.json"))
     assert meta["logger"]["end_reason"] == "interrupted (Ctrl-C)"
     assert meta["logger"]["params_source"] == "robot"
     assert rows(out).telemetry["t_s"].size >= 20
-    for fd in fds:
-        os.close(fd)
 
 
 def test_nan_params_are_refused_not_fatal(tmp_path, capsys):
