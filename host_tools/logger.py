@@ -18,7 +18,8 @@ and writes a ``ddrun/1`` run folder (shared/spec/run-format.md) through host_too
 
 Files are flushed as they are written; the folder is complete and readable after Ctrl-C, a
 pulled cable (the logger waits for the port to come back and carries on) or a robot power loss
-(a board reset is detected and the board time is kept increasing).
+(a board reset is recognised from the boot counter in telemetry, ``boot_count``, and the board
+time is kept increasing; an old frame arriving late is stale, never a reset).
 
 Guarantees:
 * SIGINT (Ctrl-C), SIGTERM and SIGHUP stop the recording the same way, exit 0: the bytes
@@ -169,6 +170,8 @@ class Logger:
                       "duplicates": 0, "stale": 0, "robot_resets": 0, "disconnects": 0,
                       "unknown_type": 0, "bad_length": 0, "bytes": 0}
         self.last_seq: int | None = None
+        self.boot: int | None = None  # boot_count of the current boot
+        self.boots_seen: set[int] = set()
         self.last_t_us: int | None = None
         self.t_epoch = 0.0  # seconds added to the unwrapped board time (after resets)
         self.t_wraps = 0
@@ -363,9 +366,11 @@ class Logger:
             self._status()
 
     def _receive(self, data: bytes) -> None:
-        self.raw.write(data)
-        self.stats["bytes"] += len(data)
-        self._queue.extend(self.dec.feed(data))
+        try:
+            self.raw.write(data)
+        finally:  # decoded even when raw.bin could not take it (a full disk): counted
+            self.stats["bytes"] += len(data)
+            self._queue.extend(self.dec.feed(data))
         self._drain()
 
     def _drain(self) -> None:
@@ -433,13 +438,31 @@ class Logger:
             self.event("params_mismatch", detail=bad)
             sys.stderr.write("\nwarning: the robot reports " + ", ".join(bad) + "\n")
 
-    def _sequence(self, f: P.Frame, host_t: float, t_us: int | None) -> str:
+    def _sequence(self, f: P.Frame, host_t: float, t_us: int | None,
+                  boot: int | None = None) -> str:
         """Track the robot's frame counter.  Returns "ok", "reset" (the board restarted: seq
         and clock start again) or "drop" (a duplicate or stale frame, recorded as an event).
 
-        Telemetry frames carry the board time, which decides: later than the last frame means
-        new (a seq jump is a gap, however long the outage), not later means a duplicate, a stale
-        frame or, with a small seq and clock, a reset.  Other frames only drop exact repeats."""
+        A reset is recognised only from what a reset changes: the boot counter in telemetry
+        (``boot_count``, EEPROM, +1 per boot).  A boot number never seen before is a reset; a
+        frame of an earlier boot is stale.  Within one boot the board time decides: later than
+        the last frame means new (a seq jump is a gap, however long the outage), not later
+        means a duplicate or a stale frame.  Other frames only drop exact repeats."""
+        if boot is not None:
+            if self.boot is None:
+                self.boot = boot
+                self.boots_seen.add(boot)
+            elif boot != self.boot:
+                if boot in self.boots_seen:  # a late frame from before the last reset
+                    self.stats["stale"] += 1
+                    self.event("stale", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset,
+                               boot=boot, current_boot=self.boot)
+                    return "drop"
+                self._reset(f, host_t, t_us, boot)
+                self.boot = boot
+                self.boots_seen.add(boot)
+                self.last_seq = f.seq
+                return "reset"
         if self.last_seq is None:
             self.last_seq = f.seq
             return "ok"
@@ -469,10 +492,6 @@ class Logger:
             self._count_gap(f, missing)
             self.last_seq = f.seq
             return "ok"
-        if ahead != 0 and self._is_reset(f, t_us):
-            self._reset(f, host_t, t_us)
-            self.last_seq = f.seq
-            return "reset"
         kind = "duplicate" if ahead == 0 else "stale"
         self.stats["duplicates" if ahead == 0 else "stale"] += 1
         self.event(kind, seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
@@ -484,13 +503,7 @@ class Logger:
             self.stats["lost_frames"] += missing
             self.event("gap", after_seq=self.last_seq, seq=f.seq, missing=missing, raw_offset=f.offset)
 
-    def _is_reset(self, f: P.Frame, t_us: int | None) -> bool:
-        # After a reset the robot counts from 0 again and its clock restarts near 0.
-        if t_us is None:
-            return f.seq < 16
-        return t_us < 5_000_000 and f.seq < 1000
-
-    def _reset(self, f: P.Frame, host_t: float, t_us: int | None) -> None:
+    def _reset(self, f: P.Frame, host_t: float, t_us: int | None, boot: int) -> None:
         self.stats["robot_resets"] += 1
         if t_us is not None and self.last_t_s is not None:
             # keep board time increasing: continue from the last frame + the host time elapsed
@@ -499,11 +512,11 @@ class Logger:
             self.t_wraps = 0
             self.last_t_us = None
         self.event("robot_reset", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset,
-                   t_epoch_s=round(self.t_epoch, 6))
+                   t_epoch_s=round(self.t_epoch, 6), boot=boot, last_boot=self.boot)
 
     def _telemetry(self, f: P.Frame, raws: tuple, host_t: float) -> None:
         t_us = raws[0]
-        if self._sequence(f, host_t, t_us) == "drop":
+        if self._sequence(f, host_t, t_us, raws[self.cols.index["boot_count"]]) == "drop":
             return
         if self.last_t_us is not None and t_us < self.last_t_us:
             self.t_wraps += 1  # accepted as forward in time: the u32 microsecond clock wrapped
@@ -718,21 +731,24 @@ class Logger:
     def close(self) -> bool:
         """Handle the frames still queued, close the files, finalize meta.json.  Returns True
         when a write failed (during the recording or here)."""
+        if self._write_error is not None:
+            # the disk is full: free the reserve for the queued rows, meta.json and events
+            self._free_reserve()
         # every verified frame already read is written or counted before the files close
-        try:
-            self._drain()
-        except KeyboardInterrupt:
+        for _ in range(2):  # a second try after a second Ctrl-C
             try:
                 self._drain()
-            except Exception:
-                pass
-        except OSError as exc:
-            self._write_error = self._write_error or exc
+                break
+            except KeyboardInterrupt:
+                continue
+            except OSError as exc:
+                self._write_error = self._write_error or exc
+                self._free_reserve()
+                break
         failed = self._write_error is not None
         if failed:
-            # the disk is full: free the reserve for the final meta.json and events line
-            self._free_reserve()
             self.end_reason = self.end_reason or f"write failed: {self._write_error}"
+            self.stats["frames_not_written"] = len(self._queue)
         for name in ("writer", "raw", "events"):
             obj = getattr(self, name, None)
             if obj is None:

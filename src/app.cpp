@@ -381,6 +381,7 @@ void telemetry_task() {
     t.current_r = motor_sense_raw(kRight);
     t.current_l = motor_sense_raw(kLeft);
     t.stack_hwm = stack_high_water();
+    t.boot_count = boot_count();
     motor_sense_start();  // next pair, ready for the next frame
     send_msg(t);
 }

@@ -292,6 +292,10 @@ def test_hang_in_main_loop_triggers_watchdog(elf, sim, tmp_path):
     assert len(causes) == 2 and causes[1]["mcusr"] & (1 << D.flags["reset_cause"]["watchdog"])
     assert any(e["code"] == FAILSAFE["watchdog_reset"] and e["boot"] == 2 for e in s["failsafe_events"])
     assert lg.stats["robot_resets"] == 1
+    # the reset is recognised from the boot counter (EEPROM, +1 per boot), which the firmware
+    # reports in every frame: one step, at the reset
+    boots = csv(out / "telemetry.csv")["boot_count"].astype(int)
+    assert np.count_nonzero(np.diff(boots)) == 1 and (boots[-1] - boots[0]) % 65536 == 1
     # motors off from the reset on (boot code makes the pins safe before main)
     pl = csv(out / "plant.csv")
     after = pl["t_s"] > s["reset_t_s"][0] + 0.001

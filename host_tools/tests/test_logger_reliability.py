@@ -28,8 +28,10 @@ def _frames_in(raw: bytes) -> list:
     return dec.feed(raw)
 
 
-def _check_complete(out: Path, end_reason: str):
-    """The folder after a stop: meta.json final and consistent with the files."""
+def _check_complete(out: Path, end_reason: str, raw_complete: bool = True):
+    """The folder after a stop: meta.json final and consistent with the files.  After a
+    write failure raw.bin may lack the tail that did not fit (its frames were decoded and
+    counted from memory)."""
     meta = json.loads((out / "meta.json").read_text())
     lg = meta["logger"]
     assert lg["end_reason"] == end_reason
@@ -40,8 +42,10 @@ def _check_complete(out: Path, end_reason: str):
     # raw.bin complete: the frames meta.json counts are all in it (the robot's frames)
     frames = _frames_in((out / "raw.bin").read_bytes())
     tel = [f for f in frames if f.type == D.by_name["Telemetry"].type]
-    assert len(tel) >= lg["telemetry_rows"]
-    assert lg["frames"] == len(frames)
+    if raw_complete:
+        assert len(tel) >= lg["telemetry_rows"] and lg["frames"] == len(frames)
+    else:
+        assert lg["frames"] >= len(frames)
     assert not (out / "meta.json.tmp").exists()
     assert not (out / L.RESERVE_NAME).exists()
     return meta
@@ -161,7 +165,7 @@ def test_disk_full_stops_with_exit_1_and_a_readable_run(tmp_path, monkeypatch, c
     lg = L.Logger(str(out), lambda: port, "scripted", 115200, params_timeout_s=0.05,
                   status=False)
     assert lg.run() == 1
-    meta = _check_complete(out, "write failed: No space left on device")
+    meta = _check_complete(out, "write failed: No space left on device", raw_complete=False)
     # every line of the text files is whole
     assert (out / "telemetry.csv").read_bytes().endswith(b"\n")
     for line in (out / "events.jsonl").read_text().splitlines():
@@ -199,7 +203,7 @@ def test_disk_full_on_a_real_small_tmpfs(tmp_path):
         lg = L.Logger(str(out), lambda: port, "scripted", 115200, params_timeout_s=0.05,
                       status=False)
         assert lg.run() == 1
-        meta = _check_complete(out, "write failed: No space left on device")
+        meta = _check_complete(out, "write failed: No space left on device", raw_complete=False)
         assert meta["logger"]["telemetry_rows"] > 100
     finally:
         subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
