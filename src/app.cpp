@@ -28,7 +28,8 @@ volatile uint8_t g_fault_hang;
 
 namespace {
 
-// Host timeout: the brake must be on within 500 ms of the last valid frame. The check runs
+// Host timeout: the brake must be on within 500 ms of the last frame that decoded to a known
+// host message (handle_frame; unknown types and wrong lengths do not count). The check runs
 // every main-loop iteration, which can wait up to ~1.5 ms behind the tasks, so it fires at
 // 498.5 ms of silence (board time in us, not the 1 ms tick).
 const uint32_t kHostTimeoutUs = 498500ul;
@@ -208,9 +209,14 @@ void start_experiment() {
     sched_reset_stats();
 }
 
-void handle_frame(const proto::Frame& f) {
+// Handles one verified host frame; returns whether it decoded to a known host message (a
+// host-to-robot type with its exact length), the only frames that count as the host being
+// alive for the host-timeout failsafe: a stray device or a looping host sending valid frames
+// of unknown types, or of a wrong length, must not keep the robot driving.
+bool handle_frame(const proto::Frame& f) {
     uint8_t detail = 255;
     uint8_t res = proto::validate_command(f.type, f.payload, f.len, &detail);
+    const bool known = res != proto::kResultUnknownType && res != proto::kResultBadLength;
     if (res == proto::kResultOk) {
         switch (f.type) {
             case proto::kMsgStart:
@@ -245,6 +251,7 @@ void handle_frame(const proto::Frame& f) {
     }
     send_ack(f.seq, f.type, res, detail);
     if (res == proto::kResultOk && f.type == proto::kMsgRequestParams) send_params();
+    return known;
 }
 
 // ---- tasks ----
@@ -404,8 +411,8 @@ void app_poll() {
     while (xbee_read(&b)) {
         proto::Decoder::Status s = g_rx.feed(b);
         if (s == proto::Decoder::kFrame) {
-            g_last_host_us = time_us();
-            handle_frame(g_rx.frame());
+            uint32_t rx_us = time_us();
+            if (handle_frame(g_rx.frame())) g_last_host_us = rx_us;
         } else if (s == proto::Decoder::kError && g_rx.error_has_header()) {
             uint8_t res = g_rx.error() == proto::Decoder::kErrVersion ? proto::kResultBadVersion
                                                                       : proto::kResultBadCrc;
