@@ -92,6 +92,12 @@ T* place(uint8_t* storage, const T& v) {
     return p;
 }
 
+// SetClamp / SetMu only mark the controller for a rebuild (~16.6 ms of float work); app_poll()
+// rebuilds once the receive ring is empty, and a Start rebuilds first. A burst of such commands
+// thus costs one rebuild, not one per frame, and while a rebuild runs the 256-byte receive ring
+// holds the 191 bytes that arrive at 115200 baud in 16.6 ms.
+bool g_rebuild_pending;
+
 void rebuild_controller() {
     // the inner period: the controller's wheel rate for it is precomputed (no division on the
     // first step of an experiment)
@@ -165,6 +171,10 @@ uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
     proto::Start s = proto::Start();
     if (!s.decode(pl, len)) return proto::kResultBadLength;
     if (busy()) return proto::kResultBusy;
+    if (g_rebuild_pending) {  // a SetClamp / SetMu just before: the experiment must use it
+        g_rebuild_pending = false;
+        rebuild_controller();
+    }
     float r = static_cast<float>(g_robot.r);
     float t_acc = s.get_accel_time();
     ctl::ReferenceSpec spec = ctl::straight_profile(r, s.get_wheel_accel(), t_acc);
@@ -230,7 +240,7 @@ bool handle_frame(const proto::Frame& f) {
                 c.decode(f.payload, f.len);  // length checked by validate_command
                 if (busy()) { res = proto::kResultBusy; break; }
                 g_clamp_on = c.on != 0;
-                rebuild_controller();
+                g_rebuild_pending = true;
                 break;
             }
             case proto::kMsgSetMu: {
@@ -240,7 +250,7 @@ bool handle_frame(const proto::Frame& f) {
                 g_robot.mu_s = m.get_mu_s();
                 g_robot.mu_k = m.get_mu_k();
                 g_params_default = false;
-                rebuild_controller();
+                g_rebuild_pending = true;
                 break;
             }
             case proto::kMsgRequestParams:
@@ -418,6 +428,10 @@ void app_poll() {
                                                                       : proto::kResultBadCrc;
             send_ack(g_rx.error_seq(), g_rx.error_type(), res, 255);
         }
+    }
+    if (g_rebuild_pending) {  // the receive ring is empty here
+        g_rebuild_pending = false;
+        rebuild_controller();
     }
     if (g_running && time_us() - g_last_host_us >= kHostTimeoutUs)
         stop_motors(proto::kFailsafeHostTimeout);
