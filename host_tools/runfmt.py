@@ -188,7 +188,7 @@ def validate_meta(meta: Mapping[str, Any], file: str = "meta.json") -> dict:
         raise RunFormatError("must hold a JSON object", file)
     fmt = meta.get("format", FORMAT)
     if fmt != FORMAT:
-        raise RunFormatError(f"unknown format version {fmt!r}; this tool reads {FORMAT!r}",
+        raise RunFormatError(f"unknown format version {_show(fmt)}; this tool reads {FORMAT!r}",
                              file, column="format")
     for key in ("robot", "motor", "periods_s"):
         if key in meta and not isinstance(meta[key], Mapping):
@@ -695,8 +695,9 @@ def check_compatible(runs: list[Run], rel_tol: float = 1e-9) -> None:
                     math.isclose(va, vb, rel_tol=rel_tol, abs_tol=0.0)
                 if not same:
                     raise RunFormatError(
-                        f"runs disagree on '{name}': {va!r} in {ref.path} but {vb!r} in "
-                        f"{run.path}; runs analysed together must come from one robot",
+                        f"runs disagree on '{name}': {_show(va)} in {display(ref.path)} but "
+                        f"{_show(vb)} in {display(run.path)}; runs analysed together must come "
+                        "from one robot",
                         os.path.join(run.path, "meta.json"), column=name)
 
 
@@ -780,13 +781,13 @@ class RunWriter:
             v = row[c]
             if isinstance(v, str):
                 if c in TELEMETRY_COLUMNS:
-                    raise RunFormatError(f"not a number: {v!r}", self._tpath, row=n, column=c)
+                    raise RunFormatError(f"not a number: {_show(v)}", self._tpath, row=n, column=c)
                 cells.append(v)
                 continue
             try:
                 f = float(v)
             except (TypeError, ValueError):
-                raise RunFormatError(f"not a number: {v!r}", self._tpath, row=n, column=c) from None
+                raise RunFormatError(f"not a number: {_show(v)}", self._tpath, row=n, column=c) from None
             if not math.isfinite(f):
                 raise RunFormatError(f"value is {f} (NaN and infinity are not allowed)",
                                      self._tpath, row=n, column=c)
