@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import sys
 import tempfile
 
@@ -86,7 +87,43 @@ def check_out_dir(out: str) -> str | None:
     return None
 
 
+class _Interrupted(Exception):
+    pass
+
+
+def _stop_on_signals() -> dict:
+    """SIGINT, SIGTERM and SIGHUP end the analysis with exit 1 and a message.  The worker
+    processes it forks end silently on them (the default action), as the pool expects."""
+    main_pid = os.getpid()
+
+    def handler(signum, _frame):
+        if os.getpid() != main_pid:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        raise _Interrupted(signal.Signals(signum).name)
+    old = {}
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            old[sig] = signal.signal(sig, handler)
+    return old
+
+
 def main(args: argparse.Namespace) -> int:
+    old = _stop_on_signals()
+    try:
+        return _main(args)
+    except _Interrupted as exc:
+        print(f"error: interrupted by {exc}; no outputs written (report.json, report.md and "
+              "model.json are written whole or not at all)", file=sys.stderr)
+        return 1
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+def _main(args: argparse.Namespace) -> int:
     from host_tools import runfmt
     from host_tools.runfmt import RunFormatError
 

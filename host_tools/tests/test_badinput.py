@@ -376,3 +376,37 @@ def test_analysis_with_unknown_keys_same_names_non_utf8_path_and_outside_groundt
     pngs = sorted(f for f in os.listdir(out) if f.endswith(".png"))
     assert any(f.startswith("a_run-0") for f in pngs) and any(f.startswith("b") for f in pngs)
     assert time.time() - t0 < 120
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT", "SIGHUP"])
+def test_analyzer_stopped_by_a_signal_exits_1_without_partial_outputs(tmp_path, sig):
+    import signal
+    import subprocess
+    import sys
+    import threading
+    from pathlib import Path
+
+    run = _base(tmp_path / "run", n=600)
+    out = tmp_path / "out"
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.Popen([sys.executable, "-m", "host_tools", "analyze", str(run), "--out",
+                             str(out), "--jobs", "2", "--no-plots"], cwd=root,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    err_lines: list[str] = []
+    started = threading.Event()
+
+    def read():
+        for line in proc.stderr:
+            err_lines.append(line)
+            if "fitted in" in line:  # the candidate fits (worker processes) are under way
+                started.set()
+    t = threading.Thread(target=read, daemon=True)
+    t.start()
+    assert started.wait(120), "".join(err_lines)
+    proc.send_signal(getattr(signal, sig))
+    proc.wait(60)
+    t.join(10)
+    err = "".join(err_lines)
+    assert proc.returncode == 1, err
+    assert f"interrupted by {sig}" in err and "Traceback" not in err, err
+    assert not any(out.glob("report.*")) and not any(out.glob("*.tmp"))
