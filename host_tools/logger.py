@@ -29,9 +29,10 @@ Guarantees:
   signal interrupts at once (the folder is still closed the same way).
 * A full disk (or any other write error) stops the recording with exit 1 and a message: a
   256 KB reserve file kept in the run folder while recording is deleted so that meta.json
-  (end_reason "write failed: ...") and the end of events.jsonl can still be written; a row or
-  event line torn by the failure is cut off, so every file holds whole lines; raw.bin holds
-  what was written before the failure.
+  (end_reason "write failed: ...", the rows on disk, frames_not_written for the verified frames
+  still queued, never retried) and the end of events.jsonl can still be written; a row or event
+  line torn by the failure is cut off, so every file holds whole lines; raw.bin holds what was
+  written before the failure.
 * --out that is an existing file, cannot be created or written, or holds a recorded run:
   exit 2 before the port is opened.
 
@@ -731,22 +732,23 @@ class Logger:
     def close(self) -> bool:
         """Handle the frames still queued, close the files, finalize meta.json.  Returns True
         when a write failed (during the recording or here)."""
-        if self._write_error is not None:
-            # the disk is full: free the reserve for the queued rows, meta.json and events
-            self._free_reserve()
-        # every verified frame already read is written or counted before the files close
-        for _ in range(2):  # a second try after a second Ctrl-C
-            try:
-                self._drain()
-                break
-            except KeyboardInterrupt:
-                continue
-            except OSError as exc:
-                self._write_error = self._write_error or exc
-                self._free_reserve()
-                break
+        # every verified frame already read is written or counted before the files close; after
+        # a write failure none is retried (a half-buffered row written twice would repeat a
+        # time): the queued frames are counted as not written
+        if self._write_error is None:
+            for _ in range(2):  # a second try after a second Ctrl-C
+                try:
+                    self._drain()
+                    break
+                except KeyboardInterrupt:
+                    continue
+                except Exception as exc:  # OSError: the disk filled up just now
+                    self._write_error = exc if isinstance(exc, OSError) else OSError(str(exc))
+                    break
         failed = self._write_error is not None
         if failed:
+            # free the reserve for the buffered rows, meta.json and the end of events.jsonl
+            self._free_reserve()
             self.end_reason = self.end_reason or f"write failed: {self._write_error}"
             self.stats["frames_not_written"] = len(self._queue)
         for name in ("writer", "raw", "events"):

@@ -800,8 +800,8 @@ class RunWriter:
         if self._last_t is not None and not t > self._last_t:
             raise RunFormatError(f"time does not increase: {t!r} after {self._last_t!r}",
                                  self._tpath, row=n, column="t_s")
+        self._fh.write(",".join(cells) + "\n")  # a failed write leaves the writer's state as it was
         self._last_t = t
-        self._fh.write(",".join(cells) + "\n")
         self._rows = n
         if n % self._flush_every == 0:
             self.flush()

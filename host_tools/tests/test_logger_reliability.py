@@ -226,3 +226,39 @@ def test_unusable_out_exit_2_before_the_port_is_opened(tmp_path, capsys, monkeyp
     assert rc == 2 and "Traceback" not in err
     assert ("--out" in err) or ("already exists" in err), err
     assert not (blocker.is_dir())
+
+
+def test_a_row_write_failing_once_is_not_retried_into_a_repeated_time(tmp_path, monkeypatch):
+    """The disk fills while the 30th row is written (and has room again at once, as after the
+    reserve is freed): the queued frames are counted as not written, never retried (a retried
+    row made 'time does not increase' escape from close())."""
+    real = runfmt.RunWriter.write_row
+    state = {"n": 0}
+
+    class FailOnce:
+        def __init__(self, fh):
+            self.fh, self.failed = fh, False
+
+        def write(self, data):
+            if not self.failed:
+                self.failed = True
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            return self.fh.write(data)
+
+        def __getattr__(self, name):
+            return getattr(self.fh, name)
+
+    def write_row(self, row):
+        state["n"] += 1
+        if state["n"] == 30:
+            self._fh = FailOnce(self._fh)
+        return real(self, row)
+    monkeypatch.setattr(runfmt.RunWriter, "write_row", write_row)
+    port = ScriptedPort(_burst(60), [60 * 200])
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: port, "scripted", 115200, params_timeout_s=5, status=False)
+    assert lg.run() == 1
+    meta = _check_complete(out, "write failed: No space left on device")
+    s = meta["logger"]
+    assert s["telemetry_rows"] == 29 and s["frames_not_written"] == 31
+    assert s["telemetry_rows"] + s["frames_not_written"] == lg.dec.frames == 60
