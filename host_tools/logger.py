@@ -18,7 +18,23 @@ and writes a ``ddrun/1`` run folder (shared/spec/run-format.md) through host_too
 
 Files are flushed as they are written; the folder is complete and readable after Ctrl-C, a
 pulled cable (the logger waits for the port to come back and carries on) or a robot power loss
-(a board reset is detected and the board time is kept increasing).
+(a board reset is recognised from the boot counter in telemetry, ``boot_count``, and the board
+time is kept increasing; an old frame arriving late is stale, never a reset).
+
+Guarantees:
+* SIGINT (Ctrl-C), SIGTERM and SIGHUP stop the recording the same way, exit 0: the bytes
+  already read are decoded to the end, every frame that passed the CRC is written as a row or
+  counted (duplicate, stale, unknown type, ...), events.jsonl gets its "end" line, meta.json
+  its row count and end_reason ("interrupted (Ctrl-C)", "stopped by SIGTERM", ...).  A second
+  signal interrupts at once (the folder is still closed the same way).
+* A full disk (or any other write error) stops the recording with exit 1 and a message: a
+  256 KB reserve file kept in the run folder while recording is deleted so that meta.json
+  (end_reason "write failed: ...", the rows on disk, frames_not_written for the verified frames
+  still queued, never retried) and the end of events.jsonl can still be written; a row or event
+  line torn by the failure is cut off, so every file holds whole lines; raw.bin holds what was
+  written before the failure.
+* --out that is an existing file, cannot be created or written, or holds a recorded run:
+  exit 2 before the port is opened.
 
 ``--attach-groundtruth TRACKER.csv`` (without ``--port``) adds an external tracker's CSV
 (columns t_s, x_m, y_m, optional phi_rad, on the tracker's own clock) to a recorded run as
@@ -29,10 +45,13 @@ a tracker stamped by a PC clock) through the logger's own host clock recorded in
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from typing import Any, Callable
 
@@ -47,6 +66,14 @@ ACK_RETRIES = 3
 RECONNECT_POLL_S = 0.5
 STATUS_EVERY_S = 0.5
 FLUSH_EVERY_S = 0.2
+RESERVE_BYTES = 256 * 1024  # kept free in the run folder for the final meta.json and events
+RESERVE_NAME = ".logger-reserve"
+RUN_FILES = ("meta.json", "telemetry.csv", "raw.bin", "events.jsonl")
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+class _Stopped(Exception):
+    """Raised where a stop request (signal) must end a wait that would otherwise fail."""
 
 
 class LoggerError(Exception):
@@ -136,10 +163,16 @@ class Logger:
         self.port = None
         self.tx_seq = 0
         # statistics
+        self._queue: list[P.Frame] = []  # verified frames not yet handled
+        self._stop = False
+        self._signals = 0
+        self._write_error: OSError | None = None
         self.stats = {"frames": 0, "telemetry_rows": 0, "gaps": 0, "lost_frames": 0,
                       "duplicates": 0, "stale": 0, "robot_resets": 0, "disconnects": 0,
                       "unknown_type": 0, "bad_length": 0, "bytes": 0}
         self.last_seq: int | None = None
+        self.boot: int | None = None  # boot_count of the current boot
+        self.boots_seen: set[int] = set()
         self.last_t_us: int | None = None
         self.t_epoch = 0.0  # seconds added to the unwrapped board time (after resets)
         self.t_wraps = 0
@@ -212,12 +245,18 @@ class Logger:
         path = os.path.join(self.out, "meta.json")
         meta = runfmt.validate_meta(self._meta(), path)
         tmp = path + ".tmp"
-        with open(tmp, "w") as fh:
-            json.dump(meta, fh, indent=2)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        try:
+            with open(tmp, "w") as fh:
+                fh.write(json.dumps(meta, indent=2) + "\n")
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            try:  # never leave a half-written meta.json.tmp next to the last good meta.json
+                os.remove(tmp)
+            except OSError:
+                pass
+            raise
 
     def event(self, kind: str, **kw) -> None:
         kw = {"host_t_s": round(self.clock() - self._t0, 4), "kind": kind, **kw}
@@ -276,9 +315,12 @@ class Logger:
         rec = {"command": name, "values": values or {}, "result": None}
         self.commands.append(rec)
         for attempt in range(ACK_RETRIES):
+            if self._stop:
+                rec["result"] = "not sent: stopping" if attempt == 0 else "no ack: stopping"
+                raise _Stopped()
             seq = self.send(name, values)
             self.event("command", command=name, seq=seq, values=values or {}, attempt=attempt + 1)
-            if self.pump(lambda: seq in self.acks, ACK_TIMEOUT_S):
+            if self.pump(lambda: seq in self.acks, ACK_TIMEOUT_S) or seq in self.acks:
                 result, detail = self.acks.pop(seq)
                 rname = self.d.result_names.get(result, f"code {result}")
                 rec["result"] = rname
@@ -325,15 +367,24 @@ class Logger:
             self._status()
 
     def _receive(self, data: bytes) -> None:
-        self.raw.write(data)
-        self.stats["bytes"] += len(data)
-        frames = self.dec.feed(data)
+        try:
+            self.raw.write(data)
+        finally:  # decoded even when raw.bin could not take it (a full disk): counted
+            self.stats["bytes"] += len(data)
+            self._queue.extend(self.dec.feed(data))
+        self._drain()
+
+    def _drain(self) -> None:
+        """Handle the verified frames in the queue.  A frame leaves the queue only after it
+        was handled, so an interruption (a second Ctrl-C) leaves it for close() to handle: a
+        frame handled twice is then counted as a duplicate, never lost."""
         if len(self.dec.errors) > self._errors_logged:
             for off, n, reason in self.dec.errors[self._errors_logged:]:
                 self.event("rejected_block", raw_offset=off, length=n, reason=reason)
             self._errors_logged = len(self.dec.errors)
-        for f in frames:
-            self._frame(f)
+        while self._queue:
+            self._frame(self._queue[0])
+            self._queue.pop(0)
 
     def _frame(self, f: P.Frame) -> None:
         msg = self.d.by_type.get(f.type)
@@ -388,13 +439,31 @@ class Logger:
             self.event("params_mismatch", detail=bad)
             sys.stderr.write("\nwarning: the robot reports " + ", ".join(bad) + "\n")
 
-    def _sequence(self, f: P.Frame, host_t: float, t_us: int | None) -> str:
+    def _sequence(self, f: P.Frame, host_t: float, t_us: int | None,
+                  boot: int | None = None) -> str:
         """Track the robot's frame counter.  Returns "ok", "reset" (the board restarted: seq
         and clock start again) or "drop" (a duplicate or stale frame, recorded as an event).
 
-        Telemetry frames carry the board time, which decides: later than the last frame means
-        new (a seq jump is a gap, however long the outage), not later means a duplicate, a stale
-        frame or, with a small seq and clock, a reset.  Other frames only drop exact repeats."""
+        A reset is recognised only from what a reset changes: the boot counter in telemetry
+        (``boot_count``, EEPROM, +1 per boot).  A boot number never seen before is a reset; a
+        frame of an earlier boot is stale.  Within one boot the board time decides: later than
+        the last frame means new (a seq jump is a gap, however long the outage), not later
+        means a duplicate or a stale frame.  Other frames only drop exact repeats."""
+        if boot is not None:
+            if self.boot is None:
+                self.boot = boot
+                self.boots_seen.add(boot)
+            elif boot != self.boot:
+                if boot in self.boots_seen:  # a late frame from before the last reset
+                    self.stats["stale"] += 1
+                    self.event("stale", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset,
+                               boot=boot, current_boot=self.boot)
+                    return "drop"
+                self._reset(f, host_t, t_us, boot)
+                self.boot = boot
+                self.boots_seen.add(boot)
+                self.last_seq = f.seq
+                return "reset"
         if self.last_seq is None:
             self.last_seq = f.seq
             return "ok"
@@ -424,10 +493,6 @@ class Logger:
             self._count_gap(f, missing)
             self.last_seq = f.seq
             return "ok"
-        if ahead != 0 and self._is_reset(f, t_us):
-            self._reset(f, host_t, t_us)
-            self.last_seq = f.seq
-            return "reset"
         kind = "duplicate" if ahead == 0 else "stale"
         self.stats["duplicates" if ahead == 0 else "stale"] += 1
         self.event(kind, seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
@@ -439,13 +504,7 @@ class Logger:
             self.stats["lost_frames"] += missing
             self.event("gap", after_seq=self.last_seq, seq=f.seq, missing=missing, raw_offset=f.offset)
 
-    def _is_reset(self, f: P.Frame, t_us: int | None) -> bool:
-        # After a reset the robot counts from 0 again and its clock restarts near 0.
-        if t_us is None:
-            return f.seq < 16
-        return t_us < 5_000_000 and f.seq < 1000
-
-    def _reset(self, f: P.Frame, host_t: float, t_us: int | None) -> None:
+    def _reset(self, f: P.Frame, host_t: float, t_us: int | None, boot: int) -> None:
         self.stats["robot_resets"] += 1
         if t_us is not None and self.last_t_s is not None:
             # keep board time increasing: continue from the last frame + the host time elapsed
@@ -454,11 +513,11 @@ class Logger:
             self.t_wraps = 0
             self.last_t_us = None
         self.event("robot_reset", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset,
-                   t_epoch_s=round(self.t_epoch, 6))
+                   t_epoch_s=round(self.t_epoch, 6), boot=boot, last_boot=self.boot)
 
     def _telemetry(self, f: P.Frame, raws: tuple, host_t: float) -> None:
         t_us = raws[0]
-        if self._sequence(f, host_t, t_us) == "drop":
+        if self._sequence(f, host_t, t_us, raws[self.cols.index["boot_count"]]) == "drop":
             return
         if self.last_t_us is not None and t_us < self.last_t_us:
             self.t_wraps += 1  # accepted as forward in time: the u32 microsecond clock wrapped
@@ -528,88 +587,209 @@ class Logger:
             return True
         return False
 
-    def run(self) -> int:
-        os.makedirs(self.out, exist_ok=True)
-        for f in ("telemetry.csv", "raw.bin", "events.jsonl"):
+    def prepare_out(self) -> None:
+        """Create the run folder and check that it can be written, before the port is
+        opened; LoggerError (exit 2) when --out is unusable."""
+        shown = runfmt.display(self.out)
+        if os.path.exists(self.out) and not os.path.isdir(self.out):
+            raise LoggerError(f"--out {shown} exists and is not a folder", 2)
+        for f in RUN_FILES[1:]:
             if os.path.exists(os.path.join(self.out, f)):
-                raise LoggerError(f"{os.path.join(self.out, f)} already exists; "
+                raise LoggerError(f"{runfmt.display(os.path.join(self.out, f))} already exists; "
                                   "refusing to overwrite a recorded run", 2)
+        reserve = os.path.join(self.out, RESERVE_NAME)
+        try:
+            os.makedirs(self.out, exist_ok=True)
+            with open(reserve, "wb") as fh:
+                fh.write(bytes(RESERVE_BYTES))
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError as exc:
+            self._free_reserve()
+            raise LoggerError(f"--out {shown} cannot be written: {exc.strerror or exc}", 2) from None
+
+    def _free_reserve(self) -> None:
+        try:
+            os.remove(os.path.join(self.out, RESERVE_NAME))
+        except OSError:
+            pass
+
+    def _on_signal(self, signum, _frame) -> None:
+        self._signals += 1
+        if self._signals > 1:
+            raise KeyboardInterrupt  # a second signal: stop at once (close() still runs)
+        name = signal.Signals(signum).name
+        self.end_reason = self.end_reason or ("interrupted (Ctrl-C)" if name == "SIGINT"
+                                              else f"stopped by {name}")
+        self._stop = True
+
+    def _install_signals(self) -> dict:
+        if threading.current_thread() is not threading.main_thread():
+            return {}
+        old = {}
+        for name in STOP_SIGNALS:
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                old[sig] = signal.signal(sig, self._on_signal)
+        return old
+
+    def run(self) -> int:
+        self.prepare_out()
         self._stop = False
         self._t0 = self.clock()
         self._t0_unix = time.time()  # host_t_s = 0 in Unix time, for trackers stamped by a PC clock
         self._last_hb = self._last_flush = self._last_status = self._last_rx = self._t0
         self._rate_mark = (self._t0, 0)
-        self._connect(first=True)
-        self.writer = runfmt.RunWriter(self.out, self._meta_for_writer(), columns=self.cols.columns)
-        self.raw = open(os.path.join(self.out, "raw.bin"), "wb")
-        self.events = open(os.path.join(self.out, "events.jsonl"), "w")
+        old_handlers = self._install_signals()
         code = 0
         try:
-            self.event("start", port=self.port_name, baud=self.baud)
-            self.write_meta()
-            self.send("RequestParams")
-            if not self.pump(lambda: self.params is not None, self.params_timeout_s):
-                self.event("no_params", waited_s=self.params_timeout_s)
-            if self.clamp is not None:
-                self.command("SetClamp", {"on": int(self.clamp)})
-            if self.mu is not None:
-                self.command("SetMu", {"mu_s": self.mu[0], "mu_k": self.mu[1]})
-            if self.clamp is not None or self.mu is not None:
-                # meta.json records what the robot reports it now uses, not what we asked for
-                self._config_sent = True
-                n = self._params_before_config = self._params_count
-                self.send("RequestParams")
-                if not self.pump(lambda: self._params_count > n, self.params_timeout_s):
-                    self.event("no_params_after_config", waited_s=self.params_timeout_s)
-            if self.experiment is not None:
-                self._heartbeat = True  # from the Start on, so the failsafe never fires early
-                self.command("Start", self.experiment)
-                if self.pump(lambda: self._run_frames > 0 and not self.running):
-                    self._heartbeat = False
-                    self.end_reason = "experiment finished"
-                    self.pump(None, 0.3)  # the last frames after the end
-            else:
-                self.pump()
-        except KeyboardInterrupt:
-            self.end_reason = "interrupted (Ctrl-C)"
-            if self.experiment is not None:
-                try:
-                    self.send("Stop")
-                except Exception:
-                    pass
-        except LoggerError as exc:
-            self.end_reason = str(exc)
-            code = exc.code
+            try:
+                self._connect(first=True)
+                self.writer = runfmt.RunWriter(self.out, self._meta_for_writer(),
+                                               columns=self.cols.columns)
+                self.raw = open(os.path.join(self.out, "raw.bin"), "wb")
+                self.events = open(os.path.join(self.out, "events.jsonl"), "w")
+            except LoggerError:
+                self._free_reserve()
+                raise
+            except OSError as exc:
+                self._free_reserve()
+                raise LoggerError(f"--out {runfmt.display(self.out)} cannot be written: "
+                                  f"{exc.strerror or exc}", 2) from None
+            try:
+                self._session()
+            except (KeyboardInterrupt, _Stopped):
+                self.end_reason = self.end_reason or "interrupted (Ctrl-C)"
+                if self.experiment is not None:
+                    try:
+                        self.send("Stop")
+                    except Exception:
+                        pass
+            except LoggerError as exc:
+                self.end_reason = str(exc)
+                code = exc.code
+            except OSError as exc:  # a write failed: disk full, file system gone read-only
+                self._write_error = exc
+                self.end_reason = f"write failed: {exc.strerror or exc}"
+                code = 1
+            finally:
+                if self.end_reason == "" and self._stop:
+                    self.end_reason = "stopped"
+                if self.close() and code == 0:
+                    code = 1
         finally:
-            self.close()
+            for sig, h in old_handlers.items():
+                signal.signal(sig, h)
         return code
+
+    def _session(self) -> None:
+        self.event("start", port=self.port_name, baud=self.baud)
+        self.write_meta()
+        self.send("RequestParams")
+        if not self.pump(lambda: self.params is not None, self.params_timeout_s):
+            if self._stop:
+                raise _Stopped()
+            self.event("no_params", waited_s=self.params_timeout_s)
+        if self.clamp is not None:
+            self.command("SetClamp", {"on": int(self.clamp)})
+        if self.mu is not None:
+            self.command("SetMu", {"mu_s": self.mu[0], "mu_k": self.mu[1]})
+        if self.clamp is not None or self.mu is not None:
+            # meta.json records what the robot reports it now uses, not what we asked for
+            self._config_sent = True
+            n = self._params_before_config = self._params_count
+            self.send("RequestParams")
+            if not self.pump(lambda: self._params_count > n, self.params_timeout_s):
+                if self._stop:
+                    raise _Stopped()
+                self.event("no_params_after_config", waited_s=self.params_timeout_s)
+        if self.experiment is not None:
+            self._heartbeat = True  # from the Start on, so the failsafe never fires early
+            self.command("Start", self.experiment)
+            if self.pump(lambda: self._run_frames > 0 and not self.running):
+                self._heartbeat = False
+                self.end_reason = "experiment finished"
+                self.pump(None, 0.3)  # the last frames after the end
+            elif self._stop and self.end_reason.startswith(("interrupted", "stopped")):
+                raise _Stopped()
+        else:
+            self.pump()
 
     def _meta_for_writer(self) -> dict:
         return self._meta()
 
-    def close(self) -> None:
-        # Everything already received is on disk; the incomplete tail (if any) stays in raw.bin.
+    def _cut_torn_line(self, path: str) -> None:
+        """After a failed write: cut a text file back to its last complete line."""
+        try:
+            with open(path, "rb+") as fh:
+                data = fh.read()
+                keep = data.rfind(b"\n") + 1
+                if keep < len(data):
+                    fh.truncate(keep)
+        except OSError:
+            pass
+
+    def close(self) -> bool:
+        """Handle the frames still queued, close the files, finalize meta.json.  Returns True
+        when a write failed (during the recording or here)."""
+        # every verified frame already read is written or counted before the files close; after
+        # a write failure none is retried (a half-buffered row written twice would repeat a
+        # time): the queued frames are counted as not written
+        if self._write_error is None:
+            for _ in range(2):  # a second try after a second Ctrl-C
+                try:
+                    self._drain()
+                    break
+                except KeyboardInterrupt:
+                    continue
+                except Exception as exc:  # OSError: the disk filled up just now
+                    self._write_error = exc if isinstance(exc, OSError) else OSError(str(exc))
+                    break
+        failed = self._write_error is not None
+        if failed:
+            # free the reserve for the buffered rows, meta.json and the end of events.jsonl
+            self._free_reserve()
+            self.end_reason = self.end_reason or f"write failed: {self._write_error}"
+            self.stats["frames_not_written"] = len(self._queue)
         for name in ("writer", "raw", "events"):
             obj = getattr(self, name, None)
             if obj is None:
                 continue
             try:
                 if name == "events":
-                    self.event("end", reason=self.end_reason or "stopped", pending_bytes=self.dec.pending())
+                    self.event("end", reason=self.end_reason or "stopped",
+                               pending_bytes=self.dec.pending())
                 obj.flush()
+            except OSError as exc:
+                failed = True
+                self._write_error = self._write_error or exc
+            try:
                 obj.close()
             except Exception:
+                failed = True
+        if failed:
+            for f in ("telemetry.csv", "events.jsonl"):
+                self._cut_torn_line(os.path.join(self.out, f))
+            try:  # meta.json states the rows that reached the disk
+                with open(os.path.join(self.out, "telemetry.csv"), "rb") as fh:
+                    on_disk = max(0, fh.read().count(b"\n") - 1)
+                self.stats["rows_lost_at_write_failure"] = self.stats["telemetry_rows"] - on_disk
+                self.stats["telemetry_rows"] = on_disk
+            except OSError:
                 pass
         try:
             self.write_meta()
         except Exception as exc:  # never lose the data over a meta problem
+            failed = True
             sys.stderr.write(f"\nwarning: could not rewrite meta.json: {exc}\n")
+        self._free_reserve()
         if self.port is not None:
             try:
                 self.port.close()
             except Exception:
                 pass
         self._status(force=True, note=self.end_reason or "stopped")
+        return failed
 
     def stop(self) -> None:
         self._stop = True

@@ -283,7 +283,12 @@ class StreamDecoder:
     also start with a delimiter, the frame after any garbage is always received.
     """
 
-    def __init__(self, version: int = 1, max_payload: int = 96, keep_errors: int = 10000):
+    def __init__(self, version: int | None = None, max_payload: int | None = None,
+                 keep_errors: int = 10000):
+        if version is None or max_payload is None:  # protocol.json's, never a copy of them
+            d = definition()
+            version = d.version if version is None else version
+            max_payload = d.max_payload if max_payload is None else max_payload
         self.version = version
         self.max_body = 4 + max_payload + 2
         self._buf = b""

@@ -33,6 +33,12 @@ What is checked (exit 1 when any check fails, 2 on bad input):
   worst cases fits in the shortest period;
 * CPU utilisation sum(C/T) + U <= the limit;
 * at the design edge rate (200 000 edges/s) the encoder ISR alone still fits (U < 1).
+
+Bad input (exit 2, with file, row/line and column or key): a run folder the run-format reader
+refuses (host_tools/runfmt.py: encoding, CSV structure, numbers, meta.json), a missing or
+non-numeric timing column, a ddtiming/1 or fil.json file that is not UTF-8 JSON of the shape
+above, an option outside its bounds, a --json file that cannot be written (checked before
+anything is read).
 """
 from __future__ import annotations
 
@@ -46,6 +52,9 @@ from dataclasses import dataclass
 from host_tools import protocol as P
 
 SATURATED_UNITS = 65535  # telemetry task times saturate at 65535 units of 16 cycles
+EDGE_RATE_MAX = 1e8      # --edge-rate bound, edges/s (the design rate is 200 000)
+ISR_CYCLES_MAX = 1e6     # --isr-cycles bound, cycles per edge
+CYCLES_MAX = 1e12        # any cycle count or event rate in a ddtiming/1 file
 
 
 class TimingInputError(ValueError):
@@ -74,49 +83,84 @@ def edge_rate_max(d: P.Definition, meta: dict | None = None) -> float:
     return 2 * motor["no_load_rad_s"] / (2 * math.pi) * ppr
 
 
-def load_sim(path: str) -> dict:
-    try:
-        with open(path) as fh:
-            sim = json.load(fh)
-    except OSError as exc:
-        raise TimingInputError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    except json.JSONDecodeError as exc:
-        raise TimingInputError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
-    if not isinstance(sim, dict) or sim.get("format") != "ddtiming/1":
-        raise TimingInputError(f"{path}: 'format' must be \"ddtiming/1\"")
+def _read_json(path: str) -> object:
+    """A JSON file (UTF-8, at most 64 levels deep) or TimingInputError with line and column."""
+    from host_tools import runfmt
 
-    def num(obj, key, where, integer=False):
-        v = obj.get(key) if isinstance(obj, dict) else None
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-            raise TimingInputError(f"{path}: {where}.{key} must be a non-negative number, got {v!r}")
-        return v
-    for name, isr in (sim.get("isr") or {}).items():
-        num(isr, "cycles_per_event", f"isr.{name}")
-    for name, task in (sim.get("tasks") or {}).items():
-        num(task, "max_cycles", f"tasks.{name}")
-    for i, o in enumerate(sim.get("other_isr") or []):
-        num(o, "cycles_per_event", f"other_isr[{i}]")
-        num(o, "events_per_s", f"other_isr[{i}]")
+    try:
+        text = runfmt.read_text(path)
+    except runfmt.RunFormatError as exc:
+        raise TimingInputError(str(exc)) from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise TimingInputError(f"{runfmt.display(path)}, line {exc.lineno}, character {exc.colno}: "
+                               f"invalid JSON: {exc.msg}") from None
+    except (RecursionError, ValueError) as exc:
+        raise TimingInputError(f"{runfmt.display(path)}: invalid JSON: "
+                               f"{'nested too deeply' if isinstance(exc, RecursionError) else exc}"
+                               ) from None
+    if not runfmt._json_depth_ok(doc, 64):
+        raise TimingInputError(f"{runfmt.display(path)}: JSON nested more than 64 levels deep")
+    return doc
+
+
+def _num(path: str, obj, key: str, where: str, hi: float = CYCLES_MAX) -> float:
+    v = obj.get(key) if isinstance(obj, dict) else None
+    if (isinstance(v, bool) or not isinstance(v, (int, float))
+            or (isinstance(v, float) and not math.isfinite(v)) or not 0 <= v <= hi):
+        from host_tools.runfmt import _show, display
+        raise TimingInputError(f"{display(path)}, key '{where}.{key}': must be a number in "
+                               f"[0, {hi:g}], got {_show(v)}")
+    return float(v)
+
+
+def _mapping(path: str, obj, where: str) -> dict:
+    if obj is None:
+        return {}
+    if not isinstance(obj, dict) or not all(isinstance(v, dict) for v in obj.values()):
+        from host_tools.runfmt import display
+        raise TimingInputError(f"{display(path)}, key '{where}': must be an object of objects")
+    return obj
+
+
+def load_sim(path: str) -> dict:
+    from host_tools.runfmt import display
+
+    sim = _read_json(path)
+    if not isinstance(sim, dict) or sim.get("format") != "ddtiming/1":
+        raise TimingInputError(f"{display(path)}, key 'format': must be \"ddtiming/1\"")
+    for name, isr in _mapping(path, sim.get("isr"), "isr").items():
+        isr["cycles_per_event"] = _num(path, isr, "cycles_per_event", f"isr.{name}")
+    for name, task in _mapping(path, sim.get("tasks"), "tasks").items():
+        task["max_cycles"] = _num(path, task, "max_cycles", f"tasks.{name}")
+    other = sim.get("other_isr") or []
+    if not isinstance(other, list):
+        raise TimingInputError(f"{display(path)}, key 'other_isr': must be a list")
+    for i, o in enumerate(other):
+        o_cyc = _num(path, o, "cycles_per_event", f"other_isr[{i}]")
+        o_rate = _num(path, o, "events_per_s", f"other_isr[{i}]")
+        o["cycles_per_event"], o["events_per_s"] = o_cyc, o_rate
     if "f_cpu_hz" in sim:
-        num(sim, "f_cpu_hz", "")
+        sim["f_cpu_hz"] = _num(path, sim, "f_cpu_hz", "")
     return sim
 
 
 def sim_from_fil(path: str) -> dict:
     """The ddtiming/1 view of a firmware-in-the-loop fil.json (sim/fil/fil.cpp)."""
-    try:
-        with open(path) as fh:
-            fil = json.load(fh)
-    except (OSError, json.JSONDecodeError) as exc:
-        raise TimingInputError(f"{path}: cannot read fil.json: {exc}") from None
-    try:
-        sim = {"format": "ddtiming/1", "source": "fil.json",
-               "isr": {"encoder": {"cycles_per_event": fil["encoder_isr"]["max_cycles"]}},
-               "tasks": {k: {"max_cycles": v["max_cycles"]} for k, v in fil["tasks"].items()
-                         if isinstance(v, dict) and "max_cycles" in v}}
-    except (KeyError, TypeError) as exc:
-        raise TimingInputError(f"{path}: fil.json lacks {exc} (encoder_isr.max_cycles, tasks.*.max_cycles)") from None
-    if not fil["encoder_isr"].get("calls"):
+    from host_tools.runfmt import display
+
+    fil = _read_json(path)
+    enc = fil.get("encoder_isr") if isinstance(fil, dict) else None
+    tasks = fil.get("tasks") if isinstance(fil, dict) else None
+    if not isinstance(enc, dict) or not isinstance(tasks, dict):
+        raise TimingInputError(f"{display(path)}: fil.json lacks encoder_isr.max_cycles or "
+                               "tasks.*.max_cycles")
+    sim = {"format": "ddtiming/1", "source": "fil.json",
+           "isr": {"encoder": {"cycles_per_event": _num(path, enc, "max_cycles", "encoder_isr")}},
+           "tasks": {k: {"max_cycles": _num(path, v, "max_cycles", f"tasks.{k}")}
+                     for k, v in tasks.items() if isinstance(v, dict) and "max_cycles" in v}}
+    if not enc.get("calls"):
         del sim["isr"]  # no edge was driven: no ISR measurement
     return sim
 
@@ -126,7 +170,7 @@ def load_run_timing(run_dir: str, d: P.Definition) -> tuple[dict, dict]:
     from host_tools import runfmt
 
     try:
-        run = runfmt.load_run(run_dir, check_units=False)
+        run = runfmt.load_run(run_dir, check_units=False, min_rows=1)
     except runfmt.RunFormatError as exc:
         raise TimingInputError(str(exc)) from None
     tel = run.telemetry
@@ -138,10 +182,14 @@ def load_run_timing(run_dir: str, d: P.Definition) -> tuple[dict, dict]:
         need = [cols[f"{name}_max"].column, cols[f"{name}_last"].column, cols[f"{name}_overruns"].column]
         for c in need:
             if c not in tel:
-                raise TimingInputError(f"{tpath}: column '{c}' is missing (the task timing fields of the "
+                raise TimingInputError(f"{runfmt.display(tpath)}, line 1, column '{c}': missing (the task timing fields of the "
                                        "Telemetry message in protocol/protocol.json)")
             if tel[c].dtype == object:
-                raise TimingInputError(f"{tpath}: column '{c}' holds non-numeric values")
+                i = next(k for k, v in enumerate(tel[c]) if runfmt.parse_number(str(v)) is None
+                         or not math.isfinite(runfmt.parse_number(str(v))))
+                raise TimingInputError(f"{runfmt.display(tpath)}, row {i + 1} (line {i + 2}), "
+                                       f"column '{c}': not a finite number: "
+                                       f"{runfmt._show(tel[c][i])}")
         mx, last, ovr = (tel[c] for c in need)
         scale = cols[f"{name}_max"].scale or 1
         out[name] = {
@@ -291,8 +339,36 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="OUT", help="also write the rows as JSON")
 
 
+def _check_options(args: argparse.Namespace) -> str | None:
+    if args.edge_rate is not None and not (math.isfinite(args.edge_rate)
+                                           and 0 < args.edge_rate <= EDGE_RATE_MAX):
+        return f"--edge-rate {args.edge_rate:g} must be in (0, {EDGE_RATE_MAX:g}] edges/s"
+    if args.isr_cycles is not None and not (math.isfinite(args.isr_cycles)
+                                            and 0 < args.isr_cycles <= ISR_CYCLES_MAX):
+        return f"--isr-cycles {args.isr_cycles:g} must be in (0, {ISR_CYCLES_MAX:g}]"
+    if len(args.run) + len(args.sim) > 1000:
+        return "at most 1000 --run and --sim sources"
+    if args.json:
+        from host_tools.runfmt import display
+        if os.path.isdir(args.json):
+            return f"--json {display(args.json)} is a folder"
+        existed = os.path.exists(args.json)
+        try:
+            with open(args.json, "a"):
+                pass
+        except OSError as exc:
+            return f"--json {display(args.json)} cannot be written: {exc.strerror or exc}"
+        if not existed:
+            os.remove(args.json)
+    return None
+
+
 def main(args: argparse.Namespace) -> int:
     d = P.definition()
+    problem = _check_options(args)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     try:
         rows, notes = check(d, args.run, args.sim, args.edge_rate, args.isr_cycles, not args.no_fil)
     except TimingInputError as exc:
@@ -300,8 +376,14 @@ def main(args: argparse.Namespace) -> int:
         return 2
     print(render(rows, notes))
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump({"rows": [dict(r.__dict__, margin=r.margin) for r in rows], "notes": notes}, fh, indent=2)
+        try:
+            with open(args.json, "w", encoding="utf-8", errors="backslashreplace") as fh:
+                json.dump({"rows": [dict(r.__dict__, margin=r.margin) for r in rows],
+                           "notes": notes}, fh, indent=2)
+        except OSError as exc:
+            print(f"error: cannot write --json {args.json!r}: {exc.strerror or exc}",
+                  file=sys.stderr)
+            return 1
     bad = [r for r in rows if not r.ok]
     if bad:
         print(f"\nFAILED: {len(bad)} check(s) over budget: " + ", ".join(f"{r.check} [{r.source}]" for r in bad))

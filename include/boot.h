@@ -14,6 +14,14 @@
 // MCUSR as read at reset: bit 0 PORF, 1 EXTRF, 2 BORF, 3 WDRF, 4 JTRF (== protocol reset_cause).
 uint8_t boot_reset_cause();
 
+// Boot counter (telemetry boot_count): EEPROM word kBootCountEeprom, read, incremented and
+// written back once per boot by boot_count_init() (from main(), before the schedule: the
+// EEPROM write takes about 7 ms). An erased EEPROM (0xFFFF) makes the first boot 0. The host
+// recognises a reset by a change of this number, not by the clock or seq restarting.
+const uint16_t kBootCountEeprom = 0;
+void boot_count_init();
+uint16_t boot_count();
+
 // Watchdog: 250 ms; wdt_kick() from the main loop only.
 void wdt_start();
 void wdt_kick();

@@ -1,5 +1,5 @@
 // XBee link on USART2 (TX2 = pin 16, RX2 = pin 17), 8N1 at XBEE_BAUD (board.h).
-// Interrupt-driven rings: RX 128 bytes (RX ISR produces, main loop consumes), TX 256 bytes
+// Interrupt-driven rings: RX 256 bytes (RX ISR produces, main loop consumes), TX 256 bytes
 // (main loop produces, UDRE ISR consumes). Transmit never blocks: a frame that does not fit
 // whole is dropped and counted.
 #ifndef FW_XBEE_H

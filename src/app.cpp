@@ -28,7 +28,8 @@ volatile uint8_t g_fault_hang;
 
 namespace {
 
-// Host timeout: the brake must be on within 500 ms of the last valid frame. The check runs
+// Host timeout: the brake must be on within 500 ms of the last frame that decoded to a known
+// host message (handle_frame; unknown types and wrong lengths do not count). The check runs
 // every main-loop iteration, which can wait up to ~1.5 ms behind the tasks, so it fires at
 // 498.5 ms of silence (board time in us, not the 1 ms tick).
 const uint32_t kHostTimeoutUs = 498500ul;
@@ -91,6 +92,12 @@ T* place(uint8_t* storage, const T& v) {
     memcpy(storage, &v, sizeof(T));  // trivially copyable value types
     return p;
 }
+
+// SetClamp / SetMu only mark the controller for a rebuild (~16.6 ms of float work); app_poll()
+// rebuilds once the receive ring is empty, and a Start rebuilds first. A burst of such commands
+// thus costs one rebuild, not one per frame, and while a rebuild runs the 256-byte receive ring
+// holds the 191 bytes that arrive at 115200 baud in 16.6 ms.
+bool g_rebuild_pending;
 
 void rebuild_controller() {
     // the inner period: the controller's wheel rate for it is precomputed (no division on the
@@ -165,6 +172,10 @@ uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
     proto::Start s = proto::Start();
     if (!s.decode(pl, len)) return proto::kResultBadLength;
     if (busy()) return proto::kResultBusy;
+    if (g_rebuild_pending) {  // a SetClamp / SetMu just before: the experiment must use it
+        g_rebuild_pending = false;
+        rebuild_controller();
+    }
     float r = static_cast<float>(g_robot.r);
     float t_acc = s.get_accel_time();
     ctl::ReferenceSpec spec = ctl::straight_profile(r, s.get_wheel_accel(), t_acc);
@@ -209,9 +220,14 @@ void start_experiment() {
     sched_reset_stats();
 }
 
-void handle_frame(const proto::Frame& f) {
+// Handles one verified host frame; returns whether it decoded to a known host message (a
+// host-to-robot type with its exact length), the only frames that count as the host being
+// alive for the host-timeout failsafe: a stray device or a looping host sending valid frames
+// of unknown types, or of a wrong length, must not keep the robot driving.
+bool handle_frame(const proto::Frame& f) {
     uint8_t detail = 255;
     uint8_t res = proto::validate_command(f.type, f.payload, f.len, &detail);
+    const bool known = res != proto::kResultUnknownType && res != proto::kResultBadLength;
     if (res == proto::kResultOk) {
         switch (f.type) {
             case proto::kMsgStart:
@@ -225,7 +241,7 @@ void handle_frame(const proto::Frame& f) {
                 c.decode(f.payload, f.len);  // length checked by validate_command
                 if (busy()) { res = proto::kResultBusy; break; }
                 g_clamp_on = c.on != 0;
-                rebuild_controller();
+                g_rebuild_pending = true;
                 break;
             }
             case proto::kMsgSetController: {
@@ -243,7 +259,7 @@ void handle_frame(const proto::Frame& f) {
                 g_robot.mu_s = m.get_mu_s();
                 g_robot.mu_k = m.get_mu_k();
                 g_params_default = false;
-                rebuild_controller();
+                g_rebuild_pending = true;
                 break;
             }
             case proto::kMsgRequestParams:
@@ -254,6 +270,7 @@ void handle_frame(const proto::Frame& f) {
     }
     send_ack(f.seq, f.type, res, detail);
     if (res == proto::kResultOk && f.type == proto::kMsgRequestParams) send_params();
+    return known;
 }
 
 // ---- tasks ----
@@ -392,6 +409,7 @@ void telemetry_task() {
     t.current_r = motor_sense_raw(kRight);
     t.current_l = motor_sense_raw(kLeft);
     t.stack_hwm = stack_high_water();
+    t.boot_count = boot_count();
     motor_sense_start();  // next pair, ready for the next frame
     send_msg(t);
 }
@@ -414,13 +432,17 @@ void app_poll() {
     while (xbee_read(&b)) {
         proto::Decoder::Status s = g_rx.feed(b);
         if (s == proto::Decoder::kFrame) {
-            g_last_host_us = time_us();
-            handle_frame(g_rx.frame());
+            uint32_t rx_us = time_us();
+            if (handle_frame(g_rx.frame())) g_last_host_us = rx_us;
         } else if (s == proto::Decoder::kError && g_rx.error_has_header()) {
             uint8_t res = g_rx.error() == proto::Decoder::kErrVersion ? proto::kResultBadVersion
                                                                       : proto::kResultBadCrc;
             send_ack(g_rx.error_seq(), g_rx.error_type(), res, 255);
         }
+    }
+    if (g_rebuild_pending) {  // the receive ring is empty here
+        g_rebuild_pending = false;
+        rebuild_controller();
     }
     if (g_running && time_us() - g_last_host_us >= kHostTimeoutUs)
         stop_motors(proto::kFailsafeHostTimeout);

@@ -1,5 +1,6 @@
 #include "boot.h"
 
+#include <avr/eeprom.h>
 #include <avr/io.h>
 #include <avr/wdt.h>
 
@@ -35,6 +36,18 @@ void boot_early() {
 }
 
 uint8_t boot_reset_cause() { return g_boot_mcusr; }
+
+namespace {
+uint16_t g_boot_count;
+}  // namespace
+
+void boot_count_init() {
+    uint16_t* addr = reinterpret_cast<uint16_t*>(kBootCountEeprom);
+    g_boot_count = static_cast<uint16_t>(eeprom_read_word(addr) + 1u);
+    eeprom_update_word(addr, g_boot_count);
+}
+
+uint16_t boot_count() { return g_boot_count; }
 
 void wdt_start() { wdt_enable(WDTO_250MS); }
 void wdt_kick() { wdt_reset(); }

@@ -12,6 +12,7 @@
 #ifndef PIO_UNIT_TESTING
 int main() {
     // boot.cpp (.init3) has already made the motor pins safe, saved MCUSR, stopped the WDT.
+    boot_count_init();
     motor_init();
     cycles_init();
     enc_init();

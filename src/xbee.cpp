@@ -7,7 +7,7 @@
 #include "ring_buffer.h"
 
 namespace {
-RingBuffer<128> g_rx;
+RingBuffer<256> g_rx;
 RingBuffer<256> g_tx;
 volatile uint16_t g_rx_overflows;
 volatile uint16_t g_rx_errors;
@@ -38,8 +38,11 @@ ISR(USART2_UDRE_vect) {
 }
 
 void xbee_init() {
-    UBRR2 = XBEE_UBRR;
+    // U2X before UBRR: the hardware does not care, but simavr computes its byte time when UBRR
+    // is written, with the U2X bit of that moment; the other order made it receive at half the
+    // baud rate and overrun its 64-byte input FIFO on bursts of more than ~120 bytes.
     UCSR2A = XBEE_U2X ? _BV(U2X2) : 0;
+    UBRR2 = XBEE_UBRR;
     UCSR2C = _BV(UCSZ21) | _BV(UCSZ20);  // 8N1
     UCSR2B = _BV(RXEN2) | _BV(TXEN2) | _BV(RXCIE2);
 }

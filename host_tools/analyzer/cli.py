@@ -5,13 +5,23 @@ recordings disagree with it, fits every effect of the vocabulary across all runs
 what the data support, and writes OUT_DIR/report.json (mismatch-report/1), report.md,
 PNG plots and model.json (the updated model parameters, ddmodel/1).
 
-Exit codes: 0 done, 2 bad input (the message says what is wrong and where), 1 the native
-plant library could not be built or loaded."""
+Exit codes: 0 done, 2 bad input (the message says what is wrong and where: file, row,
+column), 1 the native plant library could not be built or loaded, or writing the outputs
+failed (e.g. the disk is full).  Every run is read and validated, and --out is created and
+checked for writing, before any analysis starts."""
 from __future__ import annotations
 
 import argparse
+import math
 import os
+import signal
 import sys
+import tempfile
+
+# Bounds of the options (every option is bounded: a value outside gives exit 2).
+DT_MIN_S, DT_MAX_S = 1e-4, 1e-2   # plant step; 5e-4 is the default, 1e-4 costs 5x as long
+JOBS_MAX = 64
+EFFECTS_MAX = 64
 
 EPILOG = """\
 outputs (in OUT_DIR):
@@ -20,7 +30,8 @@ outputs (in OUT_DIR):
   *.png         recording, nominal and updated simulation, windows of mismatch shaded
   model.json    updated model parameters (format ddmodel/1, see docs/analyzer.md)
 
-progress goes to stderr.  exit status: 0 done, 2 bad input, 1 native plant unavailable.
+progress goes to stderr.  exit status: 0 done, 2 bad input (file, row, column), 1 native
+plant unavailable or the outputs could not be written.
 """
 
 
@@ -35,11 +46,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="folder for report.json, report.md, plots and model.json "
                              "(created if missing)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
-                        help="processes fitting candidates in parallel (default %(default)s)")
+                        help="processes fitting candidates in parallel, 1..%d (default "
+                             "%%(default)s)" % JOBS_MAX)
     parser.add_argument("--effects", default=None, metavar="NAME[,NAME...]",
                         help="fit only these vocabulary effects (default: all)")
     parser.add_argument("--dt", type=float, default=5e-4, metavar="SECONDS",
-                        help="plant integration step (default %(default)s)")
+                        help="plant integration step, %g..%g s (default %%(default)s)"
+                             % (DT_MIN_S, DT_MAX_S))
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
 
 
@@ -51,31 +64,109 @@ def _native_build_error() -> type:
         return ImportError
 
 
+def _bad(msg: str) -> int:
+    print(f"error: bad input: {msg}", file=sys.stderr)
+    return 2
+
+
+def check_out_dir(out: str) -> str | None:
+    """Create ``out`` (if missing) and check that a file can be written there; return what
+    is wrong, or None."""
+    from host_tools.runfmt import display
+
+    shown = display(out)
+    if os.path.exists(out) and not os.path.isdir(out):
+        return f"--out {shown} exists and is not a folder"
+    try:
+        os.makedirs(out, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".write-check-", dir=out)
+        os.close(fd)
+        os.remove(probe)
+    except OSError as exc:
+        return f"--out {shown} cannot be created or written: {exc.strerror or exc}"
+    return None
+
+
+class _Interrupted(Exception):
+    pass
+
+
+def _stop_on_signals() -> dict:
+    """SIGINT, SIGTERM and SIGHUP end the analysis with exit 1 and a message.  The worker
+    processes it forks end silently on them (the default action), as the pool expects."""
+    main_pid = os.getpid()
+
+    def handler(signum, _frame):
+        if os.getpid() != main_pid:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        raise _Interrupted(signal.Signals(signum).name)
+    old = {}
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            old[sig] = signal.signal(sig, handler)
+    return old
+
+
 def main(args: argparse.Namespace) -> int:
+    old = _stop_on_signals()
+    try:
+        return _main(args)
+    except _Interrupted as exc:
+        print(f"error: interrupted by {exc}; no outputs written (report.json, report.md and "
+              "model.json are written whole or not at all)", file=sys.stderr)
+        return 1
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+def _main(args: argparse.Namespace) -> int:
+    from host_tools import runfmt
     from host_tools.runfmt import RunFormatError
 
-    if args.jobs < 1:
-        print("error: --jobs must be at least 1", file=sys.stderr)
-        return 2
-    if not (args.dt > 0 and args.dt <= 0.01):
-        print(f"error: --dt {args.dt} must be in (0, 0.01] s", file=sys.stderr)
-        return 2
-    if os.path.exists(args.out) and not os.path.isdir(args.out):
-        print(f"error: --out {args.out} exists and is not a folder", file=sys.stderr)
-        return 2
+    if not 1 <= args.jobs <= JOBS_MAX:
+        return _bad(f"--jobs {args.jobs} must be in 1..{JOBS_MAX}")
+    if not (math.isfinite(args.dt) and DT_MIN_S <= args.dt <= DT_MAX_S):
+        return _bad(f"--dt {args.dt:g} must be in [{DT_MIN_S:g}, {DT_MAX_S:g}] s")
     effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None
+    if args.effects is not None and not effects:
+        return _bad("--effects names no effect")
+    if effects and (len(effects) > EFFECTS_MAX or
+                    not all(e.isascii() and e.replace("_", "").isalnum() for e in effects)):
+        return _bad(f"--effects must be up to {EFFECTS_MAX} vocabulary names "
+                    "(letters, digits, '_') separated by commas")
+    problem = check_out_dir(args.out)
+    if problem:
+        return _bad(problem)
+    try:
+        runs = [runfmt.load_run(p, min_rows=runfmt.ANALYZER_MIN_ROWS) for p in args.runs]
+        runfmt.check_compatible(runs)
+    except RunFormatError as exc:
+        return _bad(str(exc))
+    runfmt.label_runs(runs)
+    notes = [n for r in runs for n in r.notes]
+    for n in notes:
+        print(f"note: {n}", file=sys.stderr)
     from host_tools.analyzer.analysis import analyze
     from host_tools.analyzer.report import write_outputs
     try:
-        an = analyze(args.runs, jobs=args.jobs, effects=effects, dt_s=args.dt)
+        an = analyze(runs, jobs=args.jobs, effects=effects, dt_s=args.dt)
     except RunFormatError as exc:
-        print(f"error: bad input: {exc}", file=sys.stderr)
-        return 2
+        return _bad(str(exc))
     except (ImportError, OSError, _native_build_error()) as exc:
         # the native plant (lib/slipmodel via host_tools._native) could not be built or loaded
         print(f"error: the native plant is unavailable: {type(exc).__name__}: {exc}",
               file=sys.stderr)
         return 1
-    write_outputs(an, args.out, plots=not args.no_plots)
-    print(f"verdict: {an.verdict}; report: {os.path.join(args.out, 'report.json')}")
+    an.notes.extend(notes)
+    try:
+        write_outputs(an, args.out, plots=not args.no_plots)
+    except OSError as exc:
+        print(f"error: cannot write the outputs into {runfmt.display(args.out)}: "
+              f"{exc.strerror or exc}", file=sys.stderr)
+        return 1
+    print(f"verdict: {an.verdict}; report: {runfmt.display(os.path.join(args.out, 'report.json'))}")
     return 0

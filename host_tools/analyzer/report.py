@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from host_tools.analyzer.analysis import REPORT_FORMAT, Analysis, _r
+from host_tools.runfmt import display
 
 
 def _finite(obj: Any) -> Any:
@@ -61,7 +62,7 @@ def report_dict(an: Analysis) -> dict:
         "recorder": an.recorder,
         "localization": an.localization,
         "notes": an.notes,
-        "runs": [r.path for r in an.runs],
+        "runs": [display(r.path) for r in an.runs],
         "heldout_rmse_units": "candidates' heldout_rmse_* are normalized: RMS of residual / "
                               "noise floor over the fit channels",
         "elapsed_s": round(an.timing_s, 2),
@@ -210,16 +211,29 @@ def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
     return "\n".join(L)
 
 
+def _write_text(path: str, text: str) -> None:
+    """Write ``text`` as UTF-8 to a temporary file, then rename it over ``path``: a failure
+    (a full disk) leaves the previous file or none, never a truncated one.  Characters that
+    UTF-8 cannot hold (undecodable bytes of a path) are written as backslash escapes."""
+    tmp = path + ".tmp"
+    try:
+        with open(tmp, "w", encoding="utf-8", errors="backslashreplace") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise
+
+
 def write_outputs(an: Analysis, out_dir: str, plots: bool = True) -> dict:
     os.makedirs(out_dir, exist_ok=True)
     rep = report_dict(an)
-    with open(os.path.join(out_dir, "report.json"), "w") as fh:
-        json.dump(rep, fh, indent=2)
-        fh.write("\n")
-    with open(os.path.join(out_dir, "model.json"), "w") as fh:
-        json.dump(_finite(an.model), fh, indent=2)
-        fh.write("\n")
+    _write_text(os.path.join(out_dir, "report.json"), json.dumps(rep, indent=2) + "\n")
+    _write_text(os.path.join(out_dir, "model.json"),
+                json.dumps(_finite(an.model), indent=2) + "\n")
     files = _plots(an, out_dir) if plots else []
-    with open(os.path.join(out_dir, "report.md"), "w") as fh:
-        fh.write(_md(an, rep, files))
+    _write_text(os.path.join(out_dir, "report.md"), _md(an, rep, files))
     return rep

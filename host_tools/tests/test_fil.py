@@ -292,10 +292,136 @@ def test_hang_in_main_loop_triggers_watchdog(elf, sim, tmp_path):
     assert len(causes) == 2 and causes[1]["mcusr"] & (1 << D.flags["reset_cause"]["watchdog"])
     assert any(e["code"] == FAILSAFE["watchdog_reset"] and e["boot"] == 2 for e in s["failsafe_events"])
     assert lg.stats["robot_resets"] == 1
+    # the reset is recognised from the boot counter (EEPROM, +1 per boot), which the firmware
+    # reports in every frame: one step, at the reset
+    boots = csv(out / "telemetry.csv")["boot_count"].astype(int)
+    assert np.count_nonzero(np.diff(boots)) == 1 and (boots[-1] - boots[0]) % 65536 == 1
     # motors off from the reset on (boot code makes the pins safe before main)
     pl = csv(out / "plant.csv")
     after = pl["t_s"] > s["reset_t_s"][0] + 0.001
     assert after.sum() > 10 and np.all(pl["duty_r"][after] == 0) and np.all(pl["duty_l"][after] == 0)
+
+
+class HostScript:
+    """A host on the simulator's pty, paced by the robot's board time (telemetry t_us):
+    ``step(t_board, telemetry)`` is called for every telemetry frame and may write."""
+
+    def __init__(self, elf, out, args):
+        import serial
+        self.sm = fil.Sim(elf, out, args)
+        self.port = serial.serial_for_url(self.sm.pty, baudrate=D.baud, timeout=0.02)
+        self.dec = P.StreamDecoder(D.version, D.max_payload)
+        self.acks: list[tuple[int, int, int]] = []  # (cmd seq, cmd type, result)
+        self.telem: list[dict] = []
+
+    def run(self, step, wall_s=60.0):
+        import serial
+        t0 = time.monotonic()
+        try:
+            # the simulator holds the board after boot until the host's first byte arrives
+            self.port.write(D.encode("RequestParams", 0))
+            while time.monotonic() - t0 < wall_s:
+                try:
+                    data = self.port.read(4096)
+                except serial.SerialException:
+                    break  # the simulator ended (t_end)
+                for f in self.dec.feed(data):
+                    msg, raws = D.unpack(f)
+                    if msg.name == "Ack":
+                        self.acks.append((raws[0], raws[1], raws[2]))
+                    elif msg.name == "Telemetry":
+                        t = D.physical(msg, raws)
+                        self.telem.append(t)
+                        if step(t["t_us"], t) is False:
+                            return
+        finally:
+            self.port.close()
+            self.sm.wait(60)
+
+
+def test_only_known_host_messages_feed_the_host_timeout(elf, sim, tmp_path):
+    """Issue 13: after 0.3 s of heartbeats the host sends only valid frames (CRC right) of an
+    unknown type and Heartbeats one byte too long, every 20 ms: the robot must brake on the
+    host timeout as if the host were silent."""
+    unknown = next(t for t in range(1, 256) if t not in D.by_type)
+    hb_type = D.by_name["Heartbeat"].type
+    running = 1 << D.flags["status"]["running"]
+    st = {"seq": 3, "last_start": -1.0, "t_run": None, "last_hb": None, "last_junk": -1.0,
+          "stop": None, "junk": 0}
+    start = D.encode("Start", 2, {"profile": "straight", "wheel_accel": 48.0, "accel_time": 0.5,
+                                  "duration": 3.0, "radius": 0.0})
+    host = HostScript(elf, tmp_path / "junk", ["--t-end", "4"])
+
+    def step(now, t):
+        run = bool(int(t["status"]) & running)
+        if st["t_run"] is None:
+            if run:
+                st["t_run"] = now
+            elif now - st["last_start"] >= 0.1:  # bytes sent before the USART is up are lost
+                host.port.write(D.encode("SetClamp", 1, {"on": 1}) + start)
+                st["last_start"] = now
+            return None
+        if not run:
+            st["stop"] = now
+            return False
+        if now - st["t_run"] < 0.3:
+            if st["last_hb"] is None or now - st["last_hb"] >= 0.1:
+                host.port.write(D.encode("Heartbeat", st["seq"] & 0xFFFF))
+                st["seq"] += 1
+                st["last_hb"] = now
+        elif now - st["last_junk"] >= 0.02:
+            host.port.write(D.frame(unknown, st["seq"], b"\x01\x02\x03")
+                            + D.frame(hb_type, st["seq"] + 1, b"\x00"))
+            st["seq"] += 2
+            st["junk"] += 2
+            st["last_junk"] = now
+        return None
+
+    host.run(step)
+    assert st["t_run"] is not None, "the experiment never started"
+    assert st["stop"] is not None, "the robot kept driving while only junk frames arrived"
+    codes = {int(t["failsafe"]) for t in host.telem if t["t_us"] >= st["stop"]}
+    assert FAILSAFE["host_timeout"] in codes
+    dt = st["stop"] - st["last_hb"]
+    print(f"\njunk frames only: {st['junk']} sent; last Heartbeat at {st['last_hb']:.3f} s, "
+          f"stopped (host_timeout) {dt * 1000:.0f} ms later by telemetry")
+    assert 0.45 <= dt <= 0.7  # 498.5 ms + a telemetry period + the pty and pacing latency
+    # the junk reached the firmware as verified frames: it answered them
+    results = {D.result_names.get(r) for _, typ, r in host.acks if typ in (unknown, hb_type)}
+    assert {"unknown_type", "bad_length"} <= results
+
+
+BURST = 50  # back-to-back host frames the firmware takes whole at 115200 baud (docs/firmware.md)
+
+
+@pytest.mark.parametrize("name", ["Heartbeat", "SetMu"])
+def test_a_burst_of_50_back_to_back_host_frames_is_received_whole(elf, sim, tmp_path, name):
+    """Issue 13: 50 Heartbeats back to back gave 12 Acks (simavr received at half the baud rate
+    because UBRR was written before U2X); 50 SetMu overflowed the firmware's receive ring (a
+    controller rebuild per frame, 16.6 ms each). Every frame must be decoded (no CRC, framing or
+    overflow error) and handled: answered ok, or its Ack counted in tx_drops (the 14-byte Acks
+    outrun the uplink)."""
+    values = {"mu_s": 0.30, "mu_k": 0.28} if name == "SetMu" else None
+    burst = b"".join(D.encode(name, 100 + i, values) for i in range(BURST))
+    counters = ("rx_crc_errors", "rx_bad_frames", "rx_overflows", "tx_drops")
+    st = {"before": None}
+    host = HostScript(elf, tmp_path / "burst", ["--t-end", "1.2"])
+
+    def step(now, t):
+        if st["before"] is None and now >= 0.3:
+            st["before"] = {k: int(t[k]) for k in counters}
+            host.port.write(burst)  # 50 frames at once: back to back on the simulated wire
+
+    host.run(step)
+    after = {k: int(host.telem[-1][k]) for k in counters}
+    d = {k: after[k] - st["before"][k] for k in counters}
+    acks = [r for q, _, r in host.acks if 100 <= q < 100 + BURST]
+    print(f"\nburst of {BURST} {name}: {len(acks)} Acks, {d['tx_drops']} dropped Acks counted, "
+          f"receive errors {d['rx_crc_errors']} CRC, {d['rx_bad_frames']} framing, "
+          f"{d['rx_overflows']} ring overflows")
+    assert d["rx_crc_errors"] == d["rx_bad_frames"] == d["rx_overflows"] == 0
+    assert all(D.result_names.get(r) == "ok" for r in acks)
+    assert len(acks) + d["tx_drops"] >= BURST
 
 
 def test_corrupted_command_bytes_are_rejected(elf, sim, tmp_path):

@@ -27,10 +27,11 @@ RUNNING = 1 << D.flags["status"]["running"]
 
 
 def telemetry(seq: int, t_us: int, omega: float = 10.0, running: bool = False, x: float = 0.0,
-              failsafe: int = 0) -> bytes:
+              failsafe: int = 0, boot: int = 7) -> bytes:
     vals = dict.fromkeys(NAMES, 0)
     vals.update(t_us=t_us, enc_r=seq * 3, enc_l=seq * 3, omega_r=int(omega * 100), omega_l=int(omega * 100),
-                x_odo=int(x * 1e6), status=RUNNING if running else 0, inner_max=150, stack_hwm=700, failsafe=failsafe)
+                x_odo=int(x * 1e6), status=RUNNING if running else 0, inner_max=150, stack_hwm=700, failsafe=failsafe,
+                boot_count=boot)
     return D.encode_raw("Telemetry", seq, [vals[n] for n in NAMES])
 
 
@@ -421,7 +422,7 @@ def test_robot_power_loss_and_reset(tmp_path):
     port = serial.serial_for_url("loop://", timeout=0.02)
     # (pyserial's loop:// queue holds 4096 bytes: stay below it)
     a = [telemetry(i, 5_000_000 + 20_000 * i) for i in range(20)]
-    b = [telemetry(i, 3000 + 20_000 * i) for i in range(20)]
+    b = [telemetry(i, 3000 + 20_000 * i, boot=8) for i in range(20)]
     port.write(b"".join(a) + a[0][:25] + b"".join(b))
     out = tmp_path / "run"
     lg = L.Logger(str(out), lambda: port, "loop://", 115200, record_s=0.5, params_timeout_s=0.05,
@@ -432,6 +433,51 @@ def test_robot_power_loss_and_reset(tmp_path):
     assert np.all(np.diff(run.telemetry["t_s"]) > 0)
     assert lg.stats["robot_resets"] == 1
     assert [e for e in events(out) if e["kind"] == "robot_reset"]
+
+
+def _record(tmp_path, stream: bytes):
+    port = serial.serial_for_url("loop://", timeout=0.02)
+    port.write(stream)
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: port, "loop://", 115200, record_s=0.4, params_timeout_s=0.05,
+                  status=False)
+    assert lg.run() == 0
+    return lg, rows(out)
+
+
+def test_a_stale_frame_early_in_a_boot_is_not_a_reset(tmp_path):
+    """Issue 13: one older frame within the first 5 s of board time (seq < 1000) was taken for
+    a reset: a row with a made-up time, '1 gap (2 frames lost)', later t_s shifted."""
+    fr = [telemetry(i, 20_000 * (i + 1)) for i in range(30)]
+    lg, run = _record(tmp_path, b"".join(fr[:20] + [fr[12]] + fr[20:]))
+    assert lg.stats["robot_resets"] == 0
+    assert lg.stats["stale"] == 1 and lg.stats["lost_frames"] == 0 and lg.stats["gaps"] == 0
+    assert run.telemetry["seq"].astype(int).tolist() == list(range(30))
+    assert np.allclose(run.telemetry["t_s"], 0.02 * np.arange(1, 31))
+
+
+def test_reordered_pairs_early_in_a_boot_are_not_resets(tmp_path):
+    fr = [telemetry(i, 20_000 * (i + 1)) for i in range(40)]
+    stream = b"".join(fr[i + 1] + fr[i] for i in range(0, 40, 2))
+    lg, run = _record(tmp_path, stream)
+    assert lg.stats["robot_resets"] == 0
+    assert lg.stats["stale"] == 20
+    # the later frame of each pair is written; the one before it arrives late: stale, not lost
+    assert run.telemetry["seq"].astype(int).tolist() == list(range(1, 40, 2))
+    assert lg.stats["lost_frames"] == 19  # every second frame never became a row...
+    assert lg.stats["lost_frames"] + run.telemetry["t_s"].size == 39  # ...and none twice
+
+
+def test_a_reset_is_recognised_by_the_boot_counter_alone(tmp_path):
+    """A reset whose frames look like a continuation by time and seq (a board clock that
+    happens to be later) is still a reset; a late frame of the old boot after it is stale."""
+    a = [telemetry(i, 20_000 * (i + 1), boot=3) for i in range(10)]
+    b = [telemetry(i + 10, 20_000 * (i + 11), boot=4) for i in range(10)]
+    lg, run = _record(tmp_path, b"".join(a + b[:5] + [a[9]] + b[5:]))
+    assert lg.stats["robot_resets"] == 1 and lg.stats["stale"] == 1
+    assert run.telemetry["t_s"].size == 20 and np.all(np.diff(run.telemetry["t_s"]) > 0)
+    ev = [e for e in events(tmp_path / "run") if e["kind"] == "robot_reset"]
+    assert ev[0]["boot"] == 4 and ev[0]["last_boot"] == 3
 
 
 def test_clock_wrap_is_unwrapped(tmp_path):
@@ -617,20 +663,22 @@ from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E
 
 @st.composite
 def robot_streams(draw):
-    """Telemetry with random drops, duplicates, reorders, garbage, truncation and resets."""
+    """Telemetry with random drops, duplicates, reorders, garbage, truncation and resets (a
+    reset restarts seq and clock and increments the boot counter)."""
     seq, t_us, out, sent = 0, draw(st.integers(0, 2**32 - 1)), bytearray(), set()
+    boot = draw(st.integers(0, 0xFFFF))
     for _ in range(draw(st.integers(1, 40))):
         op = draw(st.sampled_from(["ok"] * 6 + ["drop", "dup", "swap", "junk", "cut", "reset"]))
-        fr = telemetry(seq, t_us)
+        fr = telemetry(seq, t_us, boot=boot)
         if op == "reset":
-            seq, t_us = 0, draw(st.integers(0, 100_000))
-            fr = telemetry(seq, t_us)
+            seq, t_us, boot = 0, draw(st.integers(0, 100_000)), (boot + 1) & 0xFFFF
+            fr = telemetry(seq, t_us, boot=boot)
         if op == "drop":
             pass
         elif op == "dup":
             out += fr + fr
         elif op == "swap":
-            nxt = telemetry((seq + 1) & 0xFFFF, (t_us + 20_000) % 2**32)
+            nxt = telemetry((seq + 1) & 0xFFFF, (t_us + 20_000) % 2**32, boot=boot)
             out += nxt + fr
         elif op == "junk":
             out += draw(st.binary(max_size=30)) + fr
@@ -690,40 +738,49 @@ def test_groundtruth_start_pose_from_tracker(tmp_path, capsys):
     assert "needs the phi_rad column" in capsys.readouterr().err
 
 
-def test_cli_sigint_end_to_end(tmp_path):
-    """python -m host_tools log in a subprocess, stopped with a real SIGINT (Ctrl-C)."""
-    import signal
+def log_until_rows_then_signal(out, sig, min_rows=20, extra=(), period=0.01):
+    """``python -m host_tools log`` in a subprocess against a fake robot on a pty, stopped
+    with signal ``sig`` once ``min_rows`` rows are on disk.  Returns (returncode, stderr)."""
     import subprocess
     import sys
     from pathlib import Path
 
-    robot, path, fds = robot_on_pty(period=0.01)
-    out = tmp_path / "run"
+    robot, path, fds = robot_on_pty(period=period)
     root = Path(__file__).resolve().parents[2]
-    proc = subprocess.Popen([sys.executable, "-m", "host_tools", "log", "--port", path, "--out", str(out)],
-                            cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "host_tools", "log", "--port", path, "--out",
+                             str(out), *extra], cwd=root, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 20
         tpath = out / "telemetry.csv"
         while time.monotonic() < deadline:  # wait until rows are on disk (flushed as it goes)
-            if tpath.exists() and len(tpath.read_text().splitlines()) > 20:
+            if tpath.exists() and len(tpath.read_text().splitlines()) > min_rows:
                 break
-            time.sleep(0.1)
-        proc.send_signal(signal.SIGINT)
+            time.sleep(0.05)
+        proc.send_signal(sig)
         _, err = proc.communicate(timeout=20)
     finally:
         if proc.poll() is None:
             proc.kill()
         robot.stop_flag.set()
         robot.join(2)
-    assert proc.returncode == 0, err
+        for fd in fds:
+            os.close(fd)
+    return proc.returncode, err
+
+
+def test_cli_sigint_end_to_end(tmp_path):
+    """python -m host_tools log in a subprocess, stopped with a real SIGINT (Ctrl-C)."""
+    import signal
+
+    out = tmp_path / "run"
+    rc, err = log_until_rows_then_signal(out, signal.SIGINT)
+    assert rc == 0, err
     assert "frames/s" in err  # the live status line
     meta = json.load(open(out / "meta.json"))
     assert meta["logger"]["end_reason"] == "interrupted (Ctrl-C)"
     assert meta["logger"]["params_source"] == "robot"
     assert rows(out).telemetry["t_s"].size >= 20
-    for fd in fds:
-        os.close(fd)
 
 
 def test_nan_params_are_refused_not_fatal(tmp_path, capsys):

@@ -44,7 +44,7 @@ def test_drift_is_detected():
         lambda d: d["messages"][3]["fields"][1].__setitem__("max", 150.0),
         lambda d: d["messages"][0]["fields"].pop(),
         lambda d: d["timing"]["tasks"][0].__setitem__("budget_cycles", 1),
-        lambda d: d.__setitem__("version", 2),
+        lambda d: d.__setitem__("version", d["version"] + 1),
     ):
         d = copy.deepcopy(defn)
         mutate(d)
@@ -100,7 +100,7 @@ def test_embedded_golden_vectors():
     v.update(t_us=4294967000, enc_r=-123456, enc_l=2147483647, omega_r=3665, omega_l=-1250,
              tau_cmd_r=950, tau_cmd_l=-7700, pwm_r=10000, pwm_l=-2500, x_odo=1234567, y_odo=-500000,
              phi_odo=6500000, inner_last=771, inner_max=65535, inner_overruns=3, illegal_l=7, status=3,
-             failsafe=1, reset_cause=8, current_r=1023, stack_hwm=812)
+             failsafe=1, reset_cause=8, current_r=1023, stack_hwm=812, boot_count=513)
     assert _golden(text, "Telemetry seq=65535") == d.encode_raw("Telemetry", 65535, [v[n] for n in names])
     p = dict(d.robot_defaults["robot"], **d.robot_defaults["motor"])
     p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,

@@ -267,3 +267,30 @@ def test_start_pose(tmp_path):
     assert load_run(p).start_pose == (1.0, 2.0, 0.5)
     with pytest.raises(RunFormatError, match="start_pose"):
         _make(tmp_path, name="bad", meta={"start_pose": [1.0, 2.0]})
+
+
+@pytest.mark.parametrize("wrapped", ["telemetry", "groundtruth", "both"])
+def test_heading_wrapped_in_one_file_and_unwrapped_in_the_other(tmp_path, wrapped):
+    # issue 16: the run format allows either in both files; a 30 s spin (about 25 turns)
+    cols = _columns(n=1500, turn=30.0, speed=0.0)
+    wrap = lambda a: (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
+    g = {"t_s": cols["t_s"][::2] + 0.001, "x_m": cols["x_odo_m"][::2],
+         "y_m": cols["y_odo_m"][::2], "phi_rad": cols["phi_odo_rad"][::2]}
+    if wrapped in ("telemetry", "both"):
+        cols["phi_odo_rad"] = wrap(cols["phi_odo_rad"])
+    if wrapped in ("groundtruth", "both"):
+        g["phi_rad"] = wrap(g["phi_rad"])
+    runfmt.write_run(tmp_path / "r", {}, cols, g)
+    run = load_run(tmp_path / "r")  # no "degrees instead of radians?"
+    assert np.ptp(np.unwrap(run.groundtruth["phi_rad"])) > 8 * np.pi
+
+
+def test_heading_in_degrees_still_detected_when_the_other_file_is_wrapped(tmp_path):
+    cols = _columns(n=300, turn=4.0)
+    g = {"t_s": cols["t_s"][::2] + 0.001, "x_m": cols["x_odo_m"][::2],
+         "y_m": cols["y_odo_m"][::2], "phi_rad": np.degrees(cols["phi_odo_rad"][::2])}
+    cols["phi_odo_rad"] = (cols["phi_odo_rad"] + np.pi) % (2 * np.pi) - np.pi
+    runfmt.write_run(tmp_path / "r", {}, cols, g)
+    with pytest.raises(RunFormatError, match="degrees") as e:
+        load_run(tmp_path / "r")
+    assert e.value.column == "phi_rad"

@@ -9,7 +9,7 @@
 
 namespace proto {
 
-static const uint8_t kVersion = 1;
+static const uint8_t kVersion = 2;
 static const uint8_t kMaxPayload = 96;
 static const uint32_t kBaud = 115200UL;  // 8N1
 static const uint32_t kFcpuHz = 16000000UL;
@@ -106,9 +106,9 @@ enum MsgType : uint8_t {
     kMsgSetController = 22,  // host_to_robot
 };
 
-// Telemetry (robot_to_host, type 1, 81 payload bytes): sent every telemetry period (20 ms) while powered
+// Telemetry (robot_to_host, type 1, 83 payload bytes): sent every telemetry period (20 ms) while powered
 struct Telemetry {
-    enum : uint8_t { kType = 1, kSize = 81 };
+    enum : uint8_t { kType = 1, kSize = 83 };
     uint32_t t_us;  // raw x 1e-06 = s; board time, wraps after 4295 s (the logger unwraps)
     int32_t enc_r;  // counts; cumulative right encoder count, positive = forward
     int32_t enc_l;  // counts
@@ -145,6 +145,7 @@ struct Telemetry {
     uint16_t current_r;  // raw x 0.0029593 = A; raw 10-bit ADC of A0; Motor Shield R3 sense 1.65 V/A, AVcc 5 V reference: A = raw * 5 / 1024 / 1.65
     uint16_t current_l;  // raw x 0.0029593 = A; raw 10-bit ADC of A1
     uint16_t stack_hwm;  // bytes; largest stack use seen since reset (painted stack)
+    uint16_t boot_count;  // count; boots of the board, kept in EEPROM and incremented once per boot (wraps): a change means the board reset, whatever its clock and seq say
     float get_t_us() const { return static_cast<float>(t_us) * 1e-06f; }
     // Saturates; false when v was NaN (raw 0) or out of the raw range.
     bool set_t_us(float v) { return sat_u32(v, 1000000.0f, &t_us); }
@@ -239,6 +240,7 @@ struct Telemetry {
         put_u16(p + 75, current_r);
         put_u16(p + 77, current_l);
         put_u16(p + 79, stack_hwm);
+        put_u16(p + 81, boot_count);
     }
     // false (and nothing read) when len is not kSize
     bool decode(const uint8_t* p, uint8_t len) {
@@ -279,6 +281,7 @@ struct Telemetry {
         current_r = get_u16(p + 75);
         current_l = get_u16(p + 77);
         stack_hwm = get_u16(p + 79);
+        boot_count = get_u16(p + 81);
         return true;
     }
 };
@@ -571,7 +574,7 @@ struct SetController {
 // Payload size of a message type, or -1 for an unknown type.
 inline int16_t payload_size(uint8_t type) {
     switch (type) {
-        case kMsgTelemetry: return 81;
+        case kMsgTelemetry: return 83;
         case kMsgParams: return 87;
         case kMsgAck: return 5;
         case kMsgStart: return 9;
