@@ -207,6 +207,9 @@ class Logger:
             "motor": dict(dflt["motor"]),
             "encoder_ppr": dflt["encoder_ppr"],
             "periods_s": {t["name"]: round(t["period_us"] * 1e-6, 9) for t in self.d.tasks()},
+            # this project's firmware ramps a clamped wheel's duty every millisecond and
+            # reports the duty of the frame's moment (docs/firmware.md)
+            "duty_ramp": True,
         }
         mu_ok = self.mu is not None and self._acked("SetMu")
         clamp_ok = self.clamp is not None and self._acked("SetClamp")
