@@ -53,9 +53,11 @@ def _tree_rss_kb(root: int) -> int:
 
 
 def run_analyzer(runs: list[str], out_dir: str, jobs: int = 2, log=None,
-                 timeout_s: float | None = None) -> tuple[int, dict | None, dict]:
-    """Run ``python -m host_tools analyze``; returns (exit code, report, {wall_s, peak_rss_mb,
-    timeout}). The exit code is -9 when it ran past ``timeout_s`` and was stopped."""
+                 timeout_s: float | None = None, perf: dict | None = None
+                 ) -> tuple[int, dict | None]:
+    """Run ``python -m host_tools analyze``; returns (exit code, report) and fills ``perf``
+    (when given) with {wall_s, peak_rss_mb, timeout}. The exit code is -9 when it ran past
+    ``timeout_s`` and was stopped."""
     cmd = [sys.executable, "-m", "host_tools", "analyze", *runs, "--out", out_dir,
            "--jobs", str(jobs)]
     os.makedirs(out_dir, exist_ok=True)
@@ -93,7 +95,9 @@ def run_analyzer(runs: list[str], out_dir: str, jobs: int = 2, log=None,
             report = json.load(fh)
     elif rc != 0 and not timed_out:
         sys.stderr.write(err_text[-2000:])
-    return rc, report, {"wall_s": wall, "peak_rss_mb": peak / 1024.0, "timeout": timed_out}
+    if perf is not None:
+        perf.update(wall_s=wall, peak_rss_mb=peak / 1024.0, timeout=timed_out)
+    return rc, report
 
 
 #: parameters that must be positive (> 0) or non-negative (>= 0) to be physical
@@ -394,7 +398,9 @@ def bench(data_dir: str, case_list: list, jobs: int = 2, regenerate: bool = True
         rep_dir = os.path.join(data_dir, "reports", case.name)
         os.makedirs(rep_dir, exist_ok=True)
         with open(os.path.join(rep_dir, "analyzer.log"), "w") as log:
-            rc, report, perf = run_analyzer(runs, rep_dir, jobs=jobs, log=log, timeout_s=timeout_s)
+            perf: dict = {}
+            rc, report = run_analyzer(runs, rep_dir, jobs=jobs, log=log, timeout_s=timeout_s,
+                                      perf=perf)
         r = score_case(label, rc, report)
         r["case_s"] = time.time() - tc
         r["analysis_s"] = perf["wall_s"]

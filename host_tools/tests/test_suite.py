@@ -164,7 +164,8 @@ def test_impossible_fits_are_found():
 def test_bench_stops_an_analyzer_past_its_time_limit(tmp_path):
     case = cases.get(["hb_null_slow"], which="heldback")[0]
     runs = generate.generate_case(case, str(tmp_path))
-    rc, report, perf = bench.run_analyzer(runs, str(tmp_path / "rep"), jobs=1, timeout_s=1.0)
+    perf = {}
+    rc, report = bench.run_analyzer(runs, str(tmp_path / "rep"), jobs=1, timeout_s=1.0, perf=perf)
     assert rc == -9 and report is None and perf["timeout"] and perf["wall_s"] < 10
     assert perf["peak_rss_mb"] > 10  # the python process was seen
     r = bench.score_case(case.label(), rc, report)
