@@ -570,7 +570,7 @@ def analyzer_demo(out_dir: str, jobs: int = 2, log=print) -> dict:
     log(f"  analyzing: python -m host_tools analyze {' '.join(_short(r) for r in runs)} "
         f"--out {_short(rep_dir)}")
     t0 = time.time()
-    rc, report, _perf = bench.run_analyzer(runs, rep_dir, jobs=jobs)
+    rc, report = bench.run_analyzer(runs, rep_dir, jobs=jobs)
     elapsed = time.time() - t0
     score = None
     if report is not None:
