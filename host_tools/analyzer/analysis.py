@@ -141,11 +141,22 @@ def _pooled_rmse(chans_per_run, names) -> dict[str, float]:
 
 
 _PROBLEM: Problem | None = None
+_MAIN_PID = os.getpid()
 
 
 def _init_worker(problem: Problem) -> None:
     global _PROBLEM
     _PROBLEM = problem
+    if os.getpid() != _MAIN_PID:
+        # A worker ends at once on the pool's SIGTERM, whatever C code it is in: a Python-level
+        # handler inherited from the command line (which turns signals into a clean exit of the
+        # main process) runs only between bytecodes, and a worker that never gets there would
+        # keep Pool.terminate() waiting for ever.  Ctrl-C is the main process's to handle.
+        import signal
+        for name in ("SIGTERM", "SIGHUP"):
+            if hasattr(signal, name):
+                signal.signal(getattr(signal, name), signal.SIG_DFL)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _eval_task(args):
