@@ -282,12 +282,27 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
                 t_in[0] = tick0
             if tel["tau_cmd_r"][0] != 0 or tel["tau_cmd_l"][0] != 0:
                 t_in_tau[0] = tick0
+    duty = (np.asarray(tel["pwm_r"], float), np.asarray(tel["pwm_l"], float))
+    torque = (np.asarray(tel["tau_cmd_r"], float), np.asarray(tel["tau_cmd_l"], float))
+    dt_tel = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    if phase is not None and 0 < period < 0.999 * dt_tel:
+        # A loop faster than the telemetry: a frame reports the value of the latest tick
+        # before it, and the ticks between two frames went unseen.  Their values are taken on
+        # the straight line between the two reported ones (a smooth controller's output), each
+        # held from its tick.
+        known = phase + np.floor((t - phase) / period + 1e-9) * period
+        known, first = np.unique(known, return_index=True)
+        ticks = phase + period * np.arange(math.floor((known[0] - phase) / period + 1e-9),
+                                           math.floor((t[-1] - phase) / period + 1e-9) + 1)
+        dense = lambda v: np.interp(ticks, known, np.asarray(v, float)[first])  # noqa: E731
+        duty = (dense(duty[0]), dense(duty[1]))
+        torque = (dense(torque[0]), dense(torque[1]))
+        t_in, t_in_tau = ticks.copy(), ticks.copy()
     # the input takes effect at t_in[k] and holds until the next one; the simulation is sampled
     # at the union of input times and telemetry times
     grid = np.unique(np.concatenate([t, t_in, t_in_tau]))
     return PreparedRun(run=run, t_in=t_in, t_in_tau=t_in_tau, windows=make_windows(t),
-                       duty=(tel["pwm_r"], tel["pwm_l"]),
-                       torque=(tel["tau_cmd_r"], tel["tau_cmd_l"]),
+                       duty=duty, torque=torque,
                        t_grid=grid, robot=dict(run.meta["robot"]), motor=dict(run.meta["motor"]),
                        start_pose=run.start_pose, ppr=int(run.meta["encoder_ppr"]),
                        extras={"arc_position": arc_position, "inner_period": period,
