@@ -139,9 +139,15 @@ def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
     start, width = arc if arc is not None else (0.0, period - step)
     phases = start + np.arange(0.0, width + 0.5 * step, step)
 
+    # counts interpolated across a gap in the telemetry (lost frames) are no measurement
+    dt_med = float(np.median(np.diff(t)))
+    gap_end = np.flatnonzero(np.diff(t) > 1.5 * dt_med) + 1
+
     def score(phase: float) -> float:
         tick = phase + np.floor((t - phase) / period + 1e-9) * period   # latest tick <= frame
         ok = tick - period >= t[0]
+        for g in gap_end:   # [tick - period, tick] must not reach into a gap
+            ok &= ~((tick > t[g - 1]) & (tick - period < t[g]))
         if ok.sum() < 3:
             return math.inf
         s = 0.0
@@ -160,7 +166,10 @@ def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
     # another period, speeds at the frames) must not move the input timing: that could shift
     # the inputs by most of a period and hide an actuation delay.
     tick = phases[j] + np.floor((t - phases[j]) / period + 1e-9) * period
-    n_ok = 2 * int(np.sum(tick - period >= t[0]))
+    ok = tick - period >= t[0]
+    for g in gap_end:
+        ok &= ~((tick > t[g - 1]) & (tick - period < t[g]))
+    n_ok = 2 * int(np.sum(ok))
     if n_ok < 6 or math.sqrt(sc[j] / n_ok) > 1.5 * k / period:
         return None
     best = float(phases[j])
@@ -285,11 +294,12 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
     duty = (np.asarray(tel["pwm_r"], float), np.asarray(tel["pwm_l"], float))
     torque = (np.asarray(tel["tau_cmd_r"], float), np.asarray(tel["tau_cmd_l"], float))
     dt_tel = float(np.median(np.diff(t))) if t.size > 1 else 0.0
-    if phase is not None and 0 < period < 0.999 * dt_tel:
-        # A loop faster than the telemetry: a frame reports the value of the latest tick
-        # before it, and the ticks between two frames went unseen.  Their values are taken on
-        # the straight line between the two reported ones (a smooth controller's output), each
-        # held from its tick.
+    gappy = t.size > 1 and float(np.max(np.diff(t))) > max(period, dt_tel) * 1.5
+    if phase is not None and period > 0 and (period < 0.999 * dt_tel or gappy):
+        # A loop faster than the telemetry, or frames lost: a frame reports the value of the
+        # latest tick before it, and the ticks between two frames went unseen.  Their values
+        # are taken on the straight line between the two reported ones (a smooth controller's
+        # output), each held from its tick.
         known = phase + np.floor((t - phase) / period + 1e-9) * period
         known, first = np.unique(known, return_index=True)
         ticks = phase + period * np.arange(math.floor((known[0] - phase) / period + 1e-9),
@@ -869,6 +879,20 @@ def _replay_odometry(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.nda
     return xo[idx], yo[idx], po[idx]
 
 
+CURRENT_SETTLE_S = 1e-3
+
+
+def _last_change(t_in: np.ndarray, values: tuple, t: np.ndarray) -> np.ndarray:
+    """Time of the latest change of any of ``values`` (held from ``t_in``) at or before ``t``."""
+    ch = np.zeros(t_in.size, bool)
+    ch[0] = True
+    for v in values:
+        ch[1:] |= np.diff(np.asarray(v, float)) != 0
+    tc = t_in[ch]
+    i = np.searchsorted(tc, t, side="right") - 1
+    return np.where(i >= 0, tc[np.maximum(i, 0)], -np.inf)
+
+
 @dataclass
 class Channel:
     name: str
@@ -963,8 +987,14 @@ def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int,
             cur = tel.get(col)
             # a constant column (e.g. all zero) is a sensor that is not there
             if cur is not None and cur.dtype.kind == "f" and np.ptp(cur) > 0:
-                out[col] = Channel(col, t, np.asarray(tel[col][i_a:i_b], float),
-                                   np.abs(at(f"i_{side}_a", t)), "A", seg(t.size))
+                # the current follows the duty within the armature's electrical time, and where
+                # in that transient the ADC sampled is not known: samples within CURRENT_SETTLE_S
+                # of a change of the duty are left out
+                dt_in = t - _last_change(prep.t_in, prep.duty, t)
+                keep = dt_in >= CURRENT_SETTLE_S
+                out[col] = Channel(col, t[keep], np.asarray(tel[col][i_a:i_b], float)[keep],
+                                   np.abs(at(f"i_{side}_a", t[keep])), "A",
+                                   None if w is None else seg(int(keep.sum())))
     gt = run.groundtruth
     if gt is not None:
         tg_all = gt["t_s"]
