@@ -394,9 +394,19 @@ def recorder_odometry(prep: PreparedRun) -> dict:
             uniq, idx = np.unique(tk, return_inverse=True)
             # counts at the ticks, interpolated over the whole run (the first tick of a window
             # lies before its first frame)
+            # (not across a gap: after one, a tick before the window's first frame gets its
+            # counts on the line through the window's first two frames)
+            after_gap = i_a > 0 and t[i_a] - t[i_a - 1] > GAP_S and i_b - i_a >= 2
             at_t = np.maximum(uniq, t[0])
-            cr = np.floor(np.interp(at_t, t, tel["enc_r"]) + 1e-9)
-            cl = np.floor(np.interp(at_t, t, tel["enc_l"]) + 1e-9)
+
+            def counts_at(n):
+                c = np.interp(at_t, t, n)
+                if after_gap:
+                    early = at_t < t[i_a]
+                    slope = (n[i_a + 1] - n[i_a]) / (t[i_a + 1] - t[i_a])
+                    c[early] = n[i_a] + slope * (at_t[early] - t[i_a])
+                return np.floor(c + 1e-9)
+            cr, cl = counts_at(tel["enc_r"]), counts_at(tel["enc_l"])
             if uniq.size >= 2:
                 xo, yo, po = _odometry(cr, cl, at_t + 1e-9 * np.arange(at_t.size), r, b, ppr,
                                        pose0)
