@@ -1002,6 +1002,8 @@ def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int,
                 # of a change of the duty are left out
                 dt_in = t - _last_change(prep.t_in, prep.duty, t)
                 keep = dt_in >= CURRENT_SETTLE_S
+                if keep.sum() < max(3, keep.size // 4):
+                    continue   # the frames coincide with the loop's ticks: no settled sample
                 out[col] = Channel(col, t[keep], np.asarray(tel[col][i_a:i_b], float)[keep],
                                    np.abs(at(f"i_{side}_a", t[keep])), "A",
                                    None if w is None else seg(int(keep.sum())))

@@ -67,7 +67,7 @@ def significant_windows(t: np.ndarray, resid: np.ndarray, floor: float, k: float
     Returns the windows and the boolean significance mask (per sample)."""
     t = np.asarray(t, dtype=float)
     r = np.asarray(resid, dtype=float)
-    if r.size == 0 or floor <= 0:
+    if r.size < max(min_len, smooth_n) or t.size != r.size or floor <= 0:
         return [], np.zeros(r.shape, bool)
     n = min(smooth_n, max(1, r.size))
     s = smooth(r, n)

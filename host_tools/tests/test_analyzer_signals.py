@@ -112,3 +112,11 @@ def test_reconstruct_input_times_falls_back_when_inconsistent():
     t = np.round(np.arange(0, 1.0, 0.02), 9)
     v = np.arange(t.size, dtype=float)  # changes every frame: faster than a 25 ms loop
     np.testing.assert_array_equal(reconstruct_input_times(t, [v], 0.025), t)
+
+
+def test_significant_windows_of_a_channel_with_too_few_samples():
+    """A channel left with fewer samples than the smoothing span (e.g. motor current whose
+    frames all fall on the loop's ticks) has no window and no error."""
+    for n in range(0, 5):
+        w, m = sg.significant_windows(np.arange(n) * 0.02, np.full(n, 10.0), 0.1)
+        assert w == [] and m.shape == (n,) and not m.any()
