@@ -469,14 +469,19 @@ class OpenLoopReplay:
             self._plants[key] = p
         return p
 
-    def simulate(self, prep: PreparedRun, effects: Mapping[str, Mapping[str, float]]
-                 ) -> dict[str, np.ndarray]:
+    def _ready(self, prep: PreparedRun, effects: Mapping[str, Mapping[str, float]]):
+        """(plant with ``effects`` switched on, the replayed inputs, their times)."""
         plant = self._plant(prep.robot, prep.motor)
         plant.clear_effects()
         for name, params in effects.items():
             plant.set_effect(name, **{k: float(v) for k, v in params.items()})
-        src = prep.duty if self.mode == "duty" else prep.torque
-        t_in = prep.t_in if self.mode == "duty" else prep.t_in_tau
+        if self.mode == "duty":
+            return plant, prep.duty, prep.t_in
+        return plant, prep.torque, prep.t_in_tau
+
+    def simulate(self, prep: PreparedRun, effects: Mapping[str, Mapping[str, float]]
+                 ) -> dict[str, np.ndarray]:
+        plant, src, t_in = self._ready(prep, effects)
         grid = prep.t_grid
         # The plant is stepped on the replay grid itself (telemetry times and reconstructed
         # input times), each input held from its row to the next.  lib/slipmodel's
@@ -497,12 +502,7 @@ class OpenLoopReplay:
         simulation as :meth:`simulate`."""
         if len(prep.windows) <= 1 and (which is None or list(which) == [0]):
             return WindowSims([(0, self.simulate(prep, effects))])
-        plant = self._plant(prep.robot, prep.motor)
-        plant.clear_effects()
-        for name, params in effects.items():
-            plant.set_effect(name, **{k: float(v) for k, v in params.items()})
-        src = prep.duty if self.mode == "duty" else prep.torque
-        t_in = prep.t_in if self.mode == "duty" else prep.t_in_tau
+        plant, src, t_in = self._ready(prep, effects)
         out = []
         for w in (range(len(prep.windows)) if which is None else which):
             t0, pose, vel = window_start(prep, w)
