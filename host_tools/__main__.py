@@ -1,16 +1,21 @@
-"""Command-line entry point: ``python -m host_tools COMMAND ...``.
-
-Each command lives in its own module, which provides ``add_arguments(parser)``
-and ``main(args) -> int``.  Exit codes: 0 done, 1 a check failed, 2 bad input.
+"""The host tools of the slip-avoiding robot (``ddrobot COMMAND ...`` or
+``python -m host_tools COMMAND ...``): record a run from the robot's XBee (log), check the
+firmware's timing budgets on a run (timing), find, name and model what a recording shows and
+the nominal model leaves out (analyze), record a run from the real firmware in simavr
+against the plant (fil), reproduce the thesis's simulations and the analyzer demo (demo).
+``COMMAND --help`` gives a command's options. Exit codes: 0 done, 1 a check failed, 2 bad
+input (with the file and the place).
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
-# command name -> (module, one-line help).  Modules are imported lazily so that
-# one command's optional dependency never breaks another command.
+# command name -> (module, one-line help).  Each module provides add_arguments(parser) and
+# main(args) -> int; modules are imported lazily so that one command's optional dependency
+# never breaks another command.
 COMMANDS = {
     "log": ("host_tools.logger", "record a run from the XBee serial port"),
     "timing": ("host_tools.timing", "check the firmware's timing budgets"),
@@ -21,7 +26,9 @@ COMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m host_tools", description=__doc__)
+    prog = "ddrobot" if os.path.basename(sys.argv[0]) == "ddrobot" else "python -m host_tools"
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)

@@ -10,7 +10,7 @@ generated from.  Measurements come from
 (b) simavr measurements in a small JSON file, format ``ddtiming/1``::
 
         {"format": "ddtiming/1",
-         "source": "sim/isr_harness, simavr 1.6, avr-gcc 5.4 -Os",   (free text)
+         "source": "sim/isr_bench, simavr 1.6, avr-gcc 5.4 -Os",   (free text)
          "f_cpu_hz": 16000000,                                      (optional)
          "isr":   {"encoder": {"cycles_per_event": 58}},            (per edge, corrected: incl.
                                                                      the 5-cycle response + RETI)

@@ -42,10 +42,16 @@ if [[ ! -x "$ROOT/.venv/bin/python" ]]; then
     say "creating .venv"
     "$PY_BOOT" -m venv "$ROOT/.venv" || die "python3 -m venv failed (Debian: apt-get install python3-venv)"
 fi
-req_hash="$(hash_of "$ROOT/requirements.txt")"
+req_hash="$(hash_of "$ROOT/requirements.txt" "$ROOT/pyproject.toml")"
 if ! stamp_ok python "$req_hash"; then
     say "installing Python packages from requirements.txt"
     "$ROOT/.venv/bin/python" -m pip install --disable-pip-version-check -q -r "$ROOT/requirements.txt"
+    # the host tools themselves, editable: the `ddrobot` command (pyproject.toml)
+    say "installing the host tools (pip install -e .)"
+    "$ROOT/.venv/bin/python" -m pip install --disable-pip-version-check -q --no-deps \
+        --no-build-isolation -e "$ROOT" \
+        || "$ROOT/.venv/bin/python" -m pip install --disable-pip-version-check -q --no-deps -e "$ROOT" \
+        || die "pip install -e . failed"
     stamp_set python "$req_hash"
 fi
 PIO="$ROOT/.venv/bin/pio"

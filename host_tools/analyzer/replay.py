@@ -13,7 +13,7 @@ from __future__ import annotations
 import ctypes
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Protocol, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -435,14 +435,6 @@ def _zoh(t_in: np.ndarray, v: np.ndarray, grid: np.ndarray) -> np.ndarray:
     out = v[idx].astype(float)
     out[grid < t_in[0]] = 0.0
     return out
-
-
-class Replayer(Protocol):
-    name: str
-
-    def simulate(self, prep: PreparedRun, effects: Mapping[str, Mapping[str, float]]
-                 ) -> dict[str, np.ndarray]:
-        """Plant outputs (columns of _native.Plant.simulate) on ``prep.t_grid``."""
 
 
 class OpenLoopReplay:
