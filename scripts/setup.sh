@@ -48,10 +48,14 @@ if ! stamp_ok python "$req_hash"; then
     "$ROOT/.venv/bin/python" -m pip install --disable-pip-version-check -q -r "$ROOT/requirements.txt"
     # the host tools themselves, editable: the `ddrobot` command (pyproject.toml)
     say "installing the host tools (pip install -e .)"
-    "$ROOT/.venv/bin/python" -m pip install --disable-pip-version-check -q --no-deps \
-        --no-build-isolation -e "$ROOT" \
-        || "$ROOT/.venv/bin/python" -m pip install --disable-pip-version-check -q --no-deps -e "$ROOT" \
-        || die "pip install -e . failed"
+    # (the build backend comes from the package index; without it, the .venv's own setuptools)
+    pip_log="$(mktemp)"
+    "$ROOT/.venv/bin/python" -m pip install --disable-pip-version-check -q --no-deps -e "$ROOT" \
+        2>"$pip_log" \
+        || "$ROOT/.venv/bin/python" -m pip install --disable-pip-version-check -q --no-deps \
+            --no-build-isolation -e "$ROOT" \
+        || { cat "$pip_log" >&2; rm -f "$pip_log"; die "pip install -e . failed"; }
+    rm -f "$pip_log"
     stamp_set python "$req_hash"
 fi
 PIO="$ROOT/.venv/bin/pio"
