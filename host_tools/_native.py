@@ -51,7 +51,7 @@ def _sources() -> list[Path]:
 
 
 def _inputs() -> list[Path]:
-    files = list(_sources())
+    files = list(_sources()) + sorted((ROOT / "host_tools" / "native").glob("*.h"))
     for lib_src in sorted((ROOT / "lib").glob("*/src")):
         files.extend(sorted(lib_src.rglob("*.h")))
     return files

@@ -12,6 +12,7 @@
 // "loop.actuator" (0 duty, 1 torque command). A ctl.* or loop.* key rebuilds the driver (plant
 // parameters and effects are kept): call cl_reset after the keys.
 // Never crashes on bad input: negative return codes and a message from cl_last_error(h).
+#include "ctl_columns.h"
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -31,12 +32,8 @@ enum {
 
 // Tick columns: time and counts, the controller's (the names of ctl_inner's columns), then
 // the plant's at the tick (kPlantCols), then the tick's slip summary.
-const char* const kCtlCols[] = {
-    "pwm_r",     "pwm_l",     "tau_cmd_r", "tau_cmd_l",   "tau_max_r", "tau_max_l",
-    "clamped_r", "clamped_l", "sat_r",     "sat_l",       "omega_r",   "omega_l",
-    "x_odo_m",   "y_odo_m",   "phi_odo_rad", "v_d_m_s",   "omega_d_rad_s", "e_x_m",
-    "e_y_m",     "e_phi_rad", "odo_status", "pwm_slope_r", "pwm_slope_l"};
-const int kCtlColCount = static_cast<int>(sizeof(kCtlCols) / sizeof(kCtlCols[0]));
+const char* const* const kCtlCols = ctlcols::kNames;
+const int kCtlColCount = ctlcols::kCount;
 const char* const kPlantCols[] = {"x_m", "y_m", "phi_rad", "v_m_s", "omega_rad_s", "theta_r_rad",
                                   "theta_l_rad", "dtheta_r_rad_s", "dtheta_l_rad_s", "tau_r_nm",
                                   "tau_l_nm", "slip_r", "slip_l"};

@@ -13,6 +13,7 @@
 //   h = ctl_new(fixed, clamp); ctl_set_reference(h, kind, accel, cruise, radius);
 //   ctl_reset(h, enc_r0, enc_l0, x0, y0, phi0);
 //   each tick k: ctl_inner(h, enc_r, enc_l, 0.025, row, n); if k even: ctl_outer(h, k*0.025)
+#include "ctl_columns.h"
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -34,12 +35,8 @@ enum {
   CTL_ERR_CONFIG = -4, // the configuration does not convert to fixed point
 };
 
-const char* const kCols[] = {
-    "pwm_r",     "pwm_l",     "tau_cmd_r", "tau_cmd_l",   "tau_max_r", "tau_max_l",
-    "clamped_r", "clamped_l", "sat_r",     "sat_l",       "omega_r",   "omega_l",
-    "x_odo_m",   "y_odo_m",   "phi_odo_rad", "v_d_m_s",   "omega_d_rad_s", "e_x_m",
-    "e_y_m",     "e_phi_rad", "odo_status", "pwm_slope_r", "pwm_slope_l"};
-const int kColCount = static_cast<int>(sizeof(kCols) / sizeof(kCols[0]));
+const char* const* const kCols = ctlcols::kNames;
+const int kColCount = ctlcols::kCount;
 
 struct Key {
   const char* name;
