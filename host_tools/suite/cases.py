@@ -301,7 +301,91 @@ def heldback_cases() -> list[Case]:
     return cases
 
 
-SETS = ("tuning", "heldback")
+# ------------------------------------------------------------------ the second held-back set
+# Defined before any rule of the analyzer was settled against it, and scored once: the blind
+# figures. Recorders that neither the tuning set nor the first held-back set used (an inner
+# loop of 15 ms that does not divide the telemetry period, a PI loop at 10 ms, 5 ms telemetry
+# jitter, a 60 Hz camera, a noisier 30 Hz camera, ...), other seeds and effect sizes.
+RECORDERS_2 = {
+    "loop15": {"inner_s": 0.015},
+    "pi_loop10": {"controller": "pi", "inner_s": 0.010, "odometry": "ticks"},
+    "jitter5": {"tel_jitter_s": 0.005, "tel_drop": 0.05},
+    "cam60": {"cam_hz": 60.0, "cam_noise_m": 0.0015, "cam_noise_rad": 0.015, "cam_dropout": 0.03},
+    "cam_noisy": {"cam_noise_m": 0.002, "cam_noise_rad": 0.02, "cam_dropout": 0.1},
+    "loop20_frames_mid": {"inner_s": 0.020, "odometry": "frames", "integration": "midpoint"},
+    "ticks_mid_wrapped": {"odometry": "ticks", "integration": "midpoint",
+                          "heading_tel": "wrapped", "heading_gt": "wrapped"},
+    "loop10_jitter": {"inner_s": 0.010, "tel_jitter_s": 0.002, "tel_drop": 0.02},
+    "adc_noisy": {"adc_noise_lsb": 3.0, "cam_hz": 50.0},
+}
+_ROTATION_2 = ["loop15", "cam60", "pi_loop10", "jitter5", "loop20_frames_mid", "cam_noisy",
+               "ticks_mid_wrapped", "loop10_jitter", "adc_noisy"]
+# one size per effect, between or beyond the other sets' sizes
+_HELDBACK2_SIZES = {
+    "friction_coefficient": {"mu_s": 0.19, "mu_k": 0.175},
+    "wheel_radius": {"r_eff": 0.0379},
+    "track_width": {"b_eff": 0.114},
+    "motor_back_emf": {"ke_ratio": 1.09},
+    "driver_voltage_drop": {"volts": 0.8},
+    "actuation_delay": {"delay_s": 0.04},
+    "motor_lag": {"tau_s": 0.035},
+    "axle_viscous": {"c": 0.0018},
+    "axle_coulomb": {"torque": 0.02},
+    "caster_drag": {"mu": 0.07},
+    "load_transfer": {"h": 0.055},
+    "stribeck": {"mu_k0": 0.15, "v_s": 0.12},
+    "deadband": {"volts": 0.7},
+    "motor_gain_asymmetry": {"ratio": 1.08},
+    "floor_slope": {"rad": 0.025},
+}
+
+
+def heldback2_cases() -> list[Case]:
+    """The second held-back set (blind): only scored, once (docs/suite.md)."""
+    cases: list[Case] = []
+
+    def add(name, effects, exps, expect, rec, conc=(), note="", long=False):
+        cases.append(Case(name, effects, exps, expect, list(conc), note,
+                          recorder=dict(RECORDERS_2.get(rec, {})), recorder_name=rec,
+                          long=long, set="heldback2"))
+    extra = ({"kind": "line", "accel": 0.9, "cruise": 0.55}, True, 1.5)
+    for name, exps, rec in (("null_std", STD, "loop15"), ("null_slip", SLIP, "loop10_jitter"),
+                            ("null_slow", _short(SLOW, extra), "pi_loop10"),
+                            ("null_eight", EIGHT, "cam60"), ("null_std_jitter", STD, "jitter5")):
+        add(f"hb2_{name}", {}, exps, "no_mismatch", rec, note="no effect")
+    for i, (eff, params) in enumerate(_HELDBACK2_SIZES.items()):
+        _, _, exps, conc, note = _SINGLE[eff]
+        e = _short(exps, extra if len(exps) < 4 else None) if i % 2 else exps
+        add(f"hb2_{eff}", {eff: params}, e, "explained", _ROTATION_2[i % len(_ROTATION_2)],
+            conc, note)
+    add("hb2_pair_emf_coulomb", {"motor_back_emf": {"ke_ratio": 1.11},
+                                 "axle_coulomb": {"torque": 0.015}}, STD, "explained", "cam60",
+        ["confounded", "compensation"], "two torque losses, one growing with speed")
+    add("hb2_pair_radius_slope", {"wheel_radius": {"r_eff": 0.0381}, "floor_slope": {"rad": 0.02}},
+        STD, "explained", "loop15", ["confounded", "hidden_channel"], "a hidden channel and a load")
+    add("hb2_oov_eccentric", {"eccentric_wheel": {"eps": 0.035}}, STD, "unexplained", "jitter5",
+        ["regime"], "rolling radius varies with the wheel angle")
+    add("hb2_oov_battery_sag", {"battery_sag": {"r_int": 1.3, "v_per_as": 0.7}}, STD,
+        "unexplained", "loop15", ["compensation"], "supply falls with current and charge")
+    add("hb2_oov_friction_patch", {"friction_patch": {"x0": 0.2, "x1": 0.8, "factor": 0.5}},
+        SLIP, "unexplained", "cam_noisy", ["regime"], "a slippery patch of floor")
+    add("hb2_long_null_20s", {}, LONG_20S, "no_mismatch", "loop15", note="no effect, 2 x 20 s")
+    add("hb2_long_slope_20s", {"floor_slope": {"rad": 0.028}}, LONG_20S, "explained", "jitter5",
+        ["compensation"], "a floor slope over 2 x 20 s")
+    add("hb2_long_null_2min", {}, LONG_2MIN, "no_mismatch", "cam60", note="no effect, 2 x 2 min")
+    add("hb2_long_drop_2min", {"driver_voltage_drop": {"volts": 0.9}}, LONG_2MIN, "explained",
+        "loop20_frames_mid", ["compensation"], "a driver voltage drop over 2 x 2 min")
+    add("hb2_long_null_10min", {}, [(TOUR, True, 300.0), (TOUR, True, 300.0)], "no_mismatch",
+        "cam_noisy", note="no effect, 2 x 5 min", long=True)
+    add("hb2_long_viscous_10min", {"axle_viscous": {"c": 0.0016}}, [(TOUR, True, 600.0)],
+        "explained", "loop10_jitter", ["compensation"], "axle viscous friction over 10 min",
+        long=True)
+    for k, c in enumerate(cases):
+        c.seed = 130000 + 41 * k
+    return cases
+
+
+SETS = ("tuning", "heldback", "heldback2")
 
 
 def get(names: list[str] | None = None, fast: bool = False, which: str = "tuning",
@@ -310,7 +394,8 @@ def get(names: list[str] | None = None, fast: bool = False, which: str = "tuning
     without the 10-minute cases; ``names``: those cases of the set."""
     if which not in SETS:
         raise ValueError(f"set must be one of {list(SETS)}, got {which!r}")
-    pool = all_cases() if which == "tuning" else heldback_cases()
+    pool = {"tuning": all_cases, "heldback": heldback_cases,
+            "heldback2": heldback2_cases}[which]()
     cases = pool
     if fast:
         cases = [c for c in cases if c.fast]

@@ -128,6 +128,27 @@ def test_heldback_set_differs_from_the_tuning_set():
         cases.get(["null_std"], which="heldback")
 
 
+def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
+    tun, hb, hb2 = cases.all_cases(), cases.heldback_cases(), cases.heldback2_cases()
+    assert all(c.set == "heldback2" for c in hb2) and len(hb2) == 31
+    used = {c.seed + off + k for c in tun for off in (0, 1000, 2000) for k in range(4)}
+    used |= {c.seed + k for c in hb for k in range(len(c.experiments))}
+    assert not used & {c.seed + k for c in hb2 for k in range(len(c.experiments))}
+    # none of its recorder profiles is one of the other sets' (the firmware default included)
+    old = [dict(r) for r in cases.RECORDERS.values()] + [{}]
+    assert all(c.recorder and c.recorder not in old for c in hb2)
+    assert {c.recorder_name for c in hb2} == set(cases.RECORDERS_2)
+    # every vocabulary effect once, at a size neither other set uses
+    other = {(e, tuple(sorted(p.items()))) for c in tun + hb for e, p in c.effects.items()}
+    singles = [c for c in hb2 if len(c.effects) == 1 and c.expect == "explained"]
+    assert {e for c in singles for e in c.effects} == set(_native.effect_vocabulary())
+    assert not other & {(e, tuple(sorted(p.items()))) for c in hb2 for e, p in c.effects.items()}
+    assert {c.length for c in hb2} == {"short", "20 s", "2 min", "10 min"}
+    assert sum(c.expect == "no_mismatch" for c in hb2) == 8
+    with pytest.raises(ValueError, match="set must be one of"):
+        cases.get(which="heldback3")
+
+
 def test_heldback_generation_deterministic_and_hidden(tmp_path):
     case = cases.get(["hb_null_std"], which="heldback")[0]
     a = generate.generate_case(case, str(tmp_path / "a"))
