@@ -273,6 +273,12 @@ int main() {
     bad += ctl::fx::mul_us(ua, b) != static_cast<int32_t>(static_cast<uint32_t>(ua)) * static_cast<int32_t>(b);
     bad += ctl::fx::mul_uu(ua, static_cast<uint16_t>(x)) != static_cast<uint32_t>(ua) * static_cast<uint16_t>(x);
     ++n;
+    // the selected (AVR) implementations against the portable ones of fixmath.h on the same
+    // inputs: the clamp of sat16 over every magnitude, the sine table over the whole turn
+    bad += ctl::fx::sat16(w >> (k % 32)) != ctl::fx::generic::sat16(w >> (k % 32));
+    bad += ctl::fx::sin_q15(x) != ctl::fx::generic::sin_q15(x);
+    bad += ctl::fx::cos_q15(x) != ctl::fx::generic::cos_q15(x);
+    n += 3;
 #define ASR_CHECK(S) bad += ctl::fx::asr<S>(w) != (w >> S);
     ASR_CHECK(1) ASR_CHECK(2) ASR_CHECK(3) ASR_CHECK(4) ASR_CHECK(5) ASR_CHECK(6) ASR_CHECK(7)
     ASR_CHECK(8) ASR_CHECK(9) ASR_CHECK(10) ASR_CHECK(11) ASR_CHECK(12) ASR_CHECK(13)
