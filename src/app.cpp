@@ -18,6 +18,10 @@
 #include "motor.h"
 #include "xbee.h"
 
+// The encoders' counts per wheel turn (board wiring) are the model's: the controller and the
+// simulators convert counts to angles with slip::kEncoderPpr.
+static_assert(ENC_COUNTS_PER_REV == slip::kEncoderPpr, "board.h ENC_COUNTS_PER_REV != slip::kEncoderPpr");
+
 #ifndef FIRMWARE_ID
 #define FIRMWARE_ID 0UL
 #endif

@@ -4,6 +4,8 @@
 #include <avr/io.h>
 #include <avr/wdt.h>
 
+#include "board.h"
+
 namespace {
 const uint8_t kPaint = 0xC5;
 const uint8_t kStopRun = 8;  // consecutive paint bytes that end the scan
@@ -17,14 +19,15 @@ void boot_early() __attribute__((naked, used, section(".init3")));
 }
 
 void boot_early() {
-    // Motor Shield pins safe: PWM D3 (PE5) and D11 (PB5) low, DIR D12/D13 (PB6/PB7) low,
-    // BRAKE D9/D8 (PH6/PH5) high.
-    PORTE &= static_cast<uint8_t>(~_BV(PE5));
-    DDRE |= _BV(PE5);
-    PORTB &= static_cast<uint8_t>(~(_BV(PB5) | _BV(PB6) | _BV(PB7)));
-    DDRB |= _BV(PB5) | _BV(PB6) | _BV(PB7);
-    PORTH |= _BV(PH5) | _BV(PH6);
-    DDRH |= _BV(PH5) | _BV(PH6);
+    // Motor Shield pins safe (board.h): PWM outputs low, DIR low, BRAKE high.
+    MOTOR_R_PWM_PORT &= static_cast<uint8_t>(~_BV(MOTOR_R_PWM_BIT));
+    MOTOR_R_PWM_DDR |= _BV(MOTOR_R_PWM_BIT);
+    MOTOR_L_PWM_PORT &= static_cast<uint8_t>(~_BV(MOTOR_L_PWM_BIT));
+    MOTOR_L_PWM_DDR |= _BV(MOTOR_L_PWM_BIT);
+    MOTOR_DIR_PORT &= static_cast<uint8_t>(~MOTOR_DIR_MASK);
+    MOTOR_DIR_DDR |= MOTOR_DIR_MASK;
+    MOTOR_BRAKE_PORT |= MOTOR_BRAKE_MASK;
+    MOTOR_BRAKE_DDR |= MOTOR_BRAKE_MASK;
     g_boot_mcusr = MCUSR;
     MCUSR = 0;
     wdt_disable();

@@ -8,29 +8,29 @@
 static_assert(F_CPU == 16000000UL, "time_us() divides cycles by 16");
 
 namespace {
-volatile uint32_t g_t5_ovf;  // Timer5 overflows (one per 65536 cycles = 4.096 ms)
+volatile uint32_t g_t5_ovf;  // cycle-clock timer overflows (one per 65536 cycles = 4.096 ms)
 
 // Consistent (overflow count, counter) pair; interrupts must be off.
 inline void read_pair(uint32_t* ovf, uint16_t* cnt) {
-    uint16_t c = TCNT5;
+    uint16_t c = CYCLES_TCNT;
     uint32_t o = g_t5_ovf;
     // An overflow that happened since the last ISR but before the read: count it here.
-    if ((TIFR5 & _BV(TOV5)) && c < 0x8000u) ++o;
+    if ((CYCLES_TIFR & _BV(CYCLES_TOV)) && c < 0x8000u) ++o;
     *ovf = o;
     *cnt = c;
 }
 }  // namespace
 
-// NOBLOCK: encoder edges may interrupt this ISR (TOV5 is cleared on entry). read_pair() runs
-// with interrupts off, so it never sees a half-updated count.
-ISR(TIMER5_OVF_vect, ISR_NOBLOCK) { g_t5_ovf = g_t5_ovf + 1; }
+// NOBLOCK: encoder edges may interrupt this ISR (the overflow flag is cleared on entry).
+// read_pair() runs with interrupts off, so it never sees a half-updated count.
+ISR(CYCLES_OVF_VECT, ISR_NOBLOCK) { g_t5_ovf = g_t5_ovf + 1; }
 
 void cycles_init() {
-    TCCR5A = 0;
-    TCCR5B = _BV(CS50);  // normal mode, clk/1
-    TCNT5 = 0;
-    TIFR5 = _BV(TOV5);
-    TIMSK5 = _BV(TOIE5);
+    CYCLES_TCCRA = 0;
+    CYCLES_TCCRB = CYCLES_TCCRB_RUN;  // normal mode, clk/1
+    CYCLES_TCNT = 0;
+    CYCLES_TIFR = _BV(CYCLES_TOV);
+    CYCLES_TIMSK = _BV(CYCLES_TOIE);
 }
 
 uint32_t cycles_now() {

@@ -2,7 +2,7 @@
 
 #include <avr/interrupt.h>
 #include <avr/io.h>
-#include "board.h"  // F_CPU for util/delay.h
+#include "board.h"  // pins, interrupts, ISR state registers; F_CPU for util/delay.h
 #include <util/delay.h>
 
 namespace {
@@ -22,11 +22,11 @@ uint32_t add_sat_u32(uint32_t a, uint16_t d) {
 void enc_init() {
     uint8_t sreg = SREG;
     cli();
-    DDRD &= static_cast<uint8_t>(~0x0F);
-    PORTD |= 0x0F;                      // pull-ups (open-collector encoders read high when idle)
+    ENC_DDR &= static_cast<uint8_t>(~ENC_MASK);
+    ENC_PORT |= ENC_MASK;               // pull-ups (open-collector encoders read high when idle)
     _delay_us(20);                      // let the lines settle before the first sample
-    // ISCn = 01: any logical change, for INT0..INT3.
-    EICRA = _BV(ISC00) | _BV(ISC10) | _BV(ISC20) | _BV(ISC30);
+    // ISCn = 01: any logical change, for the encoders' INT0..INT3.
+    EICRA = ENC_EICRA_ANY_CHANGE;
     // INT4..INT7 are not used (their interrupts stay disabled). Their sense is set to "any
     // change" instead of the reset value "low level": simavr 1.6 polls a level-sensing pin on
     // every cycle even when the interrupt is masked, and INT5's pin PE5 is the right motor's
@@ -38,11 +38,11 @@ void enc_init() {
     g_total = EncSnapshot{0, 0, 0, 0};
     // Clear the flags BEFORE sampling the pins: an edge after the sample stays flagged and is
     // decoded against the sampled state as soon as the interrupts are enabled.
-    EIFR = 0x0F;
-    uint8_t pins = PIND;
-    GPIOR0 = pins & 0x03;               // previous states, see src/encoder_isr.S
-    GPIOR1 = pins & 0x0C;
-    EIMSK |= 0x0F;
+    EIFR = ENC_INT_MASK;
+    uint8_t pins = ENC_PIN;
+    ENC_PREV_L_GPIOR = pins & ENC_LEFT_MASK;   // previous states, see src/encoder_isr.S
+    ENC_PREV_R_GPIOR = pins & ENC_RIGHT_MASK;
+    EIMSK |= ENC_INT_MASK;
     SREG = sreg;
 }
 

@@ -1,12 +1,13 @@
-; Quadrature encoder ISRs for INT0..INT3 (PD0..PD3), hand-written for cycle count.
+; Quadrature encoder ISRs for INT0..INT3 (PD0..PD3; names in include/board.h), hand-written
+; for cycle count.
 ; Design and cycle budget: docs/firmware.md, "Encoder ISR". Summary (ATmega2560 cycles):
 ;   5 (interrupt response) + 3 (vector JMP) + 19 (prologue, table lookup, IJMP)
 ;   + 6 (count handler) + 6 (epilogue) + 5 (RETI) = 44 cycles per edge.
 ;
 ; State kept in I/O registers (1-cycle IN/OUT, never touched by other code):
-;   GPIOR0 = left  wheel previous pin state (PIND & 0x03)
-;   GPIOR1 = right wheel previous pin state (PIND & 0x0C)
-;   GPIOR2 = SREG stash (encoder ISRs never nest: I is cleared on entry and never set)
+;   ENC_PREV_L_GPIOR (GPIOR0) = left  wheel previous pin state (ENC_PIN & ENC_LEFT_MASK)
+;   ENC_PREV_R_GPIOR (GPIOR1) = right wheel previous pin state (ENC_PIN & ENC_RIGHT_MASK)
+;   ENC_SREG_GPIOR   (GPIOR2) = SREG stash (encoder ISRs never nest: I is cleared on entry and never set)
 ; Counters in SRAM (written only here; read by enc_snapshot() with interrupts off):
 ;   enc_raw_l/r  uint16  position, wraps mod 2^16, extended to int32 by enc_snapshot()
 ;   enc_ill_l/r  uint16  illegal transitions (both channels changed), wraps, extended likewise
@@ -20,11 +21,16 @@
 #include <avr/io.h>
 #include "board.h"
 
-#define PREV_L     _SFR_IO_ADDR(GPIOR0)
-#define PREV_R     _SFR_IO_ADDR(GPIOR1)
-#define SREG_STASH _SFR_IO_ADDR(GPIOR2)
+#define PREV_L     _SFR_IO_ADDR(ENC_PREV_L_GPIOR)
+#define PREV_R     _SFR_IO_ADDR(ENC_PREV_R_GPIOR)
+#define SREG_STASH _SFR_IO_ADDR(ENC_SREG_GPIOR)
 #define SREG_IO    _SFR_IO_ADDR(SREG)
-#define PIND_IO    _SFR_IO_ADDR(PIND)
+#define PINS_IO    _SFR_IO_ADDR(ENC_PIN)
+
+; The dispatch below needs the left pair in bits 0-1 and the right pair in bits 2-3.
+#if ENC_LEFT_MASK != 0x03 || ENC_RIGHT_MASK != 0x0C
+#error "encoder_isr.S: the transition table needs the left encoder on bits 0-1 and the right on bits 2-3 of ENC_PIN"
+#endif
 
     .section .bss.enc_counters,"aw",@nobits
     .global enc_raw_l
@@ -41,16 +47,16 @@ enc_ill_r:  .skip 2
 enc_base:
 
 ; ---- vectors: INT0/INT1 = left wheel, INT2/INT3 = right wheel ----------------------------
-    .global __vector_1
-    .global __vector_2
-__vector_1:                         ; INT0, PD0, left A
-__vector_2:                         ; INT1, PD1, left B
+    .global ENC_LEFT_A_VECT
+    .global ENC_LEFT_B_VECT
+ENC_LEFT_A_VECT:                    ; INT0, PD0, left A
+ENC_LEFT_B_VECT:                    ; INT1, PD1, left B
     push  r30                       ; 2
     in    r30, SREG_IO              ; 1
     out   SREG_STASH, r30           ; 1
     push  r31                       ; 2
-    in    r30, PIND_IO              ; 1   sample the pins
-    andi  r30, 0x03                 ; 1   cur (left)
+    in    r30, PINS_IO              ; 1   sample the pins
+    andi  r30, ENC_LEFT_MASK        ; 1   cur (left)
     in    r31, PREV_L               ; 1   prev
     out   PREV_L, r30               ; 1   prev := cur
     swap  r31                       ; 1   prev << 4
@@ -60,16 +66,16 @@ __vector_2:                         ; INT1, PD1, left B
     ldi   r31, pm_hi8(enc_base)     ; 1
     ijmp                            ; 2   = 19
 
-    .global __vector_3
-    .global __vector_4
-__vector_3:                         ; INT2, PD2, right A
-__vector_4:                         ; INT3, PD3, right B
+    .global ENC_RIGHT_A_VECT
+    .global ENC_RIGHT_B_VECT
+ENC_RIGHT_A_VECT:                   ; INT2, PD2, right A
+ENC_RIGHT_B_VECT:                   ; INT3, PD3, right B
     push  r30
     in    r30, SREG_IO
     out   SREG_STASH, r30
     push  r31
-    in    r30, PIND_IO
-    andi  r30, 0x0C                 ; cur (right)
+    in    r30, PINS_IO
+    andi  r30, ENC_RIGHT_MASK       ; cur (right)
     in    r31, PREV_R
     out   PREV_R, r30
     swap  r31

@@ -5,9 +5,7 @@
 
 #include "board.h"
 
-// Pin map (Arduino Mega 2560):
-//   ch A (right): PWM D3 = PE5 = OC3C, DIR D12 = PB6, BRAKE D9 = PH6, sense A0 = ADC0
-//   ch B (left):  PWM D11 = PB5 = OC1A, DIR D13 = PB7, BRAKE D8 = PH5, sense A1 = ADC1
+// Pins, timers and ADC channels: include/board.h (MOTOR_R_* = channel A, MOTOR_L_* = channel B).
 namespace {
 int16_t g_duty[2];
 bool g_braking = true;
@@ -26,69 +24,73 @@ void set_compare(Wheel w, uint16_t high_counts) {
     if (high_counts > kTop + 1u) high_counts = kTop + 1u;
     if (w == kRight) {
         if (high_counts == 0) {
-            TCCR3A &= static_cast<uint8_t>(~(_BV(COM3C1) | _BV(COM3C0)));
-            PORTE &= static_cast<uint8_t>(~_BV(PE5));
-            OCR3C = 0;
+            MOTOR_R_TCCRA &= static_cast<uint8_t>(~(_BV(MOTOR_R_COM1) | _BV(MOTOR_R_COM0)));
+            MOTOR_R_PWM_PORT &= static_cast<uint8_t>(~_BV(MOTOR_R_PWM_BIT));
+            MOTOR_R_OCR = 0;
         } else {
-            OCR3C = high_counts - 1u;
-            TCCR3A |= _BV(COM3C1);
+            MOTOR_R_OCR = high_counts - 1u;
+            MOTOR_R_TCCRA |= _BV(MOTOR_R_COM1);
         }
     } else {
         if (high_counts == 0) {
-            TCCR1A &= static_cast<uint8_t>(~(_BV(COM1A1) | _BV(COM1A0)));
-            PORTB &= static_cast<uint8_t>(~_BV(PB5));
-            OCR1A = 0;
+            MOTOR_L_TCCRA &= static_cast<uint8_t>(~(_BV(MOTOR_L_COM1) | _BV(MOTOR_L_COM0)));
+            MOTOR_L_PWM_PORT &= static_cast<uint8_t>(~_BV(MOTOR_L_PWM_BIT));
+            MOTOR_L_OCR = 0;
         } else {
-            OCR1A = high_counts - 1u;
-            TCCR1A |= _BV(COM1A1);
+            MOTOR_L_OCR = high_counts - 1u;
+            MOTOR_L_TCCRA |= _BV(MOTOR_L_COM1);
         }
     }
+}
+
+// A wheel's timer: fast PWM, WGM 14 (TOP = ICRn), clk/1 -> 16 MHz / 800 = 20 kHz, its output
+// off until used. TOP and compare are written before the clock starts (TCCRnB last): simavr 1.6
+// takes TOP from ICRn only when the mode is set, and on the hardware nothing runs half-configured.
+inline __attribute__((always_inline)) void pwm_timer_init(volatile uint8_t& tccra, volatile uint8_t& tccrb,
+                                                          volatile uint16_t& icr, volatile uint16_t& ocr,
+                                                          volatile uint16_t& tcnt, uint8_t mode_a, uint8_t run_b) {
+    tccrb = 0;
+    tccra = mode_a;
+    icr = kTop;
+    ocr = 0;
+    tcnt = 0;
+    tccrb = run_b;
 }
 
 void set_dir(Wheel w, bool forward) {
     bool level = w == kRight ? (forward == (MOTOR_RIGHT_DIR_FORWARD_LEVEL != 0))
                              : (forward == (MOTOR_LEFT_DIR_FORWARD_LEVEL != 0));
-    uint8_t bit = w == kRight ? _BV(PB6) : _BV(PB7);
-    if (level) PORTB |= bit;
-    else PORTB &= static_cast<uint8_t>(~bit);
+    uint8_t bit = w == kRight ? _BV(MOTOR_R_DIR_BIT) : _BV(MOTOR_L_DIR_BIT);
+    if (level) MOTOR_DIR_PORT |= bit;
+    else MOTOR_DIR_PORT &= static_cast<uint8_t>(~bit);
 }
 
 void set_brake(bool on) {
-    if (on) PORTH |= _BV(PH5) | _BV(PH6);
-    else PORTH &= static_cast<uint8_t>(~(_BV(PH5) | _BV(PH6)));
+    if (on) MOTOR_BRAKE_PORT |= MOTOR_BRAKE_MASK;
+    else MOTOR_BRAKE_PORT &= static_cast<uint8_t>(~MOTOR_BRAKE_MASK);
 }
 }  // namespace
 
 void motor_init() {
     // Safe levels first (boot.cpp already did this in .init3; repeated for clarity).
     set_brake(true);
-    DDRH |= _BV(PH5) | _BV(PH6);
-    PORTB &= static_cast<uint8_t>(~(_BV(PB5) | _BV(PB6) | _BV(PB7)));
-    DDRB |= _BV(PB5) | _BV(PB6) | _BV(PB7);
-    PORTE &= static_cast<uint8_t>(~_BV(PE5));
-    DDRE |= _BV(PE5);
-    // Timer3: fast PWM, WGM 14 (TOP = ICR3), clk/1 -> 16 MHz / 800 = 20 kHz. OC3C off until used.
-    // TOP and compare are written before the clock starts (TCCRnB last): simavr 1.6 takes TOP
-    // from ICRn only when the mode is set, and on the hardware nothing runs half-configured.
-    TCCR3B = 0;
-    TCCR3A = _BV(WGM31);
-    ICR3 = kTop;
-    OCR3C = 0;
-    TCNT3 = 0;
-    TCCR3B = _BV(WGM33) | _BV(WGM32) | _BV(CS30);
-    // Timer1: same for OC1A.
-    TCCR1B = 0;
-    TCCR1A = _BV(WGM11);
-    ICR1 = kTop;
-    OCR1A = 0;
-    TCNT1 = 0;
-    TCCR1B = _BV(WGM13) | _BV(WGM12) | _BV(CS10);
+    MOTOR_BRAKE_DDR |= MOTOR_BRAKE_MASK;
+    MOTOR_L_PWM_PORT &= static_cast<uint8_t>(~_BV(MOTOR_L_PWM_BIT));
+    MOTOR_L_PWM_DDR |= _BV(MOTOR_L_PWM_BIT);
+    MOTOR_DIR_PORT &= static_cast<uint8_t>(~MOTOR_DIR_MASK);
+    MOTOR_DIR_DDR |= MOTOR_DIR_MASK;
+    MOTOR_R_PWM_PORT &= static_cast<uint8_t>(~_BV(MOTOR_R_PWM_BIT));
+    MOTOR_R_PWM_DDR |= _BV(MOTOR_R_PWM_BIT);
+    pwm_timer_init(MOTOR_R_TCCRA, MOTOR_R_TCCRB, MOTOR_R_ICR, MOTOR_R_OCR, MOTOR_R_TCNT,
+                   MOTOR_R_TCCRA_MODE, MOTOR_R_TCCRB_RUN);
+    pwm_timer_init(MOTOR_L_TCCRA, MOTOR_L_TCCRB, MOTOR_L_ICR, MOTOR_L_OCR, MOTOR_L_TCNT,
+                   MOTOR_L_TCCRA_MODE, MOTOR_L_TCCRB_RUN);
     g_duty[0] = g_duty[1] = 0;
     g_braking = true;
     // ADC: AVcc reference, clk/128 = 125 kHz (13 cycles = 104 us per conversion), interrupt.
     ADMUX = _BV(REFS0);
     ADCSRB = 0;
-    DIDR0 = _BV(ADC0D) | _BV(ADC1D);
+    MOTOR_SENSE_DIDR = MOTOR_SENSE_DIDR_MASK;
     ADCSRA = _BV(ADEN) | _BV(ADIE) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0);
 }
 
@@ -155,14 +157,14 @@ bool motor_braking() { return g_braking; }
 int16_t motor_duty_q15(Wheel w) { return g_duty[w]; }
 
 uint16_t motor_compare(Wheel w) {  // counts per period the pin is high (0..TOP + 1)
-    if (w == kRight) return (TCCR3A & _BV(COM3C1)) ? static_cast<uint16_t>(OCR3C + 1u) : 0;
-    return (TCCR1A & _BV(COM1A1)) ? static_cast<uint16_t>(OCR1A + 1u) : 0;
+    if (w == kRight) return (MOTOR_R_TCCRA & _BV(MOTOR_R_COM1)) ? static_cast<uint16_t>(MOTOR_R_OCR + 1u) : 0;
+    return (MOTOR_L_TCCRA & _BV(MOTOR_L_COM1)) ? static_cast<uint16_t>(MOTOR_L_OCR + 1u) : 0;
 }
 
 void motor_sense_start() {
     if (ADCSRA & _BV(ADSC)) return;  // previous pair still converting
     g_sense_ch = 0;
-    ADMUX = _BV(REFS0) | 0;          // A0: channel A = right
+    ADMUX = _BV(REFS0) | MOTOR_R_SENSE_MUX;
     ADCSRA |= _BV(ADSC);
 }
 
@@ -181,7 +183,7 @@ ISR(ADC_vect, ISR_NOBLOCK) {
     if (g_sense_ch == 0) {
         g_sense[0] = v;
         g_sense_ch = 1;
-        ADMUX = _BV(REFS0) | 1;      // A1: channel B = left
+        ADMUX = _BV(REFS0) | MOTOR_L_SENSE_MUX;
         ADCSRA |= _BV(ADSC);
     } else {
         g_sense[1] = v;

@@ -4,6 +4,7 @@
 #include <avr/io.h>
 #include <avr/sleep.h>
 
+#include "board.h"
 #include "cycles.h"
 #include "motor.h"
 
@@ -29,8 +30,8 @@ void sat_inc(uint16_t* c) {
 }  // namespace
 
 // NOBLOCK: interrupts are re-enabled at once, so an encoder edge waits only for the few
-// cycles of the prologue (OCF4A is cleared on entry; the ISR cannot re-enter itself).
-ISR(TIMER4_COMPA_vect, ISR_NOBLOCK) {
+// cycles of the prologue (the compare flag is cleared on entry; the ISR cannot re-enter itself).
+ISR(SCHED_TICK_VECT, ISR_NOBLOCK) {
     g_ms = g_ms + 1;
     motor_ramp_tick();  // the duty ramp of the torque->PWM map
 }
@@ -50,14 +51,14 @@ void sched_init(const TaskConfig* tasks, uint8_t n) {
     uint8_t sreg = SREG;
     cli();
     g_ms = 0;
-    // Timer4 CTC (WGM 4, TOP = OCR4A), clk/64: 250 kHz, OCR4A = 249 -> 1 kHz.
-    TCCR4B = 0;  // configure with the clock stopped, start it last
-    TCCR4A = 0;
-    OCR4A = 249;
-    TCNT4 = 0;
-    TCCR4B = _BV(WGM42) | _BV(CS41) | _BV(CS40);
-    TIFR4 = _BV(OCF4A);
-    TIMSK4 = _BV(OCIE4A);
+    // The tick timer in CTC mode, clk/64: 250 kHz, TOP = 249 -> 1 kHz (board.h).
+    SCHED_TCCRB = 0;  // configure with the clock stopped, start it last
+    SCHED_TCCRA = 0;
+    SCHED_OCR = SCHED_TOP;
+    SCHED_TCNT = 0;
+    SCHED_TCCRB = SCHED_TCCRB_RUN;
+    SCHED_TIFR = _BV(SCHED_OCF);
+    SCHED_TIMSK = _BV(SCHED_OCIE);
     SREG = sreg;
     for (uint8_t i = 0; i < g_n; ++i) g_next_ms[i] = g_tasks[i].phase_ms;
     update_next_due();

@@ -14,26 +14,26 @@ volatile uint16_t g_rx_errors;
 uint16_t g_tx_drops;  // main loop only
 }  // namespace
 
-ISR(USART2_RX_vect) {
-    uint8_t st = UCSR2A;
-    uint8_t b = UDR2;  // reading UDR2 clears RXC2: this ISR cannot re-enter (next byte in 87 us)
-    sei();             // so encoder edges may interrupt the rest of it
-    if ((st & (_BV(FE2) | _BV(DOR2))) && g_rx_errors != 0xFFFFu) g_rx_errors = g_rx_errors + 1;
+ISR(XBEE_RX_VECT) {
+    uint8_t st = XBEE_UCSRA;
+    uint8_t b = XBEE_UDR;  // reading UDR clears RXC: this ISR cannot re-enter (next byte in 87 us)
+    sei();                 // so encoder edges may interrupt the rest of it
+    if ((st & (_BV(XBEE_FE_BIT) | _BV(XBEE_DOR_BIT))) && g_rx_errors != 0xFFFFu) g_rx_errors = g_rx_errors + 1;
     if (!g_rx.push(b) && g_rx_overflows != 0xFFFFu) g_rx_overflows = g_rx_overflows + 1;
 }
 
-// UDRE is level-triggered (set while UDR2 is empty), so this ISR masks itself (UDRIE2 off)
+// UDRE is level-triggered (set while UDR is empty), so this ISR masks itself (UDRIE off)
 // before it re-enables interrupts: encoder edges then wait only for the prologue. Nothing else
-// can set UDRIE2 meanwhile -- xbee_write() runs in the main loop, which cannot run until this
+// can set UDRIE meanwhile -- xbee_write() runs in the main loop, which cannot run until this
 // ISR returns -- so the ring keeps a single consumer.
-ISR(USART2_UDRE_vect) {
-    UCSR2B &= static_cast<uint8_t>(~_BV(UDRIE2));
+ISR(XBEE_UDRE_VECT) {
+    XBEE_UCSRB &= static_cast<uint8_t>(~_BV(XBEE_UDRIE_BIT));
     sei();
     uint8_t b;
     if (g_tx.pop(&b)) {
-        UDR2 = b;
+        XBEE_UDR = b;
         cli();
-        UCSR2B |= _BV(UDRIE2);  // more may follow; an empty ring is found on the next entry
+        XBEE_UCSRB |= _BV(XBEE_UDRIE_BIT);  // more may follow; an empty ring is found on the next entry
     }
 }
 
@@ -41,10 +41,10 @@ void xbee_init() {
     // U2X before UBRR: the hardware does not care, but simavr computes its byte time when UBRR
     // is written, with the U2X bit of that moment; the other order made it receive at half the
     // baud rate and overrun its 64-byte input FIFO on bursts of more than ~120 bytes.
-    UCSR2A = XBEE_U2X ? _BV(U2X2) : 0;
-    UBRR2 = XBEE_UBRR;
-    UCSR2C = _BV(UCSZ21) | _BV(UCSZ20);  // 8N1
-    UCSR2B = _BV(RXEN2) | _BV(TXEN2) | _BV(RXCIE2);
+    XBEE_UCSRA = XBEE_U2X ? _BV(XBEE_U2X_BIT) : 0;
+    XBEE_UBRRN = XBEE_UBRR;
+    XBEE_UCSRC = XBEE_UCSRC_8N1;
+    XBEE_UCSRB = _BV(XBEE_RXEN_BIT) | _BV(XBEE_TXEN_BIT) | _BV(XBEE_RXCIE_BIT);
 }
 
 bool xbee_write(const uint8_t* p, uint16_t n) {
@@ -53,8 +53,8 @@ bool xbee_write(const uint8_t* p, uint16_t n) {
         return false;
     }
     uint8_t sreg = SREG;
-    cli();  // UCSR2B is also written by the UDRE ISR
-    UCSR2B |= _BV(UDRIE2);
+    cli();  // UCSRB is also written by the UDRE ISR
+    XBEE_UCSRB |= _BV(XBEE_UDRIE_BIT);
     SREG = sreg;
     return true;
 }
