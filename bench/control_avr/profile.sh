@@ -5,10 +5,10 @@
 # Usage: bash bench/control_avr/profile.sh [function-name-substring ...]
 set -eu
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
-. "$ROOT/scripts/env.sh"  # provisioned avr-gcc, simavr and libsimavr (scripts/setup.sh)
+. "$ROOT/sim/common/harness.sh"  # scripts/env.sh and the libsimavr harness build recipe
 OUT="$ROOT/.build/bench_control_avr"
 mkdir -p "$OUT"
-gcc -O2 -Wall -o "$OUT/profile" "$ROOT/bench/control_avr/profile.c" $DD_SIMAVR_CFLAGS $DD_SIMAVR_LIBS
+harness_build "$OUT/profile" "$ROOT/bench/control_avr/profile.c"
 avr-g++ -g -DCTL_PROFILE -std=gnu++11 -Os -mmcu=atmega2560 -DF_CPU=16000000UL -Wall -Wextra \
   -fno-exceptions -fno-rtti -ffunction-sections -fdata-sections -Wl,--gc-sections \
   -I"$ROOT/lib/control/src" -I"$ROOT/lib/slipmodel/src" \

@@ -3,11 +3,11 @@
 #   bench/plant/avr_cycles.sh
 set -e
 cd "$(dirname "$0")/../.."
-. scripts/env.sh  # provisioned avr-gcc, simavr and libsimavr (scripts/setup.sh)
+. sim/common/harness.sh  # scripts/env.sh and the libsimavr harness build recipe
 mkdir -p .build/bench
 avr-g++ -std=gnu++11 -mmcu=atmega2560 -Os -ffunction-sections -fdata-sections -Wl,--gc-sections \
     -fno-exceptions -fno-rtti -Wall -Wextra -Werror -Ilib/slipmodel/src \
     bench/plant/avr_traction.cpp lib/slipmodel/src/slipmodel/traction.cpp -o .build/bench/avr_traction.elf
 avr-size .build/bench/avr_traction.elf
-gcc -O1 -Wall bench/plant/avr_cycles_harness.c -o .build/bench/avr_cycles_harness $DD_SIMAVR_CFLAGS $DD_SIMAVR_LIBS
+harness_build .build/bench/avr_cycles_harness bench/plant/avr_cycles_harness.c
 .build/bench/avr_cycles_harness .build/bench/avr_traction.elf

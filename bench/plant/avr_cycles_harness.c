@@ -1,10 +1,13 @@
-/* simavr harness for bench/plant/avr_cycles.sh: runs an ATmega2560 ELF and prints the CPU
- * cycle count at every write to GPIOR0 (data address 0x3E), and the differences. */
+/* simavr harness for bench/plant/avr_cycles.sh (sim/common): runs an ATmega2560 ELF and prints
+ * the CPU cycle count at every write to GPIOR0, and the differences. */
 #include <stdio.h>
 #include <stdlib.h>
+
 #include <simavr/sim_avr.h>
-#include <simavr/sim_elf.h>
 #include <simavr/sim_io.h>
+
+#include "avrsim.h"
+#include "avr_regs.h"
 
 static uint64_t g_last;
 static int g_have_last;
@@ -26,18 +29,14 @@ int main(int argc, char** argv) {
     fprintf(stderr, "usage: %s firmware.elf\n", argv[0]);
     return 2;
   }
-  elf_firmware_t fw = {{0}};
-  if (elf_read_firmware(argv[1], &fw) != 0) {
-    fprintf(stderr, "cannot read %s\n", argv[1]);
+  avrsim_t sim;
+  char err[256];
+  if (avrsim_open(&sim, argv[1], err, sizeof err)) {
+    fprintf(stderr, "avr_cycles_harness: %s\n", err);
     return 2;
   }
-  avr_t* avr = avr_make_mcu_by_name("atmega2560");
-  if (!avr) return 2;
-  avr_init(avr);
-  avr->frequency = 16000000;
-  avr_load_firmware(avr, &fw);
-  avr_register_io_write(avr, 0x3E, on_marker, NULL);
+  avr_register_io_write(sim.avr, GPIOR0, on_marker, NULL);
   int state = cpu_Running;
-  for (long i = 0; i < 10000000 && state != cpu_Done && state != cpu_Crashed; ++i) state = avr_run(avr);
+  for (long i = 0; i < 10000000 && state != cpu_Done && state != cpu_Crashed; ++i) state = avrsim_step(&sim);
   return state == cpu_Done ? 0 : 1;
 }

@@ -123,12 +123,14 @@ static avr_cycle_count_t stop_here(avr_t *avr, avr_cycle_count_t when, void *par
     return 0;
 }
 
+void avrsim_stop_at(avrsim_t *s, avr_cycle_count_t cycle) {
+    if (s->avr->cycle < cycle) avr_cycle_timer_register(s->avr, cycle - s->avr->cycle, stop_here, s);
+}
+
 void avrsim_run_until(avrsim_t *s, avr_cycle_count_t cycle) {
     avr_t *avr = s->avr;
-    if (avr->cycle >= cycle) return;
-    avr_cycle_timer_register(avr, cycle - avr->cycle, stop_here, s);
+    avrsim_stop_at(s, cycle);
     while (avr->cycle < cycle && avr->state != cpu_Done && avr->state != cpu_Crashed) avrsim_step(s);
-    avr_cycle_timer_cancel(avr, stop_here, s);
 }
 
 void avrsim_clear_isr_stats(avrsim_t *s) {

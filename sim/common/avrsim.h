@@ -86,6 +86,10 @@ int avrsim_open(avrsim_t *s, const char *elf_path, char *err, size_t err_len);
  * corrections above and the ISR accounting. Returns the core state (cpu_Running, ...). */
 int avrsim_step(avrsim_t *s);
 
+/* Makes a sleeping core stop at `cycle` (a simavr cycle timer there; one at a time, a new
+ * call replaces it), for harnesses that step with their own loop. */
+void avrsim_stop_at(avrsim_t *s, avr_cycle_count_t cycle);
+
 /* Steps until the cycle count reaches `cycle`. A cycle timer at `cycle` makes a sleeping core
  * stop there, so stimuli applied after the call happen at that cycle. */
 void avrsim_run_until(avrsim_t *s, avr_cycle_count_t cycle);

@@ -1,10 +1,11 @@
 /*
  * System check of the real firmware.elf in simavr (libsimavr): XBee link on USART2 through
  * lib/protocol's codec (host build), encoder stimulus on PD0..PD3, per-ISR cycle accounting.
- * Not the firmware-in-the-loop simulator (issue 6): the wheels turn at a fixed stimulus speed,
+ * Not the firmware-in-the-loop simulator (sim/fil): the wheels turn at a fixed stimulus speed,
  * there is no plant. It reports what the firmware measures about itself (task cycles, stack
  * high-water mark) and checks commands, Acks, the host-timeout failsafe and the watchdog.
- * Exit status 0 when every check passed.
+ * Cycle accounting and interrupt-timing corrections: sim/common. Exit status 0 when every
+ * check passed.
  * Usage: fw_smoke FIRMWARE.elf
  */
 #include <stdint.h>
@@ -13,23 +14,27 @@
 #include <string.h>
 #include <math.h>
 
+#include <cxxabi.h>
+
 #include <algorithm>
+#include <string>
 #include <vector>
 
 extern "C" {
 #include <simavr/avr_ioport.h>
 #include <simavr/avr_uart.h>
 #include <simavr/sim_avr.h>
-#include <simavr/sim_elf.h>
-#include <simavr/sim_interrupts.h>
 }
 
 #include <protocol/frame.h>
 #include <protocol/messages.h>
 
+#include "avrsim.h"
+#include "board_sim.h"
+
 namespace {
-const double kF = 16000000.0;
-const unsigned kVecEnd = 0xE4;
+const double kF = AVRSIM_F_CPU_HZ;
+avrsim_t sim;
 avr_t* avr;
 avr_irq_t* uart_in;
 avr_irq_t* pin_irq[4];
@@ -37,11 +42,6 @@ proto::Decoder dec;
 uint16_t host_seq = 100;
 unsigned long tx_bytes;
 int failures;
-
-struct VecStat { unsigned long n; unsigned long max; double sum; };
-VecStat vstat[64];
-int in_isr = -1;
-avr_cycle_count_t isr_start;
 
 std::vector<proto::Telemetry> telem;
 std::vector<double> telem_t;
@@ -72,29 +72,14 @@ uint32_t kick_pc;                       // address of wdt_kick(): main-loop iter
 avr_cycle_count_t last_kick, max_kick_gap;  // --profile: cycles spent per flash address
 
 void step() {
-    avr_flashaddr_t pc0 = avr->pc;
-    avr_cycle_count_t cyc0 = avr->cycle;
-    bool was_sleeping = avr->state == cpu_Sleeping;
-    uint16_t op = static_cast<uint16_t>(avr->flash[pc0] | (avr->flash[pc0 + 1] << 8));
-    avr_run(avr);
-    if (!pc_cycles.empty() && avr->state == cpu_Running) pc_cycles[pc0] += avr->cycle - cyc0;
+    avrsim_step(&sim);
+    if (!pc_cycles.empty() && avr->state == cpu_Running) pc_cycles[sim.pc_before] += avr->cycle - sim.cycle_before;
     if (kick_pc && avr->pc == kick_pc) {
         if (last_kick && avr->cycle - last_kick > max_kick_gap) max_kick_gap = avr->cycle - last_kick;
         last_kick = avr->cycle;
     }
-    if (op == 0x9518 && in_isr >= 0) {
-        if (avr->interrupt_state < -1) avr->interrupt_state = -1;  // hardware: one instruction
-        unsigned long d = static_cast<unsigned long>(avr->cycle - isr_start);
-        VecStat& v = vstat[in_isr];
-        ++v.n; v.sum += d; if (d > v.max) v.max = d;
-        in_isr = -1;
-    }
-    if (in_isr < 0 && avr->pc < kVecEnd && avr->pc != 0 && pc0 >= kVecEnd) {
-        in_isr = static_cast<int>(avr->pc / 4);
-        isr_start = avr->cycle;
-        avr->cycle += was_sleeping ? 9 : 5;  // response simavr does not charge (+4 from sleep)
-    }
-    if (watch_brake && brake_seen_t < 0 && (avr->data[0x102] & 0x60) == 0x60) brake_seen_t = avr->cycle / kF;
+    if (watch_brake && brake_seen_t < 0 && (avr->data[PORTH] & SIM_BRAKE_BOTH_MASK) == SIM_BRAKE_BOTH_MASK)
+        brake_seen_t = avr->cycle / kF;
 }
 
 // encoder stimulus: both wheels forward at `edges_per_s` each (0 = stopped)
@@ -102,19 +87,22 @@ double enc_rate = 0, next_edge_l = 0, next_edge_r = 0;
 int pos_l, pos_r;
 const uint8_t gray[4] = {0, 1, 3, 2};
 void drive(int wheel, int pos) {
-    uint8_t s = gray[pos & 3];
+    uint8_t s = gray[pos & 3];  // wheel 0 = left (PD0/PD1), 1 = right (PD2/PD3)
     avr_raise_irq(pin_irq[wheel * 2], s & 1);
     avr_raise_irq(pin_irq[wheel * 2 + 1], (s >> 1) & 1);
 }
 
 void run_for(double seconds) {
     avr_cycle_count_t end = avr->cycle + static_cast<avr_cycle_count_t>(seconds * kF);
+    avrsim_stop_at(&sim, end);
     while (avr->cycle < end) {
         if (enc_rate > 0) {
             double c = static_cast<double>(avr->cycle);
             // forward: left wheel is wired B-before-A (ENC_LEFT_REVERSED), right A-before-B
             if (c >= next_edge_l) { --pos_l; drive(0, pos_l); next_edge_l += kF / enc_rate; }
             if (c >= next_edge_r) { ++pos_r; drive(1, pos_r); next_edge_r += kF / enc_rate; }
+            if (sim.asleep)  // wake the simulation (not the core) at the next edge
+                avrsim_stop_at(&sim, std::min(end, static_cast<avr_cycle_count_t>(std::min(next_edge_l, next_edge_r)) + 1));
         }
         step();
     }
@@ -143,34 +131,6 @@ bool last_ack_is(uint8_t type, uint8_t result) {
     return a.cmd_type == type && a.result == result;
 }
 
-uint32_t sym_text(const char* elf, const char* name) {
-    char cmd[512];
-    snprintf(cmd, sizeof cmd, "avr-nm '%s'", elf);
-    FILE* p = popen(cmd, "r");
-    char line[256];
-    uint32_t a = 0;
-    while (p && fgets(line, sizeof line, p)) {
-        unsigned long v; char t; char s[200];
-        if (sscanf(line, "%lx %c %199s", &v, &t, s) == 3 && strcmp(s, name) == 0) a = v;
-    }
-    if (p) pclose(p);
-    return a;
-}
-
-uint32_t sym(const char* elf, const char* name) {
-    char cmd[512];
-    snprintf(cmd, sizeof cmd, "avr-nm '%s'", elf);
-    FILE* p = popen(cmd, "r");
-    char line[256];
-    uint32_t a = 0;
-    while (p && fgets(line, sizeof line, p)) {
-        unsigned long v; char t; char s[200];
-        if (sscanf(line, "%lx %c %199s", &v, &t, s) == 3 && strcmp(s, name) == 0) a = v & 0xFFFF;
-    }
-    if (p) pclose(p);
-    return a;
-}
-
 void print_timing(const proto::Telemetry& t) {
     printf("  task cycles last/max/overruns: inner %u/%u/%u  outer %u/%u/%u  telemetry %u/%u/%u\n",
            t.inner_last * 16, t.inner_max * 16, t.inner_overruns, t.outer_last * 16, t.outer_max * 16,
@@ -182,20 +142,21 @@ void print_timing(const proto::Telemetry& t) {
 
 int main(int argc, char** argv) {
     if (argc < 2) { fprintf(stderr, "usage: %s firmware.elf\n", argv[0]); return 2; }
-    elf_firmware_t fw;
-    memset(&fw, 0, sizeof fw);
-    if (elf_read_firmware(argv[1], &fw)) return 2;
-    avr = avr_make_mcu_by_name("atmega2560");
-    avr_init(avr);
-    avr->frequency = static_cast<uint32_t>(kF);
-    avr_load_firmware(avr, &fw);
+    char err[256];
+    if (avrsim_open(&sim, argv[1], err, sizeof err)) { fprintf(stderr, "fw_smoke: %s\n", err); return 2; }
+    avr = sim.avr;
     uint32_t flags = 0;
-    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('2'), &flags);
-    uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('2'), UART_IRQ_INPUT);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('2'), UART_IRQ_OUTPUT), on_uart_out, NULL);
-    for (int i = 0; i < 4; ++i) { pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), i); avr_raise_irq(pin_irq[i], 0); }
-    uint32_t a_hang = sym(argv[1], "g_fault_hang");
-    kick_pc = sym_text(argv[1], "_Z8wdt_kickv");
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS(SIM_XBEE_UART), &flags);
+    uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(SIM_XBEE_UART), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(SIM_XBEE_UART), UART_IRQ_OUTPUT), on_uart_out, NULL);
+    for (int i = 0; i < 4; ++i) {
+        pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(SIM_ENC_PORT), SIM_ENC_LEFT_A_BIT + i);
+        avr_raise_irq(pin_irq[i], 0);
+    }
+    long a_hang_l = avrsim_data_symbol(argv[1], "g_fault_hang");
+    uint32_t a_hang = a_hang_l < 0 ? 0 : static_cast<uint32_t>(a_hang_l);
+    long kick = avrsim_symbol(argv[1], "_Z8wdt_kickv");
+    kick_pc = kick < 0 ? 0 : static_cast<uint32_t>(kick);
     bool profile = argc > 2 && strcmp(argv[2], "--profile") == 0;
     if (profile) pc_cycles.assign(256 * 1024, 0);
 
@@ -339,8 +300,7 @@ int main(int argc, char** argv) {
                 }
             check(mono, "x_odo never goes back across the stop (wheels turning forward)");
         }
-        uint8_t porth = avr->data[0x102];  // PORTH
-        check((porth & 0x60) == 0x60, "brake pins D8/D9 high");
+        check((avr->data[PORTH] & SIM_BRAKE_BOTH_MASK) == SIM_BRAKE_BOTH_MASK, "brake pins D8/D9 high");
         check(brake_seen_t > 0 && brake_seen_t - silent_at <= 0.500 && brake_seen_t - silent_at >= 0.498,
               "brake applied within 500 ms of the last host frame, and not before 498 ms");
         if (brake_t > 0)
@@ -378,28 +338,27 @@ int main(int argc, char** argv) {
         check(!telem.empty() && (telem.back().status & proto::kStatusMotorsEnabled) == 0, "motors off after the watchdog reset");
     }
 
-    printf("\n# ISR cycles (hardware-corrected: +5 response), whole run\n%-8s %10s %6s %8s\n", "vector", "calls", "max", "mean");
-    for (int v = 0; v < 64; ++v)
-        if (vstat[v].n) printf("%-8d %10lu %6lu %8.1f\n", v, vstat[v].n, vstat[v].max, vstat[v].sum / vstat[v].n);
-    if (profile) {  // cycles per function over the whole run (avr-nm -S for the ranges)
-        char cmd[512];
-        snprintf(cmd, sizeof cmd, "avr-nm -S -C --size-sort '%s'", argv[1]);
-        FILE* p = popen(cmd, "r");
-        char line[512];
-        struct F { unsigned long long c; char name[200]; };
-        std::vector<F> fs;
-        while (p && fgets(line, sizeof line, p)) {
-            unsigned long a, n; char t;
-            char name[200];
-            if (sscanf(line, "%lx %lx %c %199[^\n]", &a, &n, &t, name) != 4 || (t != 'T' && t != 't')) continue;
+    printf("\n# ISR cycles per invocation (sim/common corrections: response %u, +%u from sleep), whole run\n"
+           "%-8s %10s %6s %8s\n", AVRSIM_IRQ_RESPONSE_CYCLES, AVRSIM_WAKE_CYCLES, "vector", "calls", "max", "mean");
+    for (int v = 0; v < AVRSIM_VECTORS; ++v)
+        if (sim.isr[v].calls)
+            printf("%-8d %10lu %6lu %8.1f\n", v, sim.isr[v].calls, sim.isr[v].max_cycles, sim.isr[v].sum_cycles / sim.isr[v].calls);
+    if (profile) {  // cycles per function over the whole run (ELF symbol sizes)
+        struct F { unsigned long long c; std::string name; };
+        struct Ctx { std::vector<F> fs; } ctx;
+        avrsim_each_symbol(argv[1], [](unsigned long a, unsigned long n, int is_func, const char* name, void* p) {
+            if (!is_func) return;
             unsigned long long c = 0;
             for (unsigned long i = a; i < a + n && i < pc_cycles.size(); ++i) c += pc_cycles[i];
-            if (c) { F f; f.c = c; snprintf(f.name, sizeof f.name, "%s", name); fs.push_back(f); }
-        }
-        if (p) pclose(p);
-        std::sort(fs.begin(), fs.end(), [](const F& x, const F& y) { return x.c > y.c; });
+            if (!c) return;
+            int st = 0;
+            char* dm = abi::__cxa_demangle(name, nullptr, nullptr, &st);
+            static_cast<Ctx*>(p)->fs.push_back(F{c, st == 0 && dm ? dm : name});
+            free(dm);
+        }, &ctx);
+        std::sort(ctx.fs.begin(), ctx.fs.end(), [](const F& x, const F& y) { return x.c > y.c; });
         printf("\n# profile: cycles per function, whole run (top 25)\n");
-        for (size_t i = 0; i < fs.size() && i < 25; ++i) printf("%12llu  %s\n", fs[i].c, fs[i].name);
+        for (size_t i = 0; i < ctx.fs.size() && i < 25; ++i) printf("%12llu  %s\n", ctx.fs[i].c, ctx.fs[i].name.c_str());
     }
     printf("\n%s (%d failures)\n", failures ? "FAILED" : "ALL PASSED", failures);
     return failures ? 1 : 0;

@@ -1,15 +1,12 @@
 /*
  * Encoder ISR cycle harness (libsimavr). Loads an ATmega2560 ELF that uses src/encoder_isr.S,
  * drives PD0..PD3 with quadrature signals at controlled edge rates and reports:
- *   - cycles per edge of every encoder ISR invocation (response + JMP + body + RETI), per path;
+ *   - cycles per edge of every encoder ISR invocation (response + JMP + body + RETI), per path,
+ *     with the core awake and woken from sleep;
  *   - for a sweep of edge rates (both wheels together): counts lost, illegal transitions and
  *     the CPU share taken by the ISRs.
- * Corrections for simavr 1.6 (so the figures are those of the hardware):
- *   1. simavr charges 0 cycles for the interrupt response; the ATmega2560 takes 5 (3-byte PC
- *      push). The harness adds 5 cycles to the clock every time the core vectors.
- *   2. after RETI simavr runs two main-program instructions before a pending interrupt; the
- *      hardware runs one. The harness shortens simavr's wait to one instruction.
- *   (and an interrupt that wakes the core from sleep costs 4 more cycles on the hardware.)
+ * Cycle accounting and the corrections that make simavr 1.6's interrupt timing that of the
+ * ATmega2560: sim/common (README.md there).
  * Run it on the real firmware.elf: its other interrupts (1 kHz tick, Timer5 overflow, USART2,
  * ADC) and its interrupt-free sections then take part in the lossless-rate measurement.
  * Usage: isr_bench FIRMWARE.elf [--trace]
@@ -21,48 +18,32 @@
 
 #include <simavr/avr_ioport.h>
 #include <simavr/sim_avr.h>
-#include <simavr/sim_core.h>
-#include <simavr/sim_elf.h>
-#include <simavr/sim_interrupts.h>
 
-#define F_CPU 16000000.0
-#define VECTOR_TABLE_END 0xE4u /* 57 vectors x 4 bytes */
-#define RESPONSE_CYCLES 5
+#include "avrsim.h"
+#include "board_sim.h"
 
+static avrsim_t sim;
 static avr_t *avr;
 static avr_irq_t *pin_irq[4];
 static uint16_t a_raw_l, a_raw_r, a_ill_l, a_ill_r;
 
 /* per-invocation bookkeeping */
-static int in_isr;
-static int isr_vector;
-static avr_cycle_count_t isr_start;
+static int in_isr; /* an encoder ISR is running */
 static uint16_t isr_pre[4];
+static int isr_from_sleep;
 static unsigned long n_isr[8], hist_min[8], hist_max[8];
 static double hist_sum[8];
+static unsigned long n_wake, wake_min, wake_max; /* invocations that woke the core */
 static avr_cycle_count_t isr_cycles_total;
 static int trace;
 
-static uint32_t sym_addr(const char *elf, const char *name) {
-    char cmd[512];
-    snprintf(cmd, sizeof cmd, "avr-nm '%s'", elf);
-    FILE *p = popen(cmd, "r");
-    if (!p) { perror("avr-nm"); exit(2); }
-    char line[256];
-    uint32_t addr = 0;
-    int found = 0;
-    while (fgets(line, sizeof line, p)) {
-        unsigned long a; char t; char s[200];
-        if (sscanf(line, "%lx %c %199s", &a, &t, s) == 3 && strcmp(s, name) == 0) {
-            addr = (uint32_t)a; found = 1;
-        }
-    }
-    pclose(p);
-    if (!found) { fprintf(stderr, "symbol %s not found in %s\n", name, elf); exit(2); }
-    return addr & 0xFFFFu; /* data addresses are 0x80xxxx */
+static uint16_t data_symbol(const char *elf, const char *name) {
+    long a = avrsim_data_symbol(elf, name);
+    if (a < 0) { fprintf(stderr, "symbol %s not found in %s\n", name, elf); exit(2); }
+    return (uint16_t)a;
 }
 
-static uint16_t rd16(uint16_t a) { return (uint16_t)(avr->data[a] | (avr->data[a + 1] << 8)); }
+static uint16_t rd16(uint16_t a) { return avrsim_rd16(&sim, a); }
 
 /* Path classification of one invocation from the counter changes. */
 enum { P_NONE, P_INC_L, P_DEC_L, P_ILL_L, P_INC_R, P_DEC_R, P_ILL_R, P_OTHER };
@@ -75,18 +56,14 @@ static avr_flashaddr_t ioff_pc, ioff_max_pc;
 static int ioff_active;
 
 static void step(void) {
-    avr_flashaddr_t pc0 = avr->pc;
-    int was_sleeping = avr->state == cpu_Sleeping;
-    uint16_t op = (uint16_t)(avr->flash[pc0] | (avr->flash[pc0 + 1] << 8));
-    avr_cycle_count_t c0 = avr->cycle;
-    avr_run(avr);
+    const unsigned long wakeups0 = sim.wakeups;
+    avrsim_step(&sim);
     if (trace && in_isr)
-        printf("  trace pc=%05x op=%04x cycles=%llu\n", (unsigned)pc0, op,
-               (unsigned long long)(avr->cycle - c0));
-    if (op == 0x9518 && in_isr) { /* RETI executed */
-        /* correction 2: one main instruction before the next pending interrupt */
-        if (avr->interrupt_state < -1) avr->interrupt_state = -1;
-        avr_cycle_count_t d = avr->cycle - isr_start;
+        printf("  trace pc=%05x op=%04x cycles=%llu\n", (unsigned)sim.pc_before,
+               (unsigned)(avr->flash[sim.pc_before] | (avr->flash[sim.pc_before + 1] << 8)),
+               (unsigned long long)(avr->cycle - sim.cycle_before));
+    if (sim.left >= SIM_ENC_FIRST_VECTOR && sim.left <= SIM_ENC_LAST_VECTOR && in_isr) {
+        unsigned long d = sim.left_cycles;
         uint16_t post[4] = {rd16(a_raw_l), rd16(a_raw_r), rd16(a_ill_l), rd16(a_ill_r)};
         int path = P_NONE, changed = 0;
         if (post[0] != isr_pre[0]) { path = (uint16_t)(post[0] - isr_pre[0]) == 1 ? P_INC_L : P_DEC_L; changed++; }
@@ -94,37 +71,40 @@ static void step(void) {
         if (post[2] != isr_pre[2]) { path = P_ILL_L; changed++; }
         if (post[3] != isr_pre[3]) { path = P_ILL_R; changed++; }
         if (changed > 1) path = P_OTHER;
-        if (n_isr[path] == 0 || d < hist_min[path]) hist_min[path] = d;
-        if (d > hist_max[path]) hist_max[path] = d;
-        hist_sum[path] += (double)d;
-        n_isr[path]++;
+        if (isr_from_sleep) {  /* kept apart: the wake-up adds to the response */
+            if (n_wake == 0 || d < wake_min) wake_min = d;
+            if (d > wake_max) wake_max = d;
+            n_wake++;
+        } else {
+            if (n_isr[path] == 0 || d < hist_min[path]) hist_min[path] = d;
+            if (d > hist_max[path]) hist_max[path] = d;
+            hist_sum[path] += (double)d;
+            n_isr[path]++;
+        }
         isr_cycles_total += d;
         in_isr = 0;
-        if (trace) { printf("  trace: end of ISR, %llu cycles incl. response\n", (unsigned long long)d); trace = 0; }
+        if (trace) { printf("  trace: end of ISR, %lu cycles incl. response\n", d); trace = 0; }
     }
     if (!in_isr) {
-        if (!avr->sreg[S_I] && !ioff_active) { ioff_active = 1; ioff_start = c0; ioff_pc = pc0; }
+        if (!avr->sreg[S_I] && !ioff_active) { ioff_active = 1; ioff_start = sim.cycle_before; ioff_pc = sim.pc_before; }
         else if (avr->sreg[S_I] && ioff_active) {
             ioff_active = 0;
             if (avr->cycle - ioff_start > ioff_max) { ioff_max = avr->cycle - ioff_start; ioff_max_pc = ioff_pc; }
         }
     }
-    if (!in_isr && avr->pc < VECTOR_TABLE_END && avr->pc != 0 && pc0 >= VECTOR_TABLE_END) {
-        /* the core has just vectored (simavr did it at zero cost) */
-        isr_vector = (int)(avr->pc / 4);
-        isr_start = avr->cycle;
-        /* correction 1; waking from sleep adds 4 more cycles on the hardware */
-        avr->cycle += RESPONSE_CYCLES + (was_sleeping ? 4 : 0);
-        if (isr_vector >= 1 && isr_vector <= 4) {
-            in_isr = 1;
-            isr_pre[0] = rd16(a_raw_l); isr_pre[1] = rd16(a_raw_r);
-            isr_pre[2] = rd16(a_ill_l); isr_pre[3] = rd16(a_ill_r);
-            if (trace) printf("  trace: vector %d at cycle %llu (+5 response)\n", isr_vector, (unsigned long long)isr_start);
-        }
+    if (sim.entered >= SIM_ENC_FIRST_VECTOR && sim.entered <= SIM_ENC_LAST_VECTOR && !in_isr) {
+        in_isr = 1;
+        isr_from_sleep = sim.wakeups != wakeups0;
+        isr_pre[0] = rd16(a_raw_l); isr_pre[1] = rd16(a_raw_r);
+        isr_pre[2] = rd16(a_ill_l); isr_pre[3] = rd16(a_ill_r);
+        if (trace) printf("  trace: vector %d at cycle %llu (response charged)\n", sim.entered, (unsigned long long)sim.cycle_before);
     }
 }
 
-static void run_until(avr_cycle_count_t c) { while (avr->cycle < c) step(); }
+static void run_until(avr_cycle_count_t c) {
+    avrsim_stop_at(&sim, c);
+    while (avr->cycle < c) step();
+}
 
 /* Gray sequence (B,A): forward when A leads B = 00,01,11,10 */
 static const uint8_t gray[4] = {0, 1, 3, 2};
@@ -138,6 +118,7 @@ static void drive(int wheel, int pos) {
 }
 
 static void reset_stats(void) {
+    n_wake = wake_min = wake_max = 0;
     memset(n_isr, 0, sizeof n_isr); memset(hist_min, 0, sizeof hist_min);
     memset(hist_max, 0, sizeof hist_max); memset(hist_sum, 0, sizeof hist_sum);
     isr_cycles_total = 0;
@@ -149,7 +130,7 @@ static void reset_stats(void) {
 static int run_rate(double rate_per_wheel, double phase, long n, int dir_l, int dir_r,
                     int sign_l, int sign_r, int verbose) {
     uint16_t l0 = rd16(a_raw_l), r0 = rd16(a_raw_r), il0 = rd16(a_ill_l), ir0 = rd16(a_ill_r);
-    double interval = F_CPU / rate_per_wheel;
+    double interval = (double)AVRSIM_F_CPU_HZ / rate_per_wheel;
     double t0 = (double)avr->cycle + 100.0;
     double next_l = t0, next_r = t0 + phase * interval;
     long k_l = 0, k_r = 0;
@@ -158,6 +139,10 @@ static int run_rate(double rate_per_wheel, double phase, long n, int dir_l, int 
     while (k_l < n || k_r < n) {
         if (k_l < n && (double)avr->cycle >= next_l) { pos_l += dir_l; drive(0, pos_l); k_l++; next_l += interval; }
         if (k_r < n && (double)avr->cycle >= next_r) { pos_r += dir_r; drive(1, pos_r); k_r++; next_r += interval; }
+        if (sim.asleep) {  /* wake the simulation (not the core) at the next edge */
+            double next = k_l < n && (k_r >= n || next_l < next_r) ? next_l : next_r;
+            avrsim_stop_at(&sim, (avr_cycle_count_t)next + 1);
+        }
         step();
     }
     run_until(avr->cycle + 2000); /* let pending ISRs finish */
@@ -174,29 +159,28 @@ static int run_rate(double rate_per_wheel, double phase, long n, int dir_l, int 
     return ok;
 }
 
+static void print_wake(void) {
+    if (n_wake) printf("%-15s %8lu %6lu %6lu\n", "woken (any)", n_wake, wake_min, wake_max);
+}
+
 int main(int argc, char **argv) {
     if (argc < 2) { fprintf(stderr, "usage: %s firmware.elf [--trace]\n", argv[0]); return 2; }
     trace = argc > 2 && strcmp(argv[2], "--trace") == 0;
-    elf_firmware_t fw;
-    memset(&fw, 0, sizeof fw);
-    if (elf_read_firmware(argv[1], &fw)) { fprintf(stderr, "cannot read %s\n", argv[1]); return 2; }
-    avr = avr_make_mcu_by_name("atmega2560");
-    if (!avr) return 2;
-    avr_init(avr);
-    avr->frequency = (uint32_t)F_CPU;
-    avr->log = 0;
-    avr_load_firmware(avr, &fw);
-    a_raw_l = (uint16_t)sym_addr(argv[1], "enc_raw_l");
-    a_raw_r = (uint16_t)sym_addr(argv[1], "enc_raw_r");
-    a_ill_l = (uint16_t)sym_addr(argv[1], "enc_ill_l");
-    a_ill_r = (uint16_t)sym_addr(argv[1], "enc_ill_r");
-    for (int i = 0; i < 4; i++) pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), i);
+    char err[256];
+    if (avrsim_open(&sim, argv[1], err, sizeof err)) { fprintf(stderr, "isr_bench: %s\n", err); return 2; }
+    avr = sim.avr;
+    a_raw_l = data_symbol(argv[1], "enc_raw_l");
+    a_raw_r = data_symbol(argv[1], "enc_raw_r");
+    a_ill_l = data_symbol(argv[1], "enc_ill_l");
+    a_ill_r = data_symbol(argv[1], "enc_ill_r");
+    for (int i = 0; i < 4; i++)
+        pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(SIM_ENC_PORT), SIM_ENC_LEFT_A_BIT + i);
     /* boot with all encoder lines low, then wait for the firmware to enable INT0..3 */
     for (int i = 0; i < 4; i++) avr_raise_irq(pin_irq[i], 0);
     int trace_req = trace; trace = 0;
-    run_until(16000ull * 20); /* 20 ms */
-    if ((avr->data[0x3D] & 0x0F) != 0x0F) { /* EIMSK */
-        fprintf(stderr, "firmware did not enable INT0..INT3 within 20 ms (EIMSK=%02x)\n", avr->data[0x3D]);
+    run_until(AVRSIM_F_CPU_HZ / 50u); /* 20 ms */
+    if ((avr->data[EIMSK] & SIM_ENC_INT_MASK) != SIM_ENC_INT_MASK) {
+        fprintf(stderr, "firmware did not enable INT0..INT3 within 20 ms (EIMSK=%02x)\n", avr->data[EIMSK]);
         return 1;
     }
     int sign_l = 1, sign_r = 1;
@@ -215,18 +199,22 @@ int main(int argc, char **argv) {
     trace = trace_req;
     ioff_max = 0; /* boot runs with interrupts off: not part of the measurement */
 
-    printf("# encoder ISR cycles per edge (hardware-corrected: +%d response; RETI/JMP as charged)\n", RESPONSE_CYCLES);
+    printf("# encoder ISR cycles per edge, response + JMP + body + RETI (sim/common corrections: response %u,\n"
+           "# +%u when the edge wakes the core from sleep; one main instruction after RETI)\n",
+           AVRSIM_IRQ_RESPONSE_CYCLES, AVRSIM_WAKE_CYCLES);
     run_rate(2000.0, 0.5, 400, +1, +1, sign_l, sign_r, 0);
     run_rate(2000.0, 0.5, 400, -1, -1, sign_l, sign_r, 0);
     /* remember the per-path figures of the slow runs (both directions) */
-    printf("%-15s %8s %6s %6s %7s\n", "path", "calls", "min", "max", "mean");
+    printf("%-15s %8s %6s %6s %7s   (core awake; edges that woke it: last line)\n", "path", "calls", "min", "max", "mean");
     reset_stats();
     run_rate(2000.0, 0.5, 400, +1, +1, sign_l, sign_r, 0);
     for (int p = 0; p < 8; p++) if (n_isr[p])
         printf("%-15s %8lu %6lu %6lu %7.2f\n", path_name[p], n_isr[p], hist_min[p], hist_max[p], hist_sum[p] / n_isr[p]);
+    print_wake();
     run_rate(2000.0, 0.5, 400, -1, -1, sign_l, sign_r, 0);
     for (int p = 0; p < 8; p++) if (n_isr[p])
         printf("%-15s %8lu %6lu %6lu %7.2f\n", path_name[p], n_isr[p], hist_min[p], hist_max[p], hist_sum[p] / n_isr[p]);
+    print_wake();
     {   /* illegal path: both channels of both wheels jump two Gray steps at once */
         reset_stats();
         pos_l += 2; drive(0, pos_l); run_until(avr->cycle + 2000);
