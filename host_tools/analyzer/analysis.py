@@ -19,6 +19,7 @@ from host_tools.analyzer.fit import (HELDOUT_RULE, Candidate, Problem, evaluate_
                                     heldout_channel_check, judge, params_for)
 from host_tools.analyzer.replay import (CHANNELS, CLOSED_LOOP_CHANNELS, CUMULATIVE, DERIVED,
                                         FIT_CHANNELS, ClosedLoopReplay, OpenLoopReplay,
+                                        fill_unseen_from_controller,
                                         PreparedRun, channels, closed_loop_channels, note_slip_episodes,
                                         prepare_timed, state_table)
 
@@ -322,14 +323,6 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     duty = OpenLoopReplay("duty", dt_s=dt_s)
     torque = OpenLoopReplay("torque", dt_s=dt_s)
     preps = [prepare_timed(r) for r in runs]
-    for p in preps:
-        if len(p.windows) > 1:
-            note_slip_episodes(p, duty.simulate_windows(p, {}))
-    nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
-    nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
-    n_win = sum(len(p.windows) for p in preps)
-    if n_win > len(preps):
-        log(f"long run(s): replayed in {n_win} windows re-anchored to the recording")
     # closed loop through lib/control: the torque and duty the firmware should have commanded
     clr = ClosedLoopReplay(dt_s=dt_s)
     ok, why = clr.available()
@@ -346,9 +339,23 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
         cl_runs.append({"run": p.name, "replayed": setup is not None, "problems": problems,
                         "assumptions": assumptions, "reference": setup})
         if setup is not None:
-            cl_nominal[i] = closed_loop_channels(p, clr.simulate(p, {}, setup))
+            cl_sim = clr.simulate(p, {}, setup)
+            cl_nominal[i] = closed_loop_channels(p, cl_sim)
+            n_fill = fill_unseen_from_controller(p, cl_sim)
+            if n_fill:
+                cl_runs[-1]["assumptions"].append(
+                    f"{n_fill} inner ticks were reported by no frame: their commands are the "
+                    "line between the reported ones plus the closed-loop replay's pattern")
         else:
             notes.append(f"closed-loop replay of {p.name} not run: " + "; ".join(problems))
+    for p in preps:
+        if len(p.windows) > 1:
+            note_slip_episodes(p, duty.simulate_windows(p, {}))
+    nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
+    nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
+    n_win = sum(len(p.windows) for p in preps)
+    if n_win > len(preps):
+        log(f"long run(s): replayed in {n_win} windows re-anchored to the recording")
     n_cl = sum(1 for c in cl_nominal if c)
     if n_cl:
         log(f"closed-loop replay through lib/control: {n_cl}/{len(preps)} run(s)")

@@ -70,6 +70,9 @@ def main(argv=None) -> int:
     ap.add_argument("--recorder", default=None, help="a recorder profile of the truth simulator")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--keep", default=None, help="keep the generated runs and reports here")
+    ap.add_argument("--seed", type=int, default=SEED,
+                    help=f"first seed of the recordings (default {SEED}; other seeds are other "
+                         "tuning draws, never the suite's held-back seeds)")
     args = ap.parse_args(argv)
     from host_tools import truth
     from host_tools.suite.cases import RECORDERS
@@ -87,7 +90,7 @@ def main(argv=None) -> int:
         for k in range(n_runs):
             p = os.path.join(root, name, f"run-{k}")
             truth.simulate_run(p, {"kind": "tour"}, eff, clamp=True, duration_s=dur,
-                               seed=SEED + 17 * k + len(name), overwrite=True, recorder=rec)
+                               seed=args.seed + 17 * k + len(name), overwrite=True, recorder=rec)
             paths.append(p)
         rep, dt, cpu, rss = _analyze(paths, os.path.join(root, name, "report"), args.jobs)
         expect = "explained" if eff else "no_mismatch"

@@ -18,6 +18,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from host_tools.runfmt import Run
+from host_tools.analyzer.signals import robust_std
 
 # Channels compared (name -> kind).  "fit" channels enter the output-error fit.
 CHANNELS = ("omega_r", "omega_l", "enc_r", "enc_l", "x_odo_m", "y_odo_m", "phi_odo_rad",
@@ -143,6 +144,17 @@ def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
     dt_med = float(np.median(np.diff(t)))
     gap_end = np.flatnonzero(np.diff(t) > 1.5 * dt_med) + 1
 
+    # The counts between two frames: linear interpolation when the loop is at least as slow as
+    # the telemetry. For a faster loop both ends of most count differences fall into one frame
+    # interval, where a straight line gives the same difference at every phase: there a cubic
+    # spline through the counts keeps the curvature (the wheel acceleration) that carries the
+    # phase.
+    if period < 0.999 * dt_med and t.size >= 4:
+        from scipy.interpolate import CubicSpline
+        interps = [CubicSpline(t, n) for n, _ in sides]
+    else:
+        interps = [(lambda x, n=n: np.interp(x, t, n)) for n, _ in sides]
+
     def score(phase: float) -> float:
         tick = phase + np.floor((t - phase) / period + 1e-9) * period   # latest tick <= frame
         ok = tick - period >= t[0]
@@ -151,8 +163,8 @@ def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
         if ok.sum() < 3:
             return math.inf
         s = 0.0
-        for n, w in sides:
-            pred = k * (np.interp(tick[ok], t, n) - np.interp(tick[ok] - period, t, n)) / period
+        for (n, w), f in zip(sides, interps):
+            pred = k * (f(tick[ok]) - f(tick[ok] - period)) / period
             s += float(np.sum((w[ok] - pred) ** 2))
         return s
 
@@ -308,17 +320,86 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
         duty = (dense(duty[0]), dense(duty[1]))
         torque = (dense(torque[0]), dense(torque[1]))
         t_in, t_in_tau = ticks.copy(), ticks.copy()
+        seen = np.isin(np.round((ticks - phase) / period).astype(np.int64),
+                       np.round((known - phase) / period).astype(np.int64))
+    else:
+        seen = None
     # the input takes effect at t_in[k] and holds until the next one; the simulation is sampled
     # at the union of input times and telemetry times
     grid = np.unique(np.concatenate([t, t_in, t_in_tau]))
-    return PreparedRun(run=run, t_in=t_in, t_in_tau=t_in_tau, windows=make_windows(t),
+    windows = make_windows(t)
+    return PreparedRun(run=run, t_in=t_in, t_in_tau=t_in_tau, windows=windows,
                        duty=duty, torque=torque,
                        t_grid=grid, robot=dict(run.meta["robot"]), motor=dict(run.meta["motor"]),
                        start_pose=run.start_pose, ppr=int(run.meta["encoder_ppr"]),
                        extras={"arc_position": arc_position, "inner_period": period,
                                # the inner loop's tick phase: the firmware's odometry is
                                # computed at its ticks (see channels())
-                               "tick_phase": phase})
+                               "tick_phase": phase,
+                               # per input tick: reported by a frame (None: every input is)
+                               "seen_ticks": seen,
+                               # camera channels against the count-anchored pose (channels())
+                               "count_anchored_pose": bool(
+                                   period > 0 and t.size > 1 and period < 0.999 * dt_tel)})
+
+
+UNSEEN_PATTERN_HALF = 4   # unseen ticks on either side averaged into one tick's pattern
+
+
+def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray]) -> int:
+    """Refine the commands of the ticks no frame reported (a loop faster than the telemetry,
+    lost frames) with the pattern of the controller that produced them.
+
+    :func:`prepare` fills such a tick on the straight line between the reported ones.  A
+    cascade whose outer loop updates the torque only every other inner tick makes a staircase
+    instead: the duty rises mostly at the outer ticks, so the unreported ticks lie off that line
+    by the same sign for as long as the wheels accelerate (8e-3 of duty on a clamped 72 rad/s^2
+    start with a 10 ms loop seen at 50 Hz); held open loop, that bias drifts a slipping wheel's
+    speed by about one noise floor.  The closed-loop replay of the same controller
+    (``cl_sim``, per tick) has the staircase: its unreported ticks' offset from its own line
+    through the reported ticks, averaged over the UNSEEN_PATTERN_HALF unreported ticks on
+    either side (tick-level differences come from single encoder counts, which no replay
+    reproduces), is added to the fill.  The reported ticks stay as recorded.  Returns the
+    number of ticks changed."""
+    seen = prep.extras.get("seen_ticks")
+    ts = np.asarray(cl_sim.get("t_s", np.zeros(0)), float)
+    if seen is None or ts.size < 3 or bool(np.all(seen)):
+        return 0
+    T = float(ts[1] - ts[0])
+    period = float(prep.extras.get("inner_period") or 0.0)
+    if T <= 0 or abs(T - period) > 1e-6 * max(period, 1e-9):
+        return 0
+    k = np.round((prep.t_in - ts[0]) / T).astype(np.int64)
+    inside = (k >= 0) & (k < ts.size)
+    k_seen = k[seen & inside]
+    unseen = np.flatnonzero(~seen & inside)
+    if k_seen.size < 2 or unseen.size == 0:
+        return 0
+
+    def pattern(u: np.ndarray) -> np.ndarray:
+        off = u[k[unseen]] - np.interp(k[unseen], k_seen, u[k_seen])
+        c = np.concatenate([[0.0], np.cumsum(off)])
+        j = np.arange(unseen.size)
+        lo = np.maximum(0, j - UNSEEN_PATTERN_HALF)
+        hi = np.minimum(unseen.size, j + UNSEEN_PATTERN_HALF + 1)
+        smooth = (c[hi] - c[lo]) / (hi - lo)
+        # a single tick far off the line (a step: the end of a ramp, a clamp taking hold) is
+        # the controller's, not an encoder count's: kept beyond 3 sigma of the tick-level
+        # scatter (soft threshold), the scatter itself averaged away
+        dev = off - smooth
+        sigma = robust_std(dev) if dev.size > 4 else 0.0
+        return smooth + np.sign(dev) * np.maximum(np.abs(dev) - 3.0 * sigma, 0.0)
+
+    def refined(v: np.ndarray, col: str) -> np.ndarray:
+        out = np.asarray(v, float).copy()
+        if col in cl_sim:
+            out[unseen] += pattern(np.asarray(cl_sim[col], float))
+        return out
+    prep.duty = (refined(prep.duty[0], "pwm_r"), refined(prep.duty[1], "pwm_l"))
+    if prep.t_in_tau.size == prep.t_in.size and np.array_equal(prep.t_in_tau, prep.t_in):
+        prep.torque = (refined(prep.torque[0], "tau_cmd_r"), refined(prep.torque[1], "tau_cmd_l"))
+    prep.extras["unseen_fill"] = "closed-loop pattern"
+    return int(unseen.size)
 
 
 def prepare_timed(run: Run) -> PreparedRun:
@@ -333,10 +414,17 @@ def prepare_timed(run: Run) -> PreparedRun:
     arc = _feasible_arc(np.asarray(tel["t_s"], float), [tel["pwm_r"], tel["pwm_l"]], period)
     phase = board_rate_phase(tel, period, int(run.meta["encoder_ppr"]),
                              None if arc is None else arc[:2])
+    t = np.asarray(tel["t_s"], float)
+    fast = t.size > 1 and period > 0 and period < 0.999 * float(np.median(np.diff(t)))
+    timing = ("board wheel speeds against recorded counts" if phase is not None
+              else "centre of the input-change arc" if arc is not None else "frame times")
+    if phase is None and fast:
+        # a loop faster than the telemetry whose phase the recording does not pin down: a
+        # frame reports the latest tick before it, on average half a period earlier
+        phase = float((t[0] - 0.5 * period) % period)
+        timing = "half a period before the frames (phase not identified)"
     prep = prepare(run, 0.5, phase)
-    prep.extras["timing"] = ("board wheel speeds against recorded counts" if phase is not None
-                             else "centre of the input-change arc" if arc is not None
-                             else "frame times")
+    prep.extras["timing"] = timing
     rec = recorder_odometry(prep)
     prep.extras["recorder_odometry"] = rec
     prep.extras["odo_schedule"] = rec.get("schedule", "ticks")
@@ -1007,8 +1095,9 @@ def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int,
         tg = tg_all[inside]
         if tg.size >= 3:
             an = _gt_anchor(prep, float(t[0])) if anchored else None
+            shift = _count_anchor_shift(prep, sim, t, th_r, th_l, i_a, i_b, tg)
             for c in ("x_m", "y_m"):
-                sv = at(c, tg)
+                sv = at(c, tg) - shift[c]
                 if anchored:
                     ref = an[c] if an is not None else float(gt[c][inside][0])
                     sv = sv - float(at(c, t[:1])[0]) + ref
@@ -1017,7 +1106,7 @@ def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int,
             ok = np.isfinite(ph)
             if ok.sum() >= 3:
                 # compared modulo 2 pi (Channel.resid wraps)
-                sv = at("phi_rad", tg[ok])
+                sv = at("phi_rad", tg[ok]) - shift["phi_rad"][ok]
                 if anchored:
                     ref = (an or {}).get("phi_rad")
                     if ref is None:
@@ -1025,6 +1114,39 @@ def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int,
                     sv = sv - float(at("phi_rad", t[:1])[0]) + ref
                 out["phi_rad"] = Channel("phi_rad", tg[ok], ph[ok], sv, "rad", seg(int(ok.sum())))
     return out
+
+
+def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.ndarray,
+                        th_r: np.ndarray, th_l: np.ndarray, i_a: int, i_b: int,
+                        tg: np.ndarray) -> dict[str, np.ndarray]:
+    """The part of the replayed pose that only follows from the replay's wheels turning
+    otherwise than the recorded counts say, at the camera times ``tg``; zero unless the run's
+    inputs are partly unrecorded (``extras["count_anchored_pose"]``).
+
+    When some inner ticks' commands were never recorded (a loop faster than the telemetry),
+    the replayed wheels drift from the real ones by what the filled-in commands miss, and the
+    open-loop pose inherits that drift: millimetres within seconds, above the camera's noise,
+    on a null.  The wheels' own motion is tested by the wheel-speed, count and current
+    channels; the camera channels are then compared against the replay's pose moved by the
+    odometry difference (lib/control's odometry, the nominal geometry) between the replayed
+    and the recorded wheel angles.  What remains in the camera channels is what the counts
+    cannot show: the geometry (wheel radius, track width) and slip."""
+    zero = np.zeros(tg.size)
+    if not prep.extras.get("count_anchored_pose") or t.size < 2:
+        return {"x_m": zero, "y_m": zero, "phi_rad": zero}
+    tel = prep.run.telemetry
+    k = 2 * np.pi / prep.ppr
+    r, b = float(prep.robot["r"]), float(prep.robot["b"])
+    g = np.asarray(sim["t_s"], float)
+    pose0 = tuple(float(np.interp(t[0], g, np.asarray(sim[c], float)))
+                  for c in ("x_m", "y_m", "phi_rad"))
+    q_sim = [np.floor((th - th[0]) / k + 1e-9) for th in (th_r, th_l)]
+    q_rec = [np.asarray(tel[f"enc_{s}"][i_a:i_b], float) - float(tel[f"enc_{s}"][i_a])
+             for s in ("r", "l")]
+    xs, ys, ps = _odometry(q_sim[0], q_sim[1], t, r, b, prep.ppr, pose0)
+    xr, yr, pr = _odometry(q_rec[0], q_rec[1], t, r, b, prep.ppr, pose0)
+    return {"x_m": np.interp(tg, t, xs - xr), "y_m": np.interp(tg, t, ys - yr),
+            "phi_rad": np.interp(tg, t, ps - pr)}
 
 
 def state_table(prep: PreparedRun) -> dict[str, np.ndarray]:
