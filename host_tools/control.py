@@ -18,8 +18,10 @@ from typing import Mapping
 import numpy as np
 
 from host_tools import _native
+from host_tools.params import ENCODER_PPR
+from host_tools.runfmt import DEFAULT_META
 
-INNER_S = 0.025
+INNER_S = DEFAULT_META["periods_s"]["inner"]  # the firmware's inner period (protocol task table)
 REF_KINDS = {"line": 0, "arc": 1, "figure_eight": 2}
 ACTUATORS = {"duty": 0, "torque": 1}
 
@@ -164,7 +166,7 @@ class ClosedLoop:
                  plant_motor: Mapping[str, float] | None = None,
                  effects: Mapping[str, Mapping[str, float]] | None = None,
                  t0_s: float = 0.0, inner_s: float = INNER_S, outer_every: int = 2,
-                 ppr: int = 1856, plant_dt_s: float = 5e-4, rows_per_tick: int = 1,
+                 ppr: int = ENCODER_PPR, plant_dt_s: float = 5e-4, rows_per_tick: int = 1,
                  actuator: str = "duty", start_pose=(0.0, 0.0, 0.0),
                  ctl_params: Mapping[str, float] | None = None, duty_ramp: bool = True):
         if actuator not in ACTUATORS:
@@ -267,9 +269,9 @@ class ClosedLoop:
         return dict(zip(self.row_columns, out))
 
 
-def resimulate_from_rest(kind, accel, cruise, radius, *, fixed_point, clamp, t0, n, ppr=1856,
+def resimulate_from_rest(kind, accel, cruise, radius, *, fixed_point, clamp, t0, n, ppr=ENCODER_PPR,
                          start_pose=(0.0, 0.0, 0.0), effects=None, actuator="duty", sub=1,
-                         T=0.025, dt_s=5e-4, ctl_params=None, outer_every=2):
+                         T=INNER_S, dt_s=5e-4, ctl_params=None, outer_every=2):
     """The closed loop without the driver, kept as the reference that :class:`ClosedLoop` is
     tested and benchmarked against: at tick k the plant is re-simulated from rest
     (``Plant.simulate``) over ticks 0..k with the inputs so far (``sub`` rows per tick), its wheel

@@ -61,6 +61,11 @@ def _plt():
 
 # --------------------------------------------------------------------------- part 1: II.6
 
+def _total_mass_kg(plant) -> float:
+    """m_t as lib/slipmodel has it: the static normal forces carry the whole weight m_t g."""
+    return sum(plant.normal_forces()) / plant.get("robot.g")
+
+
 def thesis_reproduction(out_dir: str, log=print, with_fil: bool = True) -> dict:
     """Run II.6.1-II.6.3 on the nominal model; write figures, table and results.json."""
     from host_tools import _native
@@ -74,7 +79,7 @@ def thesis_reproduction(out_dir: str, log=print, with_fil: bool = True) -> dict:
     # Torque per wheel that rolling at wheel acceleration alpha needs on a straight line:
     # (I_wy + m_t r^2 / 2) alpha (the wheel's spin plus half the body), and the largest alpha
     # that tau_max allows. Both from lib/slipmodel's parameters.
-    m_t = plant.get("robot.m_r") + 2.0 * plant.get("robot.m_w")
+    m_t = _total_mass_kg(plant)
     j_roll = plant.get("robot.I_wy") + 0.5 * m_t * r_wheel ** 2
     res["rolling_inertia_kgm2"] = j_roll
     res["alpha_no_slip_rad_s2"] = tau_max / j_roll
@@ -276,7 +281,7 @@ def _ii63_floor(plant, a_ref: float, t_acc: float, target_m: float) -> dict:
     a_max t^2 / 2 for any controller, and the error grows until the robot reaches the cruise
     speed at t1 = a_ref t_acc / a_max; at t1 it is (a_ref t_acc^2 / 2)(a_ref / a_max - 1).
     Also: what a_max (and so mu_s, or the weight share on the wheels) makes that floor target_m."""
-    m_t = plant.get("robot.m_r") + 2.0 * plant.get("robot.m_w")
+    m_t = _total_mass_kg(plant)
     mu_s, g = plant.get("robot.mu_s"), plant.get("robot.g")
     n_r, n_l, _ = plant.normal_forces()
     a_max = mu_s * (n_r + n_l) / m_t

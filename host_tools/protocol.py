@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, NamedTuple
 
+from host_tools import params
+
 DEFINITION_PATH = Path(__file__).resolve().parent.parent / "protocol" / "protocol.json"
 
 _FMT = {"u8": "B", "i8": "b", "u16": "H", "i16": "h", "u32": "I", "i32": "i", "f32": "f"}
@@ -160,7 +162,9 @@ class Definition:
         self.enums: dict[str, dict[str, int]] = {k: dict(v["values"]) for k, v in spec["enums"].items()}
         self.flags: dict[str, dict[str, int]] = {k: dict(v["bits"]) for k, v in spec["flags"].items()}
         self.timing: dict = spec["timing"]
-        self.robot_defaults: dict = spec["robot_defaults"]
+        # the parameters' defaults are the parameter table's (params/params.json)
+        self.robot_defaults: dict = {"robot": dict(params.ROBOT), "motor": dict(params.MOTOR),
+                                     "encoder_ppr": params.ENCODER_PPR}
         self.by_type: dict[int, Message] = {}
         self.by_name: dict[str, Message] = {}
         for m in spec["messages"]:

@@ -28,19 +28,23 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from host_tools import params, protocol
+
 FORMAT = "ddrun/1"
+
+# The robot, motor and encoder defaults are the parameter table's (params/params.json); the
+# task periods are the protocol's task table (protocol/protocol.json), the firmware's schedule.
+_PERIODS_S = {t["name"]: t["period_us"] / 1e6 for t in protocol.definition().timing["tasks"]}
 
 DEFAULT_META: dict[str, Any] = {
     "format": FORMAT,
     "experiment": "",
     "source": "robot",
     "torque_clamp": False,
-    "robot": {"mu_s": 0.241, "mu_k": 0.239, "b": 0.105, "e": 0.095, "d": 0.055,
-              "g": 9.81, "h": 0.0216, "m_r": 1.5, "I_rz": 0.009753, "I_wz": 0.000584,
-              "I_wy": 0.001168, "r": 0.0365, "m_w": 0.064},
-    "motor": {"supply_v": 12.0, "no_load_rad_s": 36.65, "stall_nm": 0.77},
-    "encoder_ppr": 1856,
-    "periods_s": {"inner": 0.025, "outer": 0.05, "telemetry": 0.02},
+    "robot": dict(params.ROBOT),
+    "motor": dict(params.MOTOR),
+    "encoder_ppr": params.ENCODER_PPR,
+    "periods_s": {k: _PERIODS_S[k] for k in ("inner", "outer", "telemetry")},
 }
 
 TELEMETRY_COLUMNS = ("t_s", "enc_r", "enc_l", "omega_r", "omega_l", "tau_cmd_r", "tau_cmd_l",
@@ -48,22 +52,16 @@ TELEMETRY_COLUMNS = ("t_s", "enc_r", "enc_l", "omega_r", "omega_l", "tau_cmd_r",
 GROUNDTRUTH_COLUMNS = ("t_s", "x_m", "y_m", "phi_rad")
 GROUNDTRUTH_REQUIRED = ("t_s", "x_m", "y_m")  # phi_rad may be absent or empty
 
-# Plausible ranges of the physical parameters (SI).  They catch wrong units
-# (millimetres, grams, degrees), not unusual robots, so they are generous.
+# Accepted ranges of the physical parameters (SI): the parameter table's.  They catch wrong
+# units (millimetres, grams, degrees), not unusual robots, so they are generous.
 _PARAM_RANGES = {
-    ("robot", "mu_s"): (1e-3, 3.0), ("robot", "mu_k"): (1e-3, 3.0),
-    ("robot", "b"): (1e-3, 2.0), ("robot", "e"): (0.0, 2.0), ("robot", "d"): (-2.0, 2.0),
-    ("robot", "g"): (1.0, 30.0), ("robot", "h"): (0.0, 2.0), ("robot", "m_r"): (1e-3, 500.0),
-    ("robot", "I_rz"): (1e-7, 100.0), ("robot", "I_wz"): (1e-9, 10.0),
-    ("robot", "I_wy"): (1e-9, 10.0), ("robot", "r"): (1e-3, 1.0), ("robot", "m_w"): (1e-4, 50.0),
-    ("motor", "supply_v"): (0.1, 100.0), ("motor", "no_load_rad_s"): (0.1, 2000.0),
-    ("motor", "stall_nm"): (1e-4, 100.0),
+    **params.RANGES,
     ("periods_s", "inner"): (1e-5, 10.0), ("periods_s", "outer"): (1e-5, 10.0),
     ("periods_s", "telemetry"): (1e-5, 10.0),
 }
 
 # Bounds of the meta values that have no unit range above.
-_PPR_MAX = 1_000_000          # encoder counts per wheel turn
+_PPR_MIN, _PPR_MAX = params.ENCODER_PPR_RANGE  # encoder counts per wheel turn
 _START_POS_MAX_M = 10_000.0   # |x|, |y| of start_pose
 _START_PHI_MAX_RAD = 1_000.0  # |phi| of start_pose (about 160 turns)
 _JSON_MAX_DEPTH = 64          # nesting of objects/arrays in meta.json
@@ -207,8 +205,8 @@ def validate_meta(meta: Mapping[str, Any], file: str = "meta.json") -> dict:
                 f"'{name}' = {value} is outside the plausible range [{lo}, {hi}] (SI units: "
                 "metres, kilograms, seconds, volts, N m) - wrong units?", file, column=name)
     ppr = full["encoder_ppr"]
-    if not _is_number(ppr) or not 1 <= ppr <= _PPR_MAX or ppr != int(ppr):
-        raise RunFormatError(f"'encoder_ppr' must be an integer in [1, {_PPR_MAX}], got "
+    if not _is_number(ppr) or not _PPR_MIN <= ppr <= _PPR_MAX or ppr != int(ppr):
+        raise RunFormatError(f"'encoder_ppr' must be an integer in [{_PPR_MIN}, {_PPR_MAX}], got "
                              f"{_show(ppr)}", file, column="encoder_ppr")
     full["encoder_ppr"] = int(ppr)
     if not isinstance(full["torque_clamp"], bool):

@@ -246,8 +246,8 @@ class TruthSim:
                 {c: cam[:nc, i].copy() for i, c in enumerate(cnames)})
 
 
-# The run format's defaults (Table II.2 and the datasheet motor); runfmt keeps them, and
-# host_tools/tests/test_native.py checks them against lib/slipmodel's own defaults.
+# The run format's defaults (Table II.2 and the datasheet motor): the parameter table's
+# (params/params.json), which also generates lib/slipmodel's and the truth simulator's defaults.
 NOMINAL_META_ROBOT = dict(runfmt.DEFAULT_META["robot"])
 NOMINAL_META_MOTOR = dict(runfmt.DEFAULT_META["motor"])
 TELEMETRY_SPEC_COLUMNS = ("t_s", "enc_r", "enc_l", "omega_r", "omega_l", "tau_cmd_r", "tau_cmd_l",

@@ -34,7 +34,10 @@
 #ifndef ENC_RIGHT_REVERSED
 #define ENC_RIGHT_REVERSED 0
 #endif
-#define ENC_COUNTS_PER_REV 1856
+// Encoder counts per wheel revolution: the model's (slip::kEncoderPpr) generated constant from
+// params/params.json, so the firmware and the model cannot disagree.
+#include "../lib/slipmodel/src/slipmodel/params_table.h"  // by path: C harnesses include board.h too
+#define ENC_COUNTS_PER_REV SLIP_ENCODER_COUNTS_PER_REV
 // All four channels on one port, A in the lower bit of each wheel's pair: the ISRs read a
 // wheel's state with one IN and mask it, and their transition table needs the left pair in
 // bits 0-1 and the right pair in bits 2-3 (src/encoder_isr.S checks this).

@@ -52,6 +52,8 @@ const TaskConfig kTasks[] = {
      proto::kTelemetryBudgetCycles},
 };
 static_assert(sizeof kTasks / sizeof kTasks[0] == proto::kTaskCount, "task table vs protocol");
+static_assert(ENC_COUNTS_PER_REV == slip::kEncoderPpr, "the firmware's encoder counts are the model's");
+static_assert(ENC_COUNTS_PER_REV >= 1 && ENC_COUNTS_PER_REV <= 65535, "Params.encoder_ppr is a u16");
 
 // ---- configuration (changed only by commands, while idle) ----
 slip::RobotParams g_robot;

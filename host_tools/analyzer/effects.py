@@ -76,7 +76,10 @@ SPECS: dict[str, EffectSpec] = {s.name: s for s in [
         P("tau_s", _c(0.0), _c(0.0), _c(0.2), _c(0.005), "s"),),
         "torque rises slowly after a step of the command"),
     EffectSpec("axle_viscous", (
-        P("c", _c(0.0), _c(0.0), _motor("stall_nm", 0.5 / 36.65), _c(3e-4), "N m s/rad"),),
+        # at most half the motor's own speed-torque slope stall_nm / no_load_rad_s
+        P("c", _c(0.0), _c(0.0),
+          lambda meta: 0.5 / float(meta["motor"]["no_load_rad_s"]) * float(meta["motor"]["stall_nm"]),
+          _c(3e-4), "N m s/rad"),),
         "drag torque proportional to wheel speed"),
     EffectSpec("axle_coulomb", (
         P("torque", _c(0.0), _c(0.0), _motor("stall_nm", 0.3), _motor("stall_nm", 0.006), "N m"),),

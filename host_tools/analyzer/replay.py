@@ -17,6 +17,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from host_tools import params as param_table
 from host_tools.runfmt import Run
 from host_tools.analyzer.signals import robust_std
 
@@ -804,8 +805,7 @@ def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np
              "t0_s": t0, "inner_s": inner, "outer_every": int(ratio)}, [], assumptions)
 
 
-_CTL_KEYS = ("mu_s", "mu_k", "b", "e", "d", "g", "h", "m_r", "I_rz", "I_wz", "I_wy", "r", "m_w",
-             "supply_v", "no_load_rad_s", "stall_nm")
+_CTL_KEYS = (*param_table.ROBOT, *param_table.MOTOR)  # the controller's nominal keys in meta.json
 
 
 class ClosedLoopReplay:

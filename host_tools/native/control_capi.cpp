@@ -23,6 +23,7 @@
 #include <control/cascade_q.h>
 #include <control/odometry.h>
 #include <control/reference.h>
+#include <protocol/messages.h>  // the firmware's task periods
 #include <slipmodel/params.h>
 
 namespace {
@@ -38,21 +39,33 @@ enum {
 const char* const* const kCols = ctlcols::kNames;
 const int kColCount = ctlcols::kCount;
 
-struct Key {
+// Settable keys: the table's robot and motor parameters (params/params.json, with their ranges),
+// the gains, the clamp switch, the velocity-loop variant ("controller": 0 improved, 1 thesis;
+// setting it loads that variant's default gains, which later "k_*" keys may override).
+struct ParamKey {
   const char* name;
   const char* unit;
+  double slip::RobotParams::*robot;
+  double slip::MotorParams::*motor;
+  double lo, hi;
 };
-// Settable keys: Table II.2 names, the datasheet motor, the gains, the clamp switch, the
-// velocity-loop variant ("controller": 0 improved, 1 thesis; setting it loads that variant's
-// default gains, which later "k_*" keys may override).
-const Key kKeys[] = {{"mu_s", "1"},       {"mu_k", "1"},       {"b", "m"},         {"e", "m"},
-                     {"d", "m"},          {"g", "m/s^2"},      {"h", "m"},         {"m_r", "kg"},
-                     {"I_rz", "kg m^2"},  {"I_wz", "kg m^2"},  {"I_wy", "kg m^2"}, {"r", "m"},
-                     {"m_w", "kg"},       {"supply_v", "V"},   {"no_load_rad_s", "rad/s"},
-                     {"stall_nm", "N m"}, {"k_x", "1/s"},      {"k_y", "1/m^2"},   {"k_phi", "1/s"},
-                     {"k_l", "N s/m"},    {"k_a", "N m s"},    {"k_il", "N/m"},    {"k_ia", "N m"},
-                     {"clamp", "0/1"},    {"controller", "0 improved, 1 thesis"}};
-const int kKeyCount = static_cast<int>(sizeof(kKeys) / sizeof(kKeys[0]));
+#define CTL_ROBOT_KEY(name, def, lo, hi, unit, rf) {#name, unit, &slip::RobotParams::name, nullptr, lo, hi},
+#define CTL_MOTOR_KEY(name, def, lo, hi, unit, rf) {#name, unit, nullptr, &slip::MotorParams::name, lo, hi},
+const ParamKey kParamKeys[] = {SLIP_ROBOT_PARAMS(CTL_ROBOT_KEY) SLIP_MOTOR_PARAMS(CTL_MOTOR_KEY)};
+#undef CTL_ROBOT_KEY
+#undef CTL_MOTOR_KEY
+const int kParamKeyCount = static_cast<int>(sizeof(kParamKeys) / sizeof(kParamKeys[0]));
+
+struct GainKey {
+  const char* name;
+  const char* unit;
+  float ctl::Gains::*gain;
+};
+const GainKey kGainKeys[] = {{"k_x", "1/s", &ctl::Gains::k_x},   {"k_y", "1/m^2", &ctl::Gains::k_y},
+                             {"k_phi", "1/s", &ctl::Gains::k_phi}, {"k_l", "N s/m", &ctl::Gains::k_l},
+                             {"k_a", "N m s", &ctl::Gains::k_a},   {"k_il", "N/m", &ctl::Gains::k_il},
+                             {"k_ia", "N m", &ctl::Gains::k_ia}};
+const int kGainKeyCount = static_cast<int>(sizeof(kGainKeys) / sizeof(kGainKeys[0]));
 
 struct Handle {
   bool fixed;
@@ -84,19 +97,19 @@ struct Handle {
         qc(cfg_q) {
     err[0] = '\0';
   }
-  double* field(const char* k) {
-    double* const p[] = {&robot.mu_s, &robot.mu_k, &robot.b,    &robot.e,    &robot.d,
-                         &robot.g,    &robot.h,    &robot.m_r,  &robot.I_rz, &robot.I_wz,
-                         &robot.I_wy, &robot.r,    &robot.m_w,  &motor.supply_v,
-                         &motor.no_load_rad_s,     &motor.stall_nm};
-    for (int i = 0; i < 16; ++i)
-      if (strcmp(k, kKeys[i].name) == 0) return p[i];
+  const ParamKey* param_key(const char* k) const {
+    for (int i = 0; i < kParamKeyCount; ++i)
+      if (strcmp(k, kParamKeys[i].name) == 0) return &kParamKeys[i];
     return nullptr;
   }
+  double* field(const char* k) {
+    const ParamKey* pk = param_key(k);
+    if (!pk) return nullptr;
+    return pk->robot ? &(robot.*pk->robot) : &(motor.*pk->motor);
+  }
   float* gain(const char* k) {
-    float* const p[] = {&gains.k_x, &gains.k_y, &gains.k_phi, &gains.k_l, &gains.k_a, &gains.k_il, &gains.k_ia};
-    for (int i = 0; i < 7; ++i)
-      if (strcmp(k, kKeys[16 + i].name) == 0) return p[i];
+    for (int i = 0; i < kGainKeyCount; ++i)
+      if (strcmp(k, kGainKeys[i].name) == 0) return &(gains.*kGainKeys[i].gain);
     return nullptr;
   }
   // Rebuild both configurations (the controllers are reset).
@@ -133,19 +146,35 @@ const char* ctl_describe(void) {
   if (buf[0]) return buf;
   Handle tmp(false, true);
   int n = snprintf(buf, sizeof buf, "{\"abi\": 1, \"keys\": [");
-  for (int i = 0; i < kKeyCount && n < static_cast<int>(sizeof buf); ++i) {
-    double def = 0.0;
-    if (i < 16) def = *tmp.field(kKeys[i].name);
-    else if (i < 23) def = *tmp.gain(kKeys[i].name);
-    else if (strcmp(kKeys[i].name, "clamp") == 0) def = 1.0;
-    else def = static_cast<double>(static_cast<uint8_t>(tmp.variant));
+  const int total = kParamKeyCount + kGainKeyCount + 2;
+  for (int i = 0; i < total && n < static_cast<int>(sizeof buf); ++i) {
+    const char* name;
+    const char* unit;
+    double def;
+    if (i < kParamKeyCount) {
+      name = kParamKeys[i].name;
+      unit = kParamKeys[i].unit;
+      def = *tmp.field(name);
+    } else if (i < kParamKeyCount + kGainKeyCount) {
+      name = kGainKeys[i - kParamKeyCount].name;
+      unit = kGainKeys[i - kParamKeyCount].unit;
+      def = *tmp.gain(name);
+    } else if (i == total - 2) {
+      name = "clamp";
+      unit = "0/1";
+      def = 1.0;
+    } else {
+      name = "controller";
+      unit = "0 improved, 1 thesis";
+      def = static_cast<double>(static_cast<uint8_t>(tmp.variant));
+    }
     n += snprintf(buf + n, sizeof buf - n, "%s{\"name\": \"%s\", \"unit\": \"%s\", \"default\": %.9g}",
-                  i ? ", " : "", kKeys[i].name, kKeys[i].unit, def);
+                  i ? ", " : "", name, unit, def);
   }
   n += snprintf(buf + n, sizeof buf - n,
                 "], \"reference_kinds\": {\"line\": 0, \"arc\": 1, \"figure_eight\": 2}, "
-                "\"periods_s\": {\"inner\": 0.025, \"outer\": 0.05}, \"encoder_ppr\": %ld, \"columns\": [",
-                static_cast<long>(slip::kEncoderPpr));
+                "\"periods_s\": {\"inner\": %.9g, \"outer\": %.9g}, \"encoder_ppr\": %ld, \"columns\": [",
+                proto::kInnerPeriodUs * 1e-6, proto::kOuterPeriodUs * 1e-6, static_cast<long>(slip::kEncoderPpr));
   for (int i = 0; i < kColCount && n < static_cast<int>(sizeof buf); ++i)
     n += snprintf(buf + n, sizeof buf - n, "%s\"%s\"", i ? ", " : "", kCols[i]);
   if (n < static_cast<int>(sizeof buf)) snprintf(buf + n, sizeof buf - n, "]}");
@@ -169,8 +198,9 @@ int ctl_set(void* h, const char* key, double value) {
     return CTL_ERR_VALUE;
   }
   if (double* f = p->field(key)) {
-    if (value <= 0.0 && strcmp(key, "h") != 0 && strcmp(key, "d") != 0 && strcmp(key, "e") != 0) {
-      snprintf(p->err, sizeof p->err, "%s must be positive", key);
+    const ParamKey* pk = p->param_key(key);
+    if (value < pk->lo || value > pk->hi) {
+      snprintf(p->err, sizeof p->err, "%s = %g outside [%g, %g]", key, value, pk->lo, pk->hi);
       return CTL_ERR_VALUE;
     }
     *f = value;

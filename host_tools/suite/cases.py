@@ -24,7 +24,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-R = 0.0365  # nominal wheel radius, only to write the thesis's wheel accelerations as m/s^2
+from host_tools.params import ROBOT
+
+R = ROBOT["r"]  # nominal wheel radius, only to write the thesis's wheel accelerations as m/s^2
 
 # ---- experiment sets: (reference, clamp, duration_s)
 LINE = {"kind": "line", "accel": 1.0, "cruise": 0.6}
@@ -44,13 +46,13 @@ EIGHT = [({"kind": "figure_eight", "accel": 1.0, "cruise": 0.5, "radius": 0.5}, 
 # one fast run among slow ones: a speed-dependent effect shows in one run only
 FAST_ONE = [SLOW[0][:2] + (2.0,), SLOW[1], ({"kind": "line", "accel": 1.2, "cruise": 0.9}, True, 2.0)]
 
-NEUTRAL = {"friction_coefficient": {"mu_s": 0.241, "mu_k": 0.239},
-           "wheel_radius": {"r_eff": 0.0365}, "track_width": {"b_eff": 0.105},
+NEUTRAL = {"friction_coefficient": {"mu_s": ROBOT["mu_s"], "mu_k": ROBOT["mu_k"]},
+           "wheel_radius": {"r_eff": ROBOT["r"]}, "track_width": {"b_eff": ROBOT["b"]},
            "motor_back_emf": {"ke_ratio": 1.0}, "driver_voltage_drop": {"volts": 0.0},
            "actuation_delay": {"delay_s": 0.0}, "motor_lag": {"tau_s": 0.0},
            "axle_viscous": {"c": 0.0}, "axle_coulomb": {"torque": 0.0},
            "caster_drag": {"mu": 0.0}, "load_transfer": {"h": 0.0},
-           "stribeck": {"mu_k0": 0.239, "v_s": 0.01}, "deadband": {"volts": 0.0},
+           "stribeck": {"mu_k0": ROBOT["mu_k"], "v_s": 0.01}, "deadband": {"volts": 0.0},
            "motor_gain_asymmetry": {"ratio": 1.0}, "floor_slope": {"rad": 0.0}}
 #: the parameter scored for each effect
 MAIN_PARAM = {"friction_coefficient": "mu_s", "wheel_radius": "r_eff", "track_width": "b_eff",

@@ -81,4 +81,4 @@ def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="unknown effect"):
         ClosedLoop("line", 1.0, 0.5, effects={"gremlins": {}})
     with pytest.raises(ValueError, match="fixed-point"):
-        ClosedLoop("line", 1.0, 0.5, ctl_robot={"r": 100.0})
+        ClosedLoop("line", 1.0, 0.5, ctl_robot={"r": 0.5})  # in range, beyond Q44 odometry

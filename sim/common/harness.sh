@@ -9,7 +9,7 @@ _harness_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 HARNESS_AVR_INCLUDE="$PLATFORMIO_CORE_DIR/packages/toolchain-atmelavr/lib/avr/include"
 HARNESS_FLAGS="-O2 -Wall -Wextra -Werror -I$_harness_root/sim/common -I$_harness_root/include -idirafter $HARNESS_AVR_INCLUDE $DD_SIMAVR_CFLAGS"
 # Files a harness binary depends on besides its own sources (for staleness checks).
-HARNESS_DEPS="$_harness_root/sim/common $_harness_root/include/board.h"
+HARNESS_DEPS="$_harness_root/sim/common $_harness_root/include/board.h $_harness_root/lib/slipmodel/src/slipmodel/params_table.h"
 
 harness_build() {
     _out="$1"

@@ -239,7 +239,7 @@ int main(int argc, char** argv) {
     }
 
     // 3. experiment: straight line 48 rad/s^2, wheels turning at 10 rad/s (stimulus)
-    enc_rate = 10.0 * 1856 / 6.283185307;
+    enc_rate = 10.0 * ENC_COUNTS_PER_REV / 6.283185307;
     next_edge_l = next_edge_r = static_cast<double>(avr->cycle);
     run_for(0.3);  // the wheels already turn before the Start (0.11 m of idle odometry)
     send(proto::Heartbeat());
@@ -286,7 +286,7 @@ int main(int argc, char** argv) {
         {   // odometry continues from the run's pose after the stop (the wheels still turn)
             const proto::Telemetry& a = telem[n1 > 0 ? n1 - 1 : 0];
             const proto::Telemetry& b = telem.back();
-            // 0.7 s at 10 rad/s * 0.0365 m = 0.256 m more; a restart from the idle odometry
+            // 0.7 s at 10 rad/s * r = 0.256 m more; a restart from the idle odometry
             // of before the Start would add its 0.11 m too
             long dx = static_cast<long>(b.x_odo) - static_cast<long>(a.x_odo);
             printf("  x before the silence %.3f m, 0.7 s later %.3f m\n", a.x_odo * 1e-6, b.x_odo * 1e-6);

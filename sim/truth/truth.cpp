@@ -12,7 +12,7 @@
 #include <control/cascade.h>
 #include <control/cascade_q.h>
 #include <control/reference.h>
-#include <slipmodel/params.h>  // parameter structs for the firmware controller's configuration
+#include <slipmodel/params.h>  // parameter structs and the table's defaults and ranges
 
 namespace {
 
@@ -27,30 +27,16 @@ struct KeyDef {
 // Every setting. robot.* / motor.*: the TRUE robot; ctl.*: what the firmware's controller is
 // configured with (the nominal values written to meta.json). Effect keys use run-format.md's
 // names; the out-of-vocabulary ones are eccentric_wheel, battery_sag and friction_patch.
-// The defaults of the robot and the datasheet motor are lib/slipmodel's parameter code (Table
-// II.2), not copies: the truth and the nominal model start from the same numbers.
-const slip::RobotParams kR = slip::table_ii2();
-const slip::MotorParams kM = slip::datasheet_motor();
-
+// The defaults and accepted ranges of the robot and the datasheet motor are the project's one
+// parameter table (params/params.json, through the generated slipmodel/params_table.h), not
+// copies: the truth and the nominal model start from the same numbers and accept the same
+// values. Only the parameters are shared; the physics below is this file's own.
+#define TRUTH_ROBOT_KEY(name, def, lo, hi, unit, rf) {"robot." #name, def, lo, hi},
+#define TRUTH_MOTOR_KEY(name, def, lo, hi, unit, rf) {"motor." #name, def, lo, hi},
+#define TRUTH_CTL_KEY(name, def, lo, hi, unit, rf) {"ctl." #name, def, lo, hi},
 const KeyDef kKeys[] = {
-    {"robot.mu_s", kR.mu_s, 1e-3, 100},    {"robot.mu_k", kR.mu_k, 1e-3, 100},
-    {"robot.b", kR.b, 0.01, 1},            {"robot.e", kR.e, 0, 1},
-    {"robot.d", kR.d, 0, 1},               {"robot.g", kR.g, 0.1, 100},
-    {"robot.h", kR.h, 0, 1},               {"robot.m_r", kR.m_r, 0.01, 100},
-    {"robot.I_rz", kR.I_rz, 1e-6, 10},     {"robot.I_wz", kR.I_wz, 0, 1},
-    {"robot.I_wy", kR.I_wy, 1e-6, 1},      {"robot.r", kR.r, 0.005, 0.5},
-    {"robot.m_w", kR.m_w, 0, 10},          {"motor.supply_v", kM.supply_v, 0.1, 100},
-    {"motor.no_load_rad_s", kM.no_load_rad_s, 0.1, 1e4}, {"motor.stall_nm", kM.stall_nm, 1e-3, 100},
-    // stall current at supply_v: thesis III.1, "12 V supply with 2 A maximum current"
-    {"motor.stall_a", 2.0, 1e-3, 100},
-    {"ctl.mu_s", kR.mu_s, 1e-3, 100},      {"ctl.mu_k", kR.mu_k, 1e-3, 100},
-    {"ctl.b", kR.b, 0.01, 1},              {"ctl.e", kR.e, 0, 1},
-    {"ctl.d", kR.d, 0, 1},                 {"ctl.g", kR.g, 0.1, 100},
-    {"ctl.h", kR.h, 0, 1},                 {"ctl.m_r", kR.m_r, 0.01, 100},
-    {"ctl.I_rz", kR.I_rz, 1e-6, 10},       {"ctl.I_wz", kR.I_wz, 0, 1},
-    {"ctl.I_wy", kR.I_wy, 1e-6, 1},        {"ctl.r", kR.r, 0.005, 0.5},
-    {"ctl.m_w", kR.m_w, 0, 10},            {"ctl.supply_v", kM.supply_v, 0.1, 100},
-    {"ctl.no_load_rad_s", kM.no_load_rad_s, 0.1, 1e4}, {"ctl.stall_nm", kM.stall_nm, 1e-3, 100},
+    SLIP_ROBOT_PARAMS(TRUTH_ROBOT_KEY) SLIP_MOTOR_PARAMS(TRUTH_MOTOR_KEY)
+    SLIP_ROBOT_PARAMS(TRUTH_CTL_KEY) SLIP_MOTOR_PARAMS(TRUTH_CTL_KEY)
     {"ctl.clamp", 1, 0, 1},                {"ctl.fixed", 1, 0, 1},
     // 0 line, 1 arc, 2 figure eight (lib/control's reference for the cascade); 3 segments: the
     // truth's own speed profile, given by tr_set_segments
@@ -73,7 +59,7 @@ const KeyDef kKeys[] = {
     {"pi.kp", 0.04, 0, 10},                  // N m per rad/s
     {"pi.ki", 0.3, 0, 100},                  // N m per rad
     {"pi.j_ff", 0.0023, 0, 1},               // acceleration feed-forward, kg m^2 (per wheel)
-    {"pi.tau_limit", 0.77, 1e-3, 100},       // N m
+    {"pi.tau_limit", slip::table::stall_nm, 1e-3, 100},  // N m
     {"motor_back_emf.ke_ratio", 1.0, 0.1, 10},
     {"driver_voltage_drop.volts", 0.0, 0, 50},
     {"actuation_delay.delay_s", 0.0, 0, 1},
@@ -96,6 +82,9 @@ const KeyDef kKeys[] = {
     {"friction_patch.x1", 0.0, -100, 100},
     {"friction_patch.factor", 1.0, 0.01, 10},
 };
+#undef TRUTH_ROBOT_KEY
+#undef TRUTH_MOTOR_KEY
+#undef TRUTH_CTL_KEY
 const int kKeyCount = static_cast<int>(sizeof(kKeys) / sizeof(kKeys[0]));
 
 const char* const kTelCols[] = {
@@ -301,7 +290,7 @@ struct SpeedRef {
 // distance steps d_r, d_l, ds = (d_r + d_l)/2, dphi = (d_r - d_l)/(2b); the exact arc
 // (x += ds/dphi (sin(phi + dphi) - sin phi), ...) or the midpoint rule (heading phi + dphi/2).
 struct OwnOdometry {
-  double r = 0.0365, b = 0.105;
+  double r = 0, b = 0;  // the controller's nominal r and b (ctl.r, ctl.b)
   bool midpoint = false;
   int32_t er = 0, el = 0;
   double x = 0, y = 0, phi = 0;
@@ -328,8 +317,9 @@ struct OwnOdometry {
 // the torque is limited and the error would drive it further), duty from the datasheet motor:
 // u = tau/stall + w/no_load, limited to [-1, 1].
 struct PiLoop {
-  double kp = 0.04, ki = 0.3, j_ff = 0.0023, tau_lim = 0.77, r = 0.0365, b = 0.105;
-  double stall = 0.77, no_load = 36.65, period = 0.025;
+  // set from pi.* and the controller's nominal ctl.* before use
+  double kp = 0, ki = 0, j_ff = 0, tau_lim = 0, r = 0, b = 0;
+  double stall = 0, no_load = 0, period = 0;
   int32_t last[2] = {0, 0};
   bool first = true;
   double integ[2] = {0, 0}, omega[2] = {0, 0}, tau[2] = {0, 0}, duty[2] = {0, 0};
@@ -457,6 +447,7 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   cr.m_w = H("ctl.m_w");
   slip::MotorParams cm;
   cm.supply_v = H("ctl.supply_v"); cm.no_load_rad_s = H("ctl.no_load_rad_s"); cm.stall_nm = H("ctl.stall_nm");
+  cm.stall_a = H("ctl.stall_a");
   const bool fixed = H("ctl.fixed") != 0.0;
   const ctl::ControlConfig cfg = ctl::make_control_config(cr, cm, ctl::default_gains(), H("ctl.clamp") != 0.0);
   const uint32_t inner_us = static_cast<uint32_t>(llround(inner_n * dt * 1e6));

@@ -1,6 +1,6 @@
 // Closed-loop harness: slip::Plant (0.5 ms Euler steps) driven by the control cascade on the
 // 25 ms inner / 50 ms outer schedule, with encoder counts quantised as on the robot
-// (floor(theta * 1856 / 2pi), int32). Test code, host only.
+// (floor(theta * kEncoderPpr / 2pi), int32). Test code, host only.
 #ifndef TEST_CONTROL_CLOSED_LOOP_SIM_H
 #define TEST_CONTROL_CLOSED_LOOP_SIM_H
 
@@ -40,7 +40,7 @@ struct Result {
 enum class Actuator { kDuty, kTorque };
 
 inline int32_t counts(double theta_rad) {
-  return static_cast<int32_t>(floor(theta_rad * 1856.0 / (2.0 * kPi)));
+  return static_cast<int32_t>(floor(theta_rad * slip::kEncoderPpr / (2.0 * kPi)));
 }
 
 /// Adapter interface: the float Controller is used directly; the fixed one through the same

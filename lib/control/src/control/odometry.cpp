@@ -113,8 +113,8 @@ OdoStatus OdometryQ::update(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
 void OdometryQ::set_dt(uint32_t dt_us) {
 #if defined(__AVR__)
   if ((dt_us & 0xFFFF8000UL) == 0) {
-    // dt < 32.8 ms and (checked in the block) dt > wheel_rate_q11 / 2^17 (13.5 ms at 1856 counts
-    // per turn), the firmware's range, in one block of call-clobbered registers (nothing saved,
+    // dt < 32.8 ms and (checked in the block) dt > wheel_rate_q11 / 2^17 (13.5 ms at the robot's
+    // slip::kEncoderPpr counts per turn), the firmware's range, in one block of call-clobbered registers (nothing saved,
     // no call): the 17-step division of fx::div17(), then exactly the values of set_dt_wide():
     // the quotient q has at most 17 bits, so rate_div = (q + 1) >> 1 truncated to 16 bits (0
     // for q = 2^17 - 1, as there), and the slope floor(floor(r^2 / 2^16) inv / 2^16) from

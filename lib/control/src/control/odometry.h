@@ -43,7 +43,7 @@ static const int16_t kRateWindowUs = 63;
 struct OdometryConfig {
   float wheel_radius_m;
   float half_track_m;      ///< b, half the wheel separation
-  int32_t counts_per_rev;  ///< encoder counts per wheel revolution (1856)
+  int32_t counts_per_rev;  ///< encoder counts per wheel revolution (slip::kEncoderPpr)
   constexpr bool valid() const { return wheel_radius_m > 0.0f && half_track_m > 0.0f && counts_per_rev > 0; }
 };
 
@@ -144,7 +144,7 @@ struct OdometryConfigQ {
   static constexpr double dphi_b32(const OdometryConfig& c) {
     return ok_range(c) ? c.wheel_radius_m / (2.0 * c.half_track_m) / c.counts_per_rev * 4294967296.0 : 0.0;
   }
-  /// Valid and representable: r pi/ppr < 2^-13 m (Q44 fits int32; r < 7.2 cm at 1856 ppr),
+  /// Valid and representable: r pi/ppr < 2^-13 m (Q44 fits int32; r < 7.2 cm at the robot's kEncoderPpr),
   /// r/(2b) < 0.99, ppr >= 1600 (wheel_rate_q11 fits).
   static constexpr bool ok_range(const OdometryConfig& c) {
     return c.valid() && c.wheel_radius_m * 3.14159265358979 / c.counts_per_rev < 1.2207e-4 &&
@@ -273,7 +273,7 @@ CTL_INLINE OdoStatus OdometryQ::update_deferred(int32_t enc_r, int32_t enc_l, ui
   }
   CTL_PROBE(13);
   // v and omega from the wheel speeds; the sum and difference saturate at 128 rad/s (v at
-  // 2.3 m/s, omega beyond the Q11 range anyway), far above the motor's 36.65 rad/s.
+  // 2.3 m/s, omega beyond the Q11 range anyway), far above the motor's no-load speed.
   const int16_t sum_q8 = fx::add_sat16(w_r_q8_, w_l_q8_);
   const int16_t diff_q8 = fx::sub_sat16(w_r_q8_, w_l_q8_);
   v_q12_ = fx::rshift_round_nc_sat16<12>(fx::mul_ss(sum_q8, cfg_.half_r_q16));     // Q8*Q16>>12

@@ -4,13 +4,16 @@
 #include <math.h>
 #include <string.h>
 
+#include <slipmodel/params_table.h>
+
 namespace slip {
 
 namespace {
+// The neutral values of the Table II.2 ones are the table's (params/params.json).
 const EffectInfo kInfo[kEffectCount] = {
-    {"friction_coefficient", 2, {"mu_s", "mu_k"}, {0.241, 0.239}},
-    {"wheel_radius", 1, {"r_eff", nullptr}, {0.0365, 0.0}},
-    {"track_width", 1, {"b_eff", nullptr}, {0.105, 0.0}},
+    {"friction_coefficient", 2, {"mu_s", "mu_k"}, {table::mu_s, table::mu_k}},
+    {"wheel_radius", 1, {"r_eff", nullptr}, {table::r, 0.0}},
+    {"track_width", 1, {"b_eff", nullptr}, {table::b, 0.0}},
     {"motor_back_emf", 1, {"ke_ratio", nullptr}, {1.0, 0.0}},
     {"driver_voltage_drop", 1, {"volts", nullptr}, {0.0, 0.0}},
     {"actuation_delay", 1, {"delay_s", nullptr}, {0.0, 0.0}},
@@ -18,8 +21,8 @@ const EffectInfo kInfo[kEffectCount] = {
     {"axle_viscous", 1, {"c", nullptr}, {0.0, 0.0}},
     {"axle_coulomb", 1, {"torque", nullptr}, {0.0, 0.0}},
     {"caster_drag", 1, {"mu", nullptr}, {0.0, 0.0}},
-    {"load_transfer", 1, {"h", nullptr}, {0.0216, 0.0}},
-    {"stribeck", 2, {"mu_k0", "v_s"}, {0.239, 0.01}},
+    {"load_transfer", 1, {"h", nullptr}, {table::h, 0.0}},
+    {"stribeck", 2, {"mu_k0", "v_s"}, {table::mu_k, 0.01}},
     {"deadband", 1, {"volts", nullptr}, {0.0, 0.0}},
     {"motor_gain_asymmetry", 1, {"ratio", nullptr}, {1.0, 0.0}},
     {"floor_slope", 1, {"rad", nullptr}, {0.0, 0.0}},

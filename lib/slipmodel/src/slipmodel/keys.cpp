@@ -8,26 +8,19 @@ namespace slip {
 
 namespace {
 
-enum Rule { kAny, kPositive, kNonNegative };
-
 struct ParamKey {
   const char* key;
   double RobotParams::*robot;
   double MotorParams::*motor;
-  Rule rule;
+  double lo, hi;  // accepted range, inclusive (params/params.json)
 };
 
-#define ROBOT_KEY(name, rule) {"robot." #name, &RobotParams::name, nullptr, rule}
-#define MOTOR_KEY(name) {"motor." #name, nullptr, &MotorParams::name, kPositive}
+#define ROBOT_KEY(name, def, lo, hi, unit, run_format) {"robot." #name, &RobotParams::name, nullptr, lo, hi},
+#define MOTOR_KEY(name, def, lo, hi, unit, run_format) {"motor." #name, nullptr, &MotorParams::name, lo, hi},
 
-const ParamKey kKeys[] = {
-    ROBOT_KEY(mu_s, kNonNegative), ROBOT_KEY(mu_k, kNonNegative), ROBOT_KEY(b, kPositive),
-    ROBOT_KEY(e, kNonNegative),    ROBOT_KEY(d, kAny),            ROBOT_KEY(g, kPositive),
-    ROBOT_KEY(h, kNonNegative),    ROBOT_KEY(m_r, kPositive),     ROBOT_KEY(I_rz, kPositive),
-    ROBOT_KEY(I_wz, kNonNegative), ROBOT_KEY(I_wy, kPositive),    ROBOT_KEY(r, kPositive),
-    ROBOT_KEY(m_w, kNonNegative),  MOTOR_KEY(supply_v),           MOTOR_KEY(no_load_rad_s),
-    MOTOR_KEY(stall_nm),           MOTOR_KEY(stall_a),
-};
+const ParamKey kKeys[] = {SLIP_ROBOT_PARAMS(ROBOT_KEY) SLIP_MOTOR_PARAMS(MOTOR_KEY)};
+#undef ROBOT_KEY
+#undef MOTOR_KEY
 const int kKeyCount = sizeof(kKeys) / sizeof(kKeys[0]);
 
 // Splits "effect.param" into an effect id and a parameter index (-2 for "enabled").
@@ -60,9 +53,7 @@ int plant_set(Plant& plant, const char* key, double v) {
   for (int i = 0; i < kKeyCount; ++i) {
     const ParamKey& pk = kKeys[i];
     if (strcmp(pk.key, key) != 0) continue;
-    if (!isfinite(v) || (pk.rule == kPositive && !(v > 0.0)) ||
-        (pk.rule == kNonNegative && v < 0.0))
-      return kKeyBadValue;
+    if (!isfinite(v) || v < pk.lo || v > pk.hi) return kKeyBadValue;
     if (pk.robot) plant.robot().*pk.robot = v;
     else plant.motor().*pk.motor = v;
     return kKeyOk;

@@ -21,9 +21,8 @@ enum KeyStatus {
 int param_key_count();
 const char* param_key_name(int i);
 
-/// Sets a key. Masses, inertias, r, b, g and the motor figures must be > 0; friction
-/// coefficients, e, h, I_wz, m_w >= 0; d any finite value; effect parameters as
-/// effect_param_valid(). "<effect>.enabled" takes 0 (off) or anything else (on).
+/// Sets a key. "robot.*" and "motor.*" values must lie in the table's range (params/params.json,
+/// SLIP_ROBOT_PARAMS / SLIP_MOTOR_PARAMS); effect parameters as effect_param_valid(). "<effect>.enabled" takes 0 (off) or anything else (on).
 /// On error nothing changes.
 int plant_set(Plant& plant, const char* key, double value);
 /// Reads a key into *out.

@@ -8,23 +8,26 @@
 
 #include <stdint.h>
 
+#include <slipmodel/params_table.h>  // the values, units, ranges: generated from params/params.json
+
 namespace slip {
 
-/// Mechanical parameters, named as in Table II.2.
+/// Mechanical parameters, named as in Table II.2. Defaults, units and accepted ranges:
+/// params/params.json (slip::table::*, SLIP_ROBOT_PARAMS in the generated params_table.h).
 struct RobotParams {
-  double mu_s = 0.241;      ///< static wheel-ground friction coefficient
-  double mu_k = 0.239;      ///< kinetic wheel-ground friction coefficient
-  double b = 0.105;         ///< half the wheel separation, m
-  double e = 0.095;         ///< centre of mass to caster contact (longitudinal), m
-  double d = 0.055;         ///< axle centre o to centre of mass c (longitudinal), m
-  double g = 9.81;          ///< gravity, m/s^2
-  double h = 0.0216;        ///< centre-of-mass height above the ground, m
-  double m_r = 1.5;         ///< platform mass (without the two driven wheels), kg
-  double I_rz = 0.009753;   ///< platform yaw inertia about c, kg m^2
-  double I_wz = 0.000584;   ///< one wheel's inertia about the vertical axis, kg m^2
-  double I_wy = 0.001168;   ///< one wheel's (plus rotor's) inertia about its axle, kg m^2
-  double r = 0.0365;        ///< wheel radius, m
-  double m_w = 0.064;       ///< one wheel's mass, kg
+  double mu_s = table::mu_s;  ///< static wheel-ground friction coefficient
+  double mu_k = table::mu_k;  ///< kinetic wheel-ground friction coefficient
+  double b = table::b;        ///< half the wheel separation, m
+  double e = table::e;        ///< centre of mass to caster contact (longitudinal), m
+  double d = table::d;        ///< axle centre o to centre of mass c (longitudinal), m
+  double g = table::g;        ///< gravity, m/s^2
+  double h = table::h;        ///< centre-of-mass height above the ground, m
+  double m_r = table::m_r;    ///< platform mass (without the two driven wheels), kg
+  double I_rz = table::I_rz;  ///< platform yaw inertia about c, kg m^2
+  double I_wz = table::I_wz;  ///< one wheel's inertia about the vertical axis, kg m^2
+  double I_wy = table::I_wy;  ///< one wheel's (plus rotor's) inertia about its axle, kg m^2
+  double r = table::r;        ///< wheel radius, m
+  double m_w = table::m_w;    ///< one wheel's mass, kg
 
   /// Total mass m_t = m_r + 2 m_w (lumped at c, as II.27-II.29 assume).
   constexpr double m_t() const { return m_r + 2.0 * m_w; }
@@ -36,16 +39,17 @@ struct RobotParams {
   constexpr double I_o() const { return I_t() + m_t() * d * d; }
 };
 
-/// Datasheet DC motor and driver, per wheel (the wheel is on the motor shaft).
+/// Datasheet DC motor and driver, per wheel (the wheel is on the motor shaft); thesis III.1.
 struct MotorParams {
-  double supply_v = 12.0;        ///< H-bridge supply voltage, V
-  double no_load_rad_s = 36.65;  ///< no-load speed at supply_v, rad/s
-  double stall_nm = 0.77;        ///< stall torque at supply_v, N m
-  double stall_a = 2.0;          ///< stall current at supply_v, A (thesis III.1: "2 A maximum current")
+  double supply_v = table::supply_v;            ///< H-bridge supply voltage, V
+  double no_load_rad_s = table::no_load_rad_s;  ///< no-load speed at supply_v, rad/s
+  double stall_nm = table::stall_nm;            ///< stall torque at supply_v, N m
+  double stall_a = table::stall_a;              ///< stall current at supply_v, A
 };
 
-/// Encoder counts per wheel revolution (III.1).
-static const int32_t kEncoderPpr = 1856;
+/// Encoder counts per wheel revolution (III.1). The firmware's ENC_COUNTS_PER_REV (board.h) is
+/// the same generated constant.
+static const int32_t kEncoderPpr = SLIP_ENCODER_COUNTS_PER_REV;
 
 /// Table II.2 defaults (the default-constructed RobotParams).
 constexpr RobotParams table_ii2() { return RobotParams{}; }

@@ -1,0 +1,123 @@
+"""The robot's parameter table for the host tools, read from params/params.json.
+
+params/params.json is the one place where Table II.2, the datasheet motor and the encoder's
+counts per turn are written, each with its unit, the range every consumer accepts and its
+thesis reference. params/generate.py turns it into lib/slipmodel's C++ header (through
+:func:`load`, so the two cannot read it differently); the host tools take their defaults and
+ranges from here.
+
+    ROBOT, MOTOR      defaults of meta.json's "robot" and "motor" (the run format's keys)
+    ENCODER_PPR       encoder counts per wheel turn
+    RANGES            {(group, name): (min, max)} of every value meta.json holds
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+TABLE_PATH = Path(__file__).resolve().parent.parent / "params" / "params.json"
+
+GROUPS = ("robot", "motor")
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+class TableError(ValueError):
+    """A malformed parameter table."""
+
+
+@dataclass(frozen=True)
+class Param:
+    group: str          # "robot", "motor" or "encoder"
+    name: str
+    value: float
+    unit: str
+    min: float
+    max: float
+    ref: str            # where the value comes from (thesis section, table)
+    doc: str
+    run_format: bool    # part of meta.json and the protocol's Params message
+
+
+@dataclass(frozen=True)
+class Table:
+    doc: str
+    params: tuple[Param, ...]   # robot and motor, in table order
+    encoder: Param
+
+    def group(self, group: str, run_format_only: bool = False) -> tuple[Param, ...]:
+        return tuple(p for p in self.params
+                     if p.group == group and (p.run_format or not run_format_only))
+
+    def defaults(self, group: str, run_format_only: bool = True) -> dict[str, float]:
+        return {p.name: p.value for p in self.group(group, run_format_only)}
+
+
+def _param(group: str, spec: Any, integer: bool = False) -> Param:
+    where = f"{group}.{spec.get('name', '?') if isinstance(spec, dict) else '?'}"
+    if not isinstance(spec, dict):
+        raise TableError(f"{where}: must be an object")
+    for key in ("name", "value", "unit", "min", "max", "ref", "doc"):
+        if key not in spec:
+            raise TableError(f"{where}: '{key}' missing")
+    if not _NAME.match(str(spec["name"])):
+        raise TableError(f"{where}: name must be a C identifier")
+    nums = [spec[k] for k in ("value", "min", "max")]
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+               for v in nums):
+        raise TableError(f"{where}: value, min and max must be finite numbers")
+    if integer and not all(float(v).is_integer() for v in nums):
+        raise TableError(f"{where}: value, min and max must be integers")
+    value, lo, hi = nums
+    if not lo <= value <= hi:
+        raise TableError(f"{where}: value {value} outside its range [{lo}, {hi}]")
+    run_format = spec.get("run_format", True)
+    if not isinstance(run_format, bool):
+        raise TableError(f"{where}: run_format must be true or false")
+    conv = int if integer else float
+    return Param(group, spec["name"], conv(value), str(spec["unit"]), conv(lo), conv(hi),
+                 str(spec["ref"]), str(spec["doc"]), run_format)
+
+
+def parse(spec: Any) -> Table:
+    """A :class:`Table` from the decoded JSON; raises :class:`TableError`."""
+    if not isinstance(spec, dict) or not isinstance(spec.get("groups"), dict):
+        raise TableError("must be an object with 'groups'")
+    if set(spec["groups"]) != set(GROUPS):
+        raise TableError(f"groups must be {GROUPS}, got {sorted(spec['groups'])}")
+    params = []
+    for group in GROUPS:
+        entries = spec["groups"][group].get("params")
+        if not isinstance(entries, list) or not entries:
+            raise TableError(f"{group}: 'params' must be a non-empty list")
+        params.extend(_param(group, e) for e in entries)
+    names = [(p.group, p.name) for p in params]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise TableError(f"parameters named twice: {dup}")
+    encoder = _param("encoder", spec.get("encoder"), integer=True)
+    return Table(str(spec.get("doc", "")), tuple(params), encoder)
+
+
+def load(path: Path | str = TABLE_PATH) -> Table:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            spec = json.load(fh)
+    except (OSError, ValueError) as exc:
+        raise TableError(f"{path}: {exc}") from None
+    try:
+        return parse(spec)
+    except TableError as exc:
+        raise TableError(f"{path}: {exc}") from None
+
+
+TABLE = load()
+ROBOT: dict[str, float] = TABLE.defaults("robot")
+MOTOR: dict[str, float] = TABLE.defaults("motor")
+ENCODER_PPR: int = TABLE.encoder.value
+RANGES: dict[tuple[str, str], tuple[float, float]] = {
+    (p.group, p.name): (p.min, p.max) for p in TABLE.params if p.run_format}
+ENCODER_PPR_RANGE: tuple[int, int] = (TABLE.encoder.min, TABLE.encoder.max)
