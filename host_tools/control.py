@@ -50,6 +50,7 @@ _CTL_SIG = {
     "ctl_reference": (ctypes.c_int, [_vp, _d, _dp, ctypes.c_int]),
     "ctl_reset": (ctypes.c_int, [_vp, ctypes.c_int32, ctypes.c_int32, _d, _d, _d]),
     "ctl_outer": (ctypes.c_int, [_vp, _d]),
+    "ctl_start": (ctypes.c_int, [_vp, ctypes.c_int32, ctypes.c_int32, _d, _d, _d, _dp, ctypes.c_int]),
     "ctl_inner": (ctypes.c_int, [_vp, ctypes.c_int32, ctypes.c_int32, _d, _dp, ctypes.c_int]),
     "ctl_column_count": (ctypes.c_int, []),
     "ctl_column_name": (ctypes.c_char_p, [ctypes.c_int]),
@@ -133,6 +134,14 @@ class Controller:
         self._check(self._lib.ctl_reset(self._h, int(enc_r), int(enc_l), *map(float, pose)),
                     "ctl_reset")
 
+    def start(self, enc_r: int = 0, enc_l: int = 0, pose=(0.0, 0.0, 0.0)) -> dict[str, float]:
+        """The start tick of an experiment: reset to ``pose``, the outer step with the
+        reference at t = 0, and the first command from rest (the columns of :meth:`inner`)."""
+        rc = self._lib.ctl_start(self._h, int(enc_r), int(enc_l), *map(float, pose), self._row,
+                                 len(self.columns))
+        self._check(rc, "ctl_start")
+        return dict(zip(self.columns, self._row))
+
     def inner(self, enc_r: int, enc_l: int, dt_s: float = INNER_S) -> dict[str, float]:
         rc = self._lib.ctl_inner(self._h, int(enc_r), int(enc_l), float(dt_s), self._row,
                                  len(self.columns))
@@ -149,7 +158,8 @@ class ClosedLoop:
 
     Tick k (board time ``t0_s + k * inner_s``): the inner step on the plant's encoder counts
     (floor of angle x ppr / 2 pi), the outer step every ``outer_every`` ticks after it (reference
-    time ``k * inner_s``), then the plant advanced for one inner period with the duty
+    time ``k * inner_s``; tick 0 is the start tick: reset, the outer step at t = 0, the first
+    command from rest), then the plant advanced for one inner period with the duty
     (``actuator="duty"``) or the torque command after the clamp (``"torque"``, an ideal torque
     source), in ``rows_per_tick`` rows of Euler steps <= ``plant_dt_s``.
 
@@ -276,7 +286,7 @@ def resimulate_from_rest(kind, accel, cruise, radius, *, fixed_point, clamp, t0,
     tested and benchmarked against: at tick k the plant is re-simulated from rest
     (``Plant.simulate``) over ticks 0..k with the inputs so far (``sub`` rows per tick), its wheel
     angles give the counts, then the controller's inner and (every ``outer_every`` ticks) outer
-    step run through ``ctl_*``.  O(ticks^2) plant steps.  Returns (per-tick controller columns
+    step run through ``ctl_*`` (tick 0 is the start tick, ``ctl_start``).  O(ticks^2) plant steps.  Returns (per-tick controller columns
     and wheel angles, the last re-simulation's plant rows)."""
     plant = _native.Plant()
     for name, ps in (effects or {}).items():
@@ -303,9 +313,13 @@ def resimulate_from_rest(kind, accel, cruise, radius, *, fixed_point, clamp, t0,
                                 dt_s=dt_s, start_pose=start_pose)
             st = {c: v[::fine // sub] for c, v in st.items()}
             th[k] = st["theta_r_rad"][-1], st["theta_l_rad"][-1]
-        o = ctl.inner(*(int(math.floor(a * ppr / (2 * math.pi))) for a in th[k]), T)
-        if k % outer_every == 0:
-            ctl.outer(k * T)
+        counts = [int(math.floor(a * ppr / (2 * math.pi))) for a in th[k]]
+        if k == 0:  # the start tick: reset, outer step at t = 0, first command from rest
+            o = ctl.start(*counts, start_pose)
+        else:
+            o = ctl.inner(*counts, T)
+            if k % outer_every == 0:
+                ctl.outer(k * T)
         u_r[k], u_l[k] = ((o["pwm_r"], o["pwm_l"]) if actuator == "duty"
                           else (o["tau_cmd_r"], o["tau_cmd_l"]))
         if actuator == "duty":

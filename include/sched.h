@@ -32,6 +32,9 @@ bool sched_run_one();
 // Sleeps (idle mode) until the next interrupt, unless a task is already due.
 void sched_idle();
 const TaskStats& sched_stats(uint8_t i);
+// Called from a running task: task i is next released period_ms after the running task's
+// release (so that a loop can be restarted in phase with an event, e.g. an experiment's start).
+void sched_restart_after_current(uint8_t i);
 // Clears last/max/overruns/runs of every task.
 void sched_reset_stats();
 

@@ -209,13 +209,19 @@ uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
 }
 
 // At the inner tick after an accepted Start (instead of that tick's idle odometry): the
-// controller is reset with this tick's encoder snapshot, and this tick's time (already in
-// g_last_inner_us) is the baseline of the first control step's dt, one inner period later --
-// the period the controller's wheel rate is precomputed for, so that step does not divide as a
-// dt from the arbitrary moment of the command would make it. The reference's t = 0 and the
-// duration count from this tick.
+// controller starts with this tick's encoder snapshot (reset, the outer step with the
+// reference at t = 0, the first command from rest, applied at once), and this tick's time
+// (already in g_last_inner_us) is the baseline of the next control step's dt, one inner period
+// later -- the period the controller's wheel rate is precomputed for, so that step does not
+// divide as a dt from the arbitrary moment of the command would make it. The reference's t = 0
+// and the duration count from this tick; the outer task restarts in phase with it (next at
+// t = 50 ms, then every 50 ms), the schedule lib/closedloop runs.
 void start_experiment() {
-    g_ctrl->reset(g_enc.count_r, g_enc.count_l, ctl::PoseQ{0, 0, 0});
+    const ctl::InnerOutQ& o = g_ctrl->start(g_enc.count_r, g_enc.count_l, ctl::PoseQ{0, 0, 0},
+                                            ctl::reference_at_q(g_ref, 0));
+    motor_set_ramp_q15(o.pwm_r_q15, o.slope_r_q15, o.pwm_l_q15, o.slope_l_q15,
+                       static_cast<uint8_t>(proto::kInnerPeriodUs / 1000u - 1u));
+    sched_restart_after_current(proto::kTaskOuter);
     g_phi_turns = 0;
     g_phi_last_b32 = 0;
     g_illegal_at_start = g_enc.illegal_l + g_enc.illegal_r;

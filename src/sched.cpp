@@ -14,6 +14,7 @@ uint8_t g_n;
 uint32_t g_next_ms[kMaxTasks];
 uint32_t g_next_due_ms;  // min of g_next_ms: lets sched_idle() decide in a few cycles
 TaskStats g_stats[kMaxTasks];
+uint32_t g_current_release_ms;  // release time of the task sched_run_one() is running
 volatile uint32_t g_ms;
 
 uint32_t now_ms() {
@@ -65,6 +66,12 @@ void sched_init(const TaskConfig* tasks, uint8_t n) {
     sched_reset_stats();
 }
 
+void sched_restart_after_current(uint8_t i) {
+    if (i >= g_n) return;
+    g_next_ms[i] = g_current_release_ms + g_tasks[i].period_ms;
+    update_next_due();
+}
+
 void sched_reset_stats() {
     for (uint8_t i = 0; i < g_n; ++i) g_stats[i] = TaskStats{0, 0, 0, 0};
 }
@@ -76,6 +83,7 @@ bool sched_run_one() {
     for (uint8_t i = 0; i < g_n; ++i) {
         if (!due(i, now)) continue;
         const TaskConfig& t = g_tasks[i];
+        g_current_release_ms = g_next_ms[i];
         uint32_t c0 = cycles_now();
         t.run();
         uint32_t dc = cycles_now() - c0;

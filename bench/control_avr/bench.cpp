@@ -86,6 +86,7 @@ ctl::ControllerQ qc(cfg_q);        // the firmware's sequence: reset, then dt = 
 ctl::ControllerQ qc_const(cfg_q);  // same sequence with a constant dt (cached reciprocal)
 ctl::ControllerQ qc_div(cfg_q);    // same counts, dt jumping on every call (every call divides)
 ctl::ControllerQ qc8(cfg_q);       // same counts, the outer task on the figure eight
+ctl::ControllerQ qc_start(cfg_q);  // the start tick (reset, outer step at t = 0, first command)
 
 }  // namespace
 
@@ -124,9 +125,10 @@ int main() {
     overhead = s.lo;
   }
 
-  Stat in_q, in_q_const, in_q_free, out_q, ref_q, task8_q, in_f, out_f, ref_f;
+  Stat in_q, in_q_const, in_q_free, out_q, ref_q, task8_q, in_f, out_f, ref_f, start_q;
   in_q.reset(); in_q_const.reset(); in_q_free.reset(); out_q.reset(); ref_q.reset(); task8_q.reset(); in_f.reset();
-  out_f.reset(); ref_f.reset();
+  out_f.reset(); ref_f.reset(); start_q.reset();
+  const ctl::RefSampleQ r0 = ctl::reference_at_q(spec_q, opaque(0UL));
   // As the firmware starts an experiment: reset with the encoders' counts, then inner steps
   // with dt = 25 ms +- 4 us from the first one on (the reset's nominal rate: no division).
   qc.reset(bench::enc_r_at(0), bench::enc_l_at(0), ctl::PoseQ{0, 0, 0});
@@ -143,6 +145,7 @@ int main() {
     if (!(oq.clamped_r || oq.clamped_l || oq.sat_r || oq.sat_l)) in_q_free.add(last_cycles);
 #ifndef CTL_PROFILE  // profile.sh: the jittered-dt controller alone
     TIME_IT(in_q_const, qc_const.inner_step(enc_r, enc_l, 25000UL));
+    TIME_IT(start_q, qc_start.start(enc_r, enc_l, ctl::PoseQ{0, 0, 0}, r0));
 #endif
     if (bench::outer_due(i)) qc_const.outer_step(rq);  // rq: the previous sample (untimed)
     if (bench::outer_due(i)) {
@@ -231,6 +234,7 @@ int main() {
   row("fixed reference_at_q", ref_q);
   row("fixed reference_at_q, figure eight", ref8_q);
   row("fixed outer task, figure eight", task8_q);
+  row("fixed start (reset, outer, first command)", start_q);
   printf("fixed outer_step max + figure-eight sample max: %u\n", out_q.hi + ref8_q.hi);
   row("float inner_step (25 ms)", in_f);
   row("float outer_step (50 ms)", out_f);

@@ -308,21 +308,18 @@ int ctl_outer(void* h, double t_s) {
   return CTL_OK;
 }
 
-/// Inner step: cumulative counts, dt in seconds; fills out[0..n) with the columns (see
-/// ctl_column_name). Returns the odometry status (0 ok, > 0 a reported input problem).
-int ctl_inner(void* h, int32_t enc_r, int32_t enc_l, double dt_s, double* out, int n) {
-  if (!h || !out || n < kColCount) return CTL_ERR_ARG;
-  Handle* p = H(h);
-  if (!is_fin(dt_s) || dt_s <= 0.0 || dt_s > 1.0) {
-    snprintf(p->err, sizeof p->err, "dt_s must be in (0, 1] s");
-    return CTL_ERR_VALUE;
-  }
+namespace {
+// A fixed-point handle whose configuration did not convert refuses to step (error set).
+bool fixed_config_ok(Handle* p) {
+  if (!p->fixed || p->cfg_q.ok) return true;
+  snprintf(p->err, sizeof p->err, "configuration does not fit the fixed-point formats");
+  return false;
+}
+
+// The columns (ctl_column_name) of the controller's state after an inner step or the start.
+int fill_columns(Handle* p, double* out) {
   if (p->fixed) {
-    if (!p->cfg_q.ok) {
-      snprintf(p->err, sizeof p->err, "configuration does not fit the fixed-point formats");
-      return CTL_ERR_CONFIG;
-    }
-    const ctl::InnerOutQ& o = p->qc.inner_step(enc_r, enc_l, static_cast<uint32_t>(llround(dt_s * 1e6)));
+    const ctl::InnerOutQ& o = p->qc.inner();
     const ctl::KinematicOutQ& k = p->qc.kinematic();
     const ctl::OdometryQ& od = p->qc.odometry();
     const double v[] = {o.pwm_r_q15 / 32768.0, o.pwm_l_q15 / 32768.0, o.tau_r_q16 / 65536.0, o.tau_l_q16 / 65536.0,
@@ -335,7 +332,7 @@ int ctl_inner(void* h, int32_t enc_r, int32_t enc_l, double dt_s, double* out, i
     memcpy(out, v, sizeof v);
     return static_cast<int>(o.odo);
   }
-  const ctl::InnerOut& o = p->fc.inner_step(enc_r, enc_l, static_cast<float>(dt_s));
+  const ctl::InnerOut& o = p->fc.inner();
   const ctl::KinematicOut& k = p->fc.kinematic();
   const ctl::Odometry& od = p->fc.odometry();
   const double v[] = {o.pwm_r, o.pwm_l, o.tau_r_nm, o.tau_l_nm, o.tau_max_r_nm, o.tau_max_l_nm,
@@ -345,6 +342,49 @@ int ctl_inner(void* h, int32_t enc_r, int32_t enc_l, double dt_s, double* out, i
                       o.pwm_slope_r, o.pwm_slope_l};
   memcpy(out, v, sizeof v);
   return static_cast<int>(o.odo);
+}
+}  // namespace
+
+/// Inner step: cumulative counts, dt in seconds; fills out[0..n) with the columns (see
+/// ctl_column_name). Returns the odometry status (0 ok, > 0 a reported input problem).
+int ctl_inner(void* h, int32_t enc_r, int32_t enc_l, double dt_s, double* out, int n) {
+  if (!h || !out || n < kColCount) return CTL_ERR_ARG;
+  Handle* p = H(h);
+  if (!is_fin(dt_s) || dt_s <= 0.0 || dt_s > 1.0) {
+    snprintf(p->err, sizeof p->err, "dt_s must be in (0, 1] s");
+    return CTL_ERR_VALUE;
+  }
+  if (!fixed_config_ok(p)) return CTL_ERR_CONFIG;
+  if (p->fixed) {
+    p->qc.inner_step(enc_r, enc_l, static_cast<uint32_t>(llround(dt_s * 1e6)));
+  } else {
+    p->fc.inner_step(enc_r, enc_l, static_cast<float>(dt_s));
+  }
+  return fill_columns(p, out);
+}
+
+/// Start of an experiment at pose (x, y, phi) with the encoders reading (enc_r, enc_l): reset,
+/// the outer step with the reference at t = 0 and the first command from rest (the start tick
+/// of the firmware and lib/closedloop; the inner steps follow with ctl_inner, the outer steps
+/// after every second of them). Fills out[0..n) like ctl_inner.
+int ctl_start(void* h, int32_t enc_r, int32_t enc_l, double x_m, double y_m, double phi_rad, double* out,
+              int n) {
+  if (!h || !out || n < kColCount) return CTL_ERR_ARG;
+  Handle* p = H(h);
+  if (!is_fin(x_m) || !is_fin(y_m) || !is_fin(phi_rad) || fabs(x_m) > 2000.0 || fabs(y_m) > 2000.0) {
+    snprintf(p->err, sizeof p->err, "start pose must be finite and within +-2000 m");
+    return CTL_ERR_VALUE;
+  }
+  if (!fixed_config_ok(p)) return CTL_ERR_CONFIG;
+  if (p->fixed) {
+    p->qc.start(enc_r, enc_l, ctl::PoseQ{static_cast<int32_t>(llround(x_m * 1048576.0)),
+                                         static_cast<int32_t>(llround(y_m * 1048576.0)), to_b32(phi_rad)},
+                ctl::reference_at_q(p->ref_q, 0));
+  } else {
+    p->fc.start(enc_r, enc_l, ctl::Pose{static_cast<float>(x_m), static_cast<float>(y_m), static_cast<float>(phi_rad)},
+                ctl::reference_at(p->ref, 0.0f));
+  }
+  return fill_columns(p, out);
 }
 
 // Encoder odometry (III.1-III.4, lib/control's float ctl::Odometry) over a series of cumulative

@@ -142,8 +142,8 @@ def test_ii63_lower_mu_k_raises_only_the_clamp_off_error(thesis):
 def test_torque_utilisation(thesis):
     """In clamp-limited acceleration the wheels receive at least 95 % of tau_max, without slip,
     in the plant (both controllers) and in the firmware in the loop; the clamped II.6.3 peak
-    error with the motor stays within 0.07 m of the traction floor (0.417 m with the duty held
-    over a tick)."""
+    error with the motor meets the 0.30 m target, in the plant and in the firmware in the loop
+    (where the first nonzero duty comes within 1 ms of the start tick, its own compute time)."""
     _, res = thesis
     tu = res["torque_utilisation"]
     for c in ("thesis", "improved"):
@@ -151,11 +151,33 @@ def test_torque_utilisation(thesis):
         assert not u["slipped"] and u["clamped_ticks"] >= 10, c
         assert 0.95 <= u["utilisation"] <= 1.0, c
     assert tu["plant"] == tu["plant_by_controller"]["improved"]["utilisation"]
-    if tu["fil_detail"].get("error"):
-        pytest.skip(f"firmware in the loop not available: {tu['fil_detail']['error']}")
-    assert 0.95 <= tu["fil"] <= 1.0 and not tu["fil_detail"]["slipped"]
     on = res["improved"]["ii63"]["clamp_on"]
-    assert not on["slipped"] and on["peak_error_m"] < res["ii63_floor_m"] + 0.07
+    assert not on["slipped"] and res["ii63_floor_m"] < on["peak_error_m"] <= 0.30
+    fd = tu["fil_detail"]
+    if fd.get("error"):
+        pytest.skip(f"firmware in the loop not available: {fd['error']}")
+    assert 0.95 <= tu["fil"] <= 1.0 and not fd["slipped"]
+    assert 0.0 <= fd["start_latency_ms"] <= 1.0
+    assert res["ii63_floor_m"] < fd["peak_error_m"] <= 0.30
+    assert abs(fd["peak_error_m"] - on["peak_error_m"]) < 0.01  # the driver samples at the ticks
+
+
+def test_ii63_start_and_budget(thesis):
+    """Every II.6.3 run commands at the start tick (t = 0). The clamped peak error's budget:
+    the floor at the share of tau_max the clamp allows (tau_max less the back-EMF margin, about
+    4 %) bounds the clamped runs from below, the controller with an ideal torque source comes
+    within 0.01 m of it, and the motor adds less than 0.015 m; a 25 ms late start would cost
+    v_c 25 ms (typed here: 72 rad/s^2 x 0.0365 m x 0.5 s x 0.025 s)."""
+    _, res = thesis
+    for c in ("thesis", "improved"):
+        for name, e in res[c]["ii63"].items():
+            assert e["first_command_s"] == 0.0, (c, name)
+    bg = res["ii63_budget"]
+    assert 0.95 < bg["clamp_limit_share"] < 0.97
+    assert bg["floor_m"] < bg["floor_at_clamp_limit_m"] < bg["floor_at_utilisation_m"]
+    assert bg["floor_at_clamp_limit_m"] <= bg["torque_source_m"] < bg["floor_at_clamp_limit_m"] + 0.01
+    assert bg["torque_source_m"] <= bg["motor_m"] < bg["torque_source_m"] + 0.015
+    assert abs(bg["cost_per_25ms_start_delay_m"] - 72 * 0.0365 * 0.5 * 0.025) < 1e-9
 
 
 def test_analyzer_demo_end_to_end(tmp_path):

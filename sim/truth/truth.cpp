@@ -555,8 +555,12 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
         io.clamped = pi.limited;
         io.omega_r = pi.omega[0]; io.omega_l = pi.omega[1];
       } else if (fixed) {
-        const ctl::InnerOutQ& o = qc.inner_step(er, el, static_cast<uint32_t>(llround(inner_n * dt * 1e6)));
-        if (k % 2 == 0)
+        // tick 0 starts the experiment (reset, outer step at t = 0, first command), as the
+        // firmware's start tick does; then inner steps, the outer step after every second one
+        const ctl::RefSampleQ r0 = segments ? rq : ctl::reference_at_q(ref_q, 0);
+        const ctl::InnerOutQ& o = k == 0 ? qc.start(er, el, ctl::PoseQ{0, 0, 0}, r0)
+                                         : qc.inner_step(er, el, static_cast<uint32_t>(llround(inner_n * dt * 1e6)));
+        if (k > 0 && k % 2 == 0)
           qc.outer_step(segments ? rq : ctl::reference_at_q(ref_q, static_cast<uint32_t>(llround(k * inner_n * dt * 1000.0))));
         io.pwm_r = o.pwm_r_q15 / 32768.0; io.pwm_l = o.pwm_l_q15 / 32768.0;
         io.tau_r = o.tau_r_q16 / 65536.0; io.tau_l = o.tau_l_q16 / 65536.0;
@@ -565,8 +569,9 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
         io.x = qc.odometry().pose().x_q20 / 1048576.0; io.y = qc.odometry().pose().y_q20 / 1048576.0;
         phi_b32 = qc.odometry().pose().phi_b32;
       } else {
-        const ctl::InnerOut& o = fc.inner_step(er, el, static_cast<float>(inner_n * dt));
-        if (k % 2 == 0) fc.outer_step(segments ? rs : ctl::reference_at(ref, static_cast<float>(k * inner_n * dt)));
+        const ctl::InnerOut& o = k == 0 ? fc.start(er, el, ctl::Pose{0.0f, 0.0f, 0.0f}, segments ? rs : ctl::reference_at(ref, 0.0f))
+                                        : fc.inner_step(er, el, static_cast<float>(inner_n * dt));
+        if (k > 0 && k % 2 == 0) fc.outer_step(segments ? rs : ctl::reference_at(ref, static_cast<float>(k * inner_n * dt)));
         io.pwm_r = o.pwm_r; io.pwm_l = o.pwm_l; io.tau_r = o.tau_r_nm; io.tau_l = o.tau_l_nm;
         io.clamped = (o.clamped_r ? 1 : 0) + (o.clamped_l ? 2 : 0);
         io.omega_r = fc.odometry().omega_r_rad_s(); io.omega_l = fc.odometry().omega_l_rad_s();

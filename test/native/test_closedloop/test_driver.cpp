@@ -23,8 +23,8 @@ cl::DriverConfig eight(bool fixed) {
 
 }  // namespace
 
-// The float cascade and the plant stepped by hand on the firmware's schedule (inner on the
-// counts, outer after it every other tick, the duty ramped per ms over 50 Euler steps) give
+// The float cascade and the plant stepped by hand on the firmware's schedule (the start tick,
+// then inner on the counts, outer after it every other tick, the duty ramped per ms over 50 Euler steps) give
 // the driver's numbers bit for bit.
 void test_driver_follows_the_firmware_schedule() {
   const cl::DriverConfig dc = eight(false);
@@ -41,8 +41,10 @@ void test_driver_follows_the_firmware_schedule() {
   for (int k = 0; k < 400; ++k) {
     const int32_t er = static_cast<int32_t>(floor(p.state().theta_r_rad * 1856 / (2 * M_PI)));
     const int32_t el = static_cast<int32_t>(floor(p.state().theta_l_rad * 1856 / (2 * M_PI)));
-    const ctl::InnerOut o = c.inner_step(er, el, 0.025f);
-    if (k % 2 == 0) c.outer_step(ctl::reference_at(dc.ref, static_cast<float>(k * 0.025)));
+    // tick 0: the start tick (reset, outer step at t = 0, first command from rest)
+    const ctl::InnerOut o = k == 0 ? c.start(er, el, ctl::Pose{-0.1f, 0.15f, 0.4f}, ctl::reference_at(dc.ref, 0.0f))
+                                   : c.inner_step(er, el, 0.025f);
+    if (k > 0 && k % 2 == 0) c.outer_step(ctl::reference_at(dc.ref, static_cast<float>(k * 0.025)));
     const cl::TickOut& t = drv.step();
     if (t.enc_r != er || t.enc_l != el || t.ctl.pwm_r != o.pwm_r || t.ctl.pwm_l != o.pwm_l ||
         t.plant.x_m != p.state().x_m || t.t_s != 3.0 + 0.025 * k)

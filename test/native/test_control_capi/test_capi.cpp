@@ -42,6 +42,8 @@ void test_bad_input_is_rejected() {
   TEST_ASSERT_EQUAL_INT(-1, ctl_set_reference(h, 7, 1, 1, 1));
   TEST_ASSERT_EQUAL_INT(-2, ctl_set_reference(h, 1, 0.5, 0.4, 0.0));  // zero radius
   TEST_ASSERT_EQUAL_INT(-2, ctl_reset(h, 0, 0, NAN, 0, 0));
+  TEST_ASSERT_EQUAL_INT(-2, ctl_start(h, 0, 0, 0, INFINITY, 0, row, 32));
+  TEST_ASSERT_EQUAL_INT(-3, ctl_start(h, 0, 0, 0, 0, 0, row, 5));       // short array
   TEST_ASSERT_EQUAL_INT(-3, ctl_inner(nullptr, 1, 1, 0.025, row, 32));
   TEST_ASSERT_EQUAL_INT(-2, ctl_set(h, "controller", 2.0));
   TEST_ASSERT_EQUAL_INT(-2, ctl_set(h, "controller", 0.5));
@@ -79,13 +81,20 @@ void test_replay_matches_cpp() {
     int max_diff_bits = 0;
     for (int k = 0; k < 400; ++k) {  // 10 s
       const int32_t er = sim::counts(plant.state().theta_r_rad), el = sim::counts(plant.state().theta_l_rad);
-      TEST_ASSERT_EQUAL_INT(0, ctl_inner(h, er, el, 0.025, row, 32));
       double u_r, u_l;
-      if (fixed) qa.inner(er, el, &u_r, &u_l);
-      else fa.inner(er, el, &u_r, &u_l);
+      if (k == 0) {  // the start tick: reset, outer step at t = 0, first command from rest
+        TEST_ASSERT_EQUAL_INT(0, ctl_start(h, er, el, -0.1, 0.15, 0.4, row, 32));
+        if (fixed) qa.start(er, el, -0.1, 0.15, 0.4, spec, &u_r, &u_l);
+        else fa.start(er, el, -0.1, 0.15, 0.4, spec, &u_r, &u_l);
+        TEST_ASSERT_TRUE(fabs(row[0]) > 0.01 && fabs(row[1]) > 0.01);  // it commands at once
+      } else {
+        TEST_ASSERT_EQUAL_INT(0, ctl_inner(h, er, el, 0.025, row, 32));
+        if (fixed) qa.inner(er, el, &u_r, &u_l);
+        else fa.inner(er, el, &u_r, &u_l);
+      }
       const double s_r = fixed ? qa.slope_r() : fa.slope_r(), s_l = fixed ? qa.slope_l() : fa.slope_l();
       if (row[0] != u_r || row[1] != u_l || row[21] != s_r || row[22] != s_l) ++max_diff_bits;
-      if (k % 2 == 0) {
+      if (k > 0 && k % 2 == 0) {
         TEST_ASSERT_EQUAL_INT(0, ctl_outer(h, k * 0.025));
         if (fixed) qa.outer(spec, k * 0.025);
         else fa.outer(spec, k * 0.025);

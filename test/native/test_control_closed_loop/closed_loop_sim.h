@@ -57,14 +57,19 @@ Result run(Adapter& ctl, const ctl::ReferenceSpec& ref, double x0, double y0, do
   for (int k = 0; k < n_inner; ++k) {
     const double t = k * 0.025;
     const slip::PlantState& s = plant.state();
-    // Firmware order in one 25 ms tick: the inner step reads the counts (odometry + velocity
-    // loop, using the last velocity command), then, every other tick, the outer step runs on
-    // the fresh pose and sets the command for the next inner steps.
-    ctl.inner(counts(s.theta_r_rad), counts(s.theta_l_rad), &u_r, &u_l);
+    // Firmware order: tick 0 starts the experiment (reset, the outer step with the reference
+    // at 0, the first command from rest); in every later 25 ms tick the inner step reads the
+    // counts (odometry + velocity loop, using the last velocity command), then, every other
+    // tick, the outer step runs on the fresh pose and sets the command for the next inner steps.
+    if (k == 0) {
+      ctl.start(counts(s.theta_r_rad), counts(s.theta_l_rad), x0, y0, phi0, ref, &u_r, &u_l);
+    } else {
+      ctl.inner(counts(s.theta_r_rad), counts(s.theta_l_rad), &u_r, &u_l);
+      if (k % 2 == 0) ctl.outer(ref, t);
+    }
     double ox, oy;
     ctl.odo_xy(&ox, &oy);
     res.max_odo_err_m = fmax(res.max_odo_err_m, hypot(ox - s.x_m, oy - s.y_m));
-    if (k % 2 == 0) ctl.outer(ref, t);
     res.max_tau_cmd_nm = fmax(res.max_tau_cmd_nm, fmax(fabs(ctl.tau_r()), fabs(ctl.tau_l())));
     res.clamp_steps += ctl.clamped();
     res.sat_steps += ctl.saturated();
@@ -111,6 +116,13 @@ struct FloatAdapter {
     c.reset(er, el, ctl::Pose{static_cast<float>(x), static_cast<float>(y), static_cast<float>(phi)});
   }
   void outer(const ctl::ReferenceSpec& ref, double t) { c.outer_step(ctl::reference_at(ref, static_cast<float>(t))); }
+  void start(int32_t er, int32_t el, double x, double y, double phi, const ctl::ReferenceSpec& ref, double* u_r,
+             double* u_l) {
+    const ctl::InnerOut& o = c.start(er, el, ctl::Pose{static_cast<float>(x), static_cast<float>(y), static_cast<float>(phi)},
+                                     ctl::reference_at(ref, 0.0f));
+    *u_r = o.pwm_r;
+    *u_l = o.pwm_l;
+  }
   void inner(int32_t er, int32_t el, double* u_r, double* u_l) {
     const ctl::InnerOut& o = c.inner_step(er, el, 0.025f);
     *u_r = o.pwm_r;
@@ -141,11 +153,18 @@ struct FixedAdapter {
   ctl::ControllerQ c;
   ctl::ReferenceSpecQ spec_q{ctl::ReferenceSpec{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f}};
   explicit FixedAdapter(const ctl::ControlConfig& f) : cfg(f), c(cfg) {}
-  void reset(int32_t er, int32_t el, double x, double y, double phi) {
+  static ctl::PoseQ pose_q(double x, double y, double phi) {
     const double turns = phi / (2 * kPi);
     const uint32_t phi_b32 = static_cast<uint32_t>(static_cast<int64_t>(llround(turns * 4294967296.0)));
-    c.reset(er, el, ctl::PoseQ{static_cast<int32_t>(lround(x * 1048576.0)),
-                               static_cast<int32_t>(lround(y * 1048576.0)), phi_b32});
+    return ctl::PoseQ{static_cast<int32_t>(lround(x * 1048576.0)), static_cast<int32_t>(lround(y * 1048576.0)), phi_b32};
+  }
+  void reset(int32_t er, int32_t el, double x, double y, double phi) { c.reset(er, el, pose_q(x, y, phi)); }
+  void start(int32_t er, int32_t el, double x, double y, double phi, const ctl::ReferenceSpec& ref, double* u_r,
+             double* u_l) {
+    spec_q = ctl::ReferenceSpecQ(ref);
+    const ctl::InnerOutQ& o = c.start(er, el, pose_q(x, y, phi), ctl::reference_at_q(spec_q, 0));
+    *u_r = o.pwm_r_q15 / 32768.0;
+    *u_l = o.pwm_l_q15 / 32768.0;
   }
   void outer(const ctl::ReferenceSpec& ref, double t) {
     spec_q = ctl::ReferenceSpecQ(ref);

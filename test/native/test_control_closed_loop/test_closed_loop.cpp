@@ -149,9 +149,10 @@ void test_ii63_clamp_prevents_slip_at_72() {
          "delivered / tau_max while clamped %.3f\n",
          on.slip_steps, on.max_pos_err_m, on3.final_pos_err_m, on.final_pos_err_m, on.max_odo_err_m, on.utilisation());
   // The clamped wheels get their limit (tau_max less the back-EMF margin), within 5 %, and the
-  // peak error stays near the traction floor (0.248 m; 0.417 m with the duty held over a tick).
+  // peak error meets the 0.30 m target above the traction floor (0.248 m; at the clamp's limit,
+  // 96 % of tau_max, 0.271 m; lib/control/README.md).
   TEST_ASSERT_TRUE(on.utilisation() >= 0.95);
-  TEST_ASSERT_TRUE(on.max_pos_err_m < 0.33);
+  TEST_ASSERT_TRUE(on.max_pos_err_m > 0.248 && on.max_pos_err_m <= 0.30);
   // Without the clamp: the wheels slip, and the distance lost to slip is invisible to the
   // encoders, so the true tracking error never recovers.
   TEST_ASSERT_TRUE(off.slip_steps > 100);

@@ -66,9 +66,11 @@ Driver::Driver(const DriverConfig& cfg, const slip::RobotParams& plant_robot,
 void Driver::reset(double x_m, double y_m, double phi_rad) {
   plant_.reset(x_m, y_m, phi_rad);
   plant_.set_time(cfg_.t0_s);
-  fc_.reset(0, 0, ctl::Pose{static_cast<float>(x_m), static_cast<float>(y_m), static_cast<float>(phi_rad)});
-  qc_.reset(0, 0, ctl::PoseQ{static_cast<int32_t>(llround(x_m * 1048576.0)),
-                             static_cast<int32_t>(llround(y_m * 1048576.0)), to_b32(phi_rad)});
+  start_f_ = ctl::Pose{static_cast<float>(x_m), static_cast<float>(y_m), static_cast<float>(phi_rad)};
+  start_q_ = ctl::PoseQ{static_cast<int32_t>(llround(x_m * 1048576.0)),
+                        static_cast<int32_t>(llround(y_m * 1048576.0)), to_b32(phi_rad)};
+  fc_.reset(0, 0, start_f_);
+  qc_.reset(0, 0, start_q_);
   k_ = 0;
 }
 
@@ -106,7 +108,12 @@ const TickOut& Driver::step(slip::PlantState* rows) {
   o.enc_l = counts(o.plant.theta_l_rad, cfg_.ppr);
   const bool outer = k % cfg_.outer_every == 0;
   // The row is read after the inner step, before the outer step (as ctl_inner reports it).
-  if (cfg_.fixed_point) {
+  // Tick 0 starts the experiment: reset, outer step with the reference at 0, first command.
+  if (k == 0) {
+    if (cfg_.fixed_point) qc_.start(o.enc_r, o.enc_l, start_q_, ctl::reference_at_q(ref_q_, 0));
+    else fc_.start(o.enc_r, o.enc_l, start_f_, ctl::reference_at(cfg_.ref, 0.0f));
+    read_ctl(&o.ctl);
+  } else if (cfg_.fixed_point) {
     qc_.inner_step(o.enc_r, o.enc_l, static_cast<uint32_t>(llround(T * 1e6)));
     read_ctl(&o.ctl);
     if (outer) qc_.outer_step(ctl::reference_at_q(ref_q_, ref_ms(static_cast<double>(k) * T)));

@@ -5,6 +5,8 @@
 //   1. the encoders read floor(theta * ppr / 2pi) of the plant's wheel angles;
 //   2. the inner step runs on those counts with dt = inner_s;
 //   3. every outer_every ticks, the outer step runs after it (reference sampled at k*inner_s);
+//      tick 0 is the experiment's start tick instead (ctl start(): reset to the start pose, the
+//      outer step with the reference at 0, the first command from rest), as in the firmware;
 //   4. the plant is advanced with the inner step's duty (or, with Actuator::kTorque, its torque
 //      command after the clamp) held for one inner period, in rows_per_tick rows; each row is
 //      integrated in ceil(row/plant_dt) equal Euler steps and the plant clock is re-aligned at
@@ -107,6 +109,8 @@ class Driver {
   slip::Plant plant_;
   int64_t k_;
   TickOut out_;
+  ctl::Pose start_f_;   // the start pose, for the start tick
+  ctl::PoseQ start_q_;
 };
 
 }  // namespace cl

@@ -144,8 +144,19 @@ void Controller::update_tau_max() {
   out_.tau_max_l_nm = fmaxf(static_cast<float>(slip::tau_max(cfg_.robot, nf.N_l)) - mg, 0.0f);
 }
 
+const InnerOut& Controller::start(int32_t enc_r, int32_t enc_l, const Pose& p, const RefSample& ref0) {
+  reset(enc_r, enc_l, p);
+  outer_step(ref0);
+  out_.odo = OdoStatus::kOk;
+  return command(0.0f);
+}
+
 const InnerOut& Controller::inner_step(int32_t enc_r, int32_t enc_l, float dt_s) {
   out_.odo = odo_.update(enc_r, enc_l, dt_s);
+  return command(dt_s);
+}
+
+const InnerOut& Controller::command(float dt_s) {
   const float v = odo_.v_m_s(), w = odo_.omega_rad_s();
   const float r = static_cast<float>(cfg_.robot.r), b = static_cast<float>(cfg_.robot.b);
   const float mtd = cfg_.mtd_ff_kg_m;

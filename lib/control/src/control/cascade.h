@@ -160,6 +160,11 @@ class Controller {
   explicit Controller(const ControlConfig& cfg);
   /// Start at pose p with encoder readings enc_r, enc_l; clears integrators and commands.
   void reset(int32_t enc_r, int32_t enc_l, const Pose& p);
+  /// Start of an experiment, at its first inner tick (reference time 0): reset(enc_r, enc_l, p),
+  /// the outer step with ref0 (the reference at t = 0), and the first command at once, from
+  /// rest (wheel speeds 0; nothing integrated). The inner steps follow one period apart, the
+  /// outer step after every second one (the schedule of the firmware and lib/closedloop).
+  const InnerOut& start(int32_t enc_r, int32_t enc_l, const Pose& p, const RefSample& ref0);
   /// Outer loop (50 ms): tracking law on the current odometry pose; also refreshes the
   /// per-wheel tau_max. Call it after the inner step of the same tick (fresh pose).
   const KinematicOut& outer_step(const RefSample& ref);
@@ -176,6 +181,9 @@ class Controller {
 
  private:
   void update_tau_max();
+  /// The velocity loop, split, clamp and PWM on the current odometry; integrates over dt_s
+  /// (0: nothing).
+  const InnerOut& command(float dt_s);
 
   ControlConfig cfg_;
   OdometryConfig odo_cfg_;

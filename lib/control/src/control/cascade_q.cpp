@@ -155,15 +155,8 @@ __attribute__((noinline)) void ControllerQ::duty_clamped() {
   }
 }
 
-const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
-  if (!cfg_.ok) {  // refuse to drive with a configuration that did not convert
-    out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kBadConfig, 0, 0};
-
-    return out_;
-  }
-  CTL_PROBE(1);
-  out_.odo = odo_.update_deferred(enc_r, enc_l, dt_us);  // pose arc: in the outer step
-  CTL_PROBE(2);
+// inlined into inner_step (and start), so that the inner step costs no call
+CTL_INLINE void ControllerQ::command(uint32_t dt_us) {
   const int16_t v = odo_.v_q12(), w = odo_.omega_q11();
 
   // Velocity errors: e_v Q12 (|v_d| <= 1.4, |v| <= 2.3 m/s: fits), e_w Q10 (|omega_d - omega|
@@ -247,6 +240,30 @@ const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t 
     out_.slope_r_q15 = out_.slope_l_q15 = 0;
     was_r_ = was_l_ = 0;
   }
+}
+
+const InnerOutQ& ControllerQ::start(int32_t enc_r, int32_t enc_l, const PoseQ& p, const RefSampleQ& ref0) {
+  reset(enc_r, enc_l, p);
+  if (!cfg_.ok) {
+    out_.odo = OdoStatus::kBadConfig;
+    return out_;
+  }
+  outer_step(ref0);
+  out_.odo = OdoStatus::kOk;
+  command(0);  // from rest: the wheel speeds are 0 after the reset; dt 0 integrates nothing
+  return out_;
+}
+
+const InnerOutQ& ControllerQ::inner_step(int32_t enc_r, int32_t enc_l, uint32_t dt_us) {
+  if (!cfg_.ok) {  // refuse to drive with a configuration that did not convert
+    out_ = InnerOutQ{0, 0, 0, 0, 0, 0, false, false, false, false, OdoStatus::kBadConfig, 0, 0};
+
+    return out_;
+  }
+  CTL_PROBE(1);
+  out_.odo = odo_.update_deferred(enc_r, enc_l, dt_us);  // pose arc: in the outer step
+  CTL_PROBE(2);
+  command(dt_us);
   return out_;
 }
 

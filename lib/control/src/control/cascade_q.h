@@ -161,6 +161,11 @@ class ControllerQ {
   /// from the configuration's rate_nominal, so a first step at the nominal dt (+-63 us) does not
   /// divide.
   void reset(int32_t enc_r, int32_t enc_l, const PoseQ& p);
+  /// Start of an experiment, at its first inner tick (reference time 0): reset(enc_r, enc_l, p),
+  /// the outer step with ref0 (the reference at t = 0), and the first command at once, from
+  /// rest (wheel speeds 0; nothing integrated). The inner steps follow one period apart, the
+  /// outer step after every second one (the schedule of the firmware and lib/closedloop).
+  const InnerOutQ& start(int32_t enc_r, int32_t enc_l, const PoseQ& p, const RefSampleQ& ref0);
   /// Outer loop (50 ms). Call after the inner step of the same tick (fresh pose).
   const KinematicOutQ& outer_step(const RefSampleQ& ref);
   /// Inner loop (25 ms): counts and dt in microseconds.
@@ -196,6 +201,9 @@ class ControllerQ {
   int8_t was_r_, was_l_;
   void update_limits();
   void duty_clamped();
+  /// The velocity loop, split, clamp and duty on the current odometry; integrates over dt_us
+  /// (0: nothing).
+  void command(uint32_t dt_us);
 };
 
 }  // namespace ctl
