@@ -1,10 +1,11 @@
 """ctypes loader for the project's native library ``.build/host/libddrobot.so``.
 
 The library is built from every ``host_tools/native/*.cpp`` together with every
-``lib/*/src/**/*.cpp`` by the system ``g++`` (``-O2 -shared -fPIC``). It is rebuilt when any
-of those sources (or a header under ``lib/*/src``) is newer than the library. Python does not
-implement any physics: everything here calls ``lib/slipmodel`` through its C ABI
-(``host_tools/native/slipmodel_capi.cpp``).
+``lib/*/src/**/*.cpp`` by :mod:`host_tools._build` (target ``ddrobot``), and rebuilt when any
+source or header changes. The ctypes signatures come from the C ABI headers
+``host_tools/native/*_capi.h`` (:mod:`host_tools._cabi`). Python does not implement any
+physics: everything here calls ``lib/slipmodel`` through its C ABI
+(``host_tools/native/slipmodel_capi.h``).
 
 Public API
 ----------
@@ -14,11 +15,8 @@ Public API
 from __future__ import annotations
 
 import ctypes
-import fcntl
 import functools
 import math
-import os
-import subprocess
 import threading
 import weakref
 from pathlib import Path
@@ -26,77 +24,30 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-_BUILD_DIR = ROOT / ".build" / "host"
-_LIB_NAME = "libddrobot.so"
+from host_tools import _build, _cabi
+from host_tools._build import NativeBuildError  # noqa: F401  (re-exported)
 
 _lock = threading.Lock()
 _lib: ctypes.CDLL | None = None
 
 
-class NativeBuildError(RuntimeError):
-    """The shared library could not be compiled."""
-
-
 def library_path() -> Path:
     """Where the shared library lives (it may not exist yet)."""
-    return _BUILD_DIR / _LIB_NAME
-
-
-def _sources() -> list[Path]:
-    srcs = sorted((ROOT / "host_tools" / "native").glob("*.cpp"))
-    for lib_src in sorted((ROOT / "lib").glob("*/src")):
-        srcs.extend(sorted(lib_src.rglob("*.cpp")))
-    return srcs
-
-
-def _inputs() -> list[Path]:
-    files = list(_sources()) + sorted((ROOT / "host_tools" / "native").glob("*.h"))
-    for lib_src in sorted((ROOT / "lib").glob("*/src")):
-        files.extend(sorted(lib_src.rglob("*.h")))
-    return files
-
-
-def _include_dirs() -> list[Path]:
-    return sorted(p for p in (ROOT / "lib").glob("*/src") if p.is_dir())
-
-
-def _is_stale() -> bool:
-    lib = library_path()
-    if not lib.exists():
-        return True
-    built = lib.stat().st_mtime
-    return any(f.stat().st_mtime > built for f in _inputs())
+    return _build.TARGETS["ddrobot"].output_path()
 
 
 def build(force: bool = False) -> Path:
-    """Compile the shared library if it is missing or stale (or always, with ``force``).
+    """Compile the shared library if it is missing or stale (or always, with ``force``), by
+    the project's one host build recipe (:mod:`host_tools._build`, target ``ddrobot``).
 
     Safe when several processes build at once: a file lock serialises them and the library is
     replaced atomically. Raises :class:`NativeBuildError` with the compiler's message on failure.
     """
-    _BUILD_DIR.mkdir(parents=True, exist_ok=True)
-    with open(_BUILD_DIR / ".libddrobot.lock", "w") as lock_file:
-        fcntl.flock(lock_file, fcntl.LOCK_EX)
-        if not force and not _is_stale():
-            return library_path()
-        srcs = _sources()
-        if not srcs:
-            raise NativeBuildError("no C++ sources found under host_tools/native or lib/*/src")
-        tmp = _BUILD_DIR / f".{_LIB_NAME}.{os.getpid()}.tmp"
-        cmd = ["g++", "-std=c++14", "-O2", "-shared", "-fPIC", "-Wall", "-Wextra"]
-        cmd += [f"-I{d}" for d in _include_dirs()]
-        cmd += [str(s) for s in srcs] + ["-o", str(tmp)]
-        try:
-            proc = subprocess.run(cmd, capture_output=True, text=True)
-        except FileNotFoundError as exc:
-            raise NativeBuildError("g++ not found: install the system C++ compiler") from exc
-        if proc.returncode != 0:
-            tmp.unlink(missing_ok=True)
-            raise NativeBuildError(
-                f"building {library_path()} failed:\n{' '.join(cmd)}\n{proc.stderr}")
-        os.replace(tmp, library_path())
-    return library_path()
+    return _build.build("ddrobot", force=force)
+
+
+def _is_stale() -> bool:
+    return _build.is_stale(_build.TARGETS["ddrobot"])
 
 
 def _load() -> ctypes.CDLL:
@@ -104,46 +55,14 @@ def _load() -> ctypes.CDLL:
     with _lock:
         if _lib is not None:
             return _lib
-        path = build()
-        lib = ctypes.CDLL(str(path))
-        c_double_p = ctypes.POINTER(ctypes.c_double)
-        sig = {
-            "sm_effect_count": (ctypes.c_int, []),
-            "sm_effect_name": (ctypes.c_char_p, [ctypes.c_int]),
-            "sm_effect_param_count": (ctypes.c_int, [ctypes.c_int]),
-            "sm_effect_param_name": (ctypes.c_char_p, [ctypes.c_int, ctypes.c_int]),
-            "sm_effect_param_default": (ctypes.c_double, [ctypes.c_int, ctypes.c_int]),
-            "sm_param_count": (ctypes.c_int, []),
-            "sm_param_name": (ctypes.c_char_p, [ctypes.c_int]),
-            "sm_plant_new": (ctypes.c_void_p, []),
-            "sm_plant_free": (None, [ctypes.c_void_p]),
-            "sm_last_error": (ctypes.c_char_p, [ctypes.c_void_p]),
-            "sm_plant_set": (ctypes.c_int, [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_double]),
-            "sm_plant_get": (ctypes.c_int, [ctypes.c_void_p, ctypes.c_char_p, c_double_p]),
-            "sm_plant_clear_effects": (ctypes.c_int, [ctypes.c_void_p]),
-            "sm_plant_reset": (ctypes.c_int, [ctypes.c_void_p] + [ctypes.c_double] * 3),
-            "sm_plant_set_velocity": (ctypes.c_int, [ctypes.c_void_p] + [ctypes.c_double] * 5),
-            "sm_out_cols": (ctypes.c_int, []),
-            "sm_out_col_name": (ctypes.c_char_p, [ctypes.c_int]),
-            "sm_simulate": (ctypes.c_int, [ctypes.c_void_p, ctypes.c_int, ctypes.c_int,
-                                           c_double_p, c_double_p, c_double_p,
-                                           ctypes.c_double, c_double_p]),
-            "sm_tau_max": (ctypes.c_double, [ctypes.c_void_p, ctypes.c_int]),
-            "sm_normal_forces": (ctypes.c_int, [ctypes.c_void_p, c_double_p, c_double_p,
-                                                c_double_p]),
-        }
-        for name, (res, args) in sig.items():
-            fn = getattr(lib, name)
-            fn.restype = res
-            fn.argtypes = args
-        _lib = lib
-        return lib
+        _lib = _cabi.bind(ctypes.CDLL(str(build())), "ddrobot")
+        return _lib
 
 
 def library() -> ctypes.CDLL:
     """The loaded shared library (built first if missing or stale), for other bindings of the
-    same ``libddrobot.so`` (e.g. the lib/control C ABI). Set ``argtypes``/``restype`` on the
-    functions you use; the ``sm_*`` functions are already declared."""
+    same ``libddrobot.so`` (e.g. the lib/control C ABI). Every function of its headers
+    (:data:`host_tools._cabi.HEADERS`) has its ``argtypes``/``restype`` set."""
     return _load()
 
 

@@ -26,60 +26,6 @@ REF_KINDS = {"line": 0, "arc": 1, "figure_eight": 2}
 ACTUATORS = {"duty": 0, "torque": 1}
 
 
-def _declare(lib: ctypes.CDLL, flag: str, sig: dict) -> ctypes.CDLL:
-    if getattr(lib, flag, False):
-        return lib
-    for name, (res, args) in sig.items():
-        fn = getattr(lib, name)
-        fn.restype, fn.argtypes = res, args
-    setattr(lib, flag, True)
-    return lib
-
-
-_d = ctypes.c_double
-_dp = ctypes.POINTER(ctypes.c_double)
-_vp = ctypes.c_void_p
-_CTL_SIG = {
-    "ctl_describe": (ctypes.c_char_p, []),
-    "ctl_new": (_vp, [ctypes.c_int, ctypes.c_int]),
-    "ctl_free": (None, [_vp]),
-    "ctl_last_error": (ctypes.c_char_p, [_vp]),
-    "ctl_set": (ctypes.c_int, [_vp, ctypes.c_char_p, _d]),
-    "ctl_get": (ctypes.c_int, [_vp, ctypes.c_char_p, _dp]),
-    "ctl_set_reference": (ctypes.c_int, [_vp, ctypes.c_int, _d, _d, _d]),
-    "ctl_reference": (ctypes.c_int, [_vp, _d, _dp, ctypes.c_int]),
-    "ctl_reset": (ctypes.c_int, [_vp, ctypes.c_int32, ctypes.c_int32, _d, _d, _d]),
-    "ctl_outer": (ctypes.c_int, [_vp, _d]),
-    "ctl_start": (ctypes.c_int, [_vp, ctypes.c_int32, ctypes.c_int32, _d, _d, _d, _dp, ctypes.c_int]),
-    "ctl_inner": (ctypes.c_int, [_vp, ctypes.c_int32, ctypes.c_int32, _d, _dp, ctypes.c_int]),
-    "ctl_column_count": (ctypes.c_int, []),
-    "ctl_column_name": (ctypes.c_char_p, [ctypes.c_int]),
-}
-_CL_SIG = {
-    "cl_new": (_vp, [ctypes.c_int, ctypes.c_int]),
-    "cl_free": (None, [_vp]),
-    "cl_last_error": (ctypes.c_char_p, [_vp]),
-    "cl_tick_col_count": (ctypes.c_int, []),
-    "cl_tick_col_name": (ctypes.c_char_p, [ctypes.c_int]),
-    "cl_row_col_count": (ctypes.c_int, []),
-    "cl_row_col_name": (ctypes.c_char_p, [ctypes.c_int]),
-    "cl_set": (ctypes.c_int, [_vp, ctypes.c_char_p, _d]),
-    "cl_set_reference": (ctypes.c_int, [_vp, ctypes.c_int, _d, _d, _d]),
-    "cl_reset": (ctypes.c_int, [_vp, _d, _d, _d]),
-    "cl_run": (ctypes.c_int, [_vp, ctypes.c_int, _dp, ctypes.c_int, _dp, ctypes.c_int]),
-    "cl_state": (ctypes.c_int, [_vp, _dp, ctypes.c_int]),
-    "cl_ticks": (ctypes.c_longlong, [_vp]),
-}
-
-
-def _ctl_lib() -> ctypes.CDLL:
-    return _declare(_native.library(), "_ctl_declared", _CTL_SIG)
-
-
-def _cl_lib() -> ctypes.CDLL:
-    return _declare(_native.library(), "_cl_declared", _CL_SIG)
-
-
 def _kind(kind: str) -> int:
     if kind not in REF_KINDS:
         raise ValueError(f"reference kind must be one of {list(REF_KINDS)}, got {kind!r}")
@@ -91,7 +37,7 @@ class Controller:
 
     def __init__(self, fixed_point: bool = True, clamp: bool = True,
                  params: Mapping[str, float] | None = None):
-        self._lib = _ctl_lib()
+        self._lib = _native.library()  # ctl_*: host_tools/native/control_capi.h
         self._h = self._lib.ctl_new(int(bool(fixed_point)), int(bool(clamp)))
         if not self._h:
             raise MemoryError("ctl_new failed")
@@ -181,7 +127,7 @@ class ClosedLoop:
                  ctl_params: Mapping[str, float] | None = None, duty_ramp: bool = True):
         if actuator not in ACTUATORS:
             raise ValueError(f"actuator must be 'duty' or 'torque', got {actuator!r}")
-        self._lib = _cl_lib()
+        self._lib = _native.library()  # cl_*: host_tools/native/closedloop_capi.h
         self._h = self._lib.cl_new(int(bool(fixed_point)), int(bool(clamp)))
         if not self._h:
             raise MemoryError("cl_new failed")

@@ -17,20 +17,17 @@ from __future__ import annotations
 
 import ctypes
 import math
-import fcntl
 import json
 import os
-import subprocess
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 
-from host_tools import _native, runfmt
+from host_tools import _build, _cabi, _native, runfmt
 from host_tools.control import INNER_S, ClosedLoop, Controller  # noqa: F401  (re-exported)
 from host_tools.control import REF_KINDS as _REF_KINDS
 
-ROOT = Path(__file__).resolve().parent.parent
 PPR = runfmt.DEFAULT_META["encoder_ppr"]  # encoder counts per wheel turn
 
 
@@ -92,8 +89,7 @@ def nominal_closed_loop(kind: str, accel_m_s2: float, cruise_m_s: float, radius_
 # ------------------------------------------------------------- the truth simulator (sim/truth)
 
 
-TRUTH_BUILD = ROOT / ".build" / "truth"
-TRUTH_LIB = TRUTH_BUILD / "libtruth.so"
+TRUTH_LIB = _build.TARGETS["truth"].output_path()
 _truth_lib: ctypes.CDLL | None = None
 
 #: vocabulary effects whose parameters are plain true-robot values in the truth simulator
@@ -107,57 +103,17 @@ EXTRA_EFFECTS = {"eccentric_wheel": ("eps", "phase_r", "phase_l"),
                  "friction_patch": ("x0", "x1", "factor")}
 
 
-def _truth_sources() -> list[Path]:
-    srcs = sorted((ROOT / "sim" / "truth").glob("*.cpp"))
-    srcs += sorted((ROOT / "lib" / "control" / "src").rglob("*.cpp"))
-    srcs += sorted((ROOT / "lib" / "slipmodel" / "src").rglob("*.cpp"))
-    return srcs
-
-
 def build_truth(force: bool = False) -> Path:
     """Compile ``sim/truth`` with the firmware's lib/control (and the lib/slipmodel parameter
-    code it uses) into ``.build/truth/libtruth.so`` when missing or stale."""
-    TRUTH_BUILD.mkdir(parents=True, exist_ok=True)
-    inputs = _truth_sources() + sorted((ROOT / "sim" / "truth").glob("*.h"))
-    for sub in ("control", "slipmodel"):
-        inputs += sorted((ROOT / "lib" / sub / "src").rglob("*.h"))
-    with open(TRUTH_BUILD / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if (not force and TRUTH_LIB.exists()
-                and all(f.stat().st_mtime <= TRUTH_LIB.stat().st_mtime for f in inputs)):
-            return TRUTH_LIB
-        tmp = TRUTH_BUILD / f".libtruth.{os.getpid()}.tmp"
-        cmd = ["g++", "-std=c++14", "-O2", "-shared", "-fPIC", "-Wall", "-Wextra",
-               f"-I{ROOT / 'lib' / 'control' / 'src'}", f"-I{ROOT / 'lib' / 'slipmodel' / 'src'}"]
-        cmd += [str(s) for s in _truth_sources()] + ["-o", str(tmp)]
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        if proc.returncode != 0:
-            tmp.unlink(missing_ok=True)
-            raise _native.NativeBuildError(f"building {TRUTH_LIB} failed:\n{' '.join(cmd)}\n"
-                                           f"{proc.stderr}")
-        os.replace(tmp, TRUTH_LIB)
-    return TRUTH_LIB
+    code it uses) into ``.build/truth/libtruth.so`` when missing or stale (the project's one
+    host build recipe, :mod:`host_tools._build`, target ``truth``)."""
+    return _build.build("truth", force=force)
 
 
 def _tlib() -> ctypes.CDLL:
     global _truth_lib
-    if _truth_lib is None:
-        lib = ctypes.CDLL(str(build_truth()))
-        dp = ctypes.POINTER(ctypes.c_double)
-        ip = ctypes.POINTER(ctypes.c_int)
-        for name, res, args in (
-                ("tr_new", ctypes.c_void_p, []), ("tr_free", None, [ctypes.c_void_p]),
-                ("tr_last_error", ctypes.c_char_p, [ctypes.c_void_p]),
-                ("tr_key_count", ctypes.c_int, []), ("tr_key_name", ctypes.c_char_p, [ctypes.c_int]),
-                ("tr_set", ctypes.c_int, [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_double]),
-                ("tr_get", ctypes.c_int, [ctypes.c_void_p, ctypes.c_char_p, dp]),
-                ("tr_set_segments", ctypes.c_int, [ctypes.c_void_p, ctypes.c_int, dp, dp, dp]),
-                ("tr_tel_cols", ctypes.c_int, []), ("tr_tel_col_name", ctypes.c_char_p, [ctypes.c_int]),
-                ("tr_cam_cols", ctypes.c_int, []), ("tr_cam_col_name", ctypes.c_char_p, [ctypes.c_int]),
-                ("tr_run", ctypes.c_int, [ctypes.c_void_p, ctypes.c_int, dp, ip, ctypes.c_int, dp, ip])):
-            fn = getattr(lib, name)
-            fn.restype, fn.argtypes = res, args
-        _truth_lib = lib
+    if _truth_lib is None:  # signatures: sim/truth/truth.h
+        _truth_lib = _cabi.bind(ctypes.CDLL(str(build_truth())), "truth")
     return _truth_lib
 
 

@@ -18,13 +18,11 @@ simavr -m atmega2560 -f 16000000 "$OUT/bench.elf" 2>&1 \
   | sed -n '/^BEGIN control_avr/,/^END/p' > "$OUT/table.txt"
 grep -v '^avr config' "$OUT/table.txt"
 # The same fixed-point sequence on the host: the checksums must agree.
-g++ -std=c++14 -O2 -Wall -Wextra -I"$ROOT/lib/control/src" -I"$ROOT/lib/slipmodel/src" \
-  "$ROOT/bench/control_avr/host_check.cpp" "$ROOT"/lib/control/src/control/*.cpp \
-  "$ROOT"/lib/slipmodel/src/slipmodel/*.cpp -o "$OUT/host_check"
+HOST_CHECK=$(cd "$ROOT" && python -m host_tools._build host_check)  # the one host build recipe
 # shellcheck disable=SC2046
 # Four checksums: the 64-step controller sequence (arc reference), the figure-eight samples,
 # a sweep of sin_q15/cos_q15, and arc and eight samples over 8.9 h.
-HOST=$("$OUT/host_check" $(sed -n 's/^avr config//p' "$OUT/table.txt" | tr '\n' ' ') | awk '{print $(NF-3), $(NF-2), $(NF-1), $NF}')
+HOST=$("$HOST_CHECK" $(sed -n 's/^avr config//p' "$OUT/table.txt" | tr '\n' ' ') | awk '{print $(NF-3), $(NF-2), $(NF-1), $NF}')
 AVR=$(awk '/avr fixed-point checksum/ {print $(NF-3), $(NF-2), $(NF-1), $NF}' "$OUT/table.txt")
 if [ -n "$AVR" ] && [ "$HOST" = "$AVR" ]; then echo "AVR and host fixed-point outputs identical (checksums $AVR)";
 else echo "MISMATCH: AVR checksum $AVR, host $HOST"; exit 1; fi

@@ -1,5 +1,5 @@
 // Benchmark of the lib/slipmodel Euler plant (prints figures; not a test).
-//   bench/plant/run.sh            builds with g++ -O2 and runs on one core
+//   bench/plant/run.sh            builds it (python -m host_tools._build bench_plant) and runs on one core
 // Figures: Euler steps per second in three regimes, and the wall time of a 2 s run at
 // dt = 0.5 ms (4000 steps) both through slip::Plant and through the C ABI sm_simulate.
 #include <stdio.h>
@@ -8,12 +8,7 @@
 
 #include <slipmodel/plant.h>
 
-extern "C" {
-void* sm_plant_new(void);
-void sm_plant_free(void*);
-int sm_out_cols(void);
-int sm_simulate(void*, int, int, const double*, const double*, const double*, double, double*);
-}
+#include "slipmodel_capi.h"  // host_tools/native: the C ABI sm_simulate is timed through
 
 static double now_s() {
   timespec ts;

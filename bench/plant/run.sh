@@ -1,9 +1,8 @@
-#!/bin/sh
+#!/usr/bin/env bash
 # Build and run the plant benchmark on one core: bench/plant/run.sh
 set -e
 cd "$(dirname "$0")/../.."
-mkdir -p .build/bench
-g++ -std=c++14 -O2 -Wall -Wextra -Ilib/slipmodel/src bench/plant/bench_plant.cpp \
-    host_tools/native/slipmodel_capi.cpp lib/slipmodel/src/slipmodel/*.cpp -o .build/bench/bench_plant
-if command -v taskset >/dev/null 2>&1; then exec taskset -c 0 .build/bench/bench_plant; fi
-exec .build/bench/bench_plant
+. scripts/env.sh  # the project's Python (host_tools._build: the one host build recipe)
+exe=$(python -m host_tools._build bench_plant)
+if command -v taskset >/dev/null 2>&1; then exec taskset -c 0 "$exe"; fi
+exec "$exe"

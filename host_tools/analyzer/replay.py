@@ -908,12 +908,9 @@ def _odometry(counts_r: np.ndarray, counts_l: np.ndarray, t: np.ndarray, r: floa
     firmware's formula, III.1-III.4) through the ctl_odometry_series C ABI."""
     from host_tools import _native  # the C ABI library (built on first use)
     lib = _native.library()
-    fn = lib.ctl_odometry_series
+    fn = lib.ctl_odometry_series  # signature: host_tools/native/control_capi.h
     i32p = ctypes.POINTER(ctypes.c_int32)
     dp = ctypes.POINTER(ctypes.c_double)
-    fn.restype = ctypes.c_int
-    fn.argtypes = [ctypes.c_double, ctypes.c_double, ctypes.c_int32, ctypes.c_int, i32p, i32p, dp,
-                   ctypes.c_double, ctypes.c_double, ctypes.c_double, dp, dp, dp]
     n = len(t)
     cr = np.ascontiguousarray(counts_r, dtype=np.int32)
     cl = np.ascontiguousarray(counts_l, dtype=np.int32)

@@ -1,6 +1,6 @@
 // C ABI over lib/closedloop for Python (ctypes): the firmware's cascade (lib/control) in closed
 // loop with the lib/slipmodel plant, stepped forward tick by tick (cl::Driver). Built into
-// .build/host/libddrobot.so by host_tools/_native.py. Cost is linear in the run length: a
+// .build/host/libddrobot.so by host_tools/_build.py. Cost is linear in the run length: a
 // call to cl_run continues from where the last one stopped.
 //
 // Use: h = cl_new(fixed, clamp); cl_set(h, key, value)...; cl_set_reference(h, ...);
@@ -12,6 +12,8 @@
 // "loop.actuator" (0 duty, 1 torque command). A ctl.* or loop.* key rebuilds the driver (plant
 // parameters and effects are kept): call cl_reset after the keys.
 // Never crashes on bad input: negative return codes and a message from cl_last_error(h).
+#include "closedloop_capi.h"
+
 #include "ctl_columns.h"
 #include <math.h>
 #include <stdio.h>

@@ -1,6 +1,6 @@
 // C ABI over lib/control for Python (ctypes) and for the independent truth simulator: the
 // cascade (float or fixed point) and its references, driven exactly as the firmware drives it
-// (encoder counts in, duties out). Built into .build/host/libddrobot.so by host_tools/_native.py.
+// (encoder counts in, duties out). Built into .build/host/libddrobot.so by host_tools/_build.py.
 //
 // Self-describing: ctl_describe() returns a JSON document listing the settable keys with their
 // defaults and units, the reference kinds and the output columns of ctl_inner(); the column
@@ -13,6 +13,8 @@
 //   h = ctl_new(fixed, clamp); ctl_set_reference(h, kind, accel, cruise, radius);
 //   ctl_reset(h, enc_r0, enc_l0, x0, y0, phi0);
 //   each tick k: ctl_inner(h, enc_r, enc_l, 0.025, row, n); if k even: ctl_outer(h, k*0.025)
+#include "control_capi.h"
+
 #include "ctl_columns.h"
 #include <math.h>
 #include <stdint.h>

@@ -1,7 +1,9 @@
 // C ABI over lib/slipmodel for Python (ctypes): the plant, its parameters, the effect vocabulary,
-// normal forces and tau_max. Built into .build/host/libddrobot.so by host_tools/_native.py.
+// normal forces and tau_max. Built into .build/host/libddrobot.so by host_tools/_build.py.
 // Never crashes on bad input: unknown keys, NaN values and bad arrays give a negative return
 // code and a message from sm_last_error(plant).
+#include "slipmodel_capi.h"
+
 #include <math.h>
 #include <stdio.h>
 #include <string.h>

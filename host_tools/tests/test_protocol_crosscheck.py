@@ -1,4 +1,4 @@
-"""C++ (lib/protocol, built with the host g++) and Python (host_tools.protocol) agree: frames
+"""C++ (lib/protocol, built by the host build recipe host_tools._build) and Python (host_tools.protocol) agree: frames
 made by one are decoded by the other, and the firmware's generated validator accepts and rejects
 exactly the commands that the Python side accepts and rejects."""
 from __future__ import annotations
@@ -6,13 +6,12 @@ from __future__ import annotations
 import random
 import shutil
 import subprocess
-from pathlib import Path
 
 import pytest
 
+from host_tools import _build
 from host_tools import protocol as P
 
-ROOT = Path(__file__).resolve().parents[2]
 D = P.definition()
 
 HELPER = r"""
@@ -51,17 +50,12 @@ int main() {
 
 @pytest.fixture(scope="module")
 def helper(tmp_path_factory):
-    gxx = shutil.which("g++")
-    if gxx is None:
-        pytest.skip("g++ not installed")
+    if shutil.which(_build.CXX) is None:
+        pytest.skip(f"{_build.CXX} not installed")
     d = tmp_path_factory.mktemp("xcheck")
     (d / "main.cpp").write_text(HELPER)
-    src = sorted(str(p) for p in (ROOT / "lib" / "protocol" / "src" / "protocol").glob("*.cpp"))
-    exe = d / "xcheck"
-    subprocess.run([gxx, "-std=c++14", "-Wall", "-Wextra", "-Werror", "-O1",
-                    f"-I{ROOT / 'lib' / 'protocol' / 'src'}", str(d / "main.cpp"), *src, "-o", str(exe)],
-                   check=True, capture_output=True, text=True)
-    return exe
+    return _build.build(_build.Target("xcheck", str(d / "xcheck"),
+                                      (str(d / "main.cpp"),) + _build.lib_sources("protocol")))
 
 
 def run(exe, data: bytes) -> list[str]:
