@@ -112,7 +112,7 @@ void test_telemetry_round_trip() {
 
     Decoder d;
     uint8_t payload[kMaxPayload];
-    Frame f;
+    Frame f = {};  // stays zero if feed_all finds no frame
     TEST_ASSERT_EQUAL_INT(1, feed_all(d, wire, n, payload, &f));
     TEST_ASSERT_EQUAL_UINT8(kMsgTelemetry, f.type);
     TEST_ASSERT_EQUAL_UINT16(65535u, f.seq);
@@ -142,7 +142,7 @@ void test_every_message_type_and_payload_length() {
         uint16_t n = encode_frame(static_cast<uint8_t>(len), static_cast<uint16_t>(len * 1000u), payload,
                                   static_cast<uint8_t>(len), wire, sizeof wire);
         TEST_ASSERT_EQUAL_UINT16(wire_size(static_cast<uint8_t>(len)), n);
-        Frame f;
+        Frame f = {};  // stays zero if feed_all finds no frame
         TEST_ASSERT_EQUAL_INT(1, feed_all(d, wire, n, got, &f));
         TEST_ASSERT_EQUAL_UINT8(len, f.len);
         TEST_ASSERT_EQUAL_UINT16(len * 1000u, f.seq);
