@@ -7,9 +7,10 @@ roots or source folders is newer than the output, or when its command line chang
 beside the output as ``<output>.cmd``). Builds of one target by several processes are
 serialised by a file lock; the output is replaced atomically.
 
-Programs that link libsimavr (``simavr=True``) also get the provisioned libsimavr
-(``.platformio/packages/tool-simavr``, as ``scripts/env.sh`` names it), the firmware's
-``include/`` and, when present, the shared harness code ``sim/common/*.c``.
+Programs that link libsimavr (``simavr=True``) also get what ``sim/common/harness.sh`` gives
+them: the provisioned libsimavr (``.platformio/packages/tool-simavr``, as ``scripts/env.sh``
+names it), the harness layer ``sim/common`` (its ``*.c`` linked in), the firmware's
+``include/`` and avr-libc's device headers after the host's (``-idirafter``).
 
 Command line (prints the path of each output)::
 
@@ -160,6 +161,12 @@ TARGETS: dict[str, Target] = {t.name: t for t in (
     Target("isr_bench", ".build/isr_bench", ("sim/isr_bench/isr_bench.c",), simavr=True),
     Target("fw_smoke", ".build/fw_smoke", ("sim/isr_bench/fw_smoke.cpp",)
            + lib_sources("protocol"), simavr=True),
+    Target("sim_selftest", ".build/sim_common/selftest", ("sim/common/selftest/selftest.c",),
+           simavr=True),
+    Target("control_profile", ".build/bench_control_avr/profile",
+           ("bench/control_avr/profile.c",), simavr=True),
+    Target("avr_cycles_harness", ".build/bench/avr_cycles_harness",
+           ("bench/plant/avr_cycles_harness.c",), simavr=True),
 )}
 
 

@@ -310,7 +310,9 @@ int ctl_outer(void* h, double t_s) {
   return CTL_OK;
 }
 
-namespace {
+}  // extern "C"
+
+namespace {  // helpers of ctl_inner and ctl_start (internal linkage: not exported)
 // A fixed-point handle whose configuration did not convert refuses to step (error set).
 bool fixed_config_ok(Handle* p) {
   if (!p->fixed || p->cfg_q.ok) return true;
@@ -346,6 +348,8 @@ int fill_columns(Handle* p, double* out) {
   return static_cast<int>(o.odo);
 }
 }  // namespace
+
+extern "C" {
 
 /// Inner step: cumulative counts, dt in seconds; fills out[0..n) with the columns (see
 /// ctl_column_name). Returns the odometry status (0 ok, > 0 a reported input problem).
