@@ -1,30 +1,20 @@
 #!/bin/sh
-# Builds the firmware-in-the-loop simulator into .build/fil/fil (libsimavr from the
-# provisioned PlatformIO package tool-simavr, lib/slipmodel and lib/protocol from the tree).
+# Builds the firmware-in-the-loop simulator into .build/fil/fil (sim/common's libsimavr harness
+# recipe; lib/slipmodel and lib/protocol from the tree).
 # Usage: sim/fil/build.sh        (prints the path of the binary)
+[ -n "$BASH_VERSION" ] || exec bash "$0" "$@"  # host_tools/fil.py runs it with sh
 set -e
 root="$(cd "$(dirname "$0")/../.." && pwd)"
-core="${PLATFORMIO_CORE_DIR:-$root/.platformio}"
-simavr="$core/packages/tool-simavr"
-if [ ! -f "$simavr/include/simavr/sim_avr.h" ]; then
-    echo "sim/fil/build.sh: libsimavr headers not found in $simavr/include (run scripts/setup.sh)" >&2
-    exit 2
-fi
-libdir="$simavr/lib/x86_64-linux-gnu"
-[ -d "$libdir" ] || libdir="$simavr/lib"
+. "$root/sim/common/harness.sh"
 out="$root/.build/fil"
 mkdir -p "$out"
-srcs="$root/sim/fil/fil.cpp $root/lib/slipmodel/src/slipmodel/*.cpp $root/lib/protocol/src/protocol/*.cpp"
 # rebuild only when a source or header (or this script) is newer than the binary
-deps="$root/sim/fil $root/lib/slipmodel/src $root/lib/protocol/src $root/include/board.h"
+deps="$root/sim/fil $root/lib/slipmodel/src $root/lib/protocol/src $HARNESS_DEPS"
 if [ -x "$out/fil" ] && [ -z "$(find $deps -newer "$out/fil" 2>/dev/null)" ]; then
     echo "$out/fil"
     exit 0
 fi
-g++ -std=c++14 -O2 -Wall -Wextra \
-    -I"$simavr/include" -I"$simavr/include/simavr" \
-    -I"$root/lib/slipmodel/src" -I"$root/lib/protocol/src" -I"$root/include" \
-    -o "$out/fil.tmp" $srcs \
-    -L"$libdir" -Wl,-rpath,"$libdir" -lsimavr  # (libsimavr brings its own libelf dependency; fil.cpp reads ELF symbols itself)
+harness_build "$out/fil.tmp" "$root"/sim/fil/*.cpp "$root"/lib/slipmodel/src/slipmodel/*.cpp \
+    "$root"/lib/protocol/src/protocol/*.cpp -I"$root/lib/slipmodel/src" -I"$root/lib/protocol/src" >&2
 mv "$out/fil.tmp" "$out/fil"
 echo "$out/fil"
