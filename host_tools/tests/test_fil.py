@@ -151,7 +151,12 @@ def test_no_task_overran_and_cycles_reported(run48):
               end="")
     e = s["encoder_isr"]
     assert e["calls"] > 10000 and e["max_cycles"] <= ENC_BUDGET
-    assert 0 <= e["edges_driven"] - e["calls"] <= 4  # one ISR per edge (the last may be in flight)
+    # One ISR per edge. The hardware merges two edges on one INT pin only when the second comes
+    # before the first one's ISR has started (its flag still set); here the edges on one pin are
+    # two counts apart, over 4000 cycles at this run's top wheel speed, against an ISR latency
+    # of tens of cycles, so none merge. At the stop, at most one edge per INT pin (4) can still
+    # be pending or in service.
+    assert 0 <= e["edges_driven"] - e["calls"] <= 4
     print(f"\nencoder ISR: {e['mean_cycles']:.2f} cycles per edge mean, {e['max_cycles']} max "
           f"({e['calls']} calls, budget {ENC_BUDGET}); simulator speed {s['sim_s_per_wall_s']:.3f} simulated s per wall s")
 

@@ -80,6 +80,13 @@ int avrsim_step(avrsim_t *s) {
     s->pc_before = pc0;
     s->cycle_before = avr->cycle;
 
+    /* correction 3, RETI of an ISR that re-enabled interrupts (ISR_NOBLOCK): SREG.I is already
+     * set, so simavr leaves interrupt_state alone and an interrupt raised during the RETI (by a
+     * cycle timer) is served in the same step, with no main instruction between. -1 makes
+     * simavr's own service routine defer it to after the next instruction. */
+    if (running_before && !asleep_before && op == OP_RETI && avr->sreg[S_I] && avr->interrupt_state >= 0)
+        avr->interrupt_state = -1;
+
     if (asleep_before && running_before) {
         /* A stimulus between two steps (avr_raise_irq) woke the core. The hardware vectors
          * first and runs the instruction after SLEEP on return; simavr would run it first. */
@@ -98,7 +105,9 @@ int avrsim_step(avrsim_t *s) {
     /* correction 3: the instruction that set SREG.I leaves simavr waiting two instructions */
     if (avr->sreg[S_I] && avr->interrupt_state < 0) avr->interrupt_state = (int8_t)avr_has_pending_interrupts(avr);
 
-    if (avr->interrupts.running_ptr > isr_before) { /* the core has just vectored */
+    /* the core has just vectored (a RETI in the same step has popped one invocation) */
+    const int popped = executed && op == OP_RETI && isr_before > 0;
+    if (avr->interrupts.running_ptr + popped > isr_before) {
         const int vector = avr->interrupts.running[avr->interrupts.running_ptr - 1]->vector;
         /* hardware sleeps at a SLEEP that simavr skips for a pending interrupt, and wakes at once */
         const int from_sleep = asleep_before || (executed && op == OP_SLEEP && (avr->data[SMCR] & (1u << SE)));

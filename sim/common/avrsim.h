@@ -37,7 +37,10 @@ extern "C" {
  *    adds nothing. Added when the core vectors out of sleep.
  * 3. One instruction after RETI (and SEI, or any write that sets SREG.I): the hardware executes
  *    exactly one more instruction before a pending interrupt; simavr 1.6 executes two. The step
- *    after such an instruction lets the next instruction be the last.
+ *    after such an instruction lets the next instruction be the last. A RETI that finds SREG.I
+ *    already set (the return of an ISR_NOBLOCK handler) leaves simavr with no wait at all: an
+ *    interrupt raised during it would be served in the same step; the step defers it by one
+ *    instruction as well.
  * Not corrected, because simavr already charges the datasheet's figure (the self-test checks):
  *    RETI 5 cycles (3-byte PC popped), the vector's JMP 3 cycles. */
 #define AVRSIM_IRQ_RESPONSE_CYCLES 5u

@@ -13,7 +13,7 @@
 #include "avr_regs.h"
 
 static avrsim_t sim;
-static avr_irq_t *pd0, *pd1;
+static avr_irq_t *pd0, *pd1, *pd2;
 static int passed, failed;
 
 static void check(int ok, const char *what, long got, long want) {
@@ -38,7 +38,7 @@ static avr_cycle_count_t raise_pd0(avr_t *avr, avr_cycle_count_t when, void *par
     return 0;
 }
 
-static void low(void) { avr_raise_irq(pd0, 0); avr_raise_irq(pd1, 0); }
+static void low(void) { avr_raise_irq(pd0, 0); avr_raise_irq(pd1, 0); avr_raise_irq(pd2, 0); }
 
 /* cycles of the one INT0 invocation since the last clear */
 static long int0_cycles(void) {
@@ -51,6 +51,9 @@ int main(int argc, char **argv) {
     if (avrsim_open(&sim, argv[1], err, sizeof err)) { fprintf(stderr, "selftest: %s\n", err); return 2; }
     pd0 = avr_io_getirq(sim.avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 0);
     pd1 = avr_io_getirq(sim.avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 1);
+    pd2 = avr_io_getirq(sim.avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2);
+    const long int2_reti = avrsim_symbol(argv[1], "isr_int2_reti");
+    if (int2_reti < 0) { fprintf(stderr, "selftest: no isr_int2_reti in %s\n", argv[1]); return 2; }
     low();
     const long body0 = 2, body1 = 1, jmp = 3;
     const long awake0 = AVRSIM_IRQ_RESPONSE_CYCLES + jmp + body0 + AVRSIM_RETI_CYCLES;
@@ -102,6 +105,19 @@ int main(int argc, char **argv) {
     if (!run_to_phase(6)) return 1;
     check(int0_cycles() == awake0 + (long)AVRSIM_WAKE_CYCLES, "SEI; SLEEP with INT0 pending: sleeps and wakes at once",
           int0_cycles(), awake0 + AVRSIM_WAKE_CYCLES);
+
+    low();
+    steps(20); /* inside the INC chain */
+    avr_raise_irq(pd2, 1);
+    for (int i = 0; i < 40 && (long)sim.avr->pc != int2_reti; ++i) avrsim_step(&sim);
+    avrsim_clear_isr_stats(&sim);
+    avr_cycle_timer_register(sim.avr, 1, raise_pd0, NULL); /* due during the RETI's 5 cycles */
+    steps(40);
+    check(sim.avr->data[21] - sim.avr->data[24] == 1,
+          "main instructions between a RETI that finds SREG.I set and an interrupt raised during it",
+          sim.avr->data[21] - sim.avr->data[24], 1);
+    check(int0_cycles() == awake0, "INT0 raised during that RETI: counted, response + JMP + body + RETI",
+          int0_cycles(), awake0);
 
     printf("avrsim self-test: %d passed, %d failed\n", passed, failed);
     return failed ? 1 : 0;
