@@ -1,7 +1,11 @@
 /*
- * The robot's wiring as the simulator harnesses see it: which port bit carries which signal
- * (include/board.h's wiring, docs/firmware.md "Pins"), as avr_regs.h data addresses and bits.
- * Include after avr_regs.h.
+ * The robot's wiring for the simulator harnesses: include/board.h's names (ENC_LEFT_A_BIT,
+ * MOTOR_BRAKE_PORT, MOTOR_R_OCR, CYCLES_TCCRB, ...) with avr_regs.h's register names under
+ * them, so that a register name expands to its data-space address (MOTOR_BRAKE_PORT -> PORTH
+ * -> 0x102) and a bit name to its bit number. The harnesses use those names; this file adds
+ * only what board.h cannot say: simavr names ports by letter and USARTs by digit (each checked
+ * against board.h at compile time), and which vectors are the encoders'.
+ * Include after every other header (avr_regs.h's macros are short upper-case names).
  */
 #ifndef SIM_COMMON_BOARD_SIM_H
 #define SIM_COMMON_BOARD_SIM_H
@@ -9,26 +13,22 @@
 #include "avr_regs.h"
 #include "board.h"
 
-/* encoders: left A/B = PD0/PD1 (INT0/INT1), right A/B = PD2/PD3 (INT2/INT3) */
-#define SIM_ENC_PORT 'D'
-#define SIM_ENC_LEFT_A_BIT PD0
-#define SIM_ENC_RIGHT_A_BIT PD2 /* B is the next bit of each wheel */
-#define SIM_ENC_PINS_MASK ((1u << PD0) | (1u << PD1) | (1u << PD2) | (1u << PD3))
-#define SIM_ENC_FIRST_VECTOR INT0_vect
-#define SIM_ENC_LAST_VECTOR INT3_vect
-#define SIM_ENC_INT_MASK ((1u << INT0) | (1u << INT1) | (1u << INT2) | (1u << INT3)) /* in EIMSK */
+#ifdef __cplusplus
+#define SIM_STATIC_ASSERT static_assert
+#else
+#define SIM_STATIC_ASSERT _Static_assert
+#endif
 
-/* motor shield: channel A -> right wheel, channel B -> left wheel */
-#define SIM_BRAKE_RIGHT_BIT PH6 /* PORTH, pin 9 */
-#define SIM_BRAKE_LEFT_BIT PH5  /* PORTH, pin 8 */
-#define SIM_BRAKE_BOTH_MASK ((1u << SIM_BRAKE_RIGHT_BIT) | (1u << SIM_BRAKE_LEFT_BIT))
-#define SIM_DIR_RIGHT_BIT PB6 /* PORTB, pin 12 */
-#define SIM_DIR_LEFT_BIT PB7  /* PORTB, pin 13 */
-/* PWM: right = OC3C on PE5 (Timer3, TOP = ICR3), left = OC1A on PB5 (Timer1, TOP = ICR1) */
-#define SIM_PWM_RIGHT_BIT PE5
-#define SIM_PWM_LEFT_BIT PB5
+/* simavr's name of ENC_PORT (AVR_IOCTL_IOPORT_GETIRQ) */
+#define SIM_ENC_PORT_LETTER 'D'
+SIM_STATIC_ASSERT(ENC_PORT == PORTD && ENC_PIN == PIND, "SIM_ENC_PORT_LETTER must name board.h's ENC_PORT");
 
-/* XBee: USART2 */
-#define SIM_XBEE_UART '2'
+/* simavr's name of the XBee USART (AVR_IOCTL_UART_GETIRQ) */
+#define SIM_XBEE_UART_DIGIT '2'
+SIM_STATIC_ASSERT(XBEE_UDR == UDR2, "SIM_XBEE_UART_DIGIT must name board.h's XBee USART");
+
+/* the four encoder vectors of board.h (INTn with n = the pin's bit on ENC_PORT) */
+#define SIM_IS_ENC_VECTOR(v) \
+    ((v) == ENC_LEFT_A_VECT || (v) == ENC_LEFT_B_VECT || (v) == ENC_RIGHT_A_VECT || (v) == ENC_RIGHT_B_VECT)
 
 #endif /* SIM_COMMON_BOARD_SIM_H */

@@ -7,7 +7,6 @@
 
 extern "C" {
 #include <simavr/avr_extint.h>
-#include <simavr/avr_ioport.h>
 #include <simavr/sim_cycle_timers.h>
 }
 
@@ -35,10 +34,6 @@ void Fil::setup_avr() {
     // low-level emulation then polls the pin on every cycle while it is low (motors off), which
     // made the simulation ~2-3x slower. Non-strict: no polling; the disabled vectors are unaffected.
     for (uint8_t i = 4; i < 8; ++i) avr_extint_set_strict_lvl_trig(avr, i, 0);
-    for (int i = 0; i < 4; ++i) {
-        pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(SIM_ENC_PORT), SIM_ENC_LEFT_A_BIT + i);
-        avr_raise_irq(pin_irq[i], 1);  // kPhase0: both channels high
-    }
 }
 
 void Fil::step() {
@@ -54,12 +49,12 @@ void Fil::step() {
 }
 
 void Fil::after_step() {
-    bool br = (avr->data[PORTH] & SIM_BRAKE_BOTH_MASK) == SIM_BRAKE_BOTH_MASK;  // at the exact cycle
+    bool br = (avr->data[MOTOR_BRAKE_PORT] & MOTOR_BRAKE_MASK) == MOTOR_BRAKE_MASK;  // at the exact cycle
     if (br != braking) {
         (br ? brake_on_t : brake_off_t).push_back(board_now());
         braking = br;
     }
-    bool t5 = avr->data[TCCR5B] != 0;
+    bool t5 = avr->data[CYCLES_TCCRB] != 0;
     if (t5 && !board_running) {
         board_running = true;
         if (!board_origin_set) { board_origin = avr->cycle; board_origin_set = true; next_cam_t = 0; }

@@ -5,6 +5,7 @@
 #include <math.h>
 
 extern "C" {
+#include <simavr/avr_ioport.h>
 #include <simavr/sim_cycle_timers.h>
 }
 
@@ -13,6 +14,7 @@ namespace fil {
 namespace {
 const int kReversed[2] = {ENC_RIGHT_REVERSED, ENC_LEFT_REVERSED};
 const uint8_t kGray[4] = {0, 1, 3, 2};  // (B,A)
+const int kBit[2][2] = {{ENC_RIGHT_A_BIT, ENC_RIGHT_B_BIT}, {ENC_LEFT_A_BIT, ENC_LEFT_B_BIT}};  // ENC_PORT bits
 }  // namespace
 
 // The wheel angle in counts at any cycle inside the current plant step (linear).
@@ -32,14 +34,23 @@ namespace {
 const int kPhase0 = 2;
 }  // namespace
 
+void Fil::setup_encoders() {
+    for (int w = 0; w < 2; ++w)
+        for (int ch = 0; ch < 2; ++ch) {
+            pin_irq[w][ch] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(SIM_ENC_PORT_LETTER), kBit[w][ch]);
+            avr_raise_irq(pin_irq[w][ch], 1);  // kPhase0: both channels high
+        }
+}
+
 void Fil::drive_pins(int w, long pos) {
     long g = kReversed[w] ? -pos : pos;
     uint8_t s_old = kGray[static_cast<unsigned long>((kReversed[w] ? -pos_now[w] : pos_now[w]) + kPhase0) & 3u];
     uint8_t s = kGray[static_cast<unsigned long>(g + kPhase0) & 3u];
-    int base = w == 0 ? SIM_ENC_RIGHT_A_BIT - SIM_ENC_LEFT_A_BIT : 0;  // right on PD2/PD3, left on PD0/PD1
-    pins_driven = static_cast<uint8_t>((pins_driven & ~(3u << base)) | (static_cast<unsigned>(s) << base));
-    if ((s ^ s_old) & 1) avr_raise_irq(pin_irq[base], s & 1);
-    if ((s ^ s_old) & 2) avr_raise_irq(pin_irq[base + 1], (s >> 1) & 1);
+    for (int ch = 0; ch < 2; ++ch) {  // A, B
+        const unsigned level = (s >> ch) & 1u, bit = 1u << kBit[w][ch];
+        pins_driven = static_cast<uint8_t>(level ? (pins_driven | bit) : (pins_driven & ~bit));
+        if (((s ^ s_old) >> ch) & 1u) avr_raise_irq(pin_irq[w][ch], level);
+    }
     pos_now[w] = pos;
     ++edges_total[w];
 }

@@ -25,7 +25,6 @@
  *   recorder.cpp  groundtruth.csv, plant.csv, encoder_samples.csv, fil.json
  *   main.cpp      the run loop
  */
-#include <elf.h>
 #ifndef SIM_FIL_FIL_H
 #define SIM_FIL_FIL_H
 
@@ -142,7 +141,7 @@ struct Fil {
     double wall_now() const;
 
     // encoders.cpp (index 0 = right, 1 = left)
-    avr_irq_t* pin_irq[4] = {nullptr, nullptr, nullptr, nullptr};  // PD0..PD3: left A, left B, right A, right B
+    avr_irq_t* pin_irq[2][2] = {{nullptr, nullptr}, {nullptr, nullptr}};  // [wheel][A, B] on ENC_PORT
     EdgeTimer edge_timer[2] = {{this, 0}, {this, 1}};
     avr_cycle_count_t step_c0 = 0;  // the current plant step, for the wheel angle at any cycle inside it
     double step_s0[2] = {0, 0}, step_s1[2] = {0, 0};  // counts (angle * CPR / 2 pi) at its start and end
@@ -150,12 +149,13 @@ struct Fil {
     bool edge_armed[2] = {false, false};
     long pos_now[2] = {0, 0};  // quadrature position currently driven on the pins (counts, + forward)
     long edges_total[2] = {0, 0};
-    uint8_t pins_driven = SIM_ENC_PINS_MASK;  // PD0..PD3 as driven by the encoders
+    uint8_t pins_driven = ENC_MASK;  // ENC_PORT's encoder bits as driven by the encoders
     unsigned long pin_conflicts = 0;
     long snap_pc = -1;  // enc_snapshot(): the instants the firmware samples its counters
     std::deque<Snap> snaps;
     unsigned long snap_calls = 0;
     double counts_at(int w, avr_cycle_count_t c) const;
+    void setup_encoders();  // the lines' simavr IRQs, driven high (both channels: phase 0)
     void drive_pins(int w, long pos);
     avr_cycle_count_t edge_cb(int w);
     void arm_edges(int w);

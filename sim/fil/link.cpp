@@ -23,9 +23,9 @@ namespace fil {
 // USART2 at the XBee's line rate, host bytes in one by one (10 bits each), robot bytes out.
 void Fil::setup_link() {
     uint32_t flags = 0;
-    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS(SIM_XBEE_UART), &flags);
-    uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(SIM_XBEE_UART), UART_IRQ_INPUT);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(SIM_XBEE_UART), UART_IRQ_OUTPUT),
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS(SIM_XBEE_UART_DIGIT), &flags);
+    uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(SIM_XBEE_UART_DIGIT), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(SIM_XBEE_UART_DIGIT), UART_IRQ_OUTPUT),
                             [](avr_irq_t*, uint32_t value, void* p) { static_cast<Fil*>(p)->on_uart_out(value); },
                             this);
     byte_cycles = static_cast<avr_cycle_count_t>(llround(10.0 * 8.0 * (XBEE_UBRR + 1)));  // 10 bits at U2X baud

@@ -27,6 +27,7 @@ int main(int argc, char** argv) {
     f.plant_cycles = static_cast<avr_cycle_count_t>(llround(opt.plant_dt * fil::kF));
     f.open_recording();
     f.setup_avr();
+    f.setup_encoders();
     f.setup_link();
     printf("PTY %s\n", f.pty_name.c_str());
     fflush(stdout);

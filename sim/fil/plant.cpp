@@ -21,23 +21,21 @@ double Fil::wall_now() const {
 // gives the averaged voltage u * supply; enable low (coast) is approximated by u = 0 as well.
 double Fil::channel_duty(int w) {
     bool right = w == 0;
-    uint8_t porth = avr->data[PORTH];
-    bool brake = porth & (1u << (right ? SIM_BRAKE_RIGHT_BIT : SIM_BRAKE_LEFT_BIT));
+    bool brake = avr->data[MOTOR_BRAKE_PORT] & (1u << (right ? MOTOR_R_BRAKE_BIT : MOTOR_L_BRAKE_BIT));
     if (brake) return 0.0;
-    uint8_t tccra = avr->data[right ? TCCR3A : TCCR1A];
-    bool com = right ? (tccra & (1u << COM3C1)) : (tccra & (1u << COM1A1));
+    uint8_t tccra = avr->data[right ? MOTOR_R_TCCRA : MOTOR_L_TCCRA];
+    bool com = tccra & (1u << (right ? MOTOR_R_COM1 : MOTOR_L_COM1));
     double mag;
     if (com) {
-        double top = avrsim_rd16(&sim, right ? ICR3 : ICR1);
-        double ocr = avrsim_rd16(&sim, right ? OCR3C : OCR1A);
+        double top = avrsim_rd16(&sim, right ? MOTOR_R_ICR : MOTOR_L_ICR);
+        double ocr = avrsim_rd16(&sim, right ? MOTOR_R_OCR : MOTOR_L_OCR);
         if (opt.pwm_ideal) mag = ocr >= top + 1 ? 1.0 : ocr / (top + 1.0);
         else mag = ocr >= top ? 1.0 : (ocr + 1.0) / (top + 1.0);
     } else {
-        uint8_t port = avr->data[right ? PORTE : PORTB];
-        mag = (port & (1u << (right ? SIM_PWM_RIGHT_BIT : SIM_PWM_LEFT_BIT))) ? 1.0 : 0.0;  // a plain output
+        uint8_t port = avr->data[right ? MOTOR_R_PWM_PORT : MOTOR_L_PWM_PORT];
+        mag = (port & (1u << (right ? MOTOR_R_PWM_BIT : MOTOR_L_PWM_BIT))) ? 1.0 : 0.0;  // a plain output
     }
-    uint8_t portb = avr->data[PORTB];
-    int level = (portb >> (right ? SIM_DIR_RIGHT_BIT : SIM_DIR_LEFT_BIT)) & 1;
+    int level = (avr->data[MOTOR_DIR_PORT] >> (right ? MOTOR_R_DIR_BIT : MOTOR_L_DIR_BIT)) & 1;
     int fwd_level = right ? MOTOR_RIGHT_DIR_FORWARD_LEVEL : MOTOR_LEFT_DIR_FORWARD_LEVEL;
     return level == fwd_level ? mag : -mag;
 }
@@ -57,7 +55,7 @@ void Fil::pace() {
 // Every plant step: the motor outputs -> Plant::step_duty over the next interval, the wheel
 // angles -> encoder edges, the camera samples and plant.csv, the host's bytes, hang injection.
 avr_cycle_count_t Fil::plant_cb(avr_cycle_count_t when) {
-    if (((avr->data[PIND] ^ pins_driven) & SIM_ENC_PINS_MASK) && edges[0].empty() && edges[1].empty()) ++pin_conflicts;
+    if (((avr->data[ENC_PIN] ^ pins_driven) & ENC_MASK) && edges[0].empty() && edges[1].empty()) ++pin_conflicts;
     duty[0] = channel_duty(0);
     duty[1] = channel_duty(1);
     const slip::PlantState& s = plant.state();

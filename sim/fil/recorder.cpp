@@ -103,7 +103,8 @@ void Fil::write_summary(double wall_s) {
     }
     fprintf(f, "\n  },\n  \"isr_nested_calls\": %lu,\n", sim.nested_calls);
     avrsim_isr_stat_t enc = {0, 0, 0.0};
-    for (int v = SIM_ENC_FIRST_VECTOR; v <= SIM_ENC_LAST_VECTOR; ++v) {
+    for (int v = 0; v < AVRSIM_VECTORS; ++v) {
+        if (!SIM_IS_ENC_VECTOR(v)) continue;
         enc.calls += sim.isr[v].calls;
         enc.sum_cycles += sim.isr[v].sum_cycles;
         if (sim.isr[v].max_cycles > enc.max_cycles) enc.max_cycles = sim.isr[v].max_cycles;

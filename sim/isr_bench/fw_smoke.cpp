@@ -37,7 +37,8 @@ const double kF = AVRSIM_F_CPU_HZ;
 avrsim_t sim;
 avr_t* avr;
 avr_irq_t* uart_in;
-avr_irq_t* pin_irq[4];
+avr_irq_t* pin_irq[2][2];  // [wheel: 0 left, 1 right][channel: 0 A, 1 B]
+const int kEncBit[2][2] = {{ENC_LEFT_A_BIT, ENC_LEFT_B_BIT}, {ENC_RIGHT_A_BIT, ENC_RIGHT_B_BIT}};
 proto::Decoder dec;
 uint16_t host_seq = 100;
 unsigned long tx_bytes;
@@ -78,7 +79,7 @@ void step() {
         if (last_kick && avr->cycle - last_kick > max_kick_gap) max_kick_gap = avr->cycle - last_kick;
         last_kick = avr->cycle;
     }
-    if (watch_brake && brake_seen_t < 0 && (avr->data[PORTH] & SIM_BRAKE_BOTH_MASK) == SIM_BRAKE_BOTH_MASK)
+    if (watch_brake && brake_seen_t < 0 && (avr->data[MOTOR_BRAKE_PORT] & MOTOR_BRAKE_MASK) == MOTOR_BRAKE_MASK)
         brake_seen_t = avr->cycle / kF;
 }
 
@@ -87,9 +88,9 @@ double enc_rate = 0, next_edge_l = 0, next_edge_r = 0;
 int pos_l, pos_r;
 const uint8_t gray[4] = {0, 1, 3, 2};
 void drive(int wheel, int pos) {
-    uint8_t s = gray[pos & 3];  // wheel 0 = left (PD0/PD1), 1 = right (PD2/PD3)
-    avr_raise_irq(pin_irq[wheel * 2], s & 1);
-    avr_raise_irq(pin_irq[wheel * 2 + 1], (s >> 1) & 1);
+    uint8_t s = gray[pos & 3];  // (B,A)
+    avr_raise_irq(pin_irq[wheel][0], s & 1);
+    avr_raise_irq(pin_irq[wheel][1], (s >> 1) & 1);
 }
 
 void run_for(double seconds) {
@@ -146,13 +147,14 @@ int main(int argc, char** argv) {
     if (avrsim_open(&sim, argv[1], err, sizeof err)) { fprintf(stderr, "fw_smoke: %s\n", err); return 2; }
     avr = sim.avr;
     uint32_t flags = 0;
-    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS(SIM_XBEE_UART), &flags);
-    uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(SIM_XBEE_UART), UART_IRQ_INPUT);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(SIM_XBEE_UART), UART_IRQ_OUTPUT), on_uart_out, NULL);
-    for (int i = 0; i < 4; ++i) {
-        pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(SIM_ENC_PORT), SIM_ENC_LEFT_A_BIT + i);
-        avr_raise_irq(pin_irq[i], 0);
-    }
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS(SIM_XBEE_UART_DIGIT), &flags);
+    uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(SIM_XBEE_UART_DIGIT), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ(SIM_XBEE_UART_DIGIT), UART_IRQ_OUTPUT), on_uart_out, NULL);
+    for (int w = 0; w < 2; ++w)
+        for (int ch = 0; ch < 2; ++ch) {
+            pin_irq[w][ch] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(SIM_ENC_PORT_LETTER), kEncBit[w][ch]);
+            avr_raise_irq(pin_irq[w][ch], 0);
+        }
     long a_hang_l = avrsim_data_symbol(argv[1], "g_fault_hang");
     uint32_t a_hang = a_hang_l < 0 ? 0 : static_cast<uint32_t>(a_hang_l);
     long kick = avrsim_symbol(argv[1], "_Z8wdt_kickv");
@@ -300,7 +302,7 @@ int main(int argc, char** argv) {
                 }
             check(mono, "x_odo never goes back across the stop (wheels turning forward)");
         }
-        check((avr->data[PORTH] & SIM_BRAKE_BOTH_MASK) == SIM_BRAKE_BOTH_MASK, "brake pins D8/D9 high");
+        check((avr->data[MOTOR_BRAKE_PORT] & MOTOR_BRAKE_MASK) == MOTOR_BRAKE_MASK, "brake pins D8/D9 high");
         check(brake_seen_t > 0 && brake_seen_t - silent_at <= 0.500 && brake_seen_t - silent_at >= 0.498,
               "brake applied within 500 ms of the last host frame, and not before 498 ms");
         if (brake_t > 0)

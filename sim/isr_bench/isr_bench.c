@@ -24,7 +24,8 @@
 
 static avrsim_t sim;
 static avr_t *avr;
-static avr_irq_t *pin_irq[4];
+static avr_irq_t *pin_irq[2][2]; /* [wheel: 0 left, 1 right][channel: 0 A, 1 B] */
+static const int enc_bit[2][2] = {{ENC_LEFT_A_BIT, ENC_LEFT_B_BIT}, {ENC_RIGHT_A_BIT, ENC_RIGHT_B_BIT}};
 static uint16_t a_raw_l, a_raw_r, a_ill_l, a_ill_r;
 
 /* per-invocation bookkeeping */
@@ -62,7 +63,7 @@ static void step(void) {
         printf("  trace pc=%05x op=%04x cycles=%llu\n", (unsigned)sim.pc_before,
                (unsigned)(avr->flash[sim.pc_before] | (avr->flash[sim.pc_before + 1] << 8)),
                (unsigned long long)(avr->cycle - sim.cycle_before));
-    if (sim.left >= SIM_ENC_FIRST_VECTOR && sim.left <= SIM_ENC_LAST_VECTOR && in_isr) {
+    if (SIM_IS_ENC_VECTOR(sim.left) && in_isr) {
         unsigned long d = sim.left_cycles;
         uint16_t post[4] = {rd16(a_raw_l), rd16(a_raw_r), rd16(a_ill_l), rd16(a_ill_r)};
         int path = P_NONE, changed = 0;
@@ -92,7 +93,7 @@ static void step(void) {
             if (avr->cycle - ioff_start > ioff_max) { ioff_max = avr->cycle - ioff_start; ioff_max_pc = ioff_pc; }
         }
     }
-    if (sim.entered >= SIM_ENC_FIRST_VECTOR && sim.entered <= SIM_ENC_LAST_VECTOR && !in_isr) {
+    if (SIM_IS_ENC_VECTOR(sim.entered) && !in_isr) {
         in_isr = 1;
         isr_from_sleep = sim.wakeups != wakeups0;
         isr_pre[0] = rd16(a_raw_l); isr_pre[1] = rd16(a_raw_r);
@@ -112,9 +113,8 @@ static int pos_l, pos_r;  /* Gray positions of the generated signals */
 
 static void drive(int wheel, int pos) {
     uint8_t s = gray[pos & 3];
-    int base = wheel ? 2 : 0;
-    avr_raise_irq(pin_irq[base + 0], s & 1);
-    avr_raise_irq(pin_irq[base + 1], (s >> 1) & 1);
+    avr_raise_irq(pin_irq[wheel][0], s & 1);
+    avr_raise_irq(pin_irq[wheel][1], (s >> 1) & 1);
 }
 
 static void reset_stats(void) {
@@ -173,14 +173,16 @@ int main(int argc, char **argv) {
     a_raw_r = data_symbol(argv[1], "enc_raw_r");
     a_ill_l = data_symbol(argv[1], "enc_ill_l");
     a_ill_r = data_symbol(argv[1], "enc_ill_r");
-    for (int i = 0; i < 4; i++)
-        pin_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(SIM_ENC_PORT), SIM_ENC_LEFT_A_BIT + i);
-    /* boot with all encoder lines low, then wait for the firmware to enable INT0..3 */
-    for (int i = 0; i < 4; i++) avr_raise_irq(pin_irq[i], 0);
+    /* boot with all encoder lines low, then wait for the firmware to enable their interrupts */
+    for (int w = 0; w < 2; w++)
+        for (int ch = 0; ch < 2; ch++) {
+            pin_irq[w][ch] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(SIM_ENC_PORT_LETTER), enc_bit[w][ch]);
+            avr_raise_irq(pin_irq[w][ch], 0);
+        }
     int trace_req = trace; trace = 0;
     run_until(AVRSIM_F_CPU_HZ / 50u); /* 20 ms */
-    if ((avr->data[EIMSK] & SIM_ENC_INT_MASK) != SIM_ENC_INT_MASK) {
-        fprintf(stderr, "firmware did not enable INT0..INT3 within 20 ms (EIMSK=%02x)\n", avr->data[EIMSK]);
+    if ((avr->data[EIMSK] & ENC_INT_MASK) != ENC_INT_MASK) {
+        fprintf(stderr, "firmware did not enable the encoder interrupts within 20 ms (EIMSK=%02x)\n", avr->data[EIMSK]);
         return 1;
     }
     int sign_l = 1, sign_r = 1;
