@@ -147,7 +147,7 @@ def load_sim(path: str) -> dict:
 
 
 def sim_from_fil(path: str) -> dict:
-    """The ddtiming/1 view of a firmware-in-the-loop fil.json (sim/fil/fil.cpp)."""
+    """The ddtiming/1 view of a firmware-in-the-loop fil.json (sim/fil/recorder.cpp)."""
     from host_tools.runfmt import display
 
     fil = _read_json(path)

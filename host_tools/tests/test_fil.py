@@ -118,7 +118,7 @@ def test_encoder_counts_equal_plant_wheel_angles(run48):
 def test_motor_outputs_read_back_as_the_commanded_duty(run48):
     # the duty the simulator reads from OCR3C/OCR1A, COM bits and DIR/BRAKE pins equals the duty
     # the firmware reports (pwm_r/l, its Q15 command) within one PWM count: fast PWM gives
-    # (OCR + 1) / (TOP + 1), the firmware's map sets OCR = round(800 |d|) (+1/800 on average today)
+    # (OCR + 1) / (TOP + 1), the firmware writes OCR = round(800 |d|) - 1 (median difference 0)
     out, _, _ = run48
     tel = csv(out / "telemetry.csv")
     pl = csv(out / "plant.csv")
