@@ -117,6 +117,84 @@ def _feasible_arc(t: np.ndarray, values: list[np.ndarray], period: float):
     return ((best_start + start) % phases.size) * step, (best_len - 1) * step, ks
 
 
+RAMP_STEP_S = 1e-3   # the firmware's duty ramp steps once per 1 kHz scheduler tick
+
+
+def _ramped_duty(t: np.ndarray, duty: tuple, phase: float, period: float,
+                 latency: np.ndarray | None) -> tuple[np.ndarray, tuple]:
+    """The duty of a recorder that ramps it between its ticks (meta ``duty_ramp``: this
+    project's firmware, src/motor.cpp): at a tick it sets d_k, then every millisecond adds the
+    slope s_k the torque->PWM map chose, and a frame reports the duty in force at its own time.
+    Per tick, two frames inside it give s_k and d_k; a tick with one frame takes the slope
+    interpolated from the ticks within two of it that have two (the slope changes smoothly
+    while a clamped wheel accelerates; it is 0 where nothing is ramped; at the tick where the
+    clamp lets go one frame cannot tell, and the neighbours' slope is off for a tick or two;
+    the line to the next frame instead, tried on the firmware in the loop, was worse: the
+    velocity loop's next duty does not continue the ramp). Returns the input times (the tick,
+    then each millisecond) and the duties."""
+    t = np.asarray(t, float)
+    n_ms = max(1, int(round(period / RAMP_STEP_S)))
+    k0 = math.floor((t[0] - phase) / period + 1e-9)
+    k1 = math.floor((t[-1] - phase) / period + 1e-9)
+    ticks = phase + period * np.arange(k0, k1 + 1)
+    lat = (np.interp(ticks, t, latency) if latency is not None else np.zeros(ticks.size))
+    kf = np.floor((t - phase) / period + 1e-9).astype(np.int64) - k0      # tick of each frame
+    # ramp steps in force at each frame: the 1 kHz ticks after the duty was set
+    m_f = np.clip(np.floor((t - ticks[kf]) / RAMP_STEP_S + 1e-9), 0, n_ms - 1)
+    m_f = np.where(t - ticks[kf] < lat[kf], 0, m_f)
+    out_t = (ticks[:, None] + np.arange(n_ms)[None, :] * RAMP_STEP_S)
+    out_t[:, 0] += lat
+    out = []
+    for v in duty:
+        v = np.asarray(v, float)
+        slope = np.full(ticks.size, np.nan)
+        base = np.full(ticks.size, np.nan)
+        for k in np.unique(kf):
+            sel = np.flatnonzero(kf == k)
+            ms = m_f[sel]
+            if sel.size >= 2 and ms.max() > ms.min():
+                a, b = sel[np.argmin(ms)], sel[np.argmax(ms)]
+                slope[k] = (v[b] - v[a]) / (m_f[b] - m_f[a])
+        have = np.flatnonzero(np.isfinite(slope))
+        for k in np.unique(kf):
+            if not np.isfinite(slope[k]):
+                near = have[np.abs(have - k) <= 2]
+                slope[k] = float(np.interp(k, near, slope[near])) if near.size else 0.0
+            sel = np.flatnonzero(kf == k)
+            base[k] = float(np.mean(v[sel] - slope[k] * m_f[sel]))
+        known = np.flatnonzero(np.isfinite(base))
+        # ticks no frame reported (a gap): on the line between the reported ones, unramped
+        base = np.interp(np.arange(ticks.size), known, base[known])
+        slope = np.where(np.isin(np.arange(ticks.size), known), slope, 0.0)
+        slope = np.nan_to_num(slope)
+        out.append((base[:, None] + slope[:, None] * np.arange(n_ms)[None, :]).ravel())
+    return out_t.ravel(), (out[0], out[1])
+
+
+def compute_latency_s(run: Run) -> np.ndarray | None:
+    """Per frame, how long after its tick the reported duty took effect, when the recorder says:
+    this project's firmware writes the duty at the end of the inner task's computation
+    (src/app.cpp) and reports that task's duration with every frame (``inner_last_cyc``,
+    protocol/protocol.json, at its ``f_cpu_hz``).  0.64 ms on the firmware in the loop: on a
+    noiseless camera a replay that applies the duty at the tick is off by three floors.
+    None for a recorder without that column."""
+    tel = run.telemetry
+    cyc = tel.get("inner_last_cyc")
+    if cyc is None:
+        return None
+    cyc = np.asarray(cyc, float)
+    if cyc.size != tel["t_s"].size or not np.all(np.isfinite(cyc)) or np.all(cyc <= 0):
+        return None
+    from host_tools import protocol
+    f_cpu = float(protocol.definition().timing["f_cpu_hz"])
+    period = float(run.meta.get("periods_s", {}).get("inner", 0.0) or 0.0)
+    return np.clip(cyc / f_cpu, 0.0, period if period > 0 else None)
+
+
+OUTLIER_COUNTS = 5.0   # board_rate_phase: a frame this far off at every phase is left out ...
+OUTLIER_SHARE = 0.05   # ... up to this share of the frames
+
+
 def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
                      arc: tuple[float, float] | None = None, step: float = 5e-5) -> float | None:
     """The inner loop's tick phase from the recording alone (no model): the board's wheel
@@ -156,20 +234,33 @@ def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
     else:
         interps = [(lambda x, n=n: np.interp(x, t, n)) for n, _ in sides]
 
-    def score(phase: float) -> float:
+    def errors(phase: float) -> tuple[np.ndarray, np.ndarray]:
+        """Per frame: usable, and the larger of the two wheels' |reported - predicted| speed."""
         tick = phase + np.floor((t - phase) / period + 1e-9) * period   # latest tick <= frame
         ok = tick - period >= t[0]
         for g in gap_end:   # [tick - period, tick] must not reach into a gap
             ok &= ~((tick > t[g - 1]) & (tick - period < t[g]))
-        if ok.sum() < 3:
-            return math.inf
-        s = 0.0
+        e = np.zeros(t.size)
         for (n, w), f in zip(sides, interps):
-            pred = k * (f(tick[ok]) - f(tick[ok] - period)) / period
-            s += float(np.sum((w[ok] - pred) ** 2))
-        return s
+            e = np.maximum(e, np.abs(w - k * (f(tick) - f(tick - period)) / period))
+        return ok, e
 
-    sc = np.array([score(float(p)) for p in phases])
+    errs = [errors(float(p)) for p in phases]
+    # A frame whose speed no phase makes a count difference (more than OUTLIER_COUNTS counts
+    # per period off at every phase: a speed estimate restarted when an experiment ends, a
+    # glitch) says nothing about the phase; up to OUTLIER_SHARE of the frames are left out.
+    # A recorder with more such frames does not report count differences at all.
+    e_min = np.min([np.where(ok, e, np.inf) for ok, e in errs], axis=0)
+    outlier = np.isfinite(e_min) & (e_min > OUTLIER_COUNTS * k / period)
+    if outlier.sum() > OUTLIER_SHARE * max(1, int(np.isfinite(e_min).sum())):
+        return None
+
+    def score(j: int) -> float:
+        ok, e = errs[j]
+        ok = ok & ~outlier
+        return float(np.sum(e[ok] ** 2)) if ok.sum() >= 3 else math.inf
+
+    sc = np.array([score(j) for j in range(phases.size)])
     if not np.isfinite(sc).any() or np.ptp(sc[np.isfinite(sc)]) <= 1e-12 * (1 + np.nanmin(sc)):
         return None
     j = int(np.nanargmin(sc))
@@ -178,12 +269,8 @@ def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
     # agree with the counts to about one count per period.  Another recorder (a filtered speed,
     # another period, speeds at the frames) must not move the input timing: that could shift
     # the inputs by most of a period and hide an actuation delay.
-    tick = phases[j] + np.floor((t - phases[j]) / period + 1e-9) * period
-    ok = tick - period >= t[0]
-    for g in gap_end:
-        ok &= ~((tick > t[g - 1]) & (tick - period < t[g]))
-    n_ok = 2 * int(np.sum(ok))
-    if n_ok < 6 or math.sqrt(sc[j] / n_ok) > 1.5 * k / period:
+    n_ok = int(np.sum(errs[j][0] & ~outlier))
+    if n_ok < 3 or math.sqrt(sc[j] / n_ok) > 1.5 * k / period:
         return None
     best = float(phases[j])
     if 0 < j < phases.size - 1 and np.all(np.isfinite(sc[j - 1:j + 2])):
@@ -307,6 +394,7 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
     duty = (np.asarray(tel["pwm_r"], float), np.asarray(tel["pwm_l"], float))
     torque = (np.asarray(tel["tau_cmd_r"], float), np.asarray(tel["tau_cmd_l"], float))
     dt_tel = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    latency = compute_latency_s(run)
     gappy = t.size > 1 and float(np.max(np.diff(t))) > max(period, dt_tel) * 1.5
     if phase is not None and period > 0 and (period < 0.999 * dt_tel or gappy):
         # A loop faster than the telemetry, or frames lost: a frame reports the value of the
@@ -325,6 +413,16 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
                        np.round((known - phase) / period).astype(np.int64))
     else:
         seen = None
+    if latency is not None:
+        # the board's duty is written when the tick's computation ends (see compute_latency_s)
+        t_in = t_in + (latency if t_in.size == t.size else np.interp(t_in, t, latency))
+        if t_in_tau.size == t_in.size:
+            t_in_tau = t_in.copy()
+    t_steps = None   # ramped duty: where a tick set it (the motor current's transients)
+    if (run.meta.get("duty_ramp") and phase is not None and period >= 0.999 * dt_tel
+            and seen is None):
+        t_steps = t_in
+        t_in, duty = _ramped_duty(t, duty, phase, period, latency)
     # the input takes effect at t_in[k] and holds until the next one; the simulation is sampled
     # at the union of input times and telemetry times
     grid = np.unique(np.concatenate([t, t_in, t_in_tau]))
@@ -339,6 +437,7 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
                                "tick_phase": phase,
                                # per input tick: reported by a frame (None: every input is)
                                "seen_ticks": seen,
+                               "t_steps": t_steps,
                                # camera channels against the count-anchored pose (channels())
                                "count_anchored_pose": bool(
                                    period > 0 and t.size > 1 and period < 0.999 * dt_tel)})
@@ -980,6 +1079,12 @@ def _last_change(t_in: np.ndarray, values: tuple, t: np.ndarray) -> np.ndarray:
     return np.where(i >= 0, tc[np.maximum(i, 0)], -np.inf)
 
 
+def _tick_before(t_steps: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Latest of ``t_steps`` at or before each ``t`` (-inf before the first)."""
+    i = np.searchsorted(t_steps, t, side="right") - 1
+    return np.where(i >= 0, t_steps[np.maximum(i, 0)], -np.inf)
+
+
 @dataclass
 class Channel:
     name: str
@@ -1077,7 +1182,9 @@ def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int,
                 # the current follows the duty within the armature's electrical time, and where
                 # in that transient the ADC sampled is not known: samples within CURRENT_SETTLE_S
                 # of a change of the duty are left out
-                dt_in = t - _last_change(prep.t_in, prep.duty, t)
+                t_steps = prep.extras.get("t_steps")
+                dt_in = (t - _last_change(prep.t_in, prep.duty, t) if t_steps is None
+                         else t - _tick_before(np.asarray(t_steps, float), t))
                 keep = dt_in >= CURRENT_SETTLE_S
                 if keep.sum() < max(3, keep.size // 4):
                     continue   # the frames coincide with the loop's ticks: no settled sample
