@@ -99,10 +99,10 @@ T* place(uint8_t* storage, const T& v) {
     return p;
 }
 
-// SetClamp / SetMu only mark the controller for a rebuild (~16.6 ms of float work); app_poll()
-// rebuilds once the receive ring is empty, and a Start rebuilds first. A burst of such commands
-// thus costs one rebuild, not one per frame, and while a rebuild runs the 256-byte receive ring
-// holds the 191 bytes that arrive at 115200 baud in 16.6 ms.
+// SetClamp / SetMu / SetController only mark the controller for a rebuild (~16.6 ms of float
+// work); app_poll() rebuilds once the receive ring is empty, and a Start rebuilds first. A burst
+// of such commands thus costs one rebuild, not one per frame, and while a rebuild runs the
+// 256-byte receive ring holds the 191 bytes that arrive at 115200 baud in 16.6 ms.
 bool g_rebuild_pending;
 
 void rebuild_controller() {
@@ -152,6 +152,8 @@ void send_params() {
     p.telemetry_period_us = proto::kTelemetryPeriodUs;
     p.baud = proto::kBaud;
     p.clamp_on = g_clamp_on ? 1 : 0;
+    p.controller = g_variant == ctl::Variant::kThesis ? proto::kControllerThesis
+                                                      : proto::kControllerImproved;
     p.firmware_id = FIRMWARE_ID;
     send_msg(p);
 }
@@ -178,7 +180,7 @@ uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
     proto::Start s = proto::Start();
     if (!s.decode(pl, len)) return proto::kResultBadLength;
     if (busy()) return proto::kResultBusy;
-    if (g_rebuild_pending) {  // a SetClamp / SetMu just before: the experiment must use it
+    if (g_rebuild_pending) {  // a SetClamp / SetMu / SetController just before: the run uses it
         g_rebuild_pending = false;
         rebuild_controller();
     }
@@ -261,7 +263,7 @@ bool handle_frame(const proto::Frame& f) {
                 c.decode(f.payload, f.len);  // length and range checked by validate_command
                 if (busy()) { res = proto::kResultBusy; break; }
                 g_variant = c.variant == proto::kControllerThesis ? ctl::Variant::kThesis : ctl::Variant::kImproved;
-                rebuild_controller();
+                g_rebuild_pending = true;
                 break;
             }
             case proto::kMsgSetMu: {

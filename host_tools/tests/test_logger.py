@@ -35,10 +35,10 @@ def telemetry(seq: int, t_us: int, omega: float = 10.0, running: bool = False, x
     return D.encode_raw("Telemetry", seq, [vals[n] for n in NAMES])
 
 
-def params_frame(seq: int, mu=(0.3, 0.239), clamp=1) -> bytes:
+def params_frame(seq: int, mu=(0.3, 0.239), clamp=1, controller=0) -> bytes:
     p = dict(D.robot_defaults["robot"], **D.robot_defaults["motor"])
     p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
-             baud=115200, clamp_on=clamp, firmware_id=0xDEADBEEF)
+             baud=115200, clamp_on=clamp, controller=controller, firmware_id=0xDEADBEEF)
     p["mu_s"], p["mu_k"] = mu
     return D.encode_raw("Params", seq, [p[f.name] for f in D.by_name["Params"].fields])
 
@@ -786,7 +786,7 @@ def test_cli_sigint_end_to_end(tmp_path):
 def test_nan_params_are_refused_not_fatal(tmp_path, capsys):
     p = dict(D.robot_defaults["robot"], **D.robot_defaults["motor"])
     p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
-             baud=115200, clamp_on=0, firmware_id=1, mu_s=float("nan"))
+             baud=115200, clamp_on=0, controller=0, firmware_id=1, mu_s=float("nan"))
     bad = D.encode_raw("Params", 0, [p[f.name] for f in D.by_name["Params"].fields])
     port = serial.serial_for_url("loop://", timeout=0.02)
     port.write(bad + b"".join(telemetry(i + 1, 20_000 * (i + 1)) for i in range(10)))
