@@ -54,6 +54,12 @@ const TaskConfig kTasks[] = {
 static_assert(sizeof kTasks / sizeof kTasks[0] == proto::kTaskCount, "task table vs protocol");
 static_assert(ENC_COUNTS_PER_REV == slip::kEncoderPpr, "the firmware's encoder counts are the model's");
 static_assert(ENC_COUNTS_PER_REV >= 1 && ENC_COUNTS_PER_REV <= 65535, "Params.encoder_ppr is a u16");
+// the protocol's controller codes are lib/control's Variant values (the C ABI's "controller"
+// key, which the analyzer's replay sets from meta.json controller_variant)
+static_assert(static_cast<uint8_t>(ctl::Variant::kImproved) == proto::kControllerImproved &&
+                  static_cast<uint8_t>(ctl::Variant::kThesis) == proto::kControllerThesis &&
+                  ctl::kVariantCount == 2,
+              "protocol.json enum controller != ctl::Variant");
 
 // ---- configuration (changed only by commands, while idle) ----
 slip::RobotParams g_robot;
