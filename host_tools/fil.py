@@ -162,10 +162,14 @@ def sim_args(keys: dict[str, float] | None = None, **opts: Any) -> list[str]:
 
 def record(out: str | Path, elf: str | Path, experiment: dict | None = None, clamp: bool | None = None,
            mu: tuple[float, float] | None = None, args: list[str] | None = None,
-           record_s: float | None = None, timeout_s: float = 60.0) -> tuple[int, L.Logger, dict]:
-    """Runs the simulator and records through its pty with the logger.
-    Returns (logger exit code, logger, fil.json)."""
+           record_s: float | None = None, timeout_s: float = 60.0,
+           controller: str | None = None) -> tuple[int, L.Logger, dict]:
+    """Runs the simulator and records through its pty with the logger (``controller``:
+    the velocity loop the logger sets with SetController before the Start, None: the
+    firmware's default). Returns (logger exit code, logger, fil.json)."""
     out = Path(out)
+    if controller is not None and controller not in P.definition().enums["controller"]:
+        raise FilError(f"controller {controller!r} is not one of {sorted(P.definition().enums['controller'])}")
     for f in ("telemetry.csv", "groundtruth.csv"):
         if (out / f).exists():
             raise FilError(f"{out / f} already exists; refusing to overwrite a recorded run")
@@ -182,7 +186,7 @@ def record(out: str | Path, elf: str | Path, experiment: dict | None = None, cla
         return serial.serial_for_url(sim.pty, baudrate=d.baud, timeout=0.05, write_timeout=0.5)
 
     lg = FilLogger(str(out), open_port, sim.pty, d.baud, experiment=experiment, clamp=clamp, mu=mu,
-                   record_s=record_s, status=False, d=d,
+                   record_s=record_s, controller=controller, status=False, d=d,
                    fil_meta={"command": sim.cmd[1:], "elf": str(elf)})
     try:
         code = lg.run()
@@ -275,6 +279,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--clamp", choices=["on", "off"])
     r.add_argument("--mu-s", type=float)
     r.add_argument("--mu-k", type=float)
+    r.add_argument("--controller", choices=sorted(P.definition().enums["controller"]),
+                   help="the cascade's velocity loop, sent as SetController before the Start "
+                   "(default: the firmware's, improved)")
     r.add_argument("--model", metavar="MODEL_JSON", help="an analyzer model.json (ddmodel/1): its parameters "
                    "and effects go to the simulated plant, its mu_s/mu_k to the firmware (SetMu)")
     r.add_argument("--record-s", type=float, help="free recording length (with --experiment none)")
@@ -315,7 +322,8 @@ def main(a: argparse.Namespace) -> int:
                 mu = M.firmware_mu(m, a.model)
                 opts = sim_args(M.plant_keys(m)) + opts
             clamp = None if a.clamp is None else a.clamp == "on"
-            code, lg, s = record(a.out, elf, exp, clamp, mu, opts, record_s=a.record_s)
+            code, lg, s = record(a.out, elf, exp, clamp, mu, opts, record_s=a.record_s,
+                                 controller=a.controller)
             print(f"{a.out}: {lg.stats['telemetry_rows']} telemetry rows, {s['groundtruth']['rows']} ground-truth "
                   f"rows; {s['sim_s']:.2f} simulated s at {s['sim_s_per_wall_s']:.2f} simulated s per wall s; "
                   f"logger: {lg.end_reason}")

@@ -2,11 +2,14 @@
 
 Opens the XBee serial port (any pyserial URL: a device or pty path, ``socket://host:port``,
 ``loop://``), asks the robot for its parameters, optionally sets the clamp / friction
-coefficients and starts an experiment (keeping it alive with heartbeats), decodes every frame
-and writes a ``ddrun/1`` run folder (shared/spec/run-format.md) through host_tools.runfmt:
+coefficients / velocity loop (``--controller improved|thesis``, command SetController) and
+starts an experiment (keeping it alive with heartbeats), decodes every frame and writes a
+``ddrun/1`` run folder (shared/spec/run-format.md) through host_tools.runfmt:
 
-    meta.json      parameters the robot reported (or the defaults, said so), the commands sent,
-                   and a "logger" section with the link statistics and the end reason
+    meta.json      parameters the robot reported (or the defaults, said so), the velocity loop
+                   it reported ("controller_variant": "improved" or "thesis"; absent when the
+                   robot reported none and none was commanded), the commands sent, and a
+                   "logger" section with the link statistics and the end reason
     telemetry.csv  the spec columns + seq, host_t_s and every other telemetry field
     raw.bin        every byte received, unmodified (nothing is lost, even undecodable bytes)
     events.jsonl   one JSON object per line, {"host_t_s", "kind", ...}; kinds: start, end,
@@ -141,7 +144,7 @@ class Logger:
     def __init__(self, out_dir: str, open_port: Callable[[], Any], port_name: str, baud: int,
                  experiment: dict | None = None, clamp: bool | None = None,
                  mu: tuple[float, float] | None = None, record_s: float | None = None,
-                 reconnect_timeout_s: float = 30.0, params_timeout_s: float = 1.0,
+                 controller: str | None = None, reconnect_timeout_s: float = 30.0, params_timeout_s: float = 1.0,
                  status: bool = True, description: str | None = None,
                  d: P.Definition | None = None, clock: Callable[[], float] = time.monotonic):
         self.d = d or P.definition()
@@ -152,6 +155,10 @@ class Logger:
         self.experiment = experiment
         self.clamp = clamp
         self.mu = mu
+        if controller is not None and controller not in self.d.enums["controller"]:
+            raise LoggerError(f"controller {controller!r} is not one of "
+                              f"{sorted(self.d.enums['controller'])}", 2)
+        self.controller = controller
         self.record_s = record_s
         self.reconnect_timeout_s = reconnect_timeout_s
         self.params_timeout_s = params_timeout_s
@@ -217,8 +224,9 @@ class Logger:
             meta["robot"]["mu_s"], meta["robot"]["mu_k"] = self.mu
         meta["torque_clamp"] = bool(self.clamp) if clamp_ok else False
         p = self.params
+        # Params received after the configuration commands: what the robot now uses
+        fresh = p is not None and self._config_sent and self._params_count > self._params_before_config
         if p is not None:
-            fresh = self._config_sent and self._params_count > self._params_before_config
             for k in meta["robot"]:
                 if k in ("mu_s", "mu_k") and mu_ok and not fresh:
                     continue  # Params predate SetMu: the commanded (acknowledged) values apply
@@ -229,6 +237,9 @@ class Logger:
             meta["periods_s"] = {k: round(p[f"{k}_period_us"] * 1e-6, 9) for k in ("inner", "outer", "telemetry")}
             if fresh or not clamp_ok:
                 meta["torque_clamp"] = bool(p["clamp_on"])
+        variant = self._variant_reported(fresh)
+        if variant is not None:
+            meta["controller_variant"] = variant
         meta["commands"] = self.commands
         self.stats["frames"] = self.dec.frames
         meta["logger"] = dict(
@@ -240,6 +251,16 @@ class Logger:
             robot_baud=(p["baud"] if p is not None else None),
             end_reason=self.end_reason or "recording")
         return meta
+
+    def _variant_reported(self, fresh: bool) -> str | None:
+        """The velocity loop for meta.json: the robot's Params when they follow the
+        configuration (or none was sent), else the acknowledged SetController, else None."""
+        ctl_ok = self.controller is not None and self._acked("SetController")
+        p = self.params
+        if p is not None and (fresh or not ctl_ok):
+            names = {v: k for k, v in self.d.enums["controller"].items()}
+            return names.get(int(p["controller"]), f"unknown (code {int(p['controller'])})")
+        return self.controller if ctl_ok else None
 
     def _acked(self, name: str) -> bool:
         return any(c["command"] == name and c["result"] == "ok" for c in self.commands)
@@ -438,6 +459,8 @@ class Logger:
                     bad.append(f"{k} {p[k]:.4f} (commanded {v})")
         if self.clamp is not None and bool(p["clamp_on"]) != self.clamp:
             bad.append(f"clamp_on {p['clamp_on']} (commanded {int(self.clamp)})")
+        if self.controller is not None and p["controller"] != self.d.enums["controller"][self.controller]:
+            bad.append(f"controller {p['controller']} (commanded {self.controller})")
         if bad:
             self.event("params_mismatch", detail=bad)
             sys.stderr.write("\nwarning: the robot reports " + ", ".join(bad) + "\n")
@@ -697,7 +720,9 @@ class Logger:
             self.command("SetClamp", {"on": int(self.clamp)})
         if self.mu is not None:
             self.command("SetMu", {"mu_s": self.mu[0], "mu_k": self.mu[1]})
-        if self.clamp is not None or self.mu is not None:
+        if self.controller is not None:
+            self.command("SetController", {"variant": self.controller})
+        if self.clamp is not None or self.mu is not None or self.controller is not None:
             # meta.json records what the robot reports it now uses, not what we asked for
             self._config_sent = True
             n = self._params_before_config = self._params_count
@@ -937,6 +962,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--clamp", choices=["on", "off"], help="send SetClamp before starting")
     p.add_argument("--mu-s", type=float, help="send SetMu (with --mu-k)")
     p.add_argument("--mu-k", type=float)
+    p.add_argument("--controller", choices=sorted(d.enums["controller"]),
+                   help="send SetController before starting: the cascade's velocity loop "
+                   "(the firmware's default: improved); meta.json controller_variant says which ran")
     p.add_argument("--model", metavar="MODEL_JSON", help="send SetMu with the mu_s/mu_k of an analyzer "
                    "model.json (ddmodel/1): the firmware's tau_max follows (instead of --mu-s/--mu-k)")
     p.add_argument("--description", help="meta.json 'experiment' text (default: from the command)")
@@ -1003,6 +1031,7 @@ def main(args: argparse.Namespace) -> int:
 
     lg = Logger(args.out, open_port, args.port, args.baud, experiment=experiment,
                 clamp=None if args.clamp is None else args.clamp == "on", mu=mu, record_s=record_s,
+                controller=getattr(args, "controller", None),
                 reconnect_timeout_s=args.reconnect_timeout, params_timeout_s=args.params_timeout,
                 status=not args.quiet, description=args.description, d=d)
     try:

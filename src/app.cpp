@@ -54,6 +54,12 @@ const TaskConfig kTasks[] = {
 static_assert(sizeof kTasks / sizeof kTasks[0] == proto::kTaskCount, "task table vs protocol");
 static_assert(ENC_COUNTS_PER_REV == slip::kEncoderPpr, "the firmware's encoder counts are the model's");
 static_assert(ENC_COUNTS_PER_REV >= 1 && ENC_COUNTS_PER_REV <= 65535, "Params.encoder_ppr is a u16");
+// the protocol's controller codes are lib/control's Variant values (the C ABI's "controller"
+// key, which the analyzer's replay sets from meta.json controller_variant)
+static_assert(static_cast<uint8_t>(ctl::Variant::kImproved) == proto::kControllerImproved &&
+                  static_cast<uint8_t>(ctl::Variant::kThesis) == proto::kControllerThesis &&
+                  ctl::kVariantCount == 2,
+              "protocol.json enum controller != ctl::Variant");
 
 // ---- configuration (changed only by commands, while idle) ----
 slip::RobotParams g_robot;
@@ -99,10 +105,10 @@ T* place(uint8_t* storage, const T& v) {
     return p;
 }
 
-// SetClamp / SetMu only mark the controller for a rebuild (~16.6 ms of float work); app_poll()
-// rebuilds once the receive ring is empty, and a Start rebuilds first. A burst of such commands
-// thus costs one rebuild, not one per frame, and while a rebuild runs the 256-byte receive ring
-// holds the 191 bytes that arrive at 115200 baud in 16.6 ms.
+// SetClamp / SetMu / SetController only mark the controller for a rebuild (~16.6 ms of float
+// work); app_poll() rebuilds once the receive ring is empty, and a Start rebuilds first. A burst
+// of such commands thus costs one rebuild, not one per frame, and while a rebuild runs the
+// 256-byte receive ring holds the 191 bytes that arrive at 115200 baud in 16.6 ms.
 bool g_rebuild_pending;
 
 void rebuild_controller() {
@@ -152,6 +158,8 @@ void send_params() {
     p.telemetry_period_us = proto::kTelemetryPeriodUs;
     p.baud = proto::kBaud;
     p.clamp_on = g_clamp_on ? 1 : 0;
+    p.controller = g_variant == ctl::Variant::kThesis ? proto::kControllerThesis
+                                                      : proto::kControllerImproved;
     p.firmware_id = FIRMWARE_ID;
     send_msg(p);
 }
@@ -178,7 +186,7 @@ uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
     proto::Start s = proto::Start();
     if (!s.decode(pl, len)) return proto::kResultBadLength;
     if (busy()) return proto::kResultBusy;
-    if (g_rebuild_pending) {  // a SetClamp / SetMu just before: the experiment must use it
+    if (g_rebuild_pending) {  // a SetClamp / SetMu / SetController just before: the run uses it
         g_rebuild_pending = false;
         rebuild_controller();
     }
@@ -261,7 +269,7 @@ bool handle_frame(const proto::Frame& f) {
                 c.decode(f.payload, f.len);  // length and range checked by validate_command
                 if (busy()) { res = proto::kResultBusy; break; }
                 g_variant = c.variant == proto::kControllerThesis ? ctl::Variant::kThesis : ctl::Variant::kImproved;
-                rebuild_controller();
+                g_rebuild_pending = true;
                 break;
             }
             case proto::kMsgSetMu: {

@@ -18,6 +18,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from host_tools import params as param_table
+from host_tools import protocol as P
 from host_tools.runfmt import Run
 from host_tools.analyzer.signals import robust_std
 
@@ -820,6 +821,9 @@ _NEEDED = {"x_m", "y_m", "phi_rad", "theta_r_rad", "theta_l_rad", "dtheta_r_rad_
 REF_KINDS = ("line", "arc", "figure_eight")
 # meta.json "controller" values that mean lib/control's cascade (absent: assumed)
 REPLAYABLE_CONTROLLERS = ("improved", "cascade")
+# meta.json "controller_variant": the cascade's velocity loop (absent: the firmware's default,
+# improved), the protocol's names and codes (the C ABI's "controller" key takes the same codes)
+VELOCITY_LOOPS = dict(P.definition().enums["controller"])
 CLOSED_LOOP_CHANNELS = ("tau_cmd_r", "tau_cmd_l", "pwm_r", "pwm_l")
 
 
@@ -841,6 +845,10 @@ def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np
     if ctl is not None and ctl not in REPLAYABLE_CONTROLLERS:
         return None, [f"meta.json controller {ctl!r} is not one that lib/control replays "
                       f"({', '.join(REPLAYABLE_CONTROLLERS)})"], []
+    variant = meta.get("controller_variant", "improved")
+    if not isinstance(variant, str) or variant not in VELOCITY_LOOPS:
+        return None, [f"meta.json controller_variant {variant!r} is not a velocity loop of "
+                      f"lib/control ({', '.join(VELOCITY_LOOPS)})"], []
     ref = meta.get("reference")
     if not isinstance(ref, Mapping):
         msg = ("meta.json has no structured 'reference' ({kind, accel, cruise, radius}); "
@@ -901,7 +909,8 @@ def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np
             return None, problems, assumptions
     return ({"kind": kind, "accel": vals["accel"], "cruise": vals["cruise"],
              "radius": vals.get("radius", 1.0), "clamp": bool(meta["torque_clamp"]),
-             "t0_s": t0, "inner_s": inner, "outer_every": int(ratio)}, [], assumptions)
+             "t0_s": t0, "inner_s": inner, "outer_every": int(ratio),
+             "controller": VELOCITY_LOOPS[variant]}, [], assumptions)
 
 
 _CTL_KEYS = (*param_table.ROBOT, *param_table.MOTOR)  # the controller's nominal keys in meta.json
@@ -972,6 +981,7 @@ class ClosedLoopReplay:
                           ctl_motor=ctl["motor"], plant_robot=prep.robot, plant_motor=prep.motor,
                           effects=effects, t0_s=t0, inner_s=T, outer_every=setup["outer_every"],
                           ppr=prep.ppr, plant_dt_s=self.dt_s, start_pose=prep.start_pose,
+                          ctl_params={"controller": setup["controller"]},
                           # the firmware's 1 kHz duty ramp, where the recorder says it ramps
                           duty_ramp=bool(prep.run.meta.get("duty_ramp", False)))
         return loop.run(n)

@@ -135,6 +135,20 @@ def test_a_defaulted_clamp_setting_is_stated_as_an_assumption(tmp_path):
     assert any("torque_clamp not in meta.json" in a for a in assumptions)
 
 
+def test_closed_loop_replay_uses_the_runs_velocity_loop(tmp_path):
+    # the truth simulator runs the firmware's default loop (improved): replayed as stated
+    # (controller_variant absent, then "improved") it matches; replayed as the thesis's loop
+    # (another feed-forward mass, no integral) it must not
+    path = truth.simulate_run(tmp_path / "run", LINE, None, clamp=True, duration_s=2.0, seed=4)
+    meta_p = os.path.join(path, "meta.json")
+    meta = json.load(open(meta_p))
+    for variant, matches in (("improved", True), ("thesis", False)):
+        meta["controller_variant"] = variant
+        json.dump(meta, open(meta_p, "w"))
+        rms = _rms(_replay(path)["tau_cmd_r"].resid)
+        assert (rms <= TAU_RMS_BOUND) == matches, (variant, rms)
+
+
 def test_closed_loop_setup_checks_the_tick_schedule_and_the_meta():
     from host_tools.analyzer.replay import closed_loop_setup
     t = np.round(0.004 + 0.02 * np.arange(100), 6)
@@ -144,6 +158,9 @@ def test_closed_loop_setup_checks_the_tick_schedule_and_the_meta():
             "reference": dict(LINE)}
     setup, problems, assumptions = closed_loop_setup(meta, t, tau, tau)
     assert setup and setup["t0_s"] == 0.0 and not problems and assumptions
+    assert setup["controller"] == 0  # no controller_variant: the firmware's default, improved
+    setup, _, _ = closed_loop_setup(dict(meta, controller_variant="thesis"), t, tau, tau)
+    assert setup["controller"] == 1
     # a stated start that contradicts when the recorded torque changes
     meta["reference"]["t0_s"] = 0.0125
     setup, problems, _ = closed_loop_setup(meta, t, tau, tau)
@@ -154,6 +171,7 @@ def test_closed_loop_setup_checks_the_tick_schedule_and_the_meta():
     setup, problems, _ = closed_loop_setup(robot_meta, t, tau, tau)
     assert setup is None and "reference" in problems[0] and "t0_s" in problems[0]
     for broken, word in ((lambda m: m["reference"].update(kind="spiral"), "kind"),
+                         (lambda m: m.update(controller_variant="pid"), "controller_variant"),
                          (lambda m: m["reference"].pop("accel"), "accel"),
                          (lambda m: m.pop("torque_clamp"), "torque_clamp"),
                          (lambda m: m["periods_s"].update(outer=0.04), "outer")):

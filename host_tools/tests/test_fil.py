@@ -265,6 +265,109 @@ def test_arc_left_turns_left_wiring_and_signs(elf, sim, tmp_path):
     assert np.all((phi >= early) & (phi <= late)), float(np.max(np.maximum(early - phi, phi - late)))
 
 
+# ---------------------------------------------------------------- the two velocity loops
+
+THESIS = 1 << D.flags["status"]["thesis_controller"]
+CONTROLLER = D.enums["controller"]
+
+
+@pytest.fixture(scope="module")
+def runs_by_controller(elf, sim, tmp_path_factory):
+    """48 rad/s^2 for 0.5 s, clamp off, once with each velocity loop set by the logger."""
+    runs = {}
+    for variant in ("thesis", "improved"):
+        out = tmp_path_factory.mktemp("fil") / f"controller_{variant}"
+        code, lg, _ = fil.record(out, elf, straight(48.0, 1.0), clamp=False, controller=variant)
+        assert code == 0, lg.end_reason
+        runs[variant] = (runfmt.load_run(out), lg)
+    return runs
+
+
+@pytest.mark.parametrize("variant", ["thesis", "improved"])
+def test_controller_set_by_the_logger_is_what_the_firmware_reports(runs_by_controller, variant):
+    run, lg = runs_by_controller[variant]
+    assert run.meta["controller_variant"] == variant
+    set_ctl = [c for c in run.meta["commands"] if c["command"] == "SetController"]
+    assert set_ctl == [{"command": "SetController", "values": {"variant": variant}, "result": "ok"}]
+    # the firmware's Params after the command carry it (the last report is the one after it)
+    assert lg.params["controller"] == CONTROLLER[variant]
+    # ... and so does the telemetry status of every frame of the experiment
+    st = run.telemetry["status"].astype(int)
+    running = (st & RUNNING) != 0
+    assert running.sum() > 40
+    assert np.all(((st[running] & THESIS) != 0) == (variant == "thesis"))
+
+
+def _start_command_and_peak(run) -> tuple[np.ndarray, float, float]:
+    """(first commanded torques r, l; peak command and wheel speed over the 0.5 s ramp)."""
+    tel = run.telemetry
+    running = (tel["status"].astype(int) & RUNNING) != 0
+    i0 = int(np.flatnonzero(running)[0])
+    ramp = running & (tel["t_s"] < tel["t_s"][i0] + 0.5)
+    peak = float(max(tel["tau_cmd_r"][ramp].max(), tel["tau_cmd_l"][ramp].max()))
+    omega_end = float(tel["omega_r"][np.flatnonzero(ramp)[-1]] + tel["omega_l"][np.flatnonzero(ramp)[-1]]) / 2
+    return np.array([tel["tau_cmd_r"][i0], tel["tau_cmd_l"][i0]]), peak, omega_end
+
+
+def test_thesis_and_improved_loops_command_what_their_feed_forward_says(runs_by_controller):
+    """At the start tick the robot is at rest on its reference (no speed or pose error, no
+    integral, no coupling terms at w = 0), so each wheel is commanded the feed-forward alone:
+    tau = (r/2) m_ff (alpha r) = m_ff r^2 alpha / 2, with m_ff = m_t for the thesis's II.47
+    and m_t + 2 I_wy / r^2 (the wheels' spin inertia too) for the improved loop. The first
+    running frame reports that command (telemetry every 20 ms, the next tick 25 ms later).
+    Tolerance 2e-4 N m: the telemetry's 1e-4 N m step plus the fixed-point feed-forward's
+    rounding (dv in Q12, the gain (r/2) m_ff in Q18, the torque in Q16: < 1e-4 N m here)."""
+    robot = runs_by_controller["thesis"][0].meta["robot"]
+    alpha, r = 48.0, robot["r"]
+    m_t = robot["m_r"] + 2 * robot["m_w"]
+    m_ff = {"thesis": m_t, "improved": m_t + 2 * robot["I_wy"] / r**2}
+    got = {}
+    for variant, (run, _) in runs_by_controller.items():
+        first, peak, omega_end = _start_command_and_peak(run)
+        want = m_ff[variant] * r**2 * alpha / 2
+        assert np.all(np.abs(first - want) <= 2e-4), (variant, first, want)
+        got[variant] = (first.mean(), peak, omega_end)
+        print(f"\n{variant}: start command {first.mean():.4f} N m (feed-forward {want:.4f}), peak over "
+              f"the ramp {peak:.4f} N m, wheel speed at its end {omega_end:.2f} rad/s", end="")
+    # over the ramp (clamp off, the motor): the improved loop follows the profile (about 45 of
+    # 48 rad/s^2 in lib/control/README.md's plant, peak 0.142 N m), the thesis's lags it (28,
+    # peak 0.109): its peak command is lower and its wheels are slower at the ramp's end
+    assert got["thesis"][1] < got["improved"][1] - 0.02
+    assert got["thesis"][2] < 0.75 * got["improved"][2]
+
+
+def test_set_controller_refuses_a_bad_variant_and_while_running(elf, sim, tmp_path):
+    """protocol.json: SetController.variant in [0, 1] (out_of_range, detail = the field's index
+    otherwise), busy while an experiment runs; a refused command changes nothing."""
+    typ = D.by_name["SetController"].type
+    steps = [  # (board time s, frames to send)
+        (0.10, D.frame(typ, 10, bytes([2])) + D.encode("RequestParams", 11)),
+        (0.20, D.encode("SetController", 12, {"variant": "thesis"}) + D.encode("RequestParams", 13)),
+        (0.30, D.encode("Start", 14, straight(20.0, 0.5))),
+        (0.40, D.encode("SetController", 15, {"variant": "improved"}) + D.encode("RequestParams", 16)),
+    ]
+    host = HostScript(elf, tmp_path / "setcontroller", ["--t-end", "1.0"])
+
+    def step(now, t):
+        while steps and now >= steps[0][0]:
+            host.port.write(steps.pop(0)[1])
+        return None if now < 0.6 else False
+
+    host.run(step)
+    acks = {q: (D.result_names.get(r), typ_) for q, typ_, r in host.acks}
+    assert acks[10] == ("out_of_range", typ)
+    assert acks[12] == ("ok", typ) and acks[14][0] == "ok"
+    assert acks[15] == ("busy", typ)
+    # the last three Params answer RequestParams 11, 13 and 16 (those before: the boot's and the
+    # answer to the host's first frame): after the refused value, after thesis, after the
+    # refused change while running
+    assert [p["controller"] for p in host.params[-3:]] == [CONTROLLER["improved"], CONTROLLER["thesis"],
+                                                          CONTROLLER["thesis"]]
+    assert [q for q, typ_, _ in host.acks if typ_ == D.by_name["RequestParams"].type][-3:] == [11, 13, 16]
+    running = [t for t in host.telem if int(t["status"]) & RUNNING]
+    assert running and all(int(t["status"]) & THESIS for t in running)
+
+
 def test_host_silent_motors_stop_within_500ms(elf, sim, tmp_path):
     out = tmp_path / "silent"
     code, lg, s = fil.record(out, elf, straight(48.0, 3.0), clamp=True, args=["--host-silent-after-start", "0.4"])
@@ -318,6 +421,7 @@ class HostScript:
         self.dec = P.StreamDecoder(D.version, D.max_payload)
         self.acks: list[tuple[int, int, int]] = []  # (cmd seq, cmd type, result)
         self.telem: list[dict] = []
+        self.params: list[dict] = []  # Params frames, raw field values
 
     def run(self, step, wall_s=60.0):
         import serial
@@ -334,6 +438,8 @@ class HostScript:
                     msg, raws = D.unpack(f)
                     if msg.name == "Ack":
                         self.acks.append((raws[0], raws[1], raws[2]))
+                    elif msg.name == "Params":
+                        self.params.append(dict(zip(msg.field_names(), raws)))
                     elif msg.name == "Telemetry":
                         t = D.physical(msg, raws)
                         self.telem.append(t)

@@ -35,10 +35,10 @@ def telemetry(seq: int, t_us: int, omega: float = 10.0, running: bool = False, x
     return D.encode_raw("Telemetry", seq, [vals[n] for n in NAMES])
 
 
-def params_frame(seq: int, mu=(0.3, 0.239), clamp=1) -> bytes:
+def params_frame(seq: int, mu=(0.3, 0.239), clamp=1, controller=0) -> bytes:
     p = dict(D.robot_defaults["robot"], **D.robot_defaults["motor"])
     p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
-             baud=115200, clamp_on=clamp, firmware_id=0xDEADBEEF)
+             baud=115200, clamp_on=clamp, controller=controller, firmware_id=0xDEADBEEF)
     p["mu_s"], p["mu_k"] = mu
     return D.encode_raw("Params", seq, [p[f.name] for f in D.by_name["Params"].fields])
 
@@ -93,6 +93,7 @@ def test_loop_corruption_drops_and_duplicates(tmp_path):
     assert lg_stats["duplicates"] == 1
     assert lg_stats["lost_frames"] == 5 and lg_stats["gaps"] == 3  # 10, 15-17, 20
     assert meta["logger"]["params_source"].startswith("defaults")
+    assert "controller_variant" not in meta  # neither reported nor commanded: unknown
     ev = events(out)
     kinds = [e["kind"] for e in ev]
     assert "duplicate" in kinds and kinds.count("gap") == 3
@@ -116,6 +117,7 @@ class FakeRobot(threading.Thread):
     def __init__(self, write, read, period=0.004, reject=None, tamper=None, ignore_config=False):
         super().__init__(daemon=True)
         self.mu, self.clamp, self.ignore_config = (0.3, 0.239), 0, ignore_config
+        self.controller = D.enums["controller"]["improved"]  # the firmware's default
         self.write, self.read = write, read
         self.period = period
         self.reject = reject or {}
@@ -160,9 +162,11 @@ class FakeRobot(threading.Thread):
                     self.mu = (raws[0] * 1e-4, raws[1] * 1e-4)
                 elif name == "SetClamp" and not self.ignore_config:
                     self.clamp = D.unpack(f)[1][0]
+                elif name == "SetController" and not self.ignore_config:
+                    self.controller = D.unpack(f)[1][0]
             self.send(D.encode_raw("Ack", self.next_seq(), (f.seq, f.type, D.enums["result"][result], 255)))
             if name == "RequestParams" and result == "ok":
-                self.send(params_frame(self.next_seq(), self.mu, self.clamp))
+                self.send(params_frame(self.next_seq(), self.mu, self.clamp, self.controller))
 
     def step(self):
         running = self.running_until is not None and self.t_us < self.running_until
@@ -242,6 +246,73 @@ def test_pty_experiment_with_params_commands_and_heartbeats(tmp_path):
     assert run.telemetry["t_s"].size > 50
     for fd in fds:
         os.close(fd)
+
+
+def _record_with_robot(tmp_path, argv, **robot_kw):
+    robot, path, fds = robot_on_pty(period=0.004, **robot_kw)
+    out = tmp_path / "run"
+    try:
+        rc = L.main(_args(["--port", path, "--out", str(out), "--quiet", "--record-s", "20"] + argv))
+    finally:
+        robot.stop_flag.set()
+        robot.join(2)
+        for fd in fds:
+            os.close(fd)
+    return rc, robot, json.load(open(out / "meta.json")), events(out)
+
+
+START = ["--experiment", "straight", "--accel", "48", "--accel-time", "0.2", "--duration", "0.4"]
+
+
+def test_controller_is_set_before_start_and_reported_in_meta(tmp_path):
+    rc, robot, meta, ev = _record_with_robot(tmp_path, START + ["--controller", "thesis"])
+    assert rc == 0
+    # SetController, then the robot's own report of it, then the Start
+    assert robot.received[:4] == ["RequestParams", "SetController", "RequestParams", "Start"]
+    assert robot.controller == D.enums["controller"]["thesis"]
+    assert meta["controller_variant"] == "thesis"
+    assert meta["commands"][0] == {"command": "SetController", "values": {"variant": "thesis"}, "result": "ok"}
+    # the robot's Params after the command carried it (the event shows the raw field)
+    assert [e["controller"] for e in ev if e["kind"] == "params"] == [0, 1]
+    assert not [e for e in ev if e["kind"] == "params_mismatch"]
+    assert meta["logger"]["end_reason"] == "experiment finished"
+
+
+def test_without_controller_option_meta_has_the_robots_report(tmp_path):
+    rc, robot, meta, _ = _record_with_robot(tmp_path, START)
+    assert rc == 0 and "SetController" not in robot.received
+    assert meta["controller_variant"] == "improved"
+
+
+def test_controller_the_robot_did_not_adopt_is_reported_as_it_runs(tmp_path, capsys):
+    # a robot that acknowledges but keeps its loop: meta.json says what it reports, and the
+    # difference from the command is an event and a warning
+    rc, _, meta, ev = _record_with_robot(tmp_path, START + ["--controller", "thesis"], ignore_config=True)
+    assert rc == 0
+    assert meta["controller_variant"] == "improved"
+    (mm,) = [e for e in ev if e["kind"] == "params_mismatch"]
+    assert mm["detail"] == ["controller 0 (commanded thesis)"]
+    assert "controller 0 (commanded thesis)" in capsys.readouterr().err
+
+
+def test_controller_refused_by_the_robot_stops_before_start(tmp_path):
+    rc, robot, meta, _ = _record_with_robot(tmp_path, START + ["--controller", "thesis"],
+                                            reject={"SetController": "busy"})
+    assert rc == 1 and "Start" not in robot.received
+    assert meta["logger"]["end_reason"] == "robot rejected SetController: busy"
+    assert meta["commands"][-1]["result"] == "busy"
+    assert meta["controller_variant"] == "improved"  # what the robot reported, not the command
+
+
+def test_bad_controller_value_is_refused_before_anything_is_sent(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        _args(["--port", "loop://", "--out", str(tmp_path / "x"), "--controller", "pid"])
+    assert e.value.code == 2 and "invalid choice: 'pid'" in capsys.readouterr().err
+    with pytest.raises(L.LoggerError) as e:
+        L.Logger(str(tmp_path / "y"), lambda: None, "loop://", 115200, controller="pid")
+    assert e.value.code == 2 and not (tmp_path / "y").exists()
+    with pytest.raises(P.ProtocolError):  # the codec refuses the raw value past the enum too
+        D.encode("SetController", 0, {"variant": 2})
 
 
 def test_failsafe_without_heartbeats_is_recorded(tmp_path):
@@ -786,7 +857,7 @@ def test_cli_sigint_end_to_end(tmp_path):
 def test_nan_params_are_refused_not_fatal(tmp_path, capsys):
     p = dict(D.robot_defaults["robot"], **D.robot_defaults["motor"])
     p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
-             baud=115200, clamp_on=0, firmware_id=1, mu_s=float("nan"))
+             baud=115200, clamp_on=0, controller=0, firmware_id=1, mu_s=float("nan"))
     bad = D.encode_raw("Params", 0, [p[f.name] for f in D.by_name["Params"].fields])
     port = serial.serial_for_url("loop://", timeout=0.02)
     port.write(bad + b"".join(telemetry(i + 1, 20_000 * (i + 1)) for i in range(10)))

@@ -104,5 +104,31 @@ def test_embedded_golden_vectors():
     assert _golden(text, "Telemetry seq=65535") == d.encode_raw("Telemetry", 65535, [v[n] for n in names])
     p = dict(d.robot_defaults["robot"], **d.robot_defaults["motor"])
     p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
-             baud=115200, clamp_on=1, firmware_id=0x12345678)
+             baud=115200, clamp_on=1, controller=d.enums["controller"]["thesis"], firmware_id=0x12345678)
     assert _golden(text, "Params seq=7") == d.encode_raw("Params", 7, [p[f.name] for f in d.by_name["Params"].fields])
+
+
+def test_link_budget_figures_in_the_readmes_are_the_definitions():
+    """The frame sizes and the telemetry load quoted in README.md and protocol/README.md are
+    typed there for the reader: they must be the definition's (messages.md is generated)."""
+    import re
+
+    from host_tools import protocol
+
+    d = protocol.Definition()
+    tel = d.by_name["Telemetry"]
+    wire, payload = d.wire_size("Telemetry"), tel.size
+    rate = tel.spec["rate_hz"]
+    per_s = wire * rate
+    pct = 100.0 * per_s / (d.baud / 10)
+    proto_readme = (ROOT / "protocol" / "README.md").read_text()
+    rows = {m.group(1).strip(): int(m.group(2))
+            for m in re.finditer(r"^\| ([^|]+?) \| (\d+) \| [^|]+ \|", proto_readme, re.M)}
+    assert rows["Telemetry (%d B payload)" % payload] == wire
+    assert rows["Params"] == d.wire_size("Params")
+    assert rows["Ack"] == d.wire_size("Ack")
+    assert rows["host -> robot Heartbeat"] == d.wire_size("Heartbeat")
+    assert f"| {wire} | {rate} Hz | {per_s:,}".replace(",", " ") in proto_readme
+    top = (ROOT / "README.md").read_text()
+    assert f"A telemetry frame is {wire} bytes on the wire ({payload} payload bytes" in top
+    assert f"{wire} B frames at {rate} Hz = {per_s:,} B/s, {pct:.0f} % of" in top

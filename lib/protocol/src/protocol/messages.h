@@ -9,7 +9,7 @@
 
 namespace proto {
 
-static const uint8_t kVersion = 2;
+static const uint8_t kVersion = 3;
 static const uint8_t kMaxPayload = 96;
 static const uint32_t kBaud = 115200UL;  // 8N1
 static const uint32_t kFcpuHz = 16000000UL;
@@ -286,9 +286,9 @@ struct Telemetry {
     }
 };
 
-// Params (robot_to_host, type 2, 87 payload bytes): the parameters the firmware uses; sent once after reset and on RequestParams
+// Params (robot_to_host, type 2, 88 payload bytes): the parameters the firmware uses; sent once after reset and on RequestParams
 struct Params {
-    enum : uint8_t { kType = 2, kSize = 87 };
+    enum : uint8_t { kType = 2, kSize = 88 };
     float mu_s;  // 1
     float mu_k;  // 1
     float b;  // m; half the wheel separation
@@ -311,6 +311,7 @@ struct Params {
     uint32_t telemetry_period_us;  // us
     uint32_t baud;  // bit/s
     uint8_t clamp_on;  // 1
+    uint8_t controller;  // enum Controller; velocity loop in use (SetController)
     uint32_t firmware_id;  // 1; build identifier (e.g. first 8 hex digits of the git commit)
     void encode(uint8_t* p) const {
         put_f32(p + 0, mu_s);
@@ -335,7 +336,8 @@ struct Params {
         put_u32(p + 74, telemetry_period_us);
         put_u32(p + 78, baud);
         put_u8(p + 82, clamp_on);
-        put_u32(p + 83, firmware_id);
+        put_u8(p + 83, controller);
+        put_u32(p + 84, firmware_id);
     }
     // false (and nothing read) when len is not kSize
     bool decode(const uint8_t* p, uint8_t len) {
@@ -362,7 +364,8 @@ struct Params {
         telemetry_period_us = get_u32(p + 74);
         baud = get_u32(p + 78);
         clamp_on = get_u8(p + 82);
-        firmware_id = get_u32(p + 83);
+        controller = get_u8(p + 83);
+        firmware_id = get_u32(p + 84);
         return true;
     }
 };
@@ -575,7 +578,7 @@ struct SetController {
 inline int16_t payload_size(uint8_t type) {
     switch (type) {
         case kMsgTelemetry: return 83;
-        case kMsgParams: return 87;
+        case kMsgParams: return 88;
         case kMsgAck: return 5;
         case kMsgStart: return 9;
         case kMsgStop: return 0;
