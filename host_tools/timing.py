@@ -35,7 +35,7 @@ What is checked (exit 1 when any check fails, 2 on bad input):
 * at the design edge rate (200 000 edges/s) the encoder ISR alone still fits (U < 1).
 
 Bad input (exit 2, with file, row/line and column or key): a run folder the run-format reader
-refuses (host_tools/runfmt.py: encoding, CSV structure, numbers, meta.json), a missing or
+refuses (host_tools/runfmt/: encoding, CSV structure, numbers, meta.json), a missing or
 non-numeric timing column, a ddtiming/1 or fil.json file that is not UTF-8 JSON of the shape
 above, an option outside its bounds, a --json file that cannot be written (checked before
 anything is read).

@@ -18,11 +18,13 @@ except Exception:  # pragma: no cover - the native libraries could not be built 
 
 pytestmark = pytest.mark.skipif(not HAVE_NATIVE, reason="native libraries not buildable")
 
+from host_tools import params  # noqa: E402
 from host_tools.analyzer import replay as R  # noqa: E402
 from host_tools.runfmt import load_run  # noqa: E402
 
 ARC = {"kind": "arc", "accel": 1.0, "cruise": 0.5, "radius": 0.6}
-SLIP = {"kind": "line", "accel": 72 * 0.0365, "cruise": 36 * 0.0365}
+WHEEL_R_M = params.ROBOT["r"]
+SLIP = {"kind": "line", "accel": 72 * WHEEL_R_M, "cruise": 36 * WHEEL_R_M}
 LOOP10 = {"inner_s": 0.010}
 
 

@@ -9,6 +9,7 @@ import numpy as np
 from host_tools.analyzer import effects as fx
 from host_tools.analyzer.fit import (HELDOUT_TOL, Candidate, FitResult, effects_dict,
                                      heldout_channel_check, judge, paired_worse, params_for)
+from host_tools.params import ROBOT
 
 
 def test_paired_test_needs_size_and_significance():
@@ -49,7 +50,7 @@ class _Problem:
         from host_tools.runfmt import validate_meta
         self.meta = validate_meta({})
         self.vocab = {"motor_back_emf": {"ke_ratio": 1.0},
-                      "friction_coefficient": {"mu_s": 0.241, "mu_k": 0.239}}
+                      "friction_coefficient": {"mu_s": ROBOT["mu_s"], "mu_k": ROBOT["mu_k"]}}
         self.floors = {"omega_r": 0.1, "x_m": 0.001, "enc_r": 100.0, "y_odo_m": 1e-4}
 
 
@@ -91,9 +92,9 @@ def test_friction_is_fitted_with_mu_k_at_most_mu_s():
             assert set(fc) == {"mu_s", "mu_k"} and fc["mu_k"] <= fc["mu_s"] + 1e-15
     # the neutral point is the nominal pair
     d = effects_dict(params, [q.neutral for q in params])["friction_coefficient"]
-    assert abs(d["mu_s"] - 0.241) < 1e-12 and abs(d["mu_k"] - 0.239) < 1e-12
-    assert fx.physically_possible("friction_coefficient", {"mu_s": 0.2, "mu_k": 0.239})
-    assert not fx.physically_possible("friction_coefficient", {"mu_s": 0.25, "mu_k": 0.239})
+    assert abs(d["mu_s"] - ROBOT["mu_s"]) < 1e-12 and abs(d["mu_k"] - ROBOT["mu_k"]) < 1e-12
+    assert fx.physically_possible("friction_coefficient", {"mu_s": 0.2, "mu_k": 0.22})
+    assert not fx.physically_possible("friction_coefficient", {"mu_s": 0.25, "mu_k": 0.22})
 
 
 def test_judge_rejects_a_physically_impossible_fit():

@@ -20,7 +20,10 @@ except Exception:  # pragma: no cover - the native libraries could not be built 
 
 pytestmark = pytest.mark.skipif(not HAVE_NATIVE, reason="native libraries not buildable")
 
+from host_tools import params  # noqa: E402
 from host_tools.runfmt import load_run  # noqa: E402
+
+WHEEL_R_M = params.ROBOT["r"]  # Table II.2
 
 LINE = {"kind": "line", "accel": 1.0, "cruise": 0.6}
 ARC = {"kind": "arc", "accel": 0.8, "cruise": 0.5, "radius": 0.5}
@@ -47,8 +50,8 @@ def _replay(path, effects=None):
 
 
 @pytest.mark.parametrize("ref,clamp", [(LINE, True), (ARC, True),
-                                       ({"kind": "line", "accel": 72 * 0.0365,
-                                         "cruise": 36 * 0.0365}, False)])
+                                       ({"kind": "line", "accel": 72 * WHEEL_R_M,
+                                         "cruise": 36 * WHEEL_R_M}, False)])
 def test_closed_loop_replay_reproduces_the_recorded_torque_without_effect(tmp_path, ref, clamp):
     path = truth.simulate_run(tmp_path / "run", ref, None, clamp=clamp, duration_s=2.5, seed=2)
     ch = _replay(path)
@@ -63,7 +66,7 @@ def test_closed_loop_replay_reproduces_the_recorded_torque_without_effect(tmp_pa
 
 def test_closed_loop_replay_uses_the_runs_clamp_setting(tmp_path):
     # slipping profile without the clamp: replaying it with the clamp on must not match
-    ref = {"kind": "line", "accel": 72 * 0.0365, "cruise": 36 * 0.0365}
+    ref = {"kind": "line", "accel": 72 * WHEEL_R_M, "cruise": 36 * WHEEL_R_M}
     path = truth.simulate_run(tmp_path / "run", ref, None, clamp=False, duration_s=2.0, seed=3)
     meta_p = os.path.join(path, "meta.json")
     meta = json.load(open(meta_p))
@@ -220,7 +223,7 @@ def test_tick_phase_comes_from_the_recording_not_from_the_nominal_model(tmp_path
     reported wheel speeds against the recorded counts (no model), so an effect that delays the
     wheels cannot pull it (choosing it by the nominal replay's error did, by up to 3 ms)."""
     from host_tools.analyzer.replay import prepare_timed
-    ref = {"kind": "line", "accel": 72 * 0.0365, "cruise": 36 * 0.0365}
+    ref = {"kind": "line", "accel": 72 * WHEEL_R_M, "cruise": 36 * WHEEL_R_M}
     path = truth.simulate_run(tmp_path / "run", ref, effects, clamp=False, duration_s=2.0, seed=5)
     prep = prepare_timed(load_run(path))
     assert prep.extras["timing"].startswith("board wheel speeds")
@@ -231,10 +234,10 @@ def test_tick_phase_of_synthetic_runs_and_no_phase_without_motion(tmp_path):
     from host_tools.analyzer import synth
     from host_tools.analyzer.replay import board_rate_phase
     run = load_run(synth.make_run(tmp_path / "r", "ramp", None, seed=1, tick_phase=0.0123))
-    phase = board_rate_phase(run.telemetry, 0.025, 1856)
+    phase = board_rate_phase(run.telemetry, 0.025, params.ENCODER_PPR)
     assert phase is not None and _phase_err(phase, 0.0123) < 1e-3
     still = {k: (np.zeros_like(v) if k != "t_s" else v) for k, v in run.telemetry.items()}
-    assert board_rate_phase(still, 0.025, 1856) is None
+    assert board_rate_phase(still, 0.025, params.ENCODER_PPR) is None
 
 
 def test_replayed_odometry_is_the_pose_of_the_latest_inner_tick(tmp_path):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from host_tools import params
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.replay import reconstruct_input_times
 
@@ -69,7 +70,7 @@ def test_best_regime_finds_turns_and_torque_limit():
     tau = np.where(t < 0.3, 0.12, 0.04)
     state = {"t": t, "w_r": w_r, "w_l": w_l, "a_r": np.zeros_like(t), "a_l": np.zeros_like(t),
              "tau_r": tau, "tau_l": tau, "u_r": w_r / 36, "u_l": w_l / 36,
-             "yaw": 0.0365 * (w_r - w_l) / 0.21}
+             "yaw": params.ROBOT["r"] * (w_r - w_l) / (2 * params.ROBOT["b"])}
     cands = sg.regime_candidates(state, tau_max=0.09)
     assert sg.best_regime(turning, cands).description == "only in turns"
     assert "exceeds tau_max" in sg.best_regime(tau > 0.09, cands).description

@@ -332,7 +332,7 @@ def test_label_runs_tells_runs_with_one_folder_name_apart(tmp_path):
 
 
 def test_unknown_meta_keys_are_kept_and_ignored(tmp_path):
-    run = _base(tmp_path / "run", meta={"robot": {"foo": [1, 2], "r": 0.0365},
+    run = _base(tmp_path / "run", meta={"robot": {"foo": [1, 2], "r": 0.04},
                                         "motor": {"bar": {"x": 1}}, "periods_s": {"z": 1},
                                         "my_top_key": [1]})
     r = runfmt.load_run(run)

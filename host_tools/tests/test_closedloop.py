@@ -7,6 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from host_tools import params
+
+WHEEL_R_M = params.ROBOT["r"]  # Table II.2
+
 try:
     from host_tools import _native
     _native.effect_vocabulary()
@@ -23,13 +27,13 @@ CTL_COLS = ("pwm_r", "pwm_l", "tau_cmd_r", "tau_cmd_l", "tau_max_r", "tau_max_l"
 
 
 @pytest.mark.parametrize("case", [
-    dict(kind="line", accel=72 * 0.0365, cruise=36 * 0.0365, radius=1.0, fixed_point=True,
+    dict(kind="line", accel=72 * WHEEL_R_M, cruise=36 * WHEEL_R_M, radius=1.0, fixed_point=True,
          clamp=False, t0=0.0),
     dict(kind="arc", accel=0.8, cruise=0.5, radius=0.5, fixed_point=True, clamp=True, t0=12.3,
          start_pose=(0.2, -0.1, 0.3), effects={"motor_back_emf": {"ke_ratio": 1.2}}),
     dict(kind="figure_eight", accel=0.5, cruise=0.4, radius=0.6, fixed_point=False, clamp=True,
          t0=0.0, effects={"actuation_delay": {"delay_s": 0.03}}, ctl_params={"r": 0.037}),
-    dict(kind="line", accel=72 * 0.0365, cruise=36 * 0.0365, radius=1.0, fixed_point=True,
+    dict(kind="line", accel=72 * WHEEL_R_M, cruise=36 * WHEEL_R_M, radius=1.0, fixed_point=True,
          clamp=True, t0=0.0, actuator="torque", sub=5),
 ])
 def test_driver_matches_the_resimulation_from_rest(case):
@@ -58,7 +62,7 @@ def test_driver_matches_the_resimulation_from_rest(case):
 
 
 def test_slip_is_counted_per_euler_step_and_the_clamp_prevents_it():
-    a = 72 * 0.0365
+    a = 72 * WHEEL_R_M
     off = ClosedLoop("line", a, a / 2, clamp=False).run(120)
     on = ClosedLoop("line", a, a / 2, clamp=True).run(120)
     assert off["slip_steps"].sum() > 0 and on["slip_steps"].sum() == 0

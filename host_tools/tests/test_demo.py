@@ -4,7 +4,9 @@ import os
 
 import pytest
 
-from host_tools import demo
+from host_tools import demo, params
+
+P = params.ROBOT  # Table II.2
 
 
 @pytest.fixture(scope="module")
@@ -60,8 +62,8 @@ def test_ii62_improved_controller_follows_the_profile_and_slips(thesis):
     the profile; rolling at 44 rad/s^2 needs more than tau_max, so it slips at all three. The
     straight-line no-slip limit tau_max / (I_wy + m_t r^2/2) equals 2 mu_s N / (m_t r)."""
     _, res = thesis
-    mu_s, r, m_t = 0.241, 0.0365, 1.5 + 2 * 0.064
-    n_wheel = 0.5 * m_t * 9.81 * 0.095 / (0.095 + 0.055)  # caster takes d/(d+e) of the weight
+    mu_s, r, m_t = P["mu_s"], P["r"], P["m_r"] + 2 * P["m_w"]
+    n_wheel = 0.5 * m_t * P["g"] * P["e"] / (P["e"] + P["d"])  # caster takes d/(d+e) of the weight
     assert abs(res["alpha_no_slip_rad_s2"] - 2 * mu_s * n_wheel / (m_t * r)) < 0.05
     for a, row in res["improved"]["ii62"].items():
         assert row["slipped"], a
@@ -106,12 +108,12 @@ def test_ii63_ideal_torque_source(thesis):
 
 def test_ii63_floor_bounds_every_run(thesis):
     """The floor (a_ref T^2/2)(a_ref/a_max - 1), a_max = mu_s (N_r + N_l)/m_t, from Table II.2
-    (numbers typed here independently of the code), is 0.248 m; no run of either controller,
+    (the formula typed here independently of the code, the values from the table), is 0.248 m; no run of either controller,
     actuator or clamp setting peaks below it; raising mu_s to the value whose floor is the
     thesis's 0.16 m gives clamped runs that peak above 0.16 m but below the Table II.2 runs."""
     _, res = thesis
-    m_t, g, r = 1.5 + 2 * 0.064, 9.81, 0.0365
-    a_max = 0.241 * m_t * g * 0.095 / (0.095 + 0.055) / m_t
+    m_t, g, r = P["m_r"] + 2 * P["m_w"], P["g"], P["r"]
+    a_max = P["mu_s"] * m_t * g * P["e"] / (P["e"] + P["d"]) / m_t
     a_ref = 72 * r
     floor = 0.5 * a_ref * 0.25 * (a_ref / a_max - 1)
     assert abs(res["ii63_floor_m"] - floor) < 1e-6 and 0.24 < floor < 0.25
@@ -121,7 +123,7 @@ def test_ii63_floor_bounds_every_run(thesis):
     pc = res["ii63_parameter_change"]
     fl = res["ii63_floor"]
     assert abs(0.5 * a_ref * 0.25 * (a_ref / fl["a_for_target_m_s2"] - 1) - 0.16) < 1e-9
-    assert abs(fl["mu_s_for_target"] - 0.241 * fl["a_for_target_m_s2"] / a_max) < 1e-9
+    assert abs(fl["mu_s_for_target"] - P["mu_s"] * fl["a_for_target_m_s2"] / a_max) < 1e-9
     for c in ("thesis", "improved"):
         for name, e in pc["mu_s_for_target"][c].items():
             assert not e["slipped"] and e["peak_error_m"] >= 0.16, (c, name)
@@ -167,7 +169,7 @@ def test_ii63_start_and_budget(thesis):
     the floor at the share of tau_max the clamp allows (tau_max less the back-EMF margin, about
     4 %) bounds the clamped runs from below, the controller with an ideal torque source comes
     within 0.01 m of it, and the motor adds less than 0.015 m; a 25 ms late start would cost
-    v_c 25 ms (typed here: 72 rad/s^2 x 0.0365 m x 0.5 s x 0.025 s)."""
+    v_c 25 ms (typed here: 72 rad/s^2 x r x 0.5 s x 0.025 s)."""
     _, res = thesis
     for c in ("thesis", "improved"):
         for name, e in res[c]["ii63"].items():
@@ -177,7 +179,7 @@ def test_ii63_start_and_budget(thesis):
     assert bg["floor_m"] < bg["floor_at_clamp_limit_m"] < bg["floor_at_utilisation_m"]
     assert bg["floor_at_clamp_limit_m"] <= bg["torque_source_m"] < bg["floor_at_clamp_limit_m"] + 0.01
     assert bg["torque_source_m"] <= bg["motor_m"] < bg["torque_source_m"] + 0.015
-    assert abs(bg["cost_per_25ms_start_delay_m"] - 72 * 0.0365 * 0.5 * 0.025) < 1e-9
+    assert abs(bg["cost_per_25ms_start_delay_m"] - 72 * P["r"] * 0.5 * 0.025) < 1e-9
 
 
 def test_analyzer_demo_end_to_end(tmp_path):

@@ -35,9 +35,10 @@ def telemetry(seq: int, t_us: int, omega: float = 10.0, running: bool = False, x
     return D.encode_raw("Telemetry", seq, [vals[n] for n in NAMES])
 
 
-def params_frame(seq: int, mu=(0.3, 0.239), clamp=1, controller=0) -> bytes:
+def params_frame(seq: int, mu=(0.3, D.robot_defaults["robot"]["mu_k"]), clamp=1,
+                 controller=0) -> bytes:
     p = dict(D.robot_defaults["robot"], **D.robot_defaults["motor"])
-    p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
+    p.update(encoder_ppr=D.robot_defaults["encoder_ppr"], inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
              baud=115200, clamp_on=clamp, controller=controller, firmware_id=0xDEADBEEF)
     p["mu_s"], p["mu_k"] = mu
     return D.encode_raw("Params", seq, [p[f.name] for f in D.by_name["Params"].fields])
@@ -116,7 +117,7 @@ class FakeRobot(threading.Thread):
 
     def __init__(self, write, read, period=0.004, reject=None, tamper=None, ignore_config=False):
         super().__init__(daemon=True)
-        self.mu, self.clamp, self.ignore_config = (0.3, 0.239), 0, ignore_config
+        self.mu, self.clamp, self.ignore_config = (0.3, D.robot_defaults["robot"]["mu_k"]), 0, ignore_config
         self.controller = D.enums["controller"]["improved"]  # the firmware's default
         self.write, self.read = write, read
         self.period = period
@@ -856,7 +857,7 @@ def test_cli_sigint_end_to_end(tmp_path):
 
 def test_nan_params_are_refused_not_fatal(tmp_path, capsys):
     p = dict(D.robot_defaults["robot"], **D.robot_defaults["motor"])
-    p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
+    p.update(encoder_ppr=D.robot_defaults["encoder_ppr"], inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
              baud=115200, clamp_on=0, controller=0, firmware_id=1, mu_s=float("nan"))
     bad = D.encode_raw("Params", 0, [p[f.name] for f in D.by_name["Params"].fields])
     port = serial.serial_for_url("loop://", timeout=0.02)
@@ -868,7 +869,7 @@ def test_nan_params_are_refused_not_fatal(tmp_path, capsys):
     (ev,) = [e for e in events(out) if e["kind"] == "bad_params"]
     assert "robot.mu_s" in ev["reason"] and ev["mu_s"] == "nan"
     meta = json.load(open(out / "meta.json"))
-    assert meta["robot"]["mu_s"] == 0.241 and meta["logger"]["params_source"].startswith("defaults")
+    assert meta["robot"]["mu_s"] == D.robot_defaults["robot"]["mu_s"] and meta["logger"]["params_source"].startswith("defaults")
     assert rows(out).telemetry["t_s"].size == 10
 
 

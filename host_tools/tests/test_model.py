@@ -27,7 +27,7 @@ def test_plant_loads_the_model(tmp_path):
         updated.set(key, value)
     assert updated.get("robot.mu_s") == pytest.approx(0.30)
     assert updated.get("motor_back_emf.ke_ratio") == pytest.approx(1.2)
-    # II.51 is linear in mu_s: tau_max scales by 0.30/0.241 (r changes it a little too)
+    # II.51 is linear in mu_s: tau_max scales by 0.30/mu_s (r changes it a little too)
     ratio = updated.tau_max()[0] / nominal.tau_max()[0]
     assert 1.15 < ratio < 1.30
     # the back-EMF effect acts: the same duty gives a slower wheel

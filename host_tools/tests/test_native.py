@@ -6,7 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from host_tools import _build, _native
+from host_tools import _build, _native, params
+
+P, MOTOR = params.ROBOT, params.MOTOR  # the table's values
+M_T = P["m_r"] + 2 * P["m_w"]      # total mass, kg
 
 # shared/spec/run-format.md, "Names of left-out physics"
 RUN_FORMAT_EFFECTS = {
@@ -54,8 +57,8 @@ def test_tau_max_and_normal_forces(plant):
     tr, tl = plant.tau_max()
     assert tr == pytest.approx(0.0924, abs=1e-4) and tl == tr
     nr, nl, nc = plant.normal_forces()
-    assert nr + nl + nc == pytest.approx(1.628 * 9.81, rel=1e-12)
-    assert nc == pytest.approx(1.628 * 9.81 * 0.055 / 0.15, rel=1e-12)
+    assert nr + nl + nc == pytest.approx(M_T * P["g"], rel=1e-12)
+    assert nc == pytest.approx(M_T * P["g"] * P["d"] / (P["d"] + P["e"]), rel=1e-12)
 
 
 def test_simulate_rows_are_states_at_t(plant):
@@ -77,7 +80,7 @@ def test_ii61_through_python(plant):
         out = plant.simulate(*_const(2.0, 0.01, tau, tau))
         x[tau] = out["x_m"][-1]
         assert (out["slip_r"].max() > 0) == (tau > 0.0924)
-    a_roll = 2 * 0.09 / (0.0365 * (1.628 + 2 * 0.001168 / 0.0365 ** 2))
+    a_roll = 2 * 0.09 / (P["r"] * (M_T + 2 * P["I_wy"] / P["r"] ** 2))
     assert x[0.09] == pytest.approx(0.5 * a_roll * 4.0, abs=1e-3)
     assert x[0.3] == pytest.approx(x[0.1], rel=0.01)
 
@@ -98,7 +101,7 @@ def test_inputs_are_held_and_dt_is_an_upper_bound(plant):
 
 def test_duty_mode(plant):
     out = plant.simulate(*_const(4.0, 0.01, 0.3, 0.3), mode="duty")
-    assert out["dtheta_r_rad_s"][-1] == pytest.approx(0.3 * 36.65, rel=1e-3)
+    assert out["dtheta_r_rad_s"][-1] == pytest.approx(0.3 * MOTOR["no_load_rad_s"], rel=1e-3)
 
 
 def test_effects_switch_and_clear():
@@ -120,7 +123,7 @@ def test_effects_switch_and_clear():
 def test_parameters_from_dicts_and_meta():
     p = _native.Plant(robot={"mu_s": 0.5}, motor={"stall_nm": 1.0})
     assert p.get("robot.mu_s") == 0.5 and p.get("motor.stall_nm") == 1.0
-    assert p.tau_max()[0] == pytest.approx(0.0924 * 0.5 / 0.241, rel=1e-3)
+    assert p.tau_max()[0] == pytest.approx(0.0924 * 0.5 / P["mu_s"], rel=1e-3)
     q = _native.Plant.from_meta({"robot": {"m_r": 2.0, "colour": "red"}, "motor": {}})
     assert q.get("robot.m_r") == 2.0
     assert set(_native.param_keys()) >= {"robot.I_wy", "motor.no_load_rad_s"}

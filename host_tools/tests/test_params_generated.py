@@ -178,6 +178,26 @@ def test_suite_neutral_values_are_the_table():
     assert cases.R == r["r"]
 
 
+# ------------------------------------------------------------------ the table is the thesis's
+
+
+def test_the_table_is_the_thesis():
+    """The one place outside params/params.json where the values are written: typed here from
+    the thesis (Table II.2; III.1 for the motor and the encoder), so that a changed table is a
+    decision, not a slip.  Every other test takes them from the table."""
+    thesis = {
+        "robot": {"mu_s": 0.241, "mu_k": 0.239, "b": 0.105, "e": 0.095, "d": 0.055, "g": 9.81,
+                  "h": 0.0216, "m_r": 1.5, "I_rz": 0.009753, "I_wz": 0.000584, "I_wy": 0.001168,
+                  "r": 0.0365, "m_w": 0.064},
+        "motor": {"supply_v": 12.0, "no_load_rad_s": 36.65, "stall_nm": 0.77, "stall_a": 2.0},
+    }
+    t = params.load()
+    for group, values in thesis.items():
+        assert t.defaults(group, run_format_only=False) == values, group
+    assert t.encoder.value == 1856
+    assert 350 * 2 * math.pi / 60 == pytest.approx(thesis["motor"]["no_load_rad_s"], abs=5e-3)
+
+
 # ------------------------------------------------------------------ no copies in the tree
 
 #: Table values distinctive enough to grep for (the round ones, 1.5, 2.0 and 12.0, are not).
@@ -192,10 +212,33 @@ _NOT_COPIES = {
     ("host_tools/analyzer/analysis.py", "0.77"): "analyzer score figures in a comment",
     ("host_tools/suite/cases.py", "0.055"): "a load_transfer effect size (h), not d",
 }
+#: The same for the tests, which take the table's values from host_tools.params (Python) and
+#: slip::table / SLIP_*_PARAMS / slip::table_ii2() (C++): (path, value) -> (how many, why).
+#: The count is exact, so a new copy in a listed file fails as well as a stale entry.
+_TEST_NOT_COPIES = {
+    ("host_tools/tests/test_demo.py", "0.095"): (1, "the thesis's printed tau_max in the demo's table"),
+    ("test/native/test_slipmodel_traction/test_traction.cpp", "0.095"):
+        (4, "the thesis's printed tau_max, which no variant of the model reproduces"),
+    ("test/embedded/test_protocol/test_protocol.cpp", "36.65"):
+        (2, "inputs of the golden Telemetry frame (raw values in test_protocol_generated.py)"),
+    ("test/embedded/test_protocol/test_protocol.cpp", "0.095"):
+        (1, "inputs of the golden Telemetry frame (raw values in test_protocol_generated.py)"),
+    ("test/embedded/test_protocol/test_protocol.cpp", "0.77"):
+        (1, "inputs of the golden Telemetry frame (raw values in test_protocol_generated.py)"),
+    ("test/native/test_protocol/test_protocol.cpp", "36.65"):
+        (2, "codec round-trip inputs, the embedded golden frame's sample"),
+    ("test/native/test_protocol/test_protocol.cpp", "0.095"):
+        (1, "codec round-trip inputs, the embedded golden frame's sample"),
+    ("test/native/test_protocol/test_protocol.cpp", "0.77"):
+        (2, "codec round-trip inputs, the embedded golden frame's sample"),
+    ("host_tools/tests/test_fil.py", "0.105"): (1, "b typed in: to take from host_tools.params"),
+    ("host_tools/tests/test_fil.py", "0.241"): (1, "mu_s in a comment: to take from host_tools.params"),
+}
 #: The table and the files generated from it.
 _TABLE_FILES = {"params/params.json", "params/params.md",
                 "lib/slipmodel/src/slipmodel/params_table.h"}
-#: Source (not docs, not tests: tests may state expected values of hand-solvable cases).
+#: This file: the grep's own list and the one check of the table against the thesis.
+_THIS_FILE = "host_tools/tests/test_params_generated.py"
 _SOURCE = re.compile(r"\.(py|c|cpp|h|S|json|ini|sh|toml)$")
 _TEST_DIRS = ("test/", "host_tools/tests/")
 
@@ -205,23 +248,40 @@ def _literal(value: str) -> re.Pattern:
     return re.compile(r"(?<![\w.])" + re.escape(value) + r"(?![\w.]*\d)")
 
 
-def test_no_copy_of_the_table_in_the_source_tree():
+def _copies(tests: bool) -> dict[tuple[str, str], list[int]]:
+    """{(path, value): [line, ...]} of the distinctive values in the tracked source files
+    outside the table, either in the tests or outside them."""
     files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True,
                            check=True).stdout.split()
-    found = []
+    found: dict[tuple[str, str], list[int]] = {}
     for rel in files:
-        if (not _SOURCE.search(rel) or rel in _TABLE_FILES or rel.startswith(_TEST_DIRS)
-                or not (ROOT / rel).is_file()):
+        if (not _SOURCE.search(rel) or rel in _TABLE_FILES or rel == _THIS_FILE
+                or rel.startswith(_TEST_DIRS) != tests or not (ROOT / rel).is_file()):
             continue
         text = (ROOT / rel).read_text(encoding="utf-8", errors="replace")
         for value in _DISTINCTIVE:
-            if (rel, value) in _NOT_COPIES:
-                continue
             for m in _literal(value).finditer(text):
-                line = text.count("\n", 0, m.start()) + 1
-                found.append(f"{rel}:{line}: {value}")
+                found.setdefault((rel, value), []).append(text.count("\n", 0, m.start()) + 1)
+    return found
+
+
+def test_no_copy_of_the_table_in_the_source_tree():
+    found = [f"{rel}:{line}: {value}" for (rel, value), lines in _copies(tests=False).items()
+             if (rel, value) not in _NOT_COPIES for line in lines]
     assert not found, ("Table values written outside params/params.json (derive them from "
                        "the table, or list a true non-copy in _NOT_COPIES):\n" + "\n".join(found))
+
+
+def test_no_copy_of_the_table_in_the_tests():
+    found = _copies(tests=True)
+    bad = [f"{rel}:{line}: {value}" for (rel, value), lines in found.items()
+           if (rel, value) not in _TEST_NOT_COPIES for line in lines]
+    assert not bad, ("Table values written in tests (take them from host_tools.params or "
+                     "slip::table, or list a true non-copy in _TEST_NOT_COPIES):\n" + "\n".join(bad))
+    counts = {k: (len(found.get(k, [])), n) for k, (n, _) in _TEST_NOT_COPIES.items()}
+    assert all(have == want for have, want in counts.values()), (
+        "_TEST_NOT_COPIES counts differ from the tests (found, listed): "
+        + str({k: v for k, v in counts.items() if v[0] != v[1]}))
 
 
 def test_the_copy_finder_finds_a_copy():

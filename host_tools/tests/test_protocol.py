@@ -85,11 +85,11 @@ def test_physical_scaling_of_telemetry():
     msg = D.by_name["Telemetry"]
     names = msg.field_names()
     raws = [0] * len(names)
-    raws[names.index("omega_r")] = 3665
+    raws[names.index("omega_r")] = 3512
     raws[names.index("x_odo")] = -1234567
     raws[names.index("inner_max")] = 100
     phys = D.physical(msg, tuple(raws))
-    assert phys["omega_r"] == pytest.approx(36.65)
+    assert phys["omega_r"] == pytest.approx(35.12)
     assert phys["x_odo"] == pytest.approx(-1.234567)
     assert phys["inner_max"] == 1600  # cycles
 

@@ -66,7 +66,7 @@ def random_raws(msg, rnd):
     out = []
     for f in msg.fields:
         if f.type == "f32":
-            out.append(rnd.choice([0.0, 0.241, -1.5, 1e-6]))
+            out.append(rnd.choice([0.0, 0.3, -1.5, 1e-6]))
         else:
             lo, hi = P._LIMITS[f.type]
             out.append(rnd.choice([lo, hi, 0, rnd.randint(lo, hi)]))

@@ -103,7 +103,7 @@ def test_embedded_golden_vectors():
              failsafe=1, reset_cause=8, current_r=1023, stack_hwm=812, boot_count=513)
     assert _golden(text, "Telemetry seq=65535") == d.encode_raw("Telemetry", 65535, [v[n] for n in names])
     p = dict(d.robot_defaults["robot"], **d.robot_defaults["motor"])
-    p.update(encoder_ppr=1856, inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
+    p.update(encoder_ppr=d.robot_defaults["encoder_ppr"], inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
              baud=115200, clamp_on=1, controller=d.enums["controller"]["thesis"], firmware_id=0x12345678)
     assert _golden(text, "Params seq=7") == d.encode_raw("Params", 7, [p[f.name] for f in d.by_name["Params"].fields])
 

@@ -7,11 +7,12 @@ import os
 import numpy as np
 import pytest
 
-from host_tools import runfmt
+from host_tools import params, runfmt
 from host_tools.runfmt import RunFormatError, RunWriter, load_run, write_groundtruth
 
 
-def _columns(n=76, turn=0.0, speed=10.0, ppr=1856, r=0.0365, b=0.105, dt=0.02):
+def _columns(n=76, turn=0.0, speed=10.0, ppr=params.ENCODER_PPR, r=params.ROBOT["r"],
+             b=params.ROBOT["b"], dt=0.02):
     """A kinematically consistent telemetry table: wheel speeds ramp to `speed`
     (rad/s) with right/left differing by `turn` rad/s; odometry from the counts."""
     t = np.arange(n) * dt
@@ -59,9 +60,9 @@ def test_roundtrip_exact_and_defaults(tmp_path):
     for c in runfmt.TELEMETRY_COLUMNS:
         np.testing.assert_array_equal(run.telemetry[c], np.asarray(cols[c], dtype=float))
     assert run.meta["robot"]["mu_k"] == 0.2
-    assert run.meta["robot"]["mu_s"] == 0.241  # default filled
+    assert run.meta["robot"]["mu_s"] == params.ROBOT["mu_s"]  # default filled
     assert run.meta["my_key"] == [1, 2]  # unknown kept
-    assert run.meta["encoder_ppr"] == 1856
+    assert run.meta["encoder_ppr"] == params.ENCODER_PPR
     assert run.groundtruth is None
     assert run.start_pose == (0.0, 0.0, 0.0)
 

@@ -167,13 +167,13 @@ def test_heldback_generation_deterministic_and_hidden(tmp_path):
 
 
 def test_impossible_fits_are_found():
-    rep = {"selected": [{"effect": "friction_coefficient", "params": {"mu_s": 0.2, "mu_k": 0.239}}],
+    rep = {"selected": [{"effect": "friction_coefficient", "params": {"mu_s": 0.2, "mu_k": 0.22}}],
            "candidates": [{"effect": "actuation_delay", "params": {"delay_s": -0.004}},
                           {"effect": "wheel_radius+axle_viscous",
                            "params": {"wheel_radius.r_eff": 0.037, "axle_viscous.c": -1e-4}},
                           {"effect": "motor_lag", "params": {"tau_s": 0.02}}]}
     bad = bench.impossible_fits(rep)
-    assert any("mu_k 0.239 > mu_s 0.2" in b and b.startswith("selected") for b in bad)
+    assert any("mu_k 0.22 > mu_s 0.2" in b and b.startswith("selected") for b in bad)
     assert any("delay_s" in b for b in bad) and any("axle_viscous.c" in b for b in bad)
     assert not any("motor_lag" in b or "r_eff" in b for b in bad)
     assert bench.impossible_fits({"selected": [{"effect": "friction_coefficient",

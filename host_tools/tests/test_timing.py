@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import json
 import subprocess
 import sys
@@ -9,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from host_tools import params
 from host_tools import protocol as P
 from host_tools import runfmt
 from host_tools import timing as T
@@ -56,8 +58,9 @@ def args(**kw):
 
 
 def test_edge_rate_from_the_motor_and_encoder():
-    # 2 wheels * 36.65 rad/s / 2pi * 1856 edges per turn (issue 5: "about 21,700 edges/s")
-    assert T.edge_rate_max(D) == pytest.approx(21651.6, abs=1)
+    # 2 wheels at the datasheet no-load speed, the table's encoder edges per turn (about 21,700/s)
+    no_load, ppr = params.MOTOR["no_load_rad_s"], params.ENCODER_PPR
+    assert T.edge_rate_max(D) == pytest.approx(2 * no_load / (2 * math.pi) * ppr, rel=1e-12)
 
 
 def test_within_budget(tmp_path, capsys):

@@ -4,7 +4,9 @@ the true state kept out of them."""
 import numpy as np
 import pytest
 
-from host_tools import _native, runfmt, truth
+from host_tools import _native, params, runfmt, truth
+
+ROBOT, MOTOR, PPR = params.ROBOT, params.MOTOR, params.ENCODER_PPR  # the table's values
 
 
 def _open_loop(u_r, u_l, T=2.0, **keys):
@@ -29,7 +31,7 @@ def test_agrees_with_nominal_plant_rolling_and_slipping(u_r, u_l):
 
 
 def test_closed_loop_matches_nominal_closed_loop_at_72():
-    a = 72 * 0.0365
+    a = 72 * ROBOT["r"]
     s = truth.TruthSim()
     for k, v in {"ref.accel": a, "ref.cruise": a / 2, "ctl.clamp": 0, "sim.duration": 3.0,
                  "sim.tel_phase": 0.0, "sim.tel_period": 0.025}.items():
@@ -171,7 +173,7 @@ def _current_relation(effects, u=0.6):
 def test_current_is_the_electrical_side(effects, v_eff, ke):
     i, w, s = _current_relation(effects)
     assert s.get("motor.stall_a") == 2.0  # thesis III.1: 12 V, 2 A maximum
-    model = 2.0 * (v_eff / 12.0 - ke * w / 36.65)
+    model = 2.0 * (v_eff / 12.0 - ke * w / MOTOR["no_load_rad_s"])
     # a third of an ADC LSB (2.96 mA): the logged current is the drive step's before the
     # frame, whose wheel speed is 0.2 ms older (< 0.6 mA from 0.1 s on, 3 mA at 0.02 s)
     assert np.abs(i - model).max() < 1e-3
@@ -224,12 +226,12 @@ def _rec_run(tmp_path, name, rec, ref=ARC, T=3.0, seed=4, effects=None):
 
 def _odometry(enc_r, enc_l, midpoint):
     """Independent re-computation of odometry from counts (nominal r, b)."""
-    k = 2 * np.pi / 1856 * 0.0365
+    k = 2 * np.pi / PPR * ROBOT["r"]
     x = y = phi = 0.0
     out = [(0.0, 0.0, 0.0)]
     for i in range(1, enc_r.size):
         dr, dl = (enc_r[i] - enc_r[i - 1]) * k, (enc_l[i] - enc_l[i - 1]) * k
-        ds, dp = 0.5 * (dr + dl), (dr - dl) / (2 * 0.105)
+        ds, dp = 0.5 * (dr + dl), (dr - dl) / (2 * ROBOT["b"])
         if midpoint or abs(dp) < 1e-9:
             x += ds * np.cos(phi + dp / 2)
             y += ds * np.sin(phi + dp / 2)
@@ -281,14 +283,14 @@ def test_pi_recorder(tmp_path):
     assert m["torque_clamp"] is False and m["pi"]["kp"] > 0
     t = r.telemetry
     # the duty logged is the one the PI's torque asked for through the datasheet motor
-    u = np.clip(t["tau_cmd_r"] / 0.77 + t["omega_r"] / 36.65, -1, 1)
+    u = np.clip(t["tau_cmd_r"] / MOTOR["stall_nm"] + t["omega_r"] / MOTOR["no_load_rad_s"], -1, 1)
     assert np.abs(u - t["pwm_r"]).max() < 1e-12
     # its speed estimate is a count difference over the 25 ms tick: a multiple of one count
-    q = t["omega_r"] * 0.025 / (2 * np.pi / 1856)
+    q = t["omega_r"] * 0.025 / (2 * np.pi / PPR)
     assert np.abs(t["omega_r"]).max() > 5 and np.allclose(q, np.round(q), atol=1e-6)
     # and the loop tracks: the wheel speed reaches the reference's (v + b omega)/r at cruise
     late = tr["t_s"] > 2.0
-    w_ref = (0.5 + 0.105 * 0.5 / 0.5) / 0.0365
+    w_ref = (0.5 + ROBOT["b"] * 0.5 / 0.5) / ROBOT["r"]
     assert abs(np.mean(tr["true_dtheta_r"][late]) - w_ref) < 0.3
     # it differs from the cascade's recording of the same experiment
     c, _ = _rec_run(tmp_path, "c", {}, T=3.0)

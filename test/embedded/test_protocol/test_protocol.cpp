@@ -17,6 +17,7 @@
 #include <protocol/crc16.h>
 #include <protocol/frame.h>
 #include <protocol/messages.h>
+#include <slipmodel/params_table.h>
 
 using namespace proto;
 
@@ -96,10 +97,14 @@ static void test_telemetry_matches_host_golden() {
 
 static void test_params_floats_match_host_golden() {
     Params p;
-    p.mu_s = 0.241f; p.mu_k = 0.239f; p.b = 0.105f; p.e = 0.095f; p.d = 0.055f; p.g = 9.81f;
-    p.h = 0.0216f; p.m_r = 1.5f; p.I_rz = 0.009753f; p.I_wz = 0.000584f; p.I_wy = 0.001168f;
-    p.r = 0.0365f; p.m_w = 0.064f; p.supply_v = 12.0f; p.no_load_rad_s = 36.65f; p.stall_nm = 0.77f;
-    p.encoder_ppr = 1856; p.inner_period_us = 25000UL; p.outer_period_us = 50000UL;
+    // the parameter table's values, as the firmware reports them
+#define SET_FROM_TABLE(name, value, lo, hi, unit, run_format) p.name = static_cast<float>(slip::table::name);
+    SLIP_ROBOT_PARAMS(SET_FROM_TABLE)
+#undef SET_FROM_TABLE
+    p.supply_v = static_cast<float>(slip::table::supply_v);
+    p.no_load_rad_s = static_cast<float>(slip::table::no_load_rad_s);
+    p.stall_nm = static_cast<float>(slip::table::stall_nm);
+    p.encoder_ppr = SLIP_ENCODER_COUNTS_PER_REV; p.inner_period_us = 25000UL; p.outer_period_us = 50000UL;
     p.telemetry_period_us = 20000UL; p.baud = 115200UL; p.clamp_on = 1; p.controller = kControllerThesis;
     p.firmware_id = 0x12345678UL;
     uint8_t wire[kMaxWire];

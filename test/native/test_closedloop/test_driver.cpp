@@ -7,6 +7,7 @@
 #include <unity.h>
 
 #include <closedloop/driver.h>
+#include "../table.h"
 
 void setUp() {}
 void tearDown() {}
@@ -39,8 +40,8 @@ void test_driver_follows_the_firmware_schedule() {
   p.set_time(3.0);
   int differ = 0;
   for (int k = 0; k < 400; ++k) {
-    const int32_t er = static_cast<int32_t>(floor(p.state().theta_r_rad * 1856 / (2 * M_PI)));
-    const int32_t el = static_cast<int32_t>(floor(p.state().theta_l_rad * 1856 / (2 * M_PI)));
+    const int32_t er = static_cast<int32_t>(floor(p.state().theta_r_rad * tbl::kPpr / (2 * M_PI)));
+    const int32_t el = static_cast<int32_t>(floor(p.state().theta_l_rad * tbl::kPpr / (2 * M_PI)));
     // tick 0: the start tick (reset, outer step at t = 0, first command from rest)
     const ctl::InnerOut o = k == 0 ? c.start(er, el, ctl::Pose{-0.1f, 0.15f, 0.4f}, ctl::reference_at(dc.ref, 0.0f))
                                    : c.inner_step(er, el, 0.025f);

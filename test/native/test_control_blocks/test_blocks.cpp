@@ -8,6 +8,7 @@
 #include <unity.h>
 
 #include "../expect_near.h"
+#include "../table.h"
 
 #include <control/cascade.h>
 #include <control/cascade_q.h>
@@ -27,7 +28,7 @@ void setUp() {}
 void tearDown() {}
 
 void test_split_inverts_and_matches_plant_signs() {
-  const float r = 0.0365f, b = 0.105f;
+  const float r = tbl::kWheelR_m, b = tbl::kHalfTrack_m;
   // Inverse: (tau_r + tau_l)/r = F and b (tau_r - tau_l)/r = M.
   const WheelPair t = split_torque(r, b, 3.0f, 0.2f);
   CHECK_NEAR(3.0, (t.r + t.l) / r, 1e-5, "F");
@@ -66,7 +67,7 @@ void test_pwm_is_inverse_of_motor_model() {
       if (!sat) CHECK_NEAR(tau, slip::motor_torque_nm(m, u, w), 1e-6, "motor(pwm(tau))");
     }
   // Back-EMF compensation: zero torque at speed needs u = w / no_load.
-  CHECK_NEAR(20.0 / 36.65, torque_to_pwm(m, 0.0f, 20.0f, &sat), 1e-6, "u for zero torque");
+  CHECK_NEAR(20.0 / m.no_load_rad_s, torque_to_pwm(m, 0.0f, 20.0f, &sat), 1e-6, "u for zero torque");
   // Saturation.
   TEST_ASSERT_EQUAL_FLOAT(1.0f, torque_to_pwm(m, 5.0f, 0.0f, &sat));
   TEST_ASSERT_TRUE(sat);
@@ -174,11 +175,12 @@ void test_anti_windup_on_duty_saturation() {
 
 void test_references() {
   // Thesis straight profile: 72 rad/s^2 for 0.5 s -> 36 rad/s wheel speed.
-  const ReferenceSpec s = straight_profile(0.0365f, 72.0f);
-  CHECK_NEAR(0.0365 * 36.0, reference_at(s, 0.5f).v_m_s, 1e-5, "cruise speed");
-  CHECK_NEAR(0.0365 * 72.0, reference_at(s, 0.25f).dv_m_s2, 1e-5, "acceleration");
+  const double r = tbl::kWheelR_m;
+  const ReferenceSpec s = straight_profile(tbl::kWheelR_m, 72.0f);
+  CHECK_NEAR(r * 36.0, reference_at(s, 0.5f).v_m_s, 1e-5, "cruise speed");
+  CHECK_NEAR(r * 72.0, reference_at(s, 0.25f).dv_m_s2, 1e-5, "acceleration");
   CHECK_NEAR(0.0, reference_at(s, 0.6f).dv_m_s2, 0, "hold");
-  CHECK_NEAR(0.5 * 0.0365 * 72 * 0.25 + 0.0365 * 36 * 0.5, reference_at(s, 1.0f).x_m, 1e-5, "distance");
+  CHECK_NEAR(0.5 * r * 72 * 0.25 + r * 36 * 0.5, reference_at(s, 1.0f).x_m, 1e-5, "distance");
   // Arc: stays on the circle centred (0, R); heading is tangent; omega = v / R.
   const ReferenceSpec arc{PathKind::kArc, 0.5f, 0.4f, -0.5f};
   for (float t = 0; t < 10; t += 0.37f) {

@@ -6,6 +6,7 @@
 #include <unity.h>
 
 #include "closed_loop_sim.h"
+#include "../table.h"
 #include <slipmodel/rolling.h>
 #include <slipmodel/traction.h>
 
@@ -86,13 +87,13 @@ void test_ii62_clamp_off_slip_threshold() {
   printf("II.6.2: no-slip wheel-acceleration limit alpha* = %.2f rad/s^2\n", a_star);
   TEST_ASSERT_TRUE(a_star > 40.0 && a_star < 42.0);
   const float below = static_cast<float>(0.75 * a_star);
-  const sim::Result r0 = run_float(straight_profile(0.0365f, below), false, 0, 0, 0, 3.0);
+  const sim::Result r0 = run_float(straight_profile(tbl::kWheelR_m, below), false, 0, 0, 0, 3.0);
   printf("II.6.2: %.1f rad/s^2: slip steps %d, max tau %.4f N m\n", below, r0.slip_steps, r0.max_tau_cmd_nm);
   TEST_ASSERT_EQUAL_INT(0, r0.slip_steps);
   const float accels[] = {44.0f, 48.0f, 72.0f};
   double prev_loss = 0.0;
   for (float a : accels) {
-    const sim::Result r = run_float(straight_profile(0.0365f, a), false, 0, 0, 0, 3.0);
+    const sim::Result r = run_float(straight_profile(tbl::kWheelR_m, a), false, 0, 0, 0, 3.0);
     printf("II.6.2: %.0f rad/s^2: slip steps %d (first at %.3f s), max tau %.4f N m, "
            "position lost to slip (odometry - truth) %.4f m\n",
            a, r.slip_steps, r.first_slip_t_s, r.max_tau_cmd_nm, r.max_odo_err_m);
@@ -114,7 +115,7 @@ void test_ii62_thesis_controller() {
   for (int i = 0; i < 3; ++i) {
     sim::FloatAdapter ad(make_control_config(slip::RobotParams(), slip::MotorParams(), thesis_gains(), false,
                                              Variant::kThesis));
-    const sim::Result r = sim::run(ad, straight_profile(0.0365f, accels[i]), 0, 0, 0, 3.0, sim::Actuator::kTorque);
+    const sim::Result r = sim::run(ad, straight_profile(tbl::kWheelR_m, accels[i]), 0, 0, 0, 3.0, sim::Actuator::kTorque);
     char m[200];
     snprintf(m, sizeof m, "II.6.2 thesis controller %.0f rad/s^2: slip steps %d, peak tau %.4f N m (caption %.2f), "
              "mean wheel acceleration 0-0.5 s %.1f rad/s^2, lost to slip %.4f m",
@@ -128,7 +129,7 @@ void test_ii62_thesis_controller() {
   // inertia), so it slips at all three.
   for (int i = 0; i < 3; ++i) {
     sim::FloatAdapter ad(config(false));
-    const sim::Result r = sim::run(ad, straight_profile(0.0365f, accels[i]), 0, 0, 0, 3.0, sim::Actuator::kTorque);
+    const sim::Result r = sim::run(ad, straight_profile(tbl::kWheelR_m, accels[i]), 0, 0, 0, 3.0, sim::Actuator::kTorque);
     printf("II.6.2 improved controller %.0f rad/s^2, torque source: slip steps %d, peak tau %.4f N m, "
            "mean wheel acceleration %.1f rad/s^2\n", accels[i], r.slip_steps, r.max_tau_cmd_nm, r.mean_wheel_accel_0_5);
     TEST_ASSERT_TRUE(r.slip_steps > 0);
@@ -137,7 +138,7 @@ void test_ii62_thesis_controller() {
 
 // II.6.3 at 72 rad/s^2, with and without the clamp.
 void test_ii63_clamp_prevents_slip_at_72() {
-  const ReferenceSpec ref = straight_profile(0.0365f, 72.0f);
+  const ReferenceSpec ref = straight_profile(tbl::kWheelR_m, 72.0f);
   const sim::Result off = run_float(ref, false, 0, 0, 0, 20.0);
   const sim::Result on = run_float(ref, true, 0, 0, 0, 20.0);
   const sim::Result off3 = run_float(ref, false, 0, 0, 0, 3.0);
@@ -167,7 +168,7 @@ void test_ii63_clamp_prevents_slip_at_72() {
 
 // The same at 48 rad/s^2, where the motor is far from its speed limit.
 void test_ii63_clamp_at_48() {
-  const ReferenceSpec ref = straight_profile(0.0365f, 48.0f);
+  const ReferenceSpec ref = straight_profile(tbl::kWheelR_m, 48.0f);
   const sim::Result off = run_float(ref, false, 0, 0, 0, 8.0);
   const sim::Result on = run_float(ref, true, 0, 0, 0, 8.0);
   printf("48 rad/s^2: clamp off max %.3f m final %.4f m; clamp on max %.3f m final %.4f m\n",

@@ -7,6 +7,7 @@
 #include <unity.h>
 
 #include "../expect_near.h"
+#include "../table.h"
 
 #include "../test_control_closed_loop/closed_loop_sim.h"
 
@@ -55,7 +56,7 @@ void test_config_converts() {
 
 // References: fixed vs float for 10 minutes of each path.
 void test_reference_fixed_vs_float() {
-  const ReferenceSpec specs[] = {straight_profile(0.0365f, 72.0f),
+  const ReferenceSpec specs[] = {straight_profile(tbl::kWheelR_m, 72.0f),
                                  ReferenceSpec{PathKind::kArc, 0.5f, 0.4f, 0.6f},
                                  ReferenceSpec{PathKind::kArc, 0.3f, 0.3f, -0.25f},
                                  ReferenceSpec{PathKind::kFigureEight, 0.5f, 0.4f, 0.6f},
@@ -185,7 +186,7 @@ void test_start_commands_at_once() {
       const Variant v = static_cast<Variant>(vi);
       const ControlConfig cfg = make_control_config(slip::RobotParams(), slip::MotorParams(), gains_for(v), clamp != 0, v);
       const ControlConfigQ cq(cfg);
-      const ReferenceSpec ref = straight_profile(0.0365f, 72.0f);
+      const ReferenceSpec ref = straight_profile(tbl::kWheelR_m, 72.0f);
       const ReferenceSpecQ refq(ref);
       Controller f(cfg), f2(cfg);
       ControllerQ q(cq), q2(cq);
@@ -220,7 +221,7 @@ void test_start_commands_at_once() {
 }
 
 void test_fixed_ii63_at_72() {
-  const ReferenceSpec ref = straight_profile(0.0365f, 72.0f);
+  const ReferenceSpec ref = straight_profile(tbl::kWheelR_m, 72.0f);
   sim::FixedAdapter off_a(config(false)), on_a(config(true));
   const sim::Result off = sim::run(off_a, ref, 0, 0, 0, 20.0);
   const sim::Result on = sim::run(on_a, ref, 0, 0, 0, 20.0);
@@ -253,7 +254,7 @@ void test_fixed_thesis_variant() {
   const float accels[] = {44.0f, 48.0f, 72.0f};
   const double caption[] = {0.09, 0.1, 0.13};
   for (int i = 0; i < 3; ++i) {
-    const ReferenceSpec ref = straight_profile(0.0365f, accels[i]);
+    const ReferenceSpec ref = straight_profile(tbl::kWheelR_m, accels[i]);
     sim::FixedAdapter fa(fc);
     sim::FloatAdapter fl(fc);
     const sim::Result r = sim::run(fa, ref, 0, 0, 0, 3.0, sim::Actuator::kTorque);
@@ -266,7 +267,7 @@ void test_fixed_thesis_variant() {
   }
   sim::FixedAdapter on_a(
       make_control_config(slip::RobotParams(), slip::MotorParams(), thesis_gains(), true, Variant::kThesis));
-  const sim::Result on = sim::run(on_a, straight_profile(0.0365f, 72.0f), 0, 0, 0, 20.0);
+  const sim::Result on = sim::run(on_a, straight_profile(tbl::kWheelR_m, 72.0f), 0, 0, 0, 20.0);
   printf("fixed II.6.3 thesis, clamp on: slip %d max %.3f final %.4f, odometry drift %.4f\n", on.slip_steps,
          on.max_pos_err_m, on.final_pos_err_m, on.max_odo_err_m);
   TEST_ASSERT_EQUAL_INT(0, on.slip_steps);
@@ -287,7 +288,7 @@ void test_inner_step_range_and_saturation() {
     for (int i = 0; i < 20000; ++i) {
       Controller f(fc);
       ControllerQ q(qc);
-      // Encoder increments over 25 ms: up to 3x the no-load speed (270 counts = 36.65 rad/s).
+      // Encoder increments over 25 ms: up to 3x the no-load speed (the no-load speed is about 270 counts).
       const double span = (i % 4 == 0) ? 810 : 270;
       const int32_t dr = static_cast<int32_t>(lround(urand(-span, span)));
       const int32_t dl = static_cast<int32_t>(lround(urand(-span, span)));

@@ -7,6 +7,7 @@
 #include <unity.h>
 
 #include "../expect_near.h"
+#include "../table.h"
 
 #include <control/odometry.h>
 
@@ -15,11 +16,11 @@ using namespace ctl;
 namespace {
 
 // The library is configured in float; the exact reference uses the same float-rounded values
-// so that it measures the algorithm, not the rounding of 0.0365 to float.
-const double kR = static_cast<double>(0.0365f), kB = static_cast<double>(0.105f);
-const int32_t kPpr = 1856;
+// so that it measures the algorithm, not the rounding of r and b to float.
+const double kR = static_cast<double>(tbl::kWheelR_m), kB = static_cast<double>(tbl::kHalfTrack_m);
+const int32_t kPpr = tbl::kPpr;
 const OdometryConfig kCfg{static_cast<float>(kR), static_cast<float>(kB), kPpr};
-constexpr OdometryConfigQ kCfgQ{OdometryConfig{0.0365f, 0.105f, 1856}};
+constexpr OdometryConfigQ kCfgQ{OdometryConfig{tbl::kWheelR_m, tbl::kHalfTrack_m, tbl::kPpr}};
 const double kPi = 3.14159265358979323846;
 
 
@@ -333,16 +334,16 @@ void test_bad_input_is_reported_and_finite() {
                     static_cast<int>(oq.update(10 + 100000, 20, 25000)));
   TEST_ASSERT_TRUE(isfinite(of.pose().x_m) && isfinite(of.pose().phi_rad));
   TEST_ASSERT_EQUAL_INT16(INT16_MAX, oq.omega_r_q8());  // saturated, not wrapped
-  Odometry bad(OdometryConfig{0.0f, 0.105f, 1856});
+  Odometry bad(OdometryConfig{0.0f, tbl::kHalfTrack_m, tbl::kPpr});
   TEST_ASSERT_EQUAL(static_cast<int>(OdoStatus::kBadConfig), static_cast<int>(bad.update(1, 1, 0.025f)));
-  constexpr OdometryConfigQ badq{OdometryConfig{0.0365f, -1.0f, 1856}};
+  constexpr OdometryConfigQ badq{OdometryConfig{tbl::kWheelR_m, -1.0f, tbl::kPpr}};
   OdometryQ bq(badq);
   TEST_ASSERT_EQUAL(static_cast<int>(OdoStatus::kBadConfig), static_cast<int>(bq.update(1, 1, 25000)));
 }
 
 void test_fixed_vs_float_ten_minutes() {
   // 10 minutes at 25 ms (24,000 steps) of random driving up to full motor speed
-  // (36.65 rad/s = 270 counts per step) including spins; stated bounds are checked and printed.
+  // (the no-load speed, about 270 counts per step) including spins; stated bounds are checked and printed.
   srand(777);
   int32_t vr = 0, vl = 0;
   Errs e = run(

@@ -8,6 +8,7 @@
 #include <protocol/crc16.h>
 #include <protocol/frame.h>
 #include <protocol/messages.h>
+#include <slipmodel/params_table.h>
 
 using namespace proto;
 
@@ -301,8 +302,8 @@ void test_validate_command() {
     TEST_ASSERT_EQUAL_UINT8(4, detail);
 
     SetMu mu;
-    mu.set_mu_s(0.241f);
-    mu.set_mu_k(0.239f);
+    mu.set_mu_s(static_cast<float>(slip::table::mu_s));
+    mu.set_mu_k(static_cast<float>(slip::table::mu_k));
     TEST_ASSERT_EQUAL(kResultOk, mu.validate(&detail));
     mu.set_mu_k(0.3f);  // mu_k > mu_s
     TEST_ASSERT_EQUAL(kResultOutOfRange, mu.validate(&detail));

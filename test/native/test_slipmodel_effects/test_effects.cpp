@@ -89,7 +89,7 @@ static void test_friction_coefficient(void) {
   EXPECT_NEAR(1e-9, 2.0 * 0.45 * normal_forces(p).N_r / p.m_t(), s.state().v_m_s - v0);
   // mu_k above mu_s is used as mu_s: the wheels slip steadily, without stick/slip chatter.
   Plant hi_k;
-  hi_k.set_effect(kFrictionCoefficient, true, 0.241, 0.3);
+  hi_k.set_effect(kFrictionCoefficient, true, table::mu_s, 0.3);
   int transitions = 0;
   bool prev = false;
   for (int k = 0; k < 2000; ++k) {
@@ -116,7 +116,7 @@ static void test_track_width(void) {
   run(pl, 0, 0.03, 0.01, 0.5);
   const PlantState& s = pl.state();
   TEST_ASSERT_FALSE(s.slipping_r || s.slipping_l);
-  EXPECT_NEAR(1e-9, 0.0365 * (s.dtheta_r_rad_s - s.dtheta_l_rad_s) / (2 * 0.12), s.omega_rad_s);
+  EXPECT_NEAR(1e-9, table::r * (s.dtheta_r_rad_s - s.dtheta_l_rad_s) / (2 * 0.12), s.omega_rad_s);
 }
 
 static double steady_wheel_speed(EffectId id, double p0, double u) {
@@ -128,7 +128,7 @@ static double steady_wheel_speed(EffectId id, double p0, double u) {
 
 static void test_motor_back_emf(void) {
   // No-load speed drops to u no_load / ke_ratio; in torque mode the effect does nothing.
-  EXPECT_NEAR(0.01, 0.3 * 36.65 / 1.2, steady_wheel_speed(kMotorBackEmf, 1.2, 0.3));
+  EXPECT_NEAR(0.01, 0.3 * table::no_load_rad_s / 1.2, steady_wheel_speed(kMotorBackEmf, 1.2, 0.3));
   Plant a, b;
   b.set_effect(kMotorBackEmf, true, 1.2);
   run(a, 0, 0.05, 0.05, 0.5);
@@ -137,7 +137,7 @@ static void test_motor_back_emf(void) {
 }
 
 static void test_driver_voltage_drop(void) {
-  EXPECT_NEAR(0.01, 0.3 * 36.65 * (12.0 - 2.0) / 12.0, steady_wheel_speed(kDriverVoltageDrop, 2.0, 0.3));
+  EXPECT_NEAR(0.01, 0.3 * table::no_load_rad_s * (table::supply_v - 2.0) / table::supply_v, steady_wheel_speed(kDriverVoltageDrop, 2.0, 0.3));
 }
 
 static void test_deadband(void) {
@@ -145,7 +145,7 @@ static void test_deadband(void) {
   pl.set_effect(kDeadband, true, 1.0);
   run(pl, 1, 0.05, 0.05, 1.0);  // 0.6 V < 1 V: no torque
   EXPECT_NEAR(0.0, 0.0, pl.state().x_m);
-  EXPECT_NEAR(0.01, (0.3 * 12.0 - 1.0) / 12.0 * 36.65, steady_wheel_speed(kDeadband, 1.0, 0.3));
+  EXPECT_NEAR(0.01, (0.3 * table::supply_v - 1.0) / table::supply_v * table::no_load_rad_s, steady_wheel_speed(kDeadband, 1.0, 0.3));
 }
 
 static void test_actuation_delay(void) {
@@ -246,7 +246,7 @@ static void test_stribeck(void) {
   // body accelerates more than with constant mu_k, and with mu_k once the slip speed is large.
   const RobotParams p;
   Plant ref, st;
-  st.set_effect(kStribeck, true, 0.241, 0.05);
+  st.set_effect(kStribeck, true, table::mu_s, 0.05);
   run(ref, 0, 0.1, 0.1, 0.3);
   const int st_slips = run(st, 0, 0.1, 0.1, 0.3);
   TEST_ASSERT_EQUAL_INT(2 * 600, st_slips);  // slipping throughout, no re-stick chatter
@@ -311,7 +311,7 @@ static void test_string_keys(void) {
   TEST_ASSERT_EQUAL_INT(kKeyOk, plant_get(pl, "stribeck.v_s", &v));
   EXPECT_NEAR(0.0, 0.03, v);
   TEST_ASSERT_EQUAL_INT(kKeyOk, plant_get(pl, "robot.I_wy", &v));
-  EXPECT_NEAR(0.0, 0.001168, v);
+  EXPECT_NEAR(0.0, table::I_wy, v);
   // errors change nothing
   TEST_ASSERT_EQUAL_INT(kKeyUnknown, plant_set(pl, "robot.mass", 1.0));
   TEST_ASSERT_EQUAL_INT(kKeyUnknown, plant_set(pl, "stribeck.vs", 1.0));
@@ -321,8 +321,8 @@ static void test_string_keys(void) {
   TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "robot.mu_k", NAN));
   TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "wheel_radius.r_eff", -0.01));
   TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "floor_slope.rad", 2.0));
-  EXPECT_NEAR(0.0, 0.0365, pl.robot().r);
-  EXPECT_NEAR(0.0, 0.239, pl.robot().mu_k);
+  EXPECT_NEAR(0.0, table::r, pl.robot().r);
+  EXPECT_NEAR(0.0, table::mu_k, pl.robot().mu_k);
   TEST_ASSERT_EQUAL_INT(17, param_key_count());
   TEST_ASSERT_EQUAL_STRING("robot.mu_s", param_key_name(0));
   TEST_ASSERT_EQUAL_STRING("motor.stall_a", param_key_name(16));

@@ -181,10 +181,10 @@ static void test_energy_never_increases_without_input(void) {
   b.set_velocity(0.5, 0.8, 6.0, 0.0, 0.0);
   check_energy_never_increases(b, 2.0);
   Plant c;  // rolling in a turn (stuck wheels): energy may only stay or fall
-  c.set_velocity(0.5, 0.0, 2.0, (0.5 + 0.105 * 2.0) / 0.0365, (0.5 - 0.105 * 2.0) / 0.0365);
+  c.set_velocity(0.5, 0.0, 2.0, (0.5 + table::b * 2.0) / table::r, (0.5 - table::b * 2.0) / table::r);
   check_energy_never_increases(c, 2.0);
   Plant d;  // fast turn: lateral slip, both wheels slide
-  d.set_velocity(1.5, 0.0, 8.0, (1.5 + 0.105 * 8.0) / 0.0365, (1.5 - 0.105 * 8.0) / 0.0365);
+  d.set_velocity(1.5, 0.0, 8.0, (1.5 + table::b * 8.0) / table::r, (1.5 - table::b * 8.0) / table::r);
   check_energy_never_increases(d, 2.0);
 }
 
@@ -212,7 +212,7 @@ static void test_restick_without_chattering(void) {
   const RunResult r = run_torque(pl, 0.05, 0.05, 2.0);
   TEST_ASSERT_EQUAL_INT(2, r.transitions);
   TEST_ASSERT_FALSE(r.end.slipping_r || r.end.slipping_l);
-  EXPECT_NEAR(1e-9, r.end.v_m_s, 0.0365 * r.end.dtheta_r_rad_s);
+  EXPECT_NEAR(1e-9, r.end.v_m_s, table::r * r.end.dtheta_r_rad_s);
   // Coasting to rest: wheels stop with the body and stay stuck, no sign flips.
   Plant c;
   c.set_velocity(0.3, 0.0, 0.0, 0.0, 0.0);  // skidding with locked wheels

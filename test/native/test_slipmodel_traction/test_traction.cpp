@@ -20,25 +20,34 @@ void tearDown(void) {}
 static constexpr TractionQ kTableQ = traction_q(table_ii2());
 static_assert(kTableQ.k_tau_q24 > 0 && kTableQ.n_wheel0_q16 > 0, "constexpr traction_q");
 
+// The defaults are the generated table's, every one (the table's values themselves are checked
+// against the thesis once, in host_tools/tests/test_params_generated.py).
 static void test_table_ii2_defaults(void) {
   const RobotParams p = table_ii2();
-  EXPECT_NEAR(0.0, 0.105, p.b);  // half of 2b = 0.21
-  EXPECT_NEAR(1e-12, 1.628, p.m_t());
-  EXPECT_NEAR(1e-12, 0.009753 + 2 * (0.000584 + 0.064 * 0.105 * 0.105), p.I_t());
+#define CHECK_DEFAULT(name, value, lo, hi, unit, run_format) \
+  EXPECT_NEAR(0.0, value, p.name);                          \
+  TEST_ASSERT_TRUE(lo <= p.name && p.name <= hi);
+  SLIP_ROBOT_PARAMS(CHECK_DEFAULT)
+#undef CHECK_DEFAULT
+  EXPECT_NEAR(1e-12, p.m_r + 2 * p.m_w, p.m_t());
+  EXPECT_NEAR(1e-12, p.I_rz + 2 * (p.I_wz + p.m_w * p.b * p.b), p.I_t());
   const MotorParams m = datasheet_motor();
-  EXPECT_NEAR(0.0, 12.0, m.supply_v);
-  EXPECT_NEAR(0.0, 36.65, m.no_load_rad_s);
-  EXPECT_NEAR(0.0, 0.77, m.stall_nm);
-  TEST_ASSERT_EQUAL_INT32(1856, kEncoderPpr);
+#define CHECK_DEFAULT(name, value, lo, hi, unit, run_format) \
+  EXPECT_NEAR(0.0, value, m.name);                          \
+  TEST_ASSERT_TRUE(lo <= m.name && m.name <= hi);
+  SLIP_MOTOR_PARAMS(CHECK_DEFAULT)
+#undef CHECK_DEFAULT
+  TEST_ASSERT_EQUAL_INT32(SLIP_ENCODER_COUNTS_PER_REV, kEncoderPpr);
 }
 
 static void test_normal_forces_static(void) {
   const RobotParams p = table_ii2();
   const NormalForces n = normal_forces(p);
-  // By hand: N_c = 1.628 * 9.81 * 0.055 / 0.15 = 5.855916; N_r = N_l = (15.97068 - 5.855916) / 2.
-  EXPECT_NEAR(1e-9, 5.855916, n.N_c);
-  EXPECT_NEAR(1e-9, 5.057382, n.N_r);
-  EXPECT_NEAR(1e-9, 5.057382, n.N_l);
+  // By hand (II.29): the caster takes d/(d+e) of the weight, the wheels share the rest.
+  const double weight = (p.m_r + 2 * p.m_w) * p.g, n_c = weight * p.d / (p.d + p.e);
+  EXPECT_NEAR(1e-9, n_c, n.N_c);
+  EXPECT_NEAR(1e-9, 0.5 * (weight - n_c), n.N_r);
+  EXPECT_NEAR(1e-9, 0.5 * (weight - n_c), n.N_l);
   EXPECT_NEAR(1e-9, p.m_t() * p.g, n.N_r + n.N_l + n.N_c);  // II.27
 }
 
@@ -135,23 +144,25 @@ static void test_fixed_point_saturates(void) {
 
 static void test_motor_model_datasheet_points(void) {
   const MotorParams m;
-  EXPECT_NEAR(1e-12, 0.77, motor_torque_nm(m, 1.0, 0.0));       // stall
-  EXPECT_NEAR(1e-12, 0.0, motor_torque_nm(m, 1.0, 36.65));      // no load
-  EXPECT_NEAR(1e-12, 0.0, motor_torque_nm(m, 0.5, 0.5 * 36.65));
-  EXPECT_NEAR(1e-12, -0.77 * 0.5, motor_torque_nm(m, -0.5, 0.0));
+  const double stall = m.stall_nm, no_load = m.no_load_rad_s, v = m.supply_v;
+  EXPECT_NEAR(1e-12, stall, motor_torque_nm(m, 1.0, 0.0));       // stall
+  EXPECT_NEAR(1e-12, 0.0, motor_torque_nm(m, 1.0, no_load));     // no load
+  EXPECT_NEAR(1e-12, 0.0, motor_torque_nm(m, 0.5, 0.5 * no_load));
+  EXPECT_NEAR(1e-12, -stall * 0.5, motor_torque_nm(m, -0.5, 0.0));
   // k_t (u V - k_e w) / R with k_t/R = stall/V, k_e = V/no_load:
-  const double kt_R = 0.77 / 12.0, ke = 12.0 / 36.65;
-  EXPECT_NEAR(1e-12, kt_R * (0.3 * 12.0 - ke * 5.0), motor_torque_nm(m, 0.3, 5.0));
+  const double kt_R = stall / v, ke = v / no_load;
+  EXPECT_NEAR(1e-12, kt_R * (0.3 * v - ke * 5.0), motor_torque_nm(m, 0.3, 5.0));
 }
 
 static void test_motor_model_saturation(void) {
   const MotorParams m;
   EXPECT_NEAR(0.0, motor_torque_nm(m, 1.0, 3.0), motor_torque_nm(m, 7.0, 3.0));
   EXPECT_NEAR(0.0, motor_torque_nm(m, -1.0, 3.0), motor_torque_nm(m, -7.0, 3.0));
-  EXPECT_NEAR(1e-12, 0.77, motor_torque_nm(m, 1.0, -36.65));  // would be 2 stall
-  EXPECT_NEAR(1e-12, -0.77, motor_torque_nm(m, -1.0, 80.0));
-  EXPECT_NEAR(1e-12, -0.77 * 10.0 / 36.65, motor_torque_nm(m, NAN, 10.0));
-  EXPECT_NEAR(0.0, 0.0, motor_torque_nm(m, 0.2, NAN) - 0.2 * 0.77);
+  const double stall = m.stall_nm, no_load = m.no_load_rad_s;
+  EXPECT_NEAR(1e-12, stall, motor_torque_nm(m, 1.0, -no_load));  // would be 2 stall
+  EXPECT_NEAR(1e-12, -stall, motor_torque_nm(m, -1.0, 2.2 * no_load));
+  EXPECT_NEAR(1e-12, -stall * 10.0 / no_load, motor_torque_nm(m, NAN, 10.0));
+  EXPECT_NEAR(0.0, 0.0, motor_torque_nm(m, 0.2, NAN) - 0.2 * stall);
 }
 
 static void test_motor_inverse_round_trip(void) {
@@ -185,21 +196,23 @@ static void test_motor_current(void) {
 static void test_motor_imperfections(void) {
   const MotorParams m;
   MotorImperfections x;
+  const double stall = m.stall_nm, no_load = m.no_load_rad_s, v = m.supply_v;
   x.ke_ratio = 1.2;
-  EXPECT_NEAR(1e-12, 0.77 * (0.5 - 1.2 * 10.0 / 36.65), motor_torque_nm(m, 0.5, 10.0, x));
+  EXPECT_NEAR(1e-12, stall * (0.5 - 1.2 * 10.0 / no_load), motor_torque_nm(m, 0.5, 10.0, x));
   x = MotorImperfections();
   x.drop_v = 1.2;
-  EXPECT_NEAR(1e-12, 0.77 * (0.5 * 10.8 / 12.0), motor_torque_nm(m, 0.5, 0.0, x));
+  EXPECT_NEAR(1e-12, stall * (0.5 * (v - 1.2) / v), motor_torque_nm(m, 0.5, 0.0, x));
   x = MotorImperfections();
-  x.deadband_v = 0.6;
-  EXPECT_NEAR(0.0, 0.0, motor_torque_nm(m, 0.04, 0.0, x));  // 0.48 V < 0.6 V
-  EXPECT_NEAR(1e-12, -0.77 * (6.0 - 0.6) / 12.0, motor_torque_nm(m, -0.5, 0.0, x));
+  x.deadband_v = 0.04 * v + 0.1;
+  EXPECT_NEAR(0.0, 0.0, motor_torque_nm(m, 0.04, 0.0, x));  // 0.04 V_supply below the deadband
+  EXPECT_NEAR(1e-12, -stall * (0.5 * v - x.deadband_v) / v, motor_torque_nm(m, -0.5, 0.0, x));
 }
 
 
 // The thesis states tau_max = 0.095 N m for Table II.2. Which assumption reproduces it? Each
 // variant changes one or two things in II.27-II.29 / II.51; none lands within the +-0.0005 that
 // a two-digit 0.095 allows (README, "Where does 0.095 come from?").
+static const double kThesisTauMaxNm = 0.095;  // the thesis's printed tau_max, not a table value
 static double tau_variant(double m_n, double m_k, double g, double mu, double Nc) {
   const RobotParams p;
   const double N = 0.5 * (m_n * g - Nc);
@@ -208,26 +221,26 @@ static double tau_variant(double m_n, double m_k, double g, double mu, double Nc
 
 static void test_thesis_0p095_not_reproduced(void) {
   const RobotParams p;
-  const double mt = p.m_t(), mr = p.m_r, k = p.d / (p.d + p.e);
+  const double mt = p.m_t(), mr = p.m_r, k = p.d / (p.d + p.e), g = p.g;
   struct { const char* what; double tau; } v[] = {
-      {"as printed (m_t, g = 9.81, mu_s, II.29)", tau_variant(mt, mt, 9.81, p.mu_s, mt * 9.81 * k)},
-      {"caster ignored, N = m_t g / 2", tau_variant(mt, mt, 9.81, p.mu_s, 0.0)},
-      {"m_r instead of m_t everywhere", tau_variant(mr, mr, 9.81, p.mu_s, mr * 9.81 * k)},
-      {"m_r in II.51 only", tau_variant(mt, mr, 9.81, p.mu_s, mt * 9.81 * k)},
-      {"wheel weight on the axle (N_c from m_r)", tau_variant(mt, mt, 9.81, p.mu_s, mr * 9.81 * k)},
-      {"measured 1.63 kg", tau_variant(1.63, 1.63, 9.81, p.mu_s, 1.63 * 9.81 * k)},
+      {"as printed (m_t, g, mu_s, II.29)", tau_variant(mt, mt, g, p.mu_s, mt * g * k)},
+      {"caster ignored, N = m_t g / 2", tau_variant(mt, mt, g, p.mu_s, 0.0)},
+      {"m_r instead of m_t everywhere", tau_variant(mr, mr, g, p.mu_s, mr * g * k)},
+      {"m_r in II.51 only", tau_variant(mt, mr, g, p.mu_s, mt * g * k)},
+      {"wheel weight on the axle (N_c from m_r)", tau_variant(mt, mt, g, p.mu_s, mr * g * k)},
+      {"measured 1.63 kg", tau_variant(1.63, 1.63, g, p.mu_s, 1.63 * g * k)},
       {"g = 10", tau_variant(mt, mt, 10.0, p.mu_s, mt * 10.0 * k)},
       {"g = 10 and 1.63 kg", tau_variant(1.63, 1.63, 10.0, p.mu_s, 1.63 * 10.0 * k)},
-      {"mu_k instead of mu_s", tau_variant(mt, mt, 9.81, p.mu_k, mt * 9.81 * k)},
-      {"m_r in II.51 and mu_k", tau_variant(mt, mr, 9.81, p.mu_k, mt * 9.81 * k)},
-      {"caster e from the axle: N_c = m_t g d / e", tau_variant(mt, mt, 9.81, p.mu_s, mt * 9.81 * p.d / p.e)},
+      {"mu_k instead of mu_s", tau_variant(mt, mt, g, p.mu_k, mt * g * k)},
+      {"m_r in II.51 and mu_k", tau_variant(mt, mr, g, p.mu_k, mt * g * k)},
+      {"caster e from the axle: N_c = m_t g d / e", tau_variant(mt, mt, g, p.mu_s, mt * g * p.d / p.e)},
   };
   EXPECT_NEAR(1e-12, tau_max(p, normal_forces(p).N_r), v[0].tau);
   for (const auto& x : v) {
     char msg[120];
     snprintf(msg, sizeof(msg), "%-44s tau_max = %.5f N m", x.what, x.tau);
     TEST_MESSAGE(msg);
-    TEST_ASSERT_TRUE_MESSAGE(fabs(x.tau - 0.095) > 0.0005, x.what);
+    TEST_ASSERT_TRUE_MESSAGE(fabs(x.tau - kThesisTauMaxNm) > 0.0005, x.what);
   }
 }
 
