@@ -404,7 +404,13 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
         # output), each held from its tick.
         known = phase + np.floor((t - phase) / period + 1e-9) * period
         known, first = np.unique(known, return_index=True)
-        ticks = phase + period * np.arange(math.floor((known[0] - phase) / period + 1e-9),
+        n_first = math.floor((known[0] - phase) / period + 1e-9)
+        if tel["pwm_r"][0] != 0 or tel["pwm_l"][0] != 0:
+            # the first frame already reports a command: the experiment started after the frame
+            # before it would have been sent, at the earliest tick after t[0] - one frame
+            # interval; those ticks carry commands no frame reported
+            n_first = min(n_first, math.floor((t[0] - dt_tel - phase) / period + 1e-9) + 1)
+        ticks = phase + period * np.arange(n_first,
                                            math.floor((t[-1] - phase) / period + 1e-9) + 1)
         dense = lambda v: np.interp(ticks, known, np.asarray(v, float)[first])  # noqa: E731
         duty = (dense(duty[0]), dense(duty[1]))
@@ -519,13 +525,18 @@ def prepare_timed(run: Run) -> PreparedRun:
     fast = t.size > 1 and period > 0 and period < 0.999 * float(np.median(np.diff(t)))
     timing = ("board wheel speeds against recorded counts" if phase is not None
               else "centre of the input-change arc" if arc is not None else "frame times")
+    # how far the ticks may be from where they are put (a loop faster than the telemetry: the
+    # cubic through the counts pins the phase to about FAST_PHASE_UNCERTAINTY_S)
+    unc = FAST_PHASE_UNCERTAINTY_S if fast else 0.0
     if phase is None and fast:
         # a loop faster than the telemetry whose phase the recording does not pin down: a
         # frame reports the latest tick before it, on average half a period earlier
         phase = float((t[0] - 0.5 * period) % period)
         timing = "half a period before the frames (phase not identified)"
+        unc = 0.5 * period
     prep = prepare(run, 0.5, phase)
     prep.extras["timing"] = timing
+    prep.extras["phase_uncertainty_s"] = unc
     rec = recorder_odometry(prep)
     prep.extras["recorder_odometry"] = rec
     prep.extras["odo_schedule"] = rec.get("schedule", "ticks")
@@ -1076,6 +1087,9 @@ def _replay_odometry(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.nda
 
 
 CURRENT_SETTLE_S = 1e-3
+# the tick phase of a loop faster than the telemetry, from a cubic through the counts: within
+# 2 ms on the tuning cases recorded with a 10 ms loop
+FAST_PHASE_UNCERTAINTY_S = 2e-3
 
 
 def _last_change(t_in: np.ndarray, values: tuple, t: np.ndarray) -> np.ndarray:
@@ -1196,6 +1210,14 @@ def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int,
                 dt_in = (t - _last_change(prep.t_in, prep.duty, t) if t_steps is None
                          else t - _tick_before(np.asarray(t_steps, float), t))
                 keep = dt_in >= CURRENT_SETTLE_S
+                unc = float(prep.extras.get("phase_uncertainty_s") or 0.0)
+                if unc > 0:
+                    # where the ticks are known only to within unc, a sample that close to a
+                    # tick may sit on either side of it: left out as well
+                    steps = prep.t_in if t_steps is None else np.asarray(t_steps, float)
+                    j = np.searchsorted(steps, t, side="left")
+                    nxt = np.where(j < steps.size, steps[np.minimum(j, steps.size - 1)], np.inf)
+                    keep &= (dt_in >= CURRENT_SETTLE_S + unc) & (nxt - t > unc)
                 if keep.sum() < max(3, keep.size // 4):
                     continue   # the frames coincide with the loop's ticks: no settled sample
                 out[col] = Channel(col, t[keep], np.asarray(tel[col][i_a:i_b], float)[keep],
