@@ -89,7 +89,8 @@ def test_unreported_ticks_filled_closer_to_the_commands_given(arc_run):
     line = bias()
     cl = R.ClosedLoopReplay().simulate(prep, {})
     n = R.fill_unseen_from_controller(prep, cl)
-    assert n == int((~seen).sum())
+    in_cl = (prep.t_in >= cl["t_s"][0] - 1e-9) & (prep.t_in <= cl["t_s"][-1] + 1e-9)
+    assert n == int((~seen & in_cl).sum()) > 0.4 * seen.size
     assert np.array_equal(prep.duty[0][seen], given[0][seen])
     assert bias() < 0.5 * line, (line, bias())
 
