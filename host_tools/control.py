@@ -196,10 +196,6 @@ class ClosedLoop:
         """Plant at rest at ``pose`` at ``t0_s``, controller reset; the next tick is tick 0."""
         self._check(self._lib.cl_reset(self._h, *(float(v) for v in pose)), "reset")
 
-    @property
-    def ticks_done(self) -> int:
-        return int(self._lib.cl_ticks(self._h))
-
     def run(self, n_ticks: int, rows: bool = False):
         """Runs ``n_ticks`` more ticks; returns {tick column: array} (see ``tick_columns``), and
         with ``rows`` also {row column: array} of the plant at every row (``rows_per_tick`` per

@@ -1,4 +1,4 @@
-"""Firmware in the loop (issue 6): record runs from the real firmware.elf in simavr.
+"""Firmware in the loop: record runs from the real firmware.elf in simavr.
 
 ``python -m host_tools.fil record --out RUN_DIR [--accel 48 --clamp off ...] [sim options]``
 builds the simulator (``sim/fil/build.sh``) and, unless ``--elf`` is given, the firmware

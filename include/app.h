@@ -17,7 +17,7 @@ void app_poll();
 const TaskConfig* app_tasks();
 uint8_t app_task_count();
 
-// Test/simulator hook: a non-zero value makes the main loop hang (watchdog test, issue 6).
+// Test/simulator hook: a non-zero value makes the main loop hang (the watchdog test).
 extern "C" volatile uint8_t g_fault_hang;
 
 #endif  // FW_APP_H

@@ -18,10 +18,6 @@
 #include "motor.h"
 #include "xbee.h"
 
-// The encoders' counts per wheel turn (board wiring) are the model's: the controller and the
-// simulators convert counts to angles with slip::kEncoderPpr.
-static_assert(ENC_COUNTS_PER_REV == slip::kEncoderPpr, "board.h ENC_COUNTS_PER_REV != slip::kEncoderPpr");
-
 #ifndef FIRMWARE_ID
 #define FIRMWARE_ID 0UL
 #endif
@@ -52,7 +48,11 @@ const TaskConfig kTasks[] = {
      proto::kTelemetryBudgetCycles},
 };
 static_assert(sizeof kTasks / sizeof kTasks[0] == proto::kTaskCount, "task table vs protocol");
+// The encoders' counts per wheel turn (board wiring) are the model's: the controller and the
+// simulators convert counts to angles with slip::kEncoderPpr.
 static_assert(ENC_COUNTS_PER_REV == slip::kEncoderPpr, "the firmware's encoder counts are the model's");
+// The host's timing checks convert cycles to time at protocol.json's clock: it is the board's.
+static_assert(proto::kFcpuHz == F_CPU, "protocol.json timing.f_cpu_hz != the board's F_CPU");
 static_assert(ENC_COUNTS_PER_REV >= 1 && ENC_COUNTS_PER_REV <= 65535, "Params.encoder_ppr is a u16");
 // the protocol's controller codes are lib/control's Variant values (the C ABI's "controller"
 // key, which the analyzer's replay sets from meta.json controller_variant)

@@ -2,8 +2,8 @@
 
 Each case is four 1.5 s runs (ramp, turn, slow, brake) from the NOMINAL plant with one
 effect switched on (or none).  This measures speed and catches regressions; it is not the
-proof of the analyzer (the data come from the same model that is fitted -- issue 9's
-independent truth simulator is the proof).  Prints one line per case, a summary and the
+proof of the analyzer (the data come from the same model that is fitted -- the
+independent truth simulator's suite, host_tools.suite, is the proof).  Prints one line per case, a summary and the
 wall time per case."""
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 The "truth" here is the nominal plant itself (lib/slipmodel via host_tools._native) with an
 effect switched on.  That is NOT a proof of the analyzer -- the fitting model and the data
-come from the same code.  The real proof is issue 9's independent truth simulator.
+come from the same code.  The real proof is the independent truth simulator's suite (host_tools.suite).
 
 Each run: duty commands set by a 25 ms inner loop, 50 Hz telemetry with quantized encoders,
 board wheel speed and odometry from the counts at the inner-loop ticks (each frame reports

@@ -289,7 +289,4 @@ int cl_state(void* p, double* out, int n) {
   return CL_OK;
 }
 
-/// Ticks run since the last reset.
-long long cl_ticks(void* p) { return p ? static_cast<long long>(H(p)->drv->ticks()) : static_cast<long long>(CL_ERR_ARG); }
-
 }  // extern "C"

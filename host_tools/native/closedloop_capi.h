@@ -23,7 +23,6 @@ int cl_set_reference(void* p, int kind, double accel_m_s2, double cruise_m_s, do
 int cl_reset(void* p, double x_m, double y_m, double phi_rad);
 int cl_run(void* p, int n, double* ticks, int tick_cols, double* rows, int row_cols);
 int cl_state(void* p, double* out, int n);
-long long cl_ticks(void* p);
 
 #ifdef __cplusplus
 }

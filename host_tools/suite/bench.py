@@ -2,7 +2,7 @@
 
 Prints the confusion matrix (true effect vs named), parameter errors, false alarms on nulls,
 held-out improvement, physically impossible fits, the analysis time and peak memory of the
-long runs, and total time, each with issue 16's target. The analyzer is called as the
+long runs, and total time, each with its target (``TARGETS``). The analyzer is called as the
 acceptance harness calls it: ``python -m host_tools analyze RUN... --out DIR``; its wall time
 and the peak resident memory of its process tree (sampled every 0.1 s) are measured.
 """
@@ -20,7 +20,7 @@ from host_tools.suite import cases as C
 from host_tools.suite.generate import generate_case
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-#: issue 16's targets (the held-back set's figures are the ones that count, docs/suite.md)
+#: the analyzer's targets (the held-back set's figures are the ones that count, docs/suite.md)
 TARGETS = {"null_ok": 1.0, "named": 0.90, "param": 0.85, "oov_ok": 1.0, "impossible": 0,
            "long_s": 60.0, "long_mb": 1024.0}
 #: analyzer time limit per case: past it the case is stopped and scored as a timeout
@@ -332,7 +332,7 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
                      (f" (+{len(r['impossible']) - 4})" if len(r["impossible"]) > 4 else ""))
     m["impossible"] = len(imp)
     m["impossible_selected"] = sum(1 for r in imp if any(x.startswith("selected") for x in r["impossible"]))
-    # analysis time and peak memory by run length (the time target is issue 16's)
+    # analysis time and peak memory by run length (the time target: ``long_s``)
     lengths = [ln for ln in ("20 s", "2 min", "10 min") if any(r.get("length") == ln for r in results)]
     if any(r.get("analysis_s") is not None for r in results):
         L.append("")

@@ -11,7 +11,7 @@ Two sets (docs/suite.md, "Tuning set and held-back set"):
 - ``heldback`` (:func:`heldback_cases`): other seeds, other effect sizes and other recorders
   (the truth simulator's recorder variants), long runs; only scored.
 
-Concealment kinds (issue 9):
+Concealment kinds:
 - ``compensation``: the closed loop hides the effect in tracking; it shows only in the duty or
   torque the controller needed;
 - ``regime``: the effect acts only at high speed, only while accelerating/slipping, only at small

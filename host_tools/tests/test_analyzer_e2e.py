@@ -2,7 +2,8 @@
 
 These use the same model for data and fit, so they check the machinery (replay, location,
 fitting, selection, honesty paths, outputs, CLI), not the analyzer's power on real physics;
-that is issue 9's job with the independent truth simulator."""
+that is the job of the concealed-effect suite (host_tools.suite) with the independent truth
+simulator."""
 from __future__ import annotations
 
 import json

@@ -1,4 +1,4 @@
-"""Replays of the analyzer: the closed-loop replay through lib/control (issue 8) against runs
+"""Replays of the analyzer: the closed-loop replay through lib/control against runs
 of the independent truth simulator (its own physics, the firmware's controller), and the
 open-loop replay of an actuation delay on the plain replay grid."""
 from __future__ import annotations

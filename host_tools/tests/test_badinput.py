@@ -1,6 +1,6 @@
 """Bad input to the analyzer (``analyze``) and the timing tool (``timing``): every case
 gives exit 2 with the file and where in it (row, line, column or key), never a traceback;
-and the silent wrong results of issue 13 (numbers like ``1_0``, ground truth outside the
+and no silent wrong result (numbers like ``1_0``, ground truth outside the
 telemetry's time, two runs with one folder name, unknown meta keys, non-UTF-8 paths).
 
 Each case is an attack on one valid run folder (``_base``), which both tools accept."""

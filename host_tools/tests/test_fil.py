@@ -1,4 +1,4 @@
-"""Firmware in the loop (issue 6): the real megaatmega2560 firmware.elf in simavr against
+"""Firmware in the loop: the real megaatmega2560 firmware.elf in simavr against
 lib/slipmodel's plant, recorded through the simulated XBee pty by the telemetry logger.
 
 Skips (with the reason) only when the firmware cannot be built here; a simulator that does not
@@ -451,9 +451,9 @@ class HostScript:
 
 
 def test_only_known_host_messages_feed_the_host_timeout(elf, sim, tmp_path):
-    """Issue 13: after 0.3 s of heartbeats the host sends only valid frames (CRC right) of an
-    unknown type and Heartbeats one byte too long, every 20 ms: the robot must brake on the
-    host timeout as if the host were silent."""
+    """Only known host messages keep the robot driving: after 0.3 s of heartbeats the host sends
+    only valid frames (CRC right) of an unknown type and Heartbeats one byte too long, every
+    20 ms: the robot must brake on the host timeout as if the host were silent."""
     unknown = next(t for t in range(1, 256) if t not in D.by_type)
     hb_type = D.by_name["Heartbeat"].type
     running = 1 << D.flags["status"]["running"]
@@ -507,11 +507,11 @@ BURST = 50  # back-to-back host frames the firmware takes whole at 115200 baud (
 
 @pytest.mark.parametrize("name", ["Heartbeat", "SetMu"])
 def test_a_burst_of_50_back_to_back_host_frames_is_received_whole(elf, sim, tmp_path, name):
-    """Issue 13: 50 Heartbeats back to back gave 12 Acks (simavr received at half the baud rate
-    because UBRR was written before U2X); 50 SetMu overflowed the firmware's receive ring (a
-    controller rebuild per frame, 16.6 ms each). Every frame must be decoded (no CRC, framing or
-    overflow error) and handled: answered ok, or its Ack counted in tx_drops (the 14-byte Acks
-    outrun the uplink)."""
+    """A burst of 50 host frames back to back at the link's baud rate is received whole: every
+    frame is decoded (no CRC, framing or overflow error) and handled: answered ok, or its Ack
+    counted in tx_drops (the 14-byte Acks outrun the uplink). The failure modes this guards:
+    UBRR written before U2X (simavr then receives at half the baud rate) and a controller
+    rebuild per SetMu frame (16.6 ms each) overflowing the receive ring."""
     values = {"mu_s": 0.30, "mu_k": 0.28} if name == "SetMu" else None
     burst = b"".join(D.encode(name, 100 + i, values) for i in range(BURST))
     counters = ("rx_crc_errors", "rx_bad_frames", "rx_overflows", "tx_drops")

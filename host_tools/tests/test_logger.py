@@ -518,8 +518,9 @@ def _record(tmp_path, stream: bytes):
 
 
 def test_a_stale_frame_early_in_a_boot_is_not_a_reset(tmp_path):
-    """Issue 13: one older frame within the first 5 s of board time (seq < 1000) was taken for
-    a reset: a row with a made-up time, '1 gap (2 frames lost)', later t_s shifted."""
+    """One older frame within the first 5 s of board time (seq < 1000) is not a reset: taken
+    for one, it would give a row with a made-up time, '1 gap (2 frames lost)', later t_s
+    shifted."""
     fr = [telemetry(i, 20_000 * (i + 1)) for i in range(30)]
     lg, run = _record(tmp_path, b"".join(fr[:20] + [fr[12]] + fr[20:]))
     assert lg.stats["robot_resets"] == 0

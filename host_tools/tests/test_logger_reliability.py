@@ -1,5 +1,4 @@
-"""The logger on signals, full disks, bursts interrupted by Ctrl-C and an unusable --out
-(issue 13)."""
+"""The logger on signals, full disks, bursts interrupted by Ctrl-C and an unusable --out."""
 from __future__ import annotations
 
 import errno

@@ -272,7 +272,7 @@ def test_start_pose(tmp_path):
 
 @pytest.mark.parametrize("wrapped", ["telemetry", "groundtruth", "both"])
 def test_heading_wrapped_in_one_file_and_unwrapped_in_the_other(tmp_path, wrapped):
-    # issue 16: the run format allows either in both files; a 30 s spin (about 25 turns)
+    # the run format allows a wrapped or an unwrapped heading in both files; a 30 s spin (about 25 turns)
     cols = _columns(n=1500, turn=30.0, speed=0.0)
     wrap = lambda a: (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
     g = {"t_s": cols["t_s"][::2] + 0.001, "x_m": cols["x_odo_m"][::2],

@@ -1,6 +1,6 @@
 """The concealed-effect suite: coverage of the case list, hidden labels, deterministic
-generation, the scorer, and the fast subset of the benchmark with issue 9's thresholds; the
-held-back set (issue 16): other seeds, sizes and recorders, long runs, impossible fits, the
+generation, the scorer, and the fast subset of the benchmark with the suite's thresholds; the
+held-back set: other seeds, sizes and recorders, long runs, impossible fits, the
 bench's time limit."""
 import filecmp
 import json
@@ -87,7 +87,7 @@ def test_fast_subset_meets_thresholds(tmp_path):
     assert m["heldout_worse_significant"] == 0
 
 
-# ------------------------------------------------------------------ the held-back set (issue 16)
+# ------------------------------------------------------------------ the held-back set
 
 def test_heldback_set_differs_from_the_tuning_set():
     tun, hb = cases.all_cases(), cases.heldback_cases()

@@ -145,7 +145,7 @@ def test_command_line(tmp_path, capsys):
     assert not (tmp_path / "x").exists()
 
 
-# ------------------------------------------------------------------ motor current (issue 16)
+# ------------------------------------------------------------------ motor current
 
 def _current_relation(effects, u=0.6):
     """Open loop at duty u: the truth's armature current against its own DC motor model,
@@ -212,7 +212,7 @@ def test_logged_current_is_the_shields_adc(tmp_path):
     assert "current_r_a" not in runfmt.load_run(r2).telemetry
 
 
-# ------------------------------------------------------------------ recorder variants (issue 16)
+# ------------------------------------------------------------------ recorder variants
 
 ARC = {"kind": "arc", "accel": 0.8, "cruise": 0.5, "radius": 0.5}
 

@@ -190,7 +190,7 @@ void test_references() {
   }
   // Figure eight (phi = beta sin tau, kappa = cos(tau)/R): the numerical derivatives of the pose
   // agree with (v cos phi, v sin phi, omega), that of omega with domega (the v^2 dkappa/du term
-  // included), and omega is continuous (the old eight of two circles jumped by 2 v/R = 1.33
+  // included), and omega is continuous (an eight of two circles jumps by 2 v/R = 1.33
   // rad/s at each crossing); |kappa| <= 1/|R|. Both signs of R (R < 0 mirrors in y).
   const float radii[] = {0.6f, -0.6f};
   for (float R : radii) {

@@ -96,8 +96,6 @@ class Driver {
   /// first Euler step).
   const TickOut& step(slip::PlantState* rows = nullptr);
 
-  int64_t ticks() const { return k_; }
-
  private:
   void read_ctl(CtlRow* o) const;
 

@@ -178,7 +178,6 @@ class ControllerQ {
   /// units they are kept in; within +-integ_max).
   int32_t integ_v_q16() const { return j_to_q16(j_v_q24_, cfg_.two_over_r_q16, cfg_.integ_max_v_q16); }
   int32_t integ_w_q16() const { return j_to_q16(j_w_q24_, cfg_.two_b_over_r_q16, cfg_.integ_max_w_q16); }
-  bool config_ok() const { return cfg_.ok; }
 
  private:
   ControlConfigQ cfg_;

@@ -63,7 +63,6 @@ static CTL_INLINE bool div17_ok(uint32_t n, uint32_t d) {
 
 /// Clamp x to [-lim, lim] (lim >= 0).
 static CTL_INLINE int32_t clamp32(int32_t x, int32_t lim) { return x > lim ? lim : (x < -lim ? -lim : x); }
-static CTL_INLINE int16_t clamp16(int16_t x, int16_t lim) { return x > lim ? lim : (x < -lim ? -lim : x); }
 
 /// Saturating int32 addition in plain C (generic::add_sat32; on the AVR used where the
 /// assembly block would cost the surrounding code registers: mul32x16_halves).
@@ -295,12 +294,6 @@ template <uint8_t S>
 CTL_INLINE int32_t mul_trig(int32_t x, int16_t c_q15) {
   const int32_t p = mul32x16<S>(x, c_q15);
   return add_sat32(p, asr<15>(p));
-}
-
-/// Binary angle (int32 view: [-2^31, 2^31) = [-pi, pi)) to radians in Q12 (int16, |x| <= pi).
-static inline int16_t b32_to_rad_q12(int32_t a_b32) {
-  // rad = a * 2pi / 2^32; Q12: a * 2pi / 2^20 = (a >> 16) * 2pi / 2^4 = (a >> 16) * 25736 >> 16
-  return static_cast<int16_t>(mul16<16>(static_cast<int16_t>(a_b32 >> 16), 25736));
 }
 
 }  // namespace fx

@@ -43,7 +43,7 @@ inline uint32_t task_budget_cycles(uint8_t id) {
         default: return 0;
     }
 }
-static const uint16_t kEncoderIsrBudgetCycles = 60;  // one quadrature edge, including the 5-cycle interrupt response, vector jump and RETI (issue 5)
+static const uint16_t kEncoderIsrBudgetCycles = 60;  // one quadrature edge, including the 5-cycle interrupt response, vector jump and RETI (the encoder ISR goal, docs/firmware.md)
 
 // ---- enums and flags ----
 // ACK result codes
