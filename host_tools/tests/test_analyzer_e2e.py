@@ -12,14 +12,11 @@ import os
 import numpy as np
 import pytest
 
-try:
-    from host_tools import _native
-    _native.effect_vocabulary()
-    HAVE_NATIVE = True
-except Exception:  # pragma: no cover - the native library could not be built here
-    HAVE_NATIVE = False
+from _native_skip import needs_native
 
-pytestmark = pytest.mark.skipif(not HAVE_NATIVE, reason="host_tools._native not buildable")
+pytestmark = needs_native()
+
+from host_tools import _native  # noqa: E402
 
 from host_tools.__main__ import main as cli  # noqa: E402
 

@@ -9,16 +9,11 @@ import os
 import numpy as np
 import pytest
 
-try:
-    from host_tools import _native
-    _native.effect_vocabulary()
-    from host_tools import truth
-    truth.build_truth()
-    HAVE_NATIVE = True
-except Exception:  # pragma: no cover - the native libraries could not be built here
-    HAVE_NATIVE = False
+from _native_skip import needs_native
 
-pytestmark = pytest.mark.skipif(not HAVE_NATIVE, reason="native libraries not buildable")
+pytestmark = needs_native(truth=True)
+
+from host_tools import truth  # noqa: E402
 
 from host_tools import params  # noqa: E402
 from host_tools.runfmt import load_run  # noqa: E402

@@ -5,14 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-try:
-    from host_tools import _native
-    _native.effect_vocabulary()
-    HAVE_NATIVE = True
-except Exception:  # pragma: no cover - the native library could not be built here
-    HAVE_NATIVE = False
+from _native_skip import needs_native
 
-pytestmark = pytest.mark.skipif(not HAVE_NATIVE, reason="native library not buildable")
+pytestmark = needs_native()
+
+from host_tools import _native  # noqa: E402
 
 from host_tools.analyzer import replay as R  # noqa: E402
 from host_tools.analyzer import synth  # noqa: E402

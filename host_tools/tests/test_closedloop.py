@@ -11,15 +11,11 @@ from host_tools import params
 
 WHEEL_R_M = params.ROBOT["r"]  # Table II.2
 
-try:
-    from host_tools import _native
-    _native.effect_vocabulary()
-    from host_tools.control import ClosedLoop, resimulate_from_rest
-    HAVE_NATIVE = True
-except Exception:  # pragma: no cover - the native library could not be built here
-    HAVE_NATIVE = False
+from _native_skip import needs_native
 
-pytestmark = pytest.mark.skipif(not HAVE_NATIVE, reason="native library not buildable")
+pytestmark = needs_native()
+
+from host_tools.control import ClosedLoop, resimulate_from_rest  # noqa: E402
 
 CTL_COLS = ("pwm_r", "pwm_l", "tau_cmd_r", "tau_cmd_l", "tau_max_r", "tau_max_l", "clamped_r",
             "sat_r", "omega_r", "omega_l", "x_odo_m", "y_odo_m", "phi_odo_rad", "v_d_m_s",
