@@ -39,7 +39,8 @@ def main(argv=None) -> int:
                         ("score", "summarize the scores of earlier bench runs (no analysis)")):
         p = sub.add_parser(name, help=help_)
         p.add_argument("--set", dest="which", choices=C.SETS, default="tuning",
-                       help="tuning (rules may be settled on it), heldback or heldback2 (only scored)")
+                       help="tuning (rules may be settled on it), heldback, heldback2 or "
+                            "heldback3 (only scored)")
         p.add_argument("--fast", action="store_true", help="only the set's fast subset (CI)")
         p.add_argument("--no-long", action="store_true",
                        help="leave out the 10-minute cases (held-back set)")
@@ -75,7 +76,8 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if getattr(a, "out", "") is None:
-        a.out = {"tuning": "out/suite", "heldback": "out/suite-heldback", "heldback2": "out/suite-heldback2"}[a.which]
+        a.out = {"tuning": "out/suite", "heldback": "out/suite-heldback",
+                 "heldback2": "out/suite-heldback2", "heldback3": "out/suite-heldback3"}[a.which]
     for c in sel:
         c.seed += getattr(a, "seed_offset", 0)
     if getattr(a, "recorder", None):

@@ -387,7 +387,53 @@ def heldback2_cases() -> list[Case]:
     return cases
 
 
-SETS = ("tuning", "heldback", "heldback2")
+# ------------------------------------------------------------------ the third held-back set
+# Committed before the second held-back set's failures were looked into (its blind score had
+# only been printed): recorders no other set uses, nulls weighted as the second set's misses
+# were nulls, scored once after any change that the second set's failures prompt.
+RECORDERS_3 = {
+    "loop12": {"inner_s": 0.0125},
+    "loop16_jitter": {"inner_s": 0.016, "tel_jitter_s": 0.002, "tel_drop": 0.03},
+    "pi_loop15": {"controller": "pi", "inner_s": 0.015, "odometry": "frames",
+                  "integration": "midpoint"},
+    "jitter4": {"tel_jitter_s": 0.004, "tel_drop": 0.04, "cam_hz": 40.0},
+    "loop10_cam60": {"inner_s": 0.010, "cam_hz": 60.0, "cam_noise_m": 0.0012,
+                     "cam_noise_rad": 0.012},
+    "loop20_jitter": {"inner_s": 0.020, "tel_jitter_s": 0.003, "tel_drop": 0.02},
+}
+
+
+def heldback3_cases() -> list[Case]:
+    """The third held-back set (blind): only scored, once (docs/suite.md)."""
+    cases: list[Case] = []
+
+    def add(name, effects, exps, expect, rec, conc=(), note="", long=False):
+        cases.append(Case(name, effects, exps, expect, list(conc), note,
+                          recorder=dict(RECORDERS_3[rec]), recorder_name=rec,
+                          long=long, set="heldback3"))
+    extra = ({"kind": "line", "accel": 0.7, "cruise": 0.45}, True, 1.5)
+    nulls = (("std", STD), ("slip", SLIP), ("slow", SLOW), ("eight", EIGHT))
+    for j, rec in enumerate(RECORDERS_3):
+        for name, exps in (nulls[j % 4], nulls[(j + 1) % 4]):
+            add(f"hb3_null_{name}_{rec}", {}, exps if j % 2 else _short(exps, extra),
+                "no_mismatch", rec, note="no effect")
+    effects = (("motor_back_emf", {"ke_ratio": 1.1}), ("wheel_radius", {"r_eff": 0.0377}),
+               ("actuation_delay", {"delay_s": 0.035}), ("axle_coulomb", {"torque": 0.018}),
+               ("floor_slope", {"rad": 0.022}), ("friction_coefficient",
+                                                 {"mu_s": 0.2, "mu_k": 0.185}))
+    for j, ((eff, params), rec) in enumerate(zip(effects, RECORDERS_3)):
+        _, _, exps, conc, note = _SINGLE[eff]
+        add(f"hb3_{eff}_{rec}", {eff: params}, exps, "explained", rec, conc, note)
+    add("hb3_oov_eccentric", {"eccentric_wheel": {"eps": 0.045}}, STD, "unexplained", "loop12",
+        ["regime"], "rolling radius varies with the wheel angle")
+    add("hb3_long_null_2min", {}, LONG_2MIN, "no_mismatch", "loop16_jitter",
+        note="no effect, 2 x 2 min")
+    for k, c in enumerate(cases):
+        c.seed = 170000 + 43 * k
+    return cases
+
+
+SETS = ("tuning", "heldback", "heldback2", "heldback3")
 
 
 def get(names: list[str] | None = None, fast: bool = False, which: str = "tuning",
@@ -396,8 +442,8 @@ def get(names: list[str] | None = None, fast: bool = False, which: str = "tuning
     without the 10-minute cases; ``names``: those cases of the set."""
     if which not in SETS:
         raise ValueError(f"set must be one of {list(SETS)}, got {which!r}")
-    pool = {"tuning": all_cases, "heldback": heldback_cases,
-            "heldback2": heldback2_cases}[which]()
+    pool = {"tuning": all_cases, "heldback": heldback_cases, "heldback2": heldback2_cases,
+            "heldback3": heldback3_cases}[which]()
     cases = pool
     if fast:
         cases = [c for c in cases if c.fast]

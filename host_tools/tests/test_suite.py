@@ -146,7 +146,19 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
     assert {c.length for c in hb2} == {"short", "20 s", "2 min", "10 min"}
     assert sum(c.expect == "no_mismatch" for c in hb2) == 8
     with pytest.raises(ValueError, match="set must be one of"):
-        cases.get(which="heldback3")
+        cases.get(which="heldback9")
+
+
+def test_third_heldback_set_is_new_in_seeds_and_recorders():
+    sets = [cases.all_cases(), cases.heldback_cases(), cases.heldback2_cases()]
+    hb3 = cases.heldback3_cases()
+    assert all(c.set == "heldback3" for c in hb3) and len(hb3) == 20
+    used = {c.seed + off + k for c in sets[0] for off in (0, 1000, 2000) for k in range(4)}
+    used |= {c.seed + k for s in sets[1:] for c in s for k in range(len(c.experiments))}
+    assert not used & {c.seed + k for c in hb3 for k in range(len(c.experiments))}
+    old = [dict(r) for r in list(cases.RECORDERS.values()) + list(cases.RECORDERS_2.values())]
+    assert all(c.recorder and c.recorder not in old + [{}] for c in hb3)
+    assert sum(c.expect == "no_mismatch" for c in hb3) == 13
 
 
 def test_heldback_generation_deterministic_and_hidden(tmp_path):
