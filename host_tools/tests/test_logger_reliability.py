@@ -17,6 +17,7 @@ from host_tools import protocol as P
 from host_tools import runfmt
 from host_tools.logger import link as logger_link
 from host_tools.logger import runfolder as logger_files
+from host_tools.runfmt import write as runfmt_write
 from test_logger import (ScriptedPort, _args, events, log_until_rows_then_signal, rows,
                          telemetry)
 
@@ -153,7 +154,7 @@ class FullDisk:
             real_remove(path)
             disk.free += disk.sizes.pop(os.path.abspath(path), 0)
 
-        for mod in (logger_files, runfmt):  # every module that opens a file to write
+        for mod in (logger_files, runfmt_write):  # every module that opens a file to write
             monkeypatch.setattr(mod, "open", fake_open, raising=False)
         monkeypatch.setattr(os, "remove", fake_remove)
 
