@@ -7,10 +7,11 @@ roots or source folders is newer than the output, or when its command line chang
 beside the output as ``<output>.cmd``). Builds of one target by several processes are
 serialised by a file lock; the output is replaced atomically.
 
-Programs that link libsimavr (``simavr=True``) also get what ``sim/common/harness.sh`` gives
-them: the provisioned libsimavr (``.platformio/packages/tool-simavr``, as ``scripts/env.sh``
-names it), the harness layer ``sim/common`` (its ``*.c`` linked in), the firmware's
-``include/`` and avr-libc's device headers after the host's (``-idirafter``).
+Programs that link libsimavr (``simavr=True``) also get the provisioned libsimavr
+(``.platformio/packages/tool-simavr``, as ``scripts/env.sh`` names it), the harness layer
+``sim/common`` (its ``*.c`` linked in), the firmware's ``include/`` and avr-libc's device
+headers after the host's (``-idirafter``).  The scripts of ``sim/`` and ``bench/`` build them
+with the command line below.
 
 Command line (prints the path of each output)::
 
@@ -58,6 +59,11 @@ def lib_sources(*names: str) -> tuple[str, ...]:
 def simavr_dir() -> Path:
     core = Path(os.environ.get("PLATFORMIO_CORE_DIR", ROOT / ".platformio"))
     return core / "packages" / "tool-simavr"
+
+
+def avr_libc_dir() -> Path:
+    """avr-libc's headers in the provisioned avr-gcc (device register names)."""
+    return simavr_dir().parent / "toolchain-atmelavr" / "lib" / "avr" / "include"
 
 
 @dataclass(frozen=True)
@@ -116,7 +122,7 @@ class Target:
             libdir = sa / "lib" / "x86_64-linux-gnu"
             if not libdir.is_dir():
                 libdir = sa / "lib"
-            avr_libc = sa.parent / "toolchain-atmelavr" / "lib" / "avr" / "include"
+            avr_libc = avr_libc_dir()
             incs += [f"-I{sa / 'include'}"]
             if avr_libc.is_dir():  # device register names (<avr/iom2560.h>) after the host's
                 incs += ["-idirafter", str(avr_libc)]
@@ -194,11 +200,20 @@ def _tmp_path(out: Path, pid: int) -> Path:
     return out.with_name(f".{out.name}.{pid}.tmp")
 
 
+def _check_simavr() -> None:
+    sa = simavr_dir()
+    if not (sa / "include" / "simavr" / "sim_avr.h").is_file() or not (avr_libc_dir() / "avr" / "iom2560.h").is_file():
+        raise NativeBuildError(f"libsimavr or avr-libc headers missing under {sa.parent} "
+                               "(run scripts/setup.sh)")
+
+
 def build(target: str | Target, force: bool = False) -> Path:
     """Build ``target`` (a name of :data:`TARGETS` or a :class:`Target`) when missing or stale
     (always, with ``force``) and return the output's path. Raises :class:`NativeBuildError`
     with the compiler's message on failure."""
     t = TARGETS[target] if isinstance(target, str) else target
+    if t.simavr:
+        _check_simavr()
     out = t.output_path()
     out.parent.mkdir(parents=True, exist_ok=True)
     with open(out.with_name(f".{out.name}.lock"), "w") as lock_file:

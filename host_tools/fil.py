@@ -1,7 +1,7 @@
 """Firmware in the loop: record runs from the real firmware.elf in simavr.
 
 ``python -m host_tools.fil record --out RUN_DIR [--accel 48 --clamp off ...] [sim options]``
-builds the simulator (``sim/fil/build.sh``) and, unless ``--elf`` is given, the firmware
+builds the simulator (:mod:`host_tools._build` target ``fil``) and, unless ``--elf`` is given, the firmware
 (``pio run -e megaatmega2560``), starts ``.build/fil/fil`` (which prints the pty of the
 simulated XBee link) and records through that pty with the telemetry logger
 (:mod:`host_tools.logger`), exactly as from the radio.  The run folder then holds the logger's
@@ -23,12 +23,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+from host_tools import _build
 from host_tools import logger as L
 from host_tools import protocol as P
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD = ROOT / ".build" / "fil"
-SIM = BUILD / "fil"
+SIM = _build.TARGETS["fil"].output_path()
 PIO_ELF = ROOT / ".pio" / "build" / "megaatmega2560" / "firmware.elf"
 
 
@@ -48,12 +49,12 @@ def _env() -> dict:
 
 
 def build_sim() -> Path:
-    """Builds .build/fil/fil (no-op when up to date). FilError with the compiler output."""
-    r = subprocess.run(["sh", str(ROOT / "sim" / "fil" / "build.sh")], capture_output=True, text=True,
-                       env=_env(), cwd=ROOT)
-    if r.returncode != 0:
-        raise FilError(f"sim/fil/build.sh failed:\n{r.stdout}{r.stderr}")
-    return SIM
+    """Builds .build/fil/fil (host_tools._build target fil; no-op when up to date). FilError
+    with the compiler output."""
+    try:
+        return _build.build("fil")
+    except _build.NativeBuildError as exc:
+        raise FilError(str(exc)) from None
 
 
 def build_firmware() -> Path:

@@ -6,13 +6,9 @@ export PLATFORMIO_CORE_DIR="$_dd_root/.platformio"   # never the user's ~/.platf
 export PLATFORMIO_DISABLE_UPGRADE_CHECK=true
 export PLATFORMIO_SETTING_ENABLE_TELEMETRY=no
 export PLATFORMIO_DISABLE_PROGRESSBAR=true
-# The provisioned simavr (bin/simavr, include/simavr, lib/x86_64-linux-gnu/libsimavr.so) for
-# host programs that link libsimavr: -I$DD_SIMAVR/include/simavr -L$DD_SIMAVR/lib/x86_64-linux-gnu
+# The provisioned simavr (bin/simavr, include/simavr, lib/x86_64-linux-gnu/libsimavr.so). Host
+# programs that link libsimavr are built by host_tools/_build.py (python -m host_tools._build).
 export DD_SIMAVR="$PLATFORMIO_CORE_DIR/packages/tool-simavr"
-export DD_SIMAVR_LIBDIR="$DD_SIMAVR/lib/x86_64-linux-gnu"
-# Compile and link flags of a host program that uses libsimavr (#include <simavr/sim_avr.h>).
-export DD_SIMAVR_CFLAGS="-I$DD_SIMAVR/include"
-export DD_SIMAVR_LIBS="-L$DD_SIMAVR_LIBDIR -Wl,-rpath,$DD_SIMAVR_LIBDIR -lsimavr"
 # Python environment first, then the provisioned avr-gcc 5.4 and simavr 1.6.
 export PATH="$_dd_root/.venv/bin:$PLATFORMIO_CORE_DIR/packages/toolchain-atmelavr/bin:$DD_SIMAVR/bin:$PATH"
 unset _dd_root

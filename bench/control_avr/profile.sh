@@ -5,10 +5,10 @@
 # Usage: bash bench/control_avr/profile.sh [function-name-substring ...]
 set -eu
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
-. "$ROOT/sim/common/harness.sh"  # scripts/env.sh and the libsimavr harness build recipe
+. "$ROOT/scripts/env.sh"  # the provisioned avr-gcc and libsimavr
 OUT="$ROOT/.build/bench_control_avr"
 mkdir -p "$OUT"
-harness_build "$OUT/profile" "$ROOT/bench/control_avr/profile.c"
+PYTHONPATH="$ROOT${PYTHONPATH:+:$PYTHONPATH}" "$ROOT/.venv/bin/python" -m host_tools._build control_profile >/dev/null
 avr-g++ -g -DCTL_PROFILE -std=gnu++11 -Os -mmcu=atmega2560 -DF_CPU=16000000UL -Wall -Wextra \
   -fno-exceptions -fno-rtti -ffunction-sections -fdata-sections -Wl,--gc-sections \
   -I"$ROOT/lib/control/src" -I"$ROOT/lib/slipmodel/src" \

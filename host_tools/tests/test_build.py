@@ -195,27 +195,41 @@ def test_command_line_lists_and_builds(capsys):
     assert ctypes.CDLL(str(_native.library_path())).sm_out_cols() > 0
 
 
-def test_simavr_targets_have_the_harness_recipe_flags():
-    """sim/common/harness.sh still builds the libsimavr programs of sim/ and bench/ with its own
-    command line; the same programs built here must get every flag it gives them."""
+def test_simavr_targets_get_the_harness_layer():
+    """The libsimavr programs get the provisioned libsimavr, sim/common (its avrsim.c linked in),
+    the firmware's include/ and avr-libc's device headers searched after the host's."""
     sa = _build.simavr_dir()
     if not (sa / "include").is_dir():
         pytest.skip("libsimavr not provisioned")
-    text = (ROOT / "sim" / "common" / "harness.sh").read_text()
-    flags = re.search(r'^HARNESS_FLAGS="([^"]*)"', text, re.M).group(1)
-    env = {"$_harness_root": str(ROOT), "$HARNESS_AVR_INCLUDE":
-           str(sa.parent / "toolchain-atmelavr" / "lib" / "avr" / "include"),
-           "$DD_SIMAVR_CFLAGS": f"-I{sa / 'include'}"}
-    for k, v in env.items():
-        flags = flags.replace(k, v)
-    words = flags.split()
     for t in (t for t in _build.TARGETS.values() if t.simavr):
         cmds = t.commands(ROOT / ".build" / "x")
         for cmd in cmds:
-            for i, w in enumerate(words):
-                if w == "-idirafter":
-                    assert any(cmd[j:j + 2] == words[i:i + 2] for j in range(len(cmd))), t.name
-                elif words[i - 1:i] != ["-idirafter"]:
-                    assert w in cmd, (t.name, w)
+            for flag in (f"-I{ROOT / 'sim' / 'common'}", f"-I{ROOT / 'include'}", f"-I{sa / 'include'}"):
+                assert flag in cmd, (t.name, flag)
+            assert any(cmd[j:j + 2] == ["-idirafter", str(_build.avr_libc_dir())]
+                       for j in range(len(cmd))), t.name
         assert "-lsimavr" in cmds[-1]
         assert str(ROOT / "sim" / "common" / "avrsim.c") in " ".join(" ".join(c) for c in cmds)
+
+
+def test_scripts_build_host_programs_only_through_the_one_recipe():
+    """The scripts of sim/ and bench/ build every libsimavr program with
+    ``python -m host_tools._build NAME``; none runs a host compiler or links libsimavr itself."""
+    host_compiler = re.compile(r"(^|[\s;(|&`])(gcc|g\+\+|cc|c\+\+|clang|clang\+\+)\s", re.M)
+    built: set[str] = set()
+    for folder in ("sim", "bench"):
+        for sh in (ROOT / folder).rglob("*.sh"):
+            text = "\n".join(line for line in sh.read_text().splitlines()
+                             if not line.lstrip().startswith("#"))
+            where = sh.relative_to(ROOT)
+            assert not host_compiler.search(text), where
+            assert "-lsimavr" not in text and "simavr/sim_avr.h" not in text, where
+            for m in re.finditer(r"-m host_tools\._build((?: +[A-Za-z_][\w]*)+)", text):
+                built.update(m.group(1).split())
+    assert {n for n, t in _build.TARGETS.items() if t.simavr} <= built
+
+
+def test_a_libsimavr_program_without_the_provisioned_simavr_says_run_setup(tmp_path, monkeypatch):
+    monkeypatch.setenv("PLATFORMIO_CORE_DIR", str(tmp_path))
+    with pytest.raises(_build.NativeBuildError, match="run scripts/setup.sh"):
+        _build.build("isr_bench")

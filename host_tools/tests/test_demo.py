@@ -196,3 +196,12 @@ def test_analyzer_demo_end_to_end(tmp_path):
     assert rep["verdict"] == "explained" and r["score"]["named_all"]
     fit = rep["fit"]
     assert fit["heldout_rmse_after"]["omega_r"] < 0.5 * fit["heldout_rmse_before"]["omega_r"]
+
+
+def test_controllers_are_the_protocols_thesis_first():
+    """The demo's velocity loops are protocol.json's controller enum (the C ABI's codes), the
+    thesis's first: its tables and plots show it before the improved one."""
+    from host_tools import protocol as P
+    codes = P.definition().enums["controller"]
+    assert demo.CONTROLLERS == codes
+    assert list(demo.CONTROLLERS)[0] == "thesis"

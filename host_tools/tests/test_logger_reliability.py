@@ -15,6 +15,9 @@ import pytest
 from host_tools import logger as L
 from host_tools import protocol as P
 from host_tools import runfmt
+from host_tools.logger import link as logger_link
+from host_tools.logger import runfolder as logger_files
+from host_tools.runfmt import write as runfmt_write
 from test_logger import (ScriptedPort, _args, events, log_until_rows_then_signal, rows,
                          telemetry)
 
@@ -151,7 +154,7 @@ class FullDisk:
             real_remove(path)
             disk.free += disk.sizes.pop(os.path.abspath(path), 0)
 
-        for mod in (L, runfmt):
+        for mod in (logger_files, runfmt_write):  # every module that opens a file to write
             monkeypatch.setattr(mod, "open", fake_open, raising=False)
         monkeypatch.setattr(os, "remove", fake_remove)
 
@@ -160,7 +163,7 @@ def test_disk_full_stops_with_exit_1_and_a_readable_run(tmp_path, monkeypatch, c
     FullDisk(monkeypatch, free=L.RESERVE_BYTES + 20_000)
     port = ScriptedPort(_burst(2000), [900])
     out = tmp_path / "run"
-    monkeypatch.setattr(L, "FLUSH_EVERY_S", 0.0)
+    monkeypatch.setattr(logger_link, "FLUSH_EVERY_S", 0.0)
     lg = L.Logger(str(out), lambda: port, "scripted", 115200, params_timeout_s=0.05,
                   status=False)
     assert lg.run() == 1
@@ -178,7 +181,7 @@ def test_disk_full_through_the_cli(tmp_path, monkeypatch, capsys):
     port = ScriptedPort(_burst(2000), [900])
     import serial
     monkeypatch.setattr(serial, "serial_for_url", lambda *a, **k: port)
-    monkeypatch.setattr(L, "FLUSH_EVERY_S", 0.0)
+    monkeypatch.setattr(logger_link, "FLUSH_EVERY_S", 0.0)
     rc = L.main(_args(["--port", "scripted", "--out", str(tmp_path / "run"), "--quiet"]))
     err = capsys.readouterr().err
     assert rc == 1

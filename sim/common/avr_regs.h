@@ -6,7 +6,7 @@
  * bit number 6, INT0_vect the vector number 1.
  *
  * Include it after every other header (its macros are short upper-case names such as SE or
- * ADC). The include path is avr-libc's, searched after the host's own (sim/common/harness.sh:
+ * ADC). The include path is avr-libc's, searched after the host's own (host_tools/_build.py:
  * -idirafter), so that only <avr/...> resolves there.
  */
 #ifndef SIM_COMMON_AVR_REGS_H

@@ -10,7 +10,7 @@
  *
  * Register and bit names: sim/common/avr_regs.h (avr-libc's own iom2560.h, as data addresses).
  * Every harness that links libsimavr (sim/isr_bench, sim/fil, bench/control_avr/profile.c,
- * bench/plant/avr_cycles_harness.c) builds with sim/common/harness.sh.
+ * bench/plant/avr_cycles_harness.c) is built by host_tools/_build.py, which links avrsim.c in.
  */
 #ifndef SIM_COMMON_AVRSIM_H
 #define SIM_COMMON_AVRSIM_H

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Builds the libsimavr harnesses (sim/common's build recipe) and runs them on a firmware ELF:
+# Builds the libsimavr harnesses (host_tools/_build.py) and runs them on a firmware ELF:
 #   selftest   sim/common's cycle corrections against the ATmega2560 datasheet
 #   isr_bench  encoder ISR cycles per edge, edge-rate sweep, max lossless rate, longest I=0
 #   fw_smoke   system check over the XBee link (commands, Acks, failsafe, watchdog), task
@@ -9,7 +9,8 @@
 # PlatformIO build made now.
 set -e
 cd "$(dirname "$0")/../.."
-. sim/common/harness.sh  # scripts/env.sh: provisioned avr-gcc, simavr, libsimavr, pio
+ROOT="$PWD"
+. scripts/env.sh  # provisioned avr-gcc, simavr, libsimavr, pio
 ELF="${1:-}"
 if [ -z "$ELF" ]; then
     ELF=.pio/build/megaatmega2560/firmware.elf
@@ -19,8 +20,7 @@ if [ -z "$ELF" ]; then
     fi
 fi
 bash sim/common/selftest/run.sh
-harness_build .build/isr_bench sim/isr_bench/isr_bench.c
-harness_build .build/fw_smoke sim/isr_bench/fw_smoke.cpp lib/protocol/src/protocol/*.cpp -Ilib/protocol/src
+PYTHONPATH="$ROOT${PYTHONPATH:+:$PYTHONPATH}" "$ROOT/.venv/bin/python" -m host_tools._build isr_bench fw_smoke >/dev/null
 echo "== $ELF"
 avr-size "$ELF"
 .build/isr_bench "$ELF"

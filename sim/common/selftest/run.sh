@@ -4,9 +4,9 @@
 # Usage: bash sim/common/selftest/run.sh
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/../../.." && pwd)"
-. "$ROOT/sim/common/harness.sh"
+. "$ROOT/scripts/env.sh"
 OUT="$ROOT/.build/sim_common"
 mkdir -p "$OUT"
 avr-gcc -mmcu=atmega2560 -nostartfiles -nostdlib -o "$OUT/timing.elf" "$ROOT/sim/common/selftest/timing.S"
-harness_build "$OUT/selftest" "$ROOT/sim/common/selftest/selftest.c"
+PYTHONPATH="$ROOT${PYTHONPATH:+:$PYTHONPATH}" "$ROOT/.venv/bin/python" -m host_tools._build sim_selftest >/dev/null
 "$OUT/selftest" "$OUT/timing.elf"

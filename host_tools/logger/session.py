@@ -1,0 +1,273 @@
+"""One recording session: the experiment's command sequence from start to end.
+
+:class:`Logger` joins the link (:mod:`.link`), the frame handling and statistics
+(:mod:`.frames`) and the run folder (:mod:`.runfolder`), and runs the session: ask for the
+robot's parameters, send the configuration commands (SetClamp, SetMu, SetController, each
+acknowledged, retried), ask again for what the robot now uses, start the experiment (with
+heartbeats) and record until it ends, ``record_s`` passes or a signal stops it.  It also
+shows the live status line.
+"""
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+from typing import Any, Callable
+
+from host_tools import protocol as P
+from host_tools import runfmt
+from host_tools.logger.errors import LoggerError, Stopped
+from host_tools.logger.frames import FramesMixin
+from host_tools.logger.link import LinkMixin
+from host_tools.logger.runfolder import RunFolderMixin
+
+ACK_TIMEOUT_S = 0.4
+ACK_RETRIES = 3
+STATUS_EVERY_S = 0.5
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+class Logger(LinkMixin, FramesMixin, RunFolderMixin):
+    """One recording session.  ``open_port`` returns a pyserial-like object (read, write,
+    in_waiting, close) or raises; it is called again to reconnect."""
+
+    def __init__(self, out_dir: str, open_port: Callable[[], Any], port_name: str, baud: int,
+                 experiment: dict | None = None, clamp: bool | None = None,
+                 mu: tuple[float, float] | None = None, record_s: float | None = None,
+                 controller: str | None = None, reconnect_timeout_s: float = 30.0, params_timeout_s: float = 1.0,
+                 status: bool = True, description: str | None = None,
+                 d: P.Definition | None = None, clock: Callable[[], float] = time.monotonic):
+        self.d = d or P.definition()
+        self.out = out_dir
+        self.open_port = open_port
+        self.port_name = port_name
+        self.baud = baud
+        self.experiment = experiment
+        self.clamp = clamp
+        self.mu = mu
+        if controller is not None and controller not in self.d.enums["controller"]:
+            raise LoggerError(f"controller {controller!r} is not one of "
+                              f"{sorted(self.d.enums['controller'])}", 2)
+        self.controller = controller
+        self.record_s = record_s
+        self.reconnect_timeout_s = reconnect_timeout_s
+        self.params_timeout_s = params_timeout_s
+        self.show_status = status
+        self.description = description
+        self.clock = clock
+        self._init_link()
+        self._init_frames()
+        self._stop = False
+        self._signals = 0
+        self._write_error: OSError | None = None
+        self.commands: list[dict] = []
+        self._params_before_config = 0
+        self._config_sent = False
+        self.end_reason = ""
+        self._t0 = 0.0
+        self._rate_mark = (0.0, 0)
+        self._fps = 0.0
+
+    def run(self) -> int:
+        self.prepare_out()
+        self._stop = False
+        self._t0 = self.clock()
+        self._t0_unix = time.time()  # host_t_s = 0 in Unix time, for trackers stamped by a PC clock
+        self._last_hb = self._last_flush = self._last_status = self._last_rx = self._t0
+        self._rate_mark = (self._t0, 0)
+        old_handlers = self._install_signals()
+        code = 0
+        try:
+            try:
+                self._connect(first=True)
+                self._open_files()
+            except LoggerError:
+                self._free_reserve()
+                raise
+            except OSError as exc:
+                self._free_reserve()
+                raise LoggerError(f"--out {runfmt.display(self.out)} cannot be written: "
+                                  f"{exc.strerror or exc}", 2) from None
+            try:
+                self._session()
+            except (KeyboardInterrupt, Stopped):
+                self.end_reason = self.end_reason or "interrupted (Ctrl-C)"
+                if self.experiment is not None:
+                    try:
+                        self.send("Stop")
+                    except Exception:
+                        pass
+            except LoggerError as exc:
+                self.end_reason = str(exc)
+                code = exc.code
+            except OSError as exc:  # a write failed: disk full, file system gone read-only
+                self._write_error = exc
+                self.end_reason = f"write failed: {exc.strerror or exc}"
+                code = 1
+            finally:
+                if self.end_reason == "" and self._stop:
+                    self.end_reason = "stopped"
+                if self.close() and code == 0:
+                    code = 1
+        finally:
+            for sig, h in old_handlers.items():
+                signal.signal(sig, h)
+        return code
+
+    def _session(self) -> None:
+        self.event("start", port=self.port_name, baud=self.baud)
+        self.write_meta()
+        self.send("RequestParams")
+        if not self.pump(lambda: self.params is not None, self.params_timeout_s):
+            if self._stop:
+                raise Stopped()
+            self.event("no_params", waited_s=self.params_timeout_s)
+        if self.clamp is not None:
+            self.command("SetClamp", {"on": int(self.clamp)})
+        if self.mu is not None:
+            self.command("SetMu", {"mu_s": self.mu[0], "mu_k": self.mu[1]})
+        if self.controller is not None:
+            self.command("SetController", {"variant": self.controller})
+        if self.clamp is not None or self.mu is not None or self.controller is not None:
+            # meta.json records what the robot reports it now uses, not what we asked for
+            self._config_sent = True
+            n = self._params_before_config = self._params_count
+            self.send("RequestParams")
+            if not self.pump(lambda: self._params_count > n, self.params_timeout_s):
+                if self._stop:
+                    raise Stopped()
+                self.event("no_params_after_config", waited_s=self.params_timeout_s)
+        if self.experiment is not None:
+            self._heartbeat = True  # from the Start on, so the failsafe never fires early
+            self.command("Start", self.experiment)
+            if self.pump(lambda: self._run_frames > 0 and not self.running):
+                self._heartbeat = False
+                self.end_reason = "experiment finished"
+                self.pump(None, 0.3)  # the last frames after the end
+            elif self._stop and self.end_reason.startswith(("interrupted", "stopped")):
+                raise Stopped()
+        else:
+            self.pump()
+
+    def command(self, name: str, values: dict | None = None) -> None:
+        """Send a command and wait for its Ack (retrying); LoggerError if rejected/unanswered."""
+        rec = {"command": name, "values": values or {}, "result": None}
+        self.commands.append(rec)
+        for attempt in range(ACK_RETRIES):
+            if self._stop:
+                rec["result"] = "not sent: stopping" if attempt == 0 else "no ack: stopping"
+                raise Stopped()
+            seq = self.send(name, values)
+            self.event("command", command=name, seq=seq, values=values or {}, attempt=attempt + 1)
+            if self.pump(lambda: seq in self.acks, ACK_TIMEOUT_S) or seq in self.acks:
+                result, detail = self.acks.pop(seq)
+                rname = self.d.result_names.get(result, f"code {result}")
+                rec["result"] = rname
+                if rname != "ok":
+                    msg = self.d.by_name[name]
+                    where = (f" (field {msg.fields[detail].name})"
+                             if rname == "out_of_range" and detail < len(msg.fields) else "")
+                    self.write_meta()
+                    raise LoggerError(f"robot rejected {name}: {rname}{where}", 1)
+                self.write_meta()
+                return
+        rec["result"] = "no ack"
+        self.write_meta()
+        raise LoggerError(f"robot did not acknowledge {name} after {ACK_RETRIES} tries", 1)
+
+    def _should_stop(self) -> bool:
+        if self._stop:
+            return True
+        if self.record_s is not None and self.clock() - self._t0 >= self.record_s:
+            self.end_reason = self.end_reason or f"recorded {self.record_s:g} s"
+            return True
+        return False
+
+    def _on_signal(self, signum, _frame) -> None:
+        self._signals += 1
+        if self._signals > 1:
+            raise KeyboardInterrupt  # a second signal: stop at once (close() still runs)
+        name = signal.Signals(signum).name
+        self.end_reason = self.end_reason or ("interrupted (Ctrl-C)" if name == "SIGINT"
+                                              else f"stopped by {name}")
+        self._stop = True
+
+    def _install_signals(self) -> dict:
+        if threading.current_thread() is not threading.main_thread():
+            return {}
+        old = {}
+        for name in STOP_SIGNALS:
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                old[sig] = signal.signal(sig, self._on_signal)
+        return old
+
+    def _status(self, force: bool = False, note: str = "") -> None:
+        if not self.show_status:
+            return
+        now = self.clock()
+        if not force and now - self._last_status < STATUS_EVERY_S:
+            return
+        t_mark, n_mark = self._rate_mark
+        if now - t_mark >= 1.0:
+            self._fps = (self.stats["telemetry_rows"] - n_mark) / (now - t_mark)
+            self._rate_mark = (now, self.stats["telemetry_rows"])
+        self._last_status = now
+        r = self.last_row
+        quiet = now - self._last_rx
+        if quiet > 1.0:
+            live = f"NO DATA for {quiet:.0f} s (robot off? out of range?)"
+        elif r is not None:
+            radius = (self.params or self.d.robot_defaults["robot"])["r"]
+            v = radius * (r["omega_r"] + r["omega_l"]) / 2
+            live = (f"t {r['t_s']:.2f} s  v {v:+.3f} m/s  w_r {r['omega_r']:+.2f} w_l {r['omega_l']:+.2f} rad/s"
+                    f"  {'RUN' if self.running else 'idle'}")
+        else:
+            live = "no telemetry yet"
+        line = (f"{self._fps:5.1f} frames/s  rows {self.stats['telemetry_rows']}  crc {self.dec.crc_errors}"
+                f"  bad {self.dec.bad_blocks - self.dec.crc_errors}  gaps {self.stats['gaps']}"
+                f" (lost {self.stats['lost_frames']})  dup {self.stats['duplicates']}  | {live}")
+        if note:
+            line += f"  [{note}]"
+        sys.stderr.write("\r" + line[:160].ljust(160) + ("\n" if note else ""))
+        sys.stderr.flush()
+
+    def close(self) -> bool:
+        """Handle the frames still queued, close the files, finalize meta.json.  Returns True
+        when a write failed (during the recording or here)."""
+        # every verified frame already read is written or counted before the files close; after
+        # a write failure none is retried (a half-buffered row written twice would repeat a
+        # time): the queued frames are counted as not written
+        if self._write_error is None:
+            for _ in range(2):  # a second try after a second Ctrl-C
+                try:
+                    self._drain()
+                    break
+                except KeyboardInterrupt:
+                    continue
+                except Exception as exc:  # OSError: the disk filled up just now
+                    self._write_error = exc if isinstance(exc, OSError) else OSError(str(exc))
+                    break
+        failed = self._write_error is not None
+        if failed:
+            # free the reserve for the buffered rows, meta.json and the end of events.jsonl
+            self._free_reserve()
+            self.end_reason = self.end_reason or f"write failed: {self._write_error}"
+            self.stats["frames_not_written"] = len(self._queue)
+        if self._close_files():
+            failed = True
+        if failed:
+            self._trim_after_failure()
+        try:
+            self.write_meta()
+        except Exception as exc:  # never lose the data over a meta problem
+            failed = True
+            sys.stderr.write(f"\nwarning: could not rewrite meta.json: {exc}\n")
+        self._free_reserve()
+        self._close_port()
+        self._status(force=True, note=self.end_reason or "stopped")
+        return failed
+
+    def stop(self) -> None:
+        self._stop = True
