@@ -172,6 +172,22 @@ def _ramped_duty(t: np.ndarray, duty: tuple, phase: float, period: float,
     return out_t.ravel(), (out[0], out[1])
 
 
+def experiment_start_s(run: Run) -> float | None:
+    """Board time of the experiment's first tick, when the run says: ``reference.t0_s`` in
+    meta.json, or board time 0 when the recording starts within a frame interval and a tick of
+    it (the clock started with the experiment, as the closed-loop replay assumes too; the
+    truth simulator's recorders). None otherwise: the start is then placed from the frames."""
+    ref = run.meta.get("reference")
+    if isinstance(ref, Mapping) and ref.get("t0_s") is not None:
+        return float(ref["t0_s"])
+    t = np.asarray(run.telemetry["t_s"], float)
+    period = float(run.meta.get("periods_s", {}).get("inner", 0.0) or 0.0)
+    if t.size < 2 or period <= 0:
+        return None
+    dt_tel = float(np.median(np.diff(t)))
+    return 0.0 if 0.0 <= t[0] <= dt_tel + period else None
+
+
 def compute_latency_s(run: Run) -> np.ndarray | None:
     """Per frame, how long after its tick the reported duty took effect, when the recorder says:
     this project's firmware writes the duty at the end of the inner task's computation
@@ -384,10 +400,14 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
     t_in_tau = reconstruct_input_times(t, [tel["tau_cmd_r"], tel["tau_cmd_l"]], period,
                                        arc_position, phase)
     # a first frame that already carries a command reports the tick before it: the robot
-    # started moving there (the replay starts at rest at that tick, not at the first frame)
+    # started moving there (the replay starts at rest at that tick, not at the first frame);
+    # when the run says when its experiment started (experiment_start_s), there
+    t_start = experiment_start_s(run)
     if phase is not None and period > 0:
         tick0 = phase + math.floor((t[0] - phase) / period + 1e-9) * period
-        if t[0] - period < tick0 < t[0]:
+        if t_start is not None:
+            tick0 = t_start
+        if t[0] - period < tick0 < t[0] or (t_start is not None and tick0 < t[0]):
             if tel["pwm_r"][0] != 0 or tel["pwm_l"][0] != 0:
                 t_in[0] = tick0
             if tel["tau_cmd_r"][0] != 0 or tel["tau_cmd_l"][0] != 0:
@@ -405,13 +425,20 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
         known = phase + np.floor((t - phase) / period + 1e-9) * period
         known, first = np.unique(known, return_index=True)
         n_first = math.floor((known[0] - phase) / period + 1e-9)
-        if tel["pwm_r"][0] != 0 or tel["pwm_l"][0] != 0:
+        started = tel["pwm_r"][0] != 0 or tel["pwm_l"][0] != 0
+        if started and t_start is not None:
+            # ticks from the experiment's start on (the first one at the start itself)
+            n_first = min(n_first, math.floor((t_start - phase) / period + 1e-9) + 1)
+        elif started:
             # the first frame already reports a command: the experiment started after the frame
             # before it would have been sent, at the earliest tick after t[0] - one frame
             # interval; those ticks carry commands no frame reported
             n_first = min(n_first, math.floor((t[0] - dt_tel - phase) / period + 1e-9) + 1)
         ticks = phase + period * np.arange(n_first,
                                            math.floor((t[-1] - phase) / period + 1e-9) + 1)
+        if started and t_start is not None:
+            # the first tick is the start itself (a tick the phase puts a little earlier is it)
+            ticks = np.concatenate([[t_start], ticks[ticks > t_start + 0.5 * period]])
         dense = lambda v: np.interp(ticks, known, np.asarray(v, float)[first])  # noqa: E731
         duty = (dense(duty[0]), dense(duty[1]))
         torque = (dense(torque[0]), dense(torque[1]))
