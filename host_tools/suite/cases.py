@@ -392,7 +392,7 @@ def heldback2_cases() -> list[Case]:
 # only been printed): recorders no other set uses, nulls weighted as the second set's misses
 # were nulls, scored once after any change that the second set's failures prompt.
 RECORDERS_3 = {
-    "loop12": {"inner_s": 0.0125},
+    "loop12": {"inner_s": 0.012},
     "loop16_jitter": {"inner_s": 0.016, "tel_jitter_s": 0.002, "tel_drop": 0.03},
     "pi_loop15": {"controller": "pi", "inner_s": 0.015, "odometry": "frames",
                   "integration": "midpoint"},
