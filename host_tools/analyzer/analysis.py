@@ -1,7 +1,11 @@
-"""The analysis pipeline: load runs, replay them nominally, locate the mismatch, fit every
-vocabulary effect (in parallel), select, and assemble the report dictionary."""
+"""The analysis pipeline (:func:`analyze`): load runs, replay them nominally (closed loop
+through lib/control, open loop driven by the recorded duty and torque), locate the mismatch in
+noise floors, fit every vocabulary effect (in parallel) and pairs of them, select, decide the
+verdict, and assemble the :class:`Analysis` that ``report.py`` writes.  Each stage is a
+function of its own, in the order :func:`analyze` calls them."""
 from __future__ import annotations
 
+import itertools
 import math
 import multiprocessing as mp
 import os
@@ -301,68 +305,177 @@ def sparse_hint(preps, chans_per_run) -> dict | None:
 def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | None = None,
             dt_s: float = 5e-4, pairs_top: int = 5,
             log: Callable[[str], None] = _log) -> Analysis:
+    """Analyze the runs in ``run_dirs`` (one robot): the stages below, in this order.  Each
+    stage's docstring says what it decides and why.  ``notes`` collects the report's notes in
+    the order the stages add them."""
     t_start = time.time()
+    runs = _load_runs(run_dirs, log)
+    vocab, vocab_fit = _vocabulary(effects)
+    notes: list[str] = []
+    duty = OpenLoopReplay("duty", dt_s=dt_s)
+    torque = OpenLoopReplay("torque", dt_s=dt_s)
+    preps = _prepare(runs, log)
+    cl = _replay_closed_loop(preps, dt_s, notes, log)
+    nominal, nominal_t = _replay_nominal(preps, duty, torque)
+    loc = _locate(preps, nominal, nominal_t, cl.nominal, log)
+    det = _detect(preps, nominal, loc, vocab, dt_s, notes, log)
+    cands = _fit_candidates(det, vocab_fit, jobs, notes, log)
+    sel = _select(det, cands, jobs, pairs_top, log)
+    selected = _selected_entries(sel, det.rss0)
+    verdict, hint = _verdict(det, sel.effects, selected, preps, duty, notes)
+    updated, cl_updated = _replay_updated(preps, duty, cl, sel.effects)
+    closed_loop = _closed_loop_report(cl, cl_updated, loc, sel.effects)
+    fit_table = _error_tables(det, sel, loc.floors, closed_loop)
+    recorder = recorder_findings(preps, nominal, loc.floors, notes)
+    localization = localize(preps, nominal, updated, loc.floors, det.problem.fit_channels,
+                            det.strong_k)
+    model = updated_model(runs[0].meta, sel.effects, [r.path for r in runs])
+    an = Analysis(runs, preps, loc.floors, nominal, nominal_t, updated,
+                  loc.entries if verdict != "no_mismatch" else [],
+                  sorted(sel.singles + sel.pairs, key=lambda c: c.delta_bic), selected, verdict,
+                  fit_table, hint, model, notes, torque_mismatch=loc.entries_t,
+                  windows={**loc.windows, **loc.cl_windows}, closed_loop=closed_loop,
+                  cl_nominal=cl.nominal, cl_updated=cl_updated, recorder=recorder,
+                  localization=localization)
+    an.timing_s = time.time() - t_start
+    log(f"verdict: {verdict}" + (f"; selected {', '.join(s['effect'] for s in selected)}"
+                                 if selected else "") + f" ({an.timing_s:.1f} s)")
+    return an
+
+
+# ------------------------------------------------------------------------ stages
+
+
+def _load_runs(run_dirs: Sequence[str], log: Callable[[str], None]) -> list[runfmt.Run]:
+    """Load and validate the run folders.  Several runs must come from one robot
+    (``runfmt.check_compatible``): the fits pool them under one set of parameters.  When two
+    folders share a base name, the report's run list and the model's sources give full paths,
+    so that the two can be told apart."""
     runs = [runfmt.load_run(p) for p in run_dirs]
     runfmt.check_compatible(runs)
     names_seen = [r.name for r in runs]
     if len(set(names_seen)) != len(names_seen):
-        # two folders with one base name: use the paths
         for r in runs:
             r.path = os.path.abspath(r.path)
     log(f"loaded {len(runs)} run(s): " + ", ".join(r.name for r in runs))
+    return runs
+
+
+def _vocabulary(effects: Sequence[str] | None) -> tuple[dict, dict]:
+    """(the whole effect vocabulary of lib/slipmodel, the effects to fit as candidates).  The
+    fit problem knows the whole vocabulary; ``effects`` (the command line's ``--effects``) only
+    narrows which candidates are fitted, and an unknown name is an input error, not an empty
+    fit."""
     from host_tools import _native
     vocab = _native.effect_vocabulary()
-    if effects:
-        unknown = [e for e in effects if e not in vocab]
-        if unknown:
-            raise runfmt.RunFormatError(f"unknown effect(s) {unknown}; known: {list(vocab)}")
-        vocab_fit = {e: vocab[e] for e in effects}
-    else:
-        vocab_fit = vocab
-    notes: list[str] = []
-    duty = OpenLoopReplay("duty", dt_s=dt_s)
-    torque = OpenLoopReplay("torque", dt_s=dt_s)
+    if not effects:
+        return vocab, vocab
+    unknown = [e for e in effects if e not in vocab]
+    if unknown:
+        raise runfmt.RunFormatError(f"unknown effect(s) {unknown}; known: {list(vocab)}")
+    return vocab, {e: vocab[e] for e in effects}
+
+
+def _prepare(runs: Sequence[runfmt.Run], log: Callable[[str], None]) -> list[PreparedRun]:
+    """Input timing and preparation (``replay.prepare_timed``): when each recorded duty and
+    torque command took effect on the board, the replay grid, and the replay windows.  A long
+    run is cut into windows re-anchored to the recording, so that the open-loop replay's
+    errors do not integrate over the whole run."""
     preps = [prepare_timed(r) for r in runs]
-    # closed loop through lib/control: the torque and duty the firmware should have commanded
+    n_win = sum(len(p.windows) for p in preps)
+    if n_win > len(preps):
+        log(f"long run(s): replayed in {n_win} windows re-anchored to the recording")
+    return preps
+
+
+@dataclass
+class _ClosedLoop:
+    """The nominal closed-loop replay, per run."""
+    replay: ClosedLoopReplay
+    setups: list            # the replay's set-up (reference, clamp, schedule), or None
+    runs: list[dict]        # the report's entry: replayed, problems, assumptions, reference
+    nominal: list[dict]     # channel -> Channel of the nominal replay, or {} when not replayed
+
+
+def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[str],
+                        log: Callable[[str], None]) -> _ClosedLoop:
+    """Replay each run closed loop through lib/control: the torque and duty the firmware should
+    have commanded.  Runs first because it also refines the inputs of the open-loop replays:
+    the inner ticks that no telemetry frame reported get their commands from the line between
+    the reported ones plus this replay's pattern (``fill_unseen_from_controller``, which
+    changes ``preps``).  A run that cannot be replayed (no lib/control binding, or a set-up the
+    meta data does not give) is reported with its problems; the analysis goes on without it,
+    since the closed-loop channels are reported and not used for decisions."""
     clr = ClosedLoopReplay(dt_s=dt_s)
     ok, why = clr.available()
-    cl_setups: list = [None] * len(preps)
-    cl_runs: list[dict] = []
-    cl_nominal: list[dict] = [{} for _ in preps]
+    setups: list = [None] * len(preps)
+    runs: list[dict] = []
+    nominal: list[dict] = [{} for _ in preps]
     for i, p in enumerate(preps):
         if not ok:
-            cl_runs.append({"run": p.name, "replayed": False, "problems": [why],
-                            "assumptions": []})
+            runs.append({"run": p.name, "replayed": False, "problems": [why],
+                         "assumptions": []})
             continue
         setup, problems, assumptions = clr.setup(p)
-        cl_setups[i] = setup
-        cl_runs.append({"run": p.name, "replayed": setup is not None, "problems": problems,
-                        "assumptions": assumptions, "reference": setup})
+        setups[i] = setup
+        runs.append({"run": p.name, "replayed": setup is not None, "problems": problems,
+                     "assumptions": assumptions, "reference": setup})
         if setup is not None:
             cl_sim = clr.simulate(p, {}, setup)
-            cl_nominal[i] = closed_loop_channels(p, cl_sim)
+            nominal[i] = closed_loop_channels(p, cl_sim)
             n_fill = fill_unseen_from_controller(p, cl_sim)
             if n_fill:
-                cl_runs[-1]["assumptions"].append(
+                runs[-1]["assumptions"].append(
                     f"{n_fill} inner ticks were reported by no frame: their commands are the "
                     "line between the reported ones plus the closed-loop replay's pattern")
         else:
             notes.append(f"closed-loop replay of {p.name} not run: " + "; ".join(problems))
+    n_cl = sum(1 for c in nominal if c)
+    if n_cl:
+        log(f"closed-loop replay through lib/control: {n_cl}/{len(preps)} run(s)")
+    return _ClosedLoop(clr, setups, runs, nominal)
+
+
+def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: OpenLoopReplay
+                    ) -> tuple[list[dict], list[dict]]:
+    """The nominal open-loop replays (no effect), per run: channel -> Channel, driven by the
+    recorded duty (what locates the mismatch and decides) and by the recorded torque command
+    (reported apart: it separates motor and driver from the rest).  On a run of several
+    windows the duty replay's slip episodes are noted first (``note_slip_episodes``): the
+    window anchors to the camera are fitted within the slip-free spans."""
     for p in preps:
         if len(p.windows) > 1:
             note_slip_episodes(p, duty.simulate_windows(p, {}))
     nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
     nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
-    n_win = sum(len(p.windows) for p in preps)
-    if n_win > len(preps):
-        log(f"long run(s): replayed in {n_win} windows re-anchored to the recording")
-    n_cl = sum(1 for c in cl_nominal if c)
-    if n_cl:
-        log(f"closed-loop replay through lib/control: {n_cl}/{len(preps)} run(s)")
+    return nominal, nominal_t
+
+
+@dataclass
+class _Located:
+    """Noise floors and significant windows of the nominal replays."""
+    floors: dict            # duty replay's channels
+    floors_t: dict          # torque replay's channels
+    cl_floors: dict         # closed-loop channels
+    entries: list[dict]     # the report's mismatch entries (duty replay)
+    entries_t: list[dict]   # ... of the torque replay
+    cl_entries: list[dict]  # ... of the closed-loop replay
+    windows: dict           # (run index, channel) -> [Window], duty replay
+    cl_windows: dict        # ... closed-loop replay
+
+
+def _locate(preps: Sequence[PreparedRun], nominal: Sequence[dict], nominal_t: Sequence[dict],
+            cl_nominal: Sequence[dict], log: Callable[[str], None]) -> _Located:
+    """Noise floors from the data (``noise_floors``, ``closed_loop_floors``) and the windows
+    where each replay's residual stands out of them, each with the regime of the run's state
+    (speed, torque against its limit, ...) that best explains where they are.  A residual only
+    means something in units of its channel's noise, so every later decision is in noise
+    floors."""
     floors = noise_floors(preps, nominal)
     floors_t = noise_floors(preps, nominal_t)
     log("noise floors: " + ", ".join(f"{c}={v:.3g}" for c, v in sorted(floors.items())))
-    plant = _native.Plant.from_meta(runs[0].meta)
+    from host_tools import _native
+    plant = _native.Plant.from_meta(preps[0].run.meta)
     tau_max = float(min(plant.tau_max()))
     states = [state_table(p) for p in preps]
     chan_names = [c for c in CHANNELS if any(c in ch for ch in nominal)]
@@ -373,27 +486,48 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     cl_floors = closed_loop_floors(cl_nominal)
     cl_entries: list[dict] = []
     cl_wins: dict = {}
-    if n_cl:
+    if any(cl_nominal):
         cl_entries, cl_wins, _ = _window_entries(preps, cl_nominal, cl_floors,
                                                  [c for c in CLOSED_LOOP_CHANNELS
                                                   if c in cl_floors], "closed-loop", states,
                                                  tau_max)
+    return _Located(floors, floors_t, cl_floors, entries, entries_t, cl_entries, wins, cl_wins)
+
+
+@dataclass
+class _Detection:
+    """The fit problem and whether the recordings disagree with the nominal model."""
+    problem: Problem
+    rss0: float             # nominal residual sum of squares (fit channels, in noise floors)
+    nrms0: float            # ... as a normalized RMS
+    strong_k: float         # noise floors that make one window a mismatch on its own
+    mismatch_seen: bool
+
+
+def _detect(preps: Sequence[PreparedRun], nominal: Sequence[dict], loc: _Located, vocab: dict,
+            dt_s: float, notes: list[str], log: Callable[[str], None]) -> _Detection:
+    """Build the fit problem (the fit channels, and on long runs the windows the fits see) and
+    decide whether there is a mismatch at all: a strong window in a fit channel (``strong_k``
+    floors, raised with the recording's length so the false-alarm rate per analysis stays
+    what it is on 12 s), or significant windows with an overall normalized RMS above
+    ``MISMATCH_RMS``.  The torque replay does not decide; it adds a note on where the mismatch
+    sits (between duty and torque, or not)."""
+    floors = loc.floors
     fit_chans = [c for c in FIT_CHANNELS if c in floors]
-    sig_fit = [e for e in entries if e["channel"] in fit_chans]
+    sig_fit = [e for e in loc.entries if e["channel"] in fit_chans]
     problem = Problem(preps, floors, vocab, dt_s=dt_s, fit_channels=fit_chans)
     fitw = problem.select_windows(nominal)
     if fitw is not None:
         log("fitting on " + ", ".join(f"{preps[i].name}: {len(w)}/{len(preps[i].windows)}"
                                       for i, w in fitw.items()) + " windows")
-    runs_idx = list(range(len(preps)))
-    r0 = problem.residual({}, runs_idx, full=True)
+    r0 = problem.residual({}, list(range(len(preps))), full=True)
     rss0 = float(np.sum(r0 ** 2))
     nrms0 = math.sqrt(rss0 / max(r0.size, 1))
     total_s = sum(float(p.run.telemetry["t_s"][-1] - p.run.telemetry["t_s"][0]) for p in preps)
     strong_k = strong_threshold(total_s)
     strong0 = [e for e in sig_fit if e["rms"] >= strong_k * e["noise_floor"]]
     mismatch_seen = bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
-    sig_t = [e for e in entries_t if e["channel"] in fit_chans]
+    sig_t = [e for e in loc.entries_t if e["channel"] in fit_chans]
     if mismatch_seen and not sig_t:
         notes.append("the torque-driven replay agrees with the recording while the duty-driven "
                      "one does not: the mismatch sits between duty and torque (motor, driver)")
@@ -401,150 +535,232 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
         notes.append("the torque-driven replay also disagrees with the recording; it is open "
                      "loop without back-EMF damping, so its errors integrate and it is reported "
                      "separately (torque_replay_mismatch), not used to locate or decide")
-    log(f"nominal replay: {len(entries)} significant window(s) "
+    log(f"nominal replay: {len(loc.entries)} significant window(s) "
         f"({len(sig_fit)} in fit channels {', '.join(fit_chans)})")
+    return _Detection(problem, rss0, nrms0, strong_k, mismatch_seen)
 
-    # nothing to explain: no candidate is fitted (the verdict does not depend on them)
-    tasks = [([e], None, {}) for e in vocab_fit] if mismatch_seen else []
+
+def _fit_candidates(det: _Detection, vocab_fit: Mapping, jobs: int, notes: list[str],
+                    log: Callable[[str], None]) -> list[Candidate]:
+    """Fit every effect of ``vocab_fit`` alone and judge it (``fit.judge``: BIC, held-out
+    error, size, physical possibility, per-channel veto); sorted by BIC gain.  Without a
+    mismatch nothing is fitted: the verdict does not depend on the candidates."""
+    tasks = [([e], None, {}) for e in vocab_fit] if det.mismatch_seen else []
     if tasks:
         log(f"fitting {len(tasks)} candidate effect(s) on {jobs} process(es)")
     else:
         notes.append("no mismatch beyond the noise floors: no candidate effect was fitted")
-    cands = _run_tasks(problem, tasks, jobs, "candidate") if tasks else []
+    cands = _run_tasks(det.problem, tasks, jobs, "candidate") if tasks else []
     for c in cands:
-        judge(problem, c)
+        judge(det.problem, c)
     cands.sort(key=lambda c: c.delta_bic)
-    selected_c: list[Candidate] = []
+    return cands
+
+
+@dataclass
+class _Selection:
+    """What the fits select."""
+    chosen: Candidate | None        # the accepted single or pair, or None
+    effects: dict                   # its fitted effects: name -> params ({} when none)
+    singles: list[Candidate]        # the single effects fitted (judged, by BIC gain)
+    pairs: list[Candidate]          # the pairs fitted (judged, by BIC gain), or []
+
+
+def _select(det: _Detection, cands: list[Candidate], jobs: int, pairs_top: int,
+            log: Callable[[str], None]) -> _Selection:
+    """The best accepted single effect; then, when no single is accepted or one leaves a
+    strong window or a normalized RMS above ``EXPLAINED_RMS``, pairs of effects
+    (``_fit_pairs``), and the best accepted pair replaces the single.  Nothing is selected
+    without a mismatch."""
+    if not det.mismatch_seen:
+        return _Selection(None, {}, cands, [])
+    problem = det.problem
     best_single = next((c for c in cands if c.accepted), None)
-    final_effects: dict = {}
+    chosen = best_single
+    final_effects = dict(best_single.fit.params) if best_single is not None else {}
     pair_cands: list[Candidate] = []
-    if mismatch_seen and best_single is not None:
-        selected_c = [best_single]
-        final_effects = dict(best_single.fit.params)
-    if mismatch_seen:
-        # is one effect enough?  try pairs when something significant remains
-        remaining = _remaining_windows(problem, final_effects, fit_chans, strong_k)
-        nrms1 = math.sqrt(_excess(problem, final_effects))
-        if not final_effects or remaining or nrms1 > EXPLAINED_RMS:
-            # the best singles by BIC, accepted or not: in a pair case each single may fail
-            # (the other effect spoils its held-out error) while the pair passes
-            ranked = [c.effects[0] for c in cands if c.fit.rss < rss0][:pairs_top]
-            if best_single is not None and best_single.effects[0] not in ranked:
-                ranked = [best_single.effects[0]] + ranked[:pairs_top - 1]
-            import itertools
-            combos = list(itertools.combinations(ranked[:pairs_top - 1], 2))
-            # forward steps: every other effect added to the best accepted single and to the
-            # best-fitting single (by BIC).  The best fit may fail the acceptance tests only
-            # because its partner is missing (e.g. it makes one channel worse that the partner
-            # puts right), and its partner may explain little on its own.
-            leads = []
-            if best_single is not None:
-                leads.append(best_single.effects[0])
-            if ranked and ranked[0] not in leads:
-                leads.append(ranked[0])
-            for lead in leads:
-                for c in cands:
-                    e = c.effects[0]
-                    if e != lead and (lead, e) not in combos and (e, lead) not in combos:
-                        combos.append((lead, e))
-            pair_tasks = []
-            for a, b in combos:
-                ca = next(c for c in cands if c.effects == [a])
-                cb = next(c for c in cands if c.effects == [b])
-                x0 = np.concatenate([ca.fit.x, cb.fit.x])
-                pair_tasks.append(([a, b], x0, {}))
-            if pair_tasks:
-                log(f"one effect leaves a mismatch: fitting {len(pair_tasks)} pair(s)")
-                pair_cands = _run_tasks(problem, pair_tasks, jobs, "pair")
-                for pc in pair_cands:
-                    judge(problem, pc)
-                    # the pair must also beat each of its singles
-                    for e in pc.effects:
-                        single = next(c for c in cands if c.effects == [e])
-                        better = (pc.fit.rss < single.fit.rss and
-                                  _pair_bic(pc, single, problem) < -10.0 and
-                                  pc.heldout_after < 0.95 * single.heldout_after)
-                        if not better:
-                            pc.checks["adds"] = False
-                            pc.reasons.append(f"not clearly better than {e} alone")
-                    if "adds" not in pc.checks:
-                        pc.checks["adds"] = True
-                pair_cands.sort(key=lambda c: c.delta_bic)
-                best_pair = next((c for c in pair_cands if c.accepted), None)
-                if best_pair is not None:
-                    selected_c = [best_pair]
-                    final_effects = dict(best_pair.fit.params)
-    # equivalents: alternatives that explain about as much (BIC within 10, similar held-out).
-    # For a single: other singles.  For a pair (a, b): pairs (a, c) standing in for b.
-    selected: list[dict] = []
-    if selected_c:
-        sel = selected_c[0]
-        pool = cands if len(sel.effects) == 1 else pair_cands
+    remaining = _remaining_windows(problem, final_effects, problem.fit_channels, det.strong_k)
+    nrms1 = math.sqrt(_excess(problem, final_effects))
+    if not final_effects or remaining or nrms1 > EXPLAINED_RMS:
+        pair_cands = _fit_pairs(problem, cands, best_single, det.rss0, jobs, pairs_top, log)
+        best_pair = next((c for c in pair_cands if c.accepted), None)
+        if best_pair is not None:
+            chosen = best_pair
+            final_effects = dict(best_pair.fit.params)
+    return _Selection(chosen, final_effects, cands, pair_cands)
 
-        def _close(c: Candidate, me: Candidate) -> bool:
-            # an alternative that explains about as much and would itself be worth adopting
-            # (BIC, held-out gain, size, physically possible); not the per-channel veto, which
-            # is what picked one of them
-            worth = all(c.checks.get(k, True) for k in ("bic", "heldout", "size", "physical",
-                                                        "adds"))
-            return ((c.delta_bic - me.delta_bic) < 10.0 and c.fit.rss < rss0 and worth and
-                    c.heldout_after <= max(1.25 * me.heldout_after, me.heldout_after + 0.1))
 
-        for e in sel.effects:
-            equiv = []
-            others = [x for x in sel.effects if x != e]
-            for c in pool:
-                if c is sel or e in c.effects or not set(others) <= set(c.effects):
-                    continue
-                alt = [x for x in c.effects if x not in others]
-                if len(alt) == 1 and _close(c, sel) and alt[0] not in equiv:
-                    equiv.append(alt[0])
-            selected.append({"effect": e, "params": {k: _r(v, 5) for k, v in
-                                                    sel.fit.params[e].items()},
-                             "unidentified": [u.split(".", 1)[1] for u in sel.fit.unidentified
-                                              if u.startswith(e + ".")],
-                             "equivalent": equiv,
-                             "separating_measurement": {q: fx.separator(e, q) for q in equiv}})
-    # verdict
-    hint = None
+def _fit_pairs(problem: Problem, cands: list[Candidate], best_single: Candidate | None,
+               rss0: float, jobs: int, pairs_top: int, log: Callable[[str], None]
+               ) -> list[Candidate]:
+    """Fit and judge pairs of effects, started from their singles' fits; sorted by BIC gain.
+    The pairs: those of the best singles by BIC (``pairs_top``), accepted or not, since in a
+    pair case each single may fail (the other effect spoils its held-out error) while the pair
+    passes; and forward steps, every other effect added to the best accepted single and to the
+    best-fitting single.  The best fit may fail the acceptance tests only because its partner
+    is missing (e.g. it makes one channel worse that the partner puts right), and its partner
+    may explain little on its own.  A pair is accepted only if it is also clearly better than
+    each of its singles (check ``adds``)."""
+    ranked = [c.effects[0] for c in cands if c.fit.rss < rss0][:pairs_top]
+    if best_single is not None and best_single.effects[0] not in ranked:
+        ranked = [best_single.effects[0]] + ranked[:pairs_top - 1]
+    combos = list(itertools.combinations(ranked[:pairs_top - 1], 2))
+    leads = []
+    if best_single is not None:
+        leads.append(best_single.effects[0])
+    if ranked and ranked[0] not in leads:
+        leads.append(ranked[0])
+    for lead in leads:
+        for c in cands:
+            e = c.effects[0]
+            if e != lead and (lead, e) not in combos and (e, lead) not in combos:
+                combos.append((lead, e))
+    single = {c.effects[0]: c for c in cands}
+    pair_tasks = [([a, b], np.concatenate([single[a].fit.x, single[b].fit.x]), {})
+                  for a, b in combos]
+    if not pair_tasks:
+        return []
+    log(f"one effect leaves a mismatch: fitting {len(pair_tasks)} pair(s)")
+    pair_cands = _run_tasks(problem, pair_tasks, jobs, "pair")
+    for pc in pair_cands:
+        judge(problem, pc)
+        for e in pc.effects:
+            alone = single[e]
+            better = (pc.fit.rss < alone.fit.rss and
+                      _pair_bic(pc, alone, problem) < -10.0 and
+                      pc.heldout_after < 0.95 * alone.heldout_after)
+            if not better:
+                pc.checks["adds"] = False
+                pc.reasons.append(f"not clearly better than {e} alone")
+        if "adds" not in pc.checks:
+            pc.checks["adds"] = True
+    pair_cands.sort(key=lambda c: c.delta_bic)
+    return pair_cands
+
+
+def _selected_entries(sel: _Selection, rss0: float) -> list[dict]:
+    """The report's entries of the selected effects, each with its equivalents: alternatives
+    that explain about as much (BIC within 10, held-out error close) and would themselves be
+    worth adopting (BIC, held-out gain, size, physically possible; not the per-channel veto,
+    which is what picked one of them), and the measurement that would separate them.  For a
+    single: other singles.  For a pair (a, b): pairs (a, c) standing in for b."""
+    sel_c = sel.chosen
+    if sel_c is None:
+        return []
+    pool = sel.singles if len(sel_c.effects) == 1 else sel.pairs
+
+    def _close(c: Candidate, me: Candidate) -> bool:
+        worth = all(c.checks.get(k, True) for k in ("bic", "heldout", "size", "physical",
+                                                    "adds"))
+        return ((c.delta_bic - me.delta_bic) < 10.0 and c.fit.rss < rss0 and worth and
+                c.heldout_after <= max(1.25 * me.heldout_after, me.heldout_after + 0.1))
+
+    selected = []
+    for e in sel_c.effects:
+        equiv = []
+        others = [x for x in sel_c.effects if x != e]
+        for c in pool:
+            if c is sel_c or e in c.effects or not set(others) <= set(c.effects):
+                continue
+            alt = [x for x in c.effects if x not in others]
+            if len(alt) == 1 and _close(c, sel_c) and alt[0] not in equiv:
+                equiv.append(alt[0])
+        selected.append({"effect": e, "params": {k: _r(v, 5) for k, v in
+                                                sel_c.fit.params[e].items()},
+                         "unidentified": [u.split(".", 1)[1] for u in sel_c.fit.unidentified
+                                          if u.startswith(e + ".")],
+                         "equivalent": equiv,
+                         "separating_measurement": {q: fx.separator(e, q) for q in equiv}})
+    return selected
+
+
+def _verdict(det: _Detection, final_effects: Mapping, selected: Sequence[dict],
+             preps: Sequence[PreparedRun], duty: OpenLoopReplay, notes: list[str]
+             ) -> tuple[str, dict | None]:
+    """(verdict, hint).  ``no_mismatch`` when detection saw none; ``explained`` when effects
+    were selected and their residual is back within the noise floor (normalized RMS at most
+    ``EXPLAINED_RMS``: a claim of explanation asks for noise level, not merely below the
+    detection threshold); otherwise ``unexplained``, with a sparse regression of what remains
+    (``sparse_hint``) as a hint towards the missing physics."""
+    if not det.mismatch_seen:
+        return "no_mismatch", None
+    nrms1 = math.sqrt(_excess(det.problem, final_effects))
+    if selected and nrms1 <= EXPLAINED_RMS:
+        return "explained", None
+    chans_after = [channels(p, duty.simulate_windows(p, final_effects), "duty") for p in preps]
+    hint = sparse_hint(preps, chans_after)
+    if selected:
+        notes.append("the selected effects explain part of the mismatch only "
+                     f"(normalized RMS residual {det.nrms0:.3g} -> {nrms1:.3g}, noise = 1)")
+    return "unexplained", hint
+
+
+def _replay_updated(preps: Sequence[PreparedRun], duty: OpenLoopReplay, cl: _ClosedLoop,
+                    final_effects: Mapping) -> tuple[list[dict] | None, list[dict]]:
+    """The replays with the selected effects: the duty replay (None without an update) and the
+    closed loop (a run without an update, or not replayed, keeps its nominal channels)."""
     updated = None
-    if not mismatch_seen:
-        verdict = "no_mismatch"
-        final_effects = {}
-    else:
-        nrms1 = math.sqrt(_excess(problem, final_effects))
-        remaining = _remaining_windows(problem, final_effects, fit_chans, strong_k)
-        explained = bool(selected) and nrms1 <= EXPLAINED_RMS
-        verdict = "explained" if explained else "unexplained"
-        if not explained:
-            chans_after = [channels(p, duty.simulate_windows(p, final_effects), "duty")
-                           for p in preps]
-            hint = sparse_hint(preps, chans_after)
-            if selected:
-                notes.append("the selected effects explain part of the mismatch only "
-                             f"(normalized RMS residual {nrms0:.3g} -> {nrms1:.3g}, noise = 1)")
     if final_effects:
         updated = [channels(p, duty.simulate_windows(p, final_effects), "duty") for p in preps]
-    cl_updated = [closed_loop_channels(p, clr.simulate(p, final_effects, cl_setups[i]))
-                  if (final_effects and cl_setups[i] is not None) else cl_nominal[i]
+    cl_updated = [closed_loop_channels(p, cl.replay.simulate(p, final_effects, cl.setups[i]))
+                  if (final_effects and cl.setups[i] is not None) else cl.nominal[i]
                   for i, p in enumerate(preps)]
-    # error tables: fitting data and held-out
+    return updated, cl_updated
+
+
+def _closed_loop_report(cl: _ClosedLoop, cl_updated: Sequence[dict], loc: _Located,
+                        final_effects: Mapping) -> dict:
+    """The report's closed-loop section (see docs/analyzer.md): per run whether it was replayed
+    and on which assumptions, the controller-output errors before and after the update, in
+    their units and in noise floors, and the closed loop's significant windows.  Reported, not
+    used for decisions (``used_for_decisions``)."""
+    cl_floors = loc.cl_floors
+    cl_b = _pooled_rmse(cl.nominal, CLOSED_LOOP_CHANNELS)
+    cl_a = _pooled_rmse(cl_updated, CLOSED_LOOP_CHANNELS)
+
+    def _nrms(chs):
+        r = [ch[c].resid / cl_floors[c] for ch in chs if ch for c in cl_floors if c in ch]
+        return _r(float(np.sqrt(np.mean(np.concatenate(r) ** 2)))) if r else None
+
+    return {
+        "replay": "lib/control fixed-point cascade (ctl_* C ABI) against the lib/slipmodel "
+                  "plant, firmware schedule, encoder counts quantised from the plant",
+        "runs": cl.runs, "channels": list(cl_b),
+        "noise_floor": {c: _r(v) for c, v in cl_floors.items()},
+        "rmse_nominal": {c: _r(v) for c, v in cl_b.items()},
+        "rmse_updated": {c: _r(v) for c, v in cl_a.items()},
+        "normalized_rms_nominal": _nrms(cl.nominal),
+        "normalized_rms_updated": _nrms(cl_updated),
+        "updated_effects": {k: dict(v) for k, v in final_effects.items()},
+        "mismatch": loc.cl_entries,
+        "used_for_decisions": False}
+
+
+def _error_tables(det: _Detection, sel: _Selection, floors: Mapping, closed_loop: Mapping
+                  ) -> dict:
+    """The report's error tables: RMSE per channel before and after the update on the fitting
+    data and on the held-out parts (leave one run out, or a time split of a single run) with
+    the held-out rule's per-channel check, the noise floors, and the normalized RMS before and
+    after; the closed-loop channels' rows come from the closed-loop section.  Without an update
+    the errors after are the errors before."""
+    problem, final_effects = det.problem, sel.effects
+    runs_idx = list(range(len(problem.preps)))
     rb = problem.channel_rmse({}, runs_idx, full=True)
     ra = problem.channel_rmse(final_effects, runs_idx, full=True) if final_effects else dict(rb)
     hpairs = None
-    if selected_c:
-        hb, ha = selected_c[0].heldout_channels_before, selected_c[0].heldout_channels_after
-        hpairs = selected_c[0].heldout_pairs
+    if sel.chosen is not None:
+        hb, ha = sel.chosen.heldout_channels_before, sel.chosen.heldout_channels_after
+        hpairs = sel.chosen.heldout_pairs
     else:
         # no update: held-out error equals the nominal one on the held-out parts
-        c0 = cands[0] if cands else None
+        c0 = sel.singles[0] if sel.singles else None
         hb = c0.heldout_channels_before if c0 else dict(rb)
         ha = dict(hb)
     fit_table = {"rmse_before": {k: _r(v) for k, v in rb.items()},
                  "rmse_after": {k: _r(v) for k, v in ra.items()},
                  "heldout_rmse_before": {k: _r(v) for k, v in hb.items()},
                  "heldout_rmse_after": {k: _r(v) for k, v in ha.items()},
-                 "heldout_method": ("leave one run out" if len(preps) > 1 else
+                 "heldout_method": ("leave one run out" if len(runs_idx) > 1 else
                                     f"time split at {problem.split_frac:.0%} of the run"),
                  "noise_floor": {k: _r(v) for k, v in floors.items()},
                  "heldout_rule": HELDOUT_RULE,
@@ -553,49 +769,13 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
                                    for k, v in heldout_channel_check(hb, ha, floors,
                                                                      hpairs).items()},
                  "derived_channels": list(DERIVED),
-                 "normalized_rms_before": _r(nrms0),
+                 "normalized_rms_before": _r(det.nrms0),
                  "normalized_rms_after": _r(math.sqrt(_excess(problem, final_effects)))}
-    cl_b = _pooled_rmse(cl_nominal, CLOSED_LOOP_CHANNELS)
-    cl_a = _pooled_rmse(cl_updated, CLOSED_LOOP_CHANNELS)
-    for c in cl_b:
-        fit_table["rmse_before"][c] = _r(cl_b[c])
-        fit_table["rmse_after"][c] = _r(cl_a[c])
-        fit_table["noise_floor"][c] = _r(cl_floors[c])
-
-    def _nrms(chs):
-        r = [ch[c].resid / cl_floors[c] for ch in chs if ch for c in cl_floors if c in ch]
-        return _r(float(np.sqrt(np.mean(np.concatenate(r) ** 2)))) if r else None
-
-    closed_loop = {
-        "replay": "lib/control fixed-point cascade (ctl_* C ABI) against the lib/slipmodel "
-                  "plant, firmware schedule, encoder counts quantised from the plant",
-        "runs": cl_runs, "channels": list(cl_b),
-        "noise_floor": {c: _r(v) for c, v in cl_floors.items()},
-        "rmse_nominal": {c: _r(v) for c, v in cl_b.items()},
-        "rmse_updated": {c: _r(v) for c, v in cl_a.items()},
-        "normalized_rms_nominal": _nrms(cl_nominal),
-        "normalized_rms_updated": _nrms(cl_updated),
-        "updated_effects": {k: dict(v) for k, v in final_effects.items()},
-        "mismatch": cl_entries,
-        "used_for_decisions": False}
-    recorder = recorder_findings(preps, nominal, floors, notes)
-    localization = localize(preps, nominal, updated, floors, fit_chans, strong_k)
-    model = updated_model(runs[0].meta, final_effects, [r.path for r in runs])
-    all_c = cands + pair_cands
-    all_c.sort(key=lambda c: c.delta_bic)
-    an = Analysis(runs, preps, floors, nominal, nominal_t, updated,
-                  entries if verdict != "no_mismatch" else [],
-                  all_c, selected, verdict, fit_table, hint, model, notes, windows=wins)
-    an.torque_mismatch = entries_t
-    an.closed_loop = closed_loop
-    an.recorder, an.localization = recorder, localization
-    an.cl_nominal, an.cl_updated = cl_nominal, cl_updated
-    for (i, c), w in cl_wins.items():
-        an.windows[(i, c)] = w
-    an.timing_s = time.time() - t_start
-    log(f"verdict: {verdict}" + (f"; selected {', '.join(s['effect'] for s in selected)}"
-                                 if selected else "") + f" ({an.timing_s:.1f} s)")
-    return an
+    for c in closed_loop["channels"]:
+        fit_table["rmse_before"][c] = closed_loop["rmse_nominal"][c]
+        fit_table["rmse_after"][c] = closed_loop["rmse_updated"][c]
+        fit_table["noise_floor"][c] = closed_loop["noise_floor"][c]
+    return fit_table
 
 
 def recorder_findings(preps: Sequence[PreparedRun], nominal: Sequence[Mapping], floors: Mapping,
