@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from host_tools import fil
+from host_tools import params
 from host_tools import protocol as P
 from host_tools import runfmt
 
@@ -176,7 +177,7 @@ def test_clamp_off_48_slips_clamp_on_72_does_not(run48, run72_clamped):
     assert t_off - t_on > 1.4
     drive = (pl["t_s"] >= t_on) & (pl["t_s"] <= t_off)
     assert pl["x_m"][drive][-1] > 0.5
-    r, b = run_r(out), 0.105
+    r, b = run_r(out), params.ROBOT["b"]
     slip_r = pl["dtheta_r_rad_s"] * r - (pl["v_m_s"] + b * pl["omega_rad_s"])
     slip_l = pl["dtheta_l_rad_s"] * r - (pl["v_m_s"] - b * pl["omega_rad_s"])
     dt = float(np.median(np.diff(pl["t_s"])))
@@ -201,7 +202,7 @@ def test_clamp_off_48_slips_clamp_on_72_does_not(run48, run72_clamped):
 
 
 def test_plant_effects_reach_the_plant_slippery_floor_defeats_the_nominal_clamp(elf, sim, tmp_path):
-    # the firmware clamps at the nominal mu_s = 0.241; on a floor with mu_s = 0.12 the same
+    # the firmware clamps at the nominal mu_s (Table II.2); on a floor with mu_s = 0.12 the same
     # clamp allows twice the torque the floor can take: the wheels slip although the clamp is on
     out = tmp_path / "slippery"
     keys = {"friction_coefficient.enabled": 1, "friction_coefficient.mu_s": 0.12, "friction_coefficient.mu_k": 0.11}

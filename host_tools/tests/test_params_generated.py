@@ -231,8 +231,6 @@ _TEST_NOT_COPIES = {
         (1, "codec round-trip inputs, the embedded golden frame's sample"),
     ("test/native/test_protocol/test_protocol.cpp", "0.77"):
         (2, "codec round-trip inputs, the embedded golden frame's sample"),
-    ("host_tools/tests/test_fil.py", "0.105"): (1, "b typed in: to take from host_tools.params"),
-    ("host_tools/tests/test_fil.py", "0.241"): (1, "mu_s in a comment: to take from host_tools.params"),
 }
 #: The table and the files generated from it.
 _TABLE_FILES = {"params/params.json", "params/params.md",
