@@ -222,6 +222,7 @@ RECORDER_DEFAULTS = {
     "odometry": "firmware",     # firmware (lib/control, at the ticks) | ticks | frames (own code)
     "integration": "arc",       # own odometry: arc (exact arc) | midpoint
     "inner_s": 0.025,           # inner period; the outer period is twice it
+    "tel_s": 0.020,             # telemetry period (the firmware's 50 Hz)
     "tel_jitter_s": 0.0,        # telemetry frame times jitter uniformly by +- this
     "tel_drop": 0.0,            # fraction of telemetry frames dropped (plus one burst when > 0)
     "cam_hz": 30.0,             # camera rate
@@ -236,7 +237,7 @@ RECORDER_DEFAULTS = {
 _RECORDER_CHOICES = {"controller": ("cascade", "pi"), "odometry": ("firmware", "ticks", "frames"),
                      "integration": ("arc", "midpoint"), "heading_tel": ("unwrapped", "wrapped"),
                      "heading_gt": ("unwrapped", "wrapped")}
-_RECORDER_RANGES = {"inner_s": (0.001, 0.5), "tel_jitter_s": (0.0, 0.5), "tel_drop": (0.0, 0.5),
+_RECORDER_RANGES = {"inner_s": (0.001, 0.5), "tel_s": (0.002, 0.5), "tel_jitter_s": (0.0, 0.5), "tel_drop": (0.0, 0.5),
                     "cam_hz": (1.0, 1000.0), "cam_noise_m": (0.0, 1.0),
                     "cam_noise_rad": (0.0, 1.0), "cam_dropout": (0.0, 0.9),
                     "adc_noise_lsb": (0.0, 100.0)}
@@ -373,10 +374,11 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
     sim.set("rec.controller", 1.0 if pi else 0.0)
     sim.set("rec.odometry", {"firmware": 0, "ticks": 1, "frames": 2}[rec["odometry"]])
     sim.set("rec.midpoint", 1.0 if rec["integration"] == "midpoint" else 0.0)
+    sim.set("sim.tel_period", rec["tel_s"])
     sim.set("rec.tel_jitter", rec["tel_jitter_s"])
     sim.set("rec.seed", float(rng_rec.integers(0, 2 ** 32)))
     # the board's telemetry phase against its tick, and the camera's own clock
-    sim.set("sim.tel_phase", float(rng.choice([0.002, 0.004, 0.006, 0.008, 0.012])))
+    sim.set("sim.tel_phase", float(rng.choice([0.002, 0.004, 0.006, 0.008, 0.012])) % rec["tel_s"])
     sim.set("sim.cam_period", 1.0 / rec["cam_hz"])
     sim.set("sim.cam_phase", float(rng.uniform(0.0, 1.0 / rec["cam_hz"])))
     for name, params in (effects or {}).items():
@@ -407,7 +409,8 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
             "experiment": experiment or f"{'PI wheel-speed loop' if pi else 'closed loop'}: {ref_desc}",
             "source": "simulator", "torque_clamp": bool(clamp) and not pi,
             "robot": dict(NOMINAL_META_ROBOT), "motor": motor,
-            "encoder_ppr": PPR, "periods_s": {"inner": inner, "outer": 2 * inner, "telemetry": 0.02},
+            "encoder_ppr": PPR, "periods_s": {"inner": inner, "outer": 2 * inner,
+                          "telemetry": rec["tel_s"]},
             "controller": "pi" if pi else "cascade"}
     if pi:
         # no lib/control reference: the closed loop is not lib/control's and cannot be replayed
@@ -477,6 +480,8 @@ def add_recorder_arguments(ap) -> None:
                    help="own odometry's rule: exact arc or midpoint")
     g.add_argument("--inner-ms", type=float, default=1e3 * d["inner_s"],
                    help="inner period in ms (e.g. 10, 20, 25); the outer period is twice it")
+    g.add_argument("--tel-ms", type=float, default=1e3 * d["tel_s"],
+                   help="telemetry period in ms (default 20: the firmware's 50 Hz)")
     g.add_argument("--tel-jitter-ms", type=float, default=0.0,
                    help="telemetry frame times jitter uniformly by +- this (ms)")
     g.add_argument("--tel-drop", type=float, default=0.0,
@@ -501,7 +506,7 @@ def recorder_from_args(a) -> dict:
     """The recorder options of :func:`add_recorder_arguments`'s parsed arguments."""
     odo = a.odometry or ("ticks" if a.controller == "pi" else "firmware")
     return recorder_config(controller=a.controller, odometry=odo, integration=a.integration,
-                           inner_s=a.inner_ms / 1e3, tel_jitter_s=a.tel_jitter_ms / 1e3,
+                           inner_s=a.inner_ms / 1e3, tel_s=a.tel_ms / 1e3, tel_jitter_s=a.tel_jitter_ms / 1e3,
                            tel_drop=a.tel_drop, cam_hz=a.cam_hz, cam_noise_m=a.cam_noise_mm / 1e3,
                            cam_noise_rad=a.cam_noise_mrad / 1e3, cam_dropout=a.cam_dropout,
                            heading_tel=a.heading_tel, heading_gt=a.heading_gt,

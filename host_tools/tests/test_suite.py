@@ -161,6 +161,21 @@ def test_third_heldback_set_is_new_in_seeds_and_recorders():
     assert sum(c.expect == "no_mismatch" for c in hb3) == 13
 
 
+def test_fourth_heldback_set_is_new_in_seeds_and_recorders():
+    sets = [cases.all_cases(), cases.heldback_cases(), cases.heldback2_cases(),
+            cases.heldback3_cases()]
+    hb4 = cases.heldback4_cases()
+    assert all(c.set == "heldback4" for c in hb4) and len(hb4) == 28
+    used = {c.seed + off + k for c in sets[0] for off in (0, 1000, 2000) for k in range(4)}
+    used |= {c.seed + k for s in sets[1:] for c in s for k in range(len(c.experiments))}
+    assert not used & {c.seed + k for c in hb4 for k in range(len(c.experiments))}
+    old = [dict(r) for r in (*cases.RECORDERS.values(), *cases.RECORDERS_2.values(),
+                             *cases.RECORDERS_3.values())]
+    assert all(c.recorder and c.recorder not in old + [{}] for c in hb4)
+    assert {c.recorder.get("tel_s", 0.02) for c in hb4} == {0.01, 0.02, 0.025, 0.04}
+    assert sum(c.expect == "no_mismatch" for c in hb4) == 18
+
+
 def test_heldback_generation_deterministic_and_hidden(tmp_path):
     case = cases.get(["hb_null_std"], which="heldback")[0]
     a = generate.generate_case(case, str(tmp_path / "a"))
