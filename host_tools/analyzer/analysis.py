@@ -23,7 +23,7 @@ from host_tools.analyzer.fit import (HELDOUT_RULE, Candidate, Problem, evaluate_
                                     heldout_channel_check, judge, params_for)
 from host_tools.analyzer.replay import (CHANNELS, CLOSED_LOOP_CHANNELS, CUMULATIVE, DERIVED,
                                         FIT_CHANNELS, ClosedLoopReplay, OpenLoopReplay,
-                                        fill_unseen_from_controller,
+                                        fill_unseen_from_controller, input_uncertainty,
                                         PreparedRun, channels, closed_loop_channels, note_slip_episodes,
                                         prepare_timed, state_table)
 
@@ -231,7 +231,7 @@ def _window_entries(preps, chans_per_run, floors, channel_names, replay_name,
             ch = chans.get(c)
             if ch is None:
                 continue
-            w, m = sg.significant_windows(ch.t, ch.resid, floors[c])
+            w, m = sg.significant_windows(ch.t, ch.deflated(floors[c]), floors[c])
             wins[(i, c)] = w
             per_run.append((i, ch, w))
             masks.append(m)
@@ -446,6 +446,7 @@ def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: 
     for p in preps:
         if len(p.windows) > 1:
             note_slip_episodes(p, duty.simulate_windows(p, {}))
+        input_uncertainty(p, duty)
     nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
     nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
     return nominal, nominal_t
@@ -828,7 +829,7 @@ def localize(preps: Sequence[PreparedRun], nominal: Sequence[Mapping],
             ch = nominal[i].get(c)
             if ch is None:
                 continue
-            w, _ = sg.significant_windows(ch.t, ch.resid, floors[c])
+            w, _ = sg.significant_windows(ch.t, ch.deflated(floors[c]), floors[c])
             spans += [(x.t_start_s, x.t_end_s, x.rms / floors[c], c) for x in w]
         spans.sort()
         merged: list[list] = []
@@ -849,7 +850,8 @@ def localize(preps: Sequence[PreparedRun], nominal: Sequence[Mapping],
                         continue
                     m = (ch.t >= a) & (ch.t <= b)
                     if m.any():
-                        after = max(after, float(np.sqrt(np.mean(ch.resid[m] ** 2))) / floors[c])
+                        after = max(after, float(np.sqrt(np.mean(ch.deflated(floors[c])[m] ** 2)))
+                                    / floors[c])
             out.append({"run": prep.name, "t_start_s": round(a, 3), "t_end_s": round(b, 3),
                         "peak_noise_floors": _r(pk), "channels": sorted(cs),
                         "strong": bool(pk >= strong_k),
@@ -875,7 +877,7 @@ def _remaining_windows(problem: Problem, effects: Mapping, fit_chans: Sequence[s
             ch = chans.get(c)
             if ch is None:
                 continue
-            w, _ = sg.significant_windows(ch.t, ch.resid, problem.floors[c])
+            w, _ = sg.significant_windows(ch.t, ch.deflated(problem.floors[c]), problem.floors[c])
             n += sum(1 for x in w if x.rms >= strong * problem.floors[c])
     return n
 

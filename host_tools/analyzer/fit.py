@@ -146,7 +146,7 @@ class Problem:
                 ch = chans.get(c)
                 if ch is None or ch.seg is None:
                     continue
-                np.add.at(energy, ch.seg, (ch.resid / self.floors[c]) ** 2)
+                np.add.at(energy, ch.seg, (ch.deflated(self.floors[c]) / self.floors[c]) ** 2)
             per = energy / np.maximum(np.bincount(np.concatenate(
                 [chans[c].seg for c in self.fit_channels if c in chans and chans[c].seg is not None]
                 or [np.zeros(0, int)]), minlength=nw), 1)
@@ -171,7 +171,7 @@ class Problem:
                 ch = chans.get(c)
                 if ch is None:
                     continue
-                r = ch.resid / self.floors[c]
+                r = ch.deflated(self.floors[c]) / self.floors[c]
                 if part == "early":
                     r = r[ch.t <= ts]
                 elif part == "late":

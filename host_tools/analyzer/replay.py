@@ -477,7 +477,44 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
                                    period > 0 and t.size > 1 and period < 0.999 * dt_tel)})
 
 
-UNSEEN_PATTERN_HALF = 4   # unseen ticks on either side averaged into one tick's pattern
+UNSEEN_PATTERN_HALF = 4   # unseen ticks on either side averaged into one tick's pattern (within 8 ticks)
+UNSEEN_BRACKET_SIGMA = 3.0  # an unseen tick's command: within its bracket +- this many sigma
+TICK_SHIFT_GAIN = 0.5        # _replay_tick_shift: a shift must cut the disagreement by this
+
+
+def _replay_tick_shift(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray], k: np.ndarray,
+                       seen: np.ndarray) -> int:
+    """The closed-loop replay's tick that matches each recorded tick is ``k`` plus this
+    shift (-1, 0 or 1): the one under which the replay's duties bend where the reported ones
+    do (least squares of their departures from the line through the neighbouring reported
+    ticks).  A recording's tick phase a millisecond off its true value can put the replay's
+    staircase and steps a whole tick early or late."""
+    i = np.flatnonzero(seen)
+    if i.size < 5:
+        return 0
+    x = k[i].astype(float)
+
+    def bend(v: np.ndarray) -> np.ndarray:
+        w = (x[1:-1] - x[:-2]) / np.maximum(x[2:] - x[:-2], 1e-9)
+        return v[1:-1] - (v[:-2] + (v[2:] - v[:-2]) * w)
+    n = np.asarray(cl_sim["t_s"]).size
+    best, best_s, err0 = np.inf, 0, np.inf
+    for s in (0, -1, 1):
+        ks = k[i] + s
+        if ks.min() < 0 or ks.max() >= n:
+            continue
+        err = 0.0
+        for col, rec in (("pwm_r", prep.duty[0]), ("pwm_l", prep.duty[1])):
+            if col in cl_sim:
+                d = bend(np.asarray(rec, float)[i]) - bend(np.asarray(cl_sim[col], float)[ks])
+                err += float(np.sum(d ** 2))
+        if s == 0:
+            err0 = err
+        if err < best:
+            best, best_s = err, s
+    # a shift must at least halve the disagreement: a slipping run's duties bend little, and
+    # a near tie is no evidence against the phase
+    return best_s if best < TICK_SHIFT_GAIN * err0 else 0
 
 
 def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray]) -> int:
@@ -504,30 +541,43 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
     if T <= 0 or abs(T - period) > 1e-6 * max(period, 1e-9):
         return 0
     k = np.round((prep.t_in - ts[0]) / T).astype(np.int64)
+    k = k + _replay_tick_shift(prep, cl_sim, k, np.asarray(seen, bool))
     inside = (k >= 0) & (k < ts.size)
     k_seen = k[seen & inside]
     unseen = np.flatnonzero(~seen & inside)
     if k_seen.size < 2 or unseen.size == 0:
         return 0
 
-    def pattern(u: np.ndarray) -> np.ndarray:
+    def pattern(u: np.ndarray) -> tuple[np.ndarray, float]:
         off = u[k[unseen]] - np.interp(k[unseen], k_seen, u[k_seen])
+        # averaged over the unseen ticks within 2 * UNSEEN_PATTERN_HALF ticks (every other
+        # tick unseen: UNSEEN_PATTERN_HALF on either side), never over other, distant gaps
+        ku = k[unseen]
         c = np.concatenate([[0.0], np.cumsum(off)])
-        j = np.arange(unseen.size)
-        lo = np.maximum(0, j - UNSEEN_PATTERN_HALF)
-        hi = np.minimum(unseen.size, j + UNSEEN_PATTERN_HALF + 1)
+        lo = np.searchsorted(ku, ku - 2 * UNSEEN_PATTERN_HALF, side="left")
+        hi = np.searchsorted(ku, ku + 2 * UNSEEN_PATTERN_HALF, side="right")
         smooth = (c[hi] - c[lo]) / (hi - lo)
         # a single tick far off the line (a step: the end of a ramp, a clamp taking hold) is
         # the controller's, not an encoder count's: kept beyond 3 sigma of the tick-level
         # scatter (soft threshold), the scatter itself averaged away
         dev = off - smooth
         sigma = robust_std(dev) if dev.size > 4 else 0.0
-        return smooth + np.sign(dev) * np.maximum(np.abs(dev) - 3.0 * sigma, 0.0)
+        return smooth + np.sign(dev) * np.maximum(np.abs(dev) - 3.0 * sigma, 0.0), sigma
+
+    i_seen = np.flatnonzero(seen)
+    j_next = np.clip(np.searchsorted(i_seen, unseen), 1, i_seen.size - 1)
+    prev_i, next_i = i_seen[j_next - 1], i_seen[j_next]
 
     def refined(v: np.ndarray, col: str) -> np.ndarray:
         out = np.asarray(v, float).copy()
         if col in cl_sim:
-            out[unseen] += pattern(np.asarray(cl_sim[col], float))
+            off, sigma = pattern(np.asarray(cl_sim[col], float))
+            # the replay's step can fall a tick or two off the recording's (its ramp ends on
+            # its own ticks): an unreported command stays within the reported ones that
+            # bracket it, widened by UNSEEN_BRACKET_SIGMA of the tick-level scatter
+            lo = np.minimum(out[prev_i], out[next_i]) - UNSEEN_BRACKET_SIGMA * sigma
+            hi = np.maximum(out[prev_i], out[next_i]) + UNSEEN_BRACKET_SIGMA * sigma
+            out[unseen] = np.clip(out[unseen] + off, lo, hi)
         return out
     prep.duty = (refined(prep.duty[0], "pwm_r"), refined(prep.duty[1], "pwm_l"))
     if prep.t_in_tau.size == prep.t_in.size and np.array_equal(prep.t_in_tau, prep.t_in):
@@ -555,6 +605,14 @@ def prepare_timed(run: Run) -> PreparedRun:
     # how far the ticks may be from where they are put (a loop faster than the telemetry: the
     # cubic through the counts pins the phase to about FAST_PHASE_UNCERTAINTY_S)
     unc = FAST_PHASE_UNCERTAINTY_S if fast else 0.0
+    t0 = experiment_start_s(run)
+    if fast and t0 is not None:
+        # the run says when its experiment, and so its loop, started: the ticks are at
+        # t0 + n * period.  The cubic's curvature is weak where the wheels barely accelerate
+        # (a slow run's phase came out 4.7 ms off, and a current sample taken at a tick was
+        # compared as if settled)
+        phase = float(t0 % period)
+        timing = "ticks from the experiment's start"
     if phase is None and fast:
         # a loop faster than the telemetry whose phase the recording does not pin down: a
         # frame reports the latest tick before it, on average half a period earlier
@@ -1144,11 +1202,22 @@ class Channel:
     sim: np.ndarray
     unit: str
     seg: np.ndarray | None = None   # replay window of each sample (None: one window)
+    unc: np.ndarray | None = None   # the replay's own uncertainty per sample (input_uncertainty)
 
     @property
     def resid(self) -> np.ndarray:
         d = self.rec - self.sim
         return _wrap(d) if self.name in ("phi_rad", "phi_odo_rad") else d
+
+    def deflated(self, floor: float) -> np.ndarray:
+        """The residual in units of the noise floor widened by the replay's uncertainty:
+        ``resid * floor / sqrt(floor^2 + unc^2)`` (the residual itself when ``unc`` is None),
+        so that anything that compares it with ``floor`` compares the residual with the two
+        added in quadrature."""
+        r = self.resid
+        if self.unc is None or floor <= 0:
+            return r
+        return r * (floor / np.sqrt(floor ** 2 + self.unc ** 2))
 
     def spans(self) -> list[float]:
         """Range of the recorded values within each replay window."""
@@ -1163,7 +1232,7 @@ def channels(prep: PreparedRun, sim, mode: str = "duty") -> dict[str, Channel]:
     windows are compared each from its own start and concatenated."""
     n = prep.run.telemetry["t_s"].size
     if not isinstance(sim, WindowSims):
-        return _channels_window(prep, sim, 0, n, None)
+        return _with_uncertainty(prep, _channels_window(prep, sim, 0, n, None))
     parts = [_channels_window(prep, s, *prep.windows[w], w) for w, s in sim]
     out: dict[str, Channel] = {}
     for name in CHANNELS:
@@ -1174,7 +1243,95 @@ def channels(prep: PreparedRun, sim, mode: str = "duty") -> dict[str, Channel]:
                             np.concatenate([c.rec for c in got]),
                             np.concatenate([c.sim for c in got]), got[0].unit,
                             np.concatenate([c.seg for c in got]))
-    return out
+    return _with_uncertainty(prep, out)
+
+
+def _with_uncertainty(prep: PreparedRun, chans: dict[str, Channel]) -> dict[str, Channel]:
+    """Attach the run's replay uncertainty (``extras["replay_unc"]``: channel -> (t, unc), from
+    :func:`input_uncertainty`) to its channels, at their sample times."""
+    unc = prep.extras.get("replay_unc")
+    if unc:
+        for name, ch in chans.items():
+            if name in unc and ch.t.size:
+                ch.unc = np.interp(ch.t, *unc[name])
+    return chans
+
+
+UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from their uncertainty
+
+
+def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
+                      n: int = UNSEEN_ENSEMBLE) -> int:
+    """The replay's uncertainty from the commands no frame reported (a loop faster than the
+    telemetry, lost frames), per channel and sample: the spread of ``n`` replays whose unseen
+    ticks' duties are drawn from what the reported ones allow.
+
+    The fill of an unseen tick (:func:`prepare`, :func:`fill_unseen_from_controller`) assumes
+    that the commands run on a line between the reported ones around the gap.  Where they bend
+    (a step, the end of a ramp, a clamp letting go), the bend may fall anywhere in the gap:
+    the trend of the reported commands before the gap carried forward, or the trend after it
+    carried back, departs from that line by ``dev`` at the unseen tick (half a step for a
+    single unseen tick; growing into a long gap of lost frames), and the unseen command is
+    taken as uniform between the line and that departure, std ``dev / sqrt(3)``, one draw
+    shared by the ticks of a gap.  On a straight stretch ``dev`` vanishes and what remains is
+    the tick-level scatter of the reported commands (robust std of their second differences,
+    / sqrt(1.5): the fill's own error for white scatter), drawn per tick.  The replay turns the
+    draws into the output errors they cause, large
+    where the output is sensitive to the input (a slipping wheel, a step) and small elsewhere.
+    Stored in ``extras["replay_unc"]`` (channel -> (t, std over the draws)) and attached to the
+    channels by :func:`channels`; decisions compare residuals with the noise floor and this
+    uncertainty in quadrature (:meth:`Channel.deflated`).  Draws are seeded by the run's
+    content, so an analysis is repeatable.  Returns the number of unseen ticks (0: no draw)."""
+    seen = prep.extras.get("seen_ticks")
+    if seen is None:
+        return 0
+    seen = np.asarray(seen, bool)
+    i_seen = np.flatnonzero(seen)
+    unseen = np.flatnonzero(~seen)
+    if unseen.size == 0 or i_seen.size < 3 or n < 2:
+        return 0
+    j = np.searchsorted(i_seen, unseen)
+    a, b = np.clip(j - 1, 0, i_seen.size - 1), np.clip(j, 0, i_seen.size - 1)
+    ts, tk = np.asarray(prep.t_in, float)[i_seen], np.asarray(prep.t_in, float)[unseen]
+    # a gap: consecutive unseen ticks; its ticks share one draw of the bend (a ramp that went
+    # on into the gap, or stopped early, does so for all of them)
+    gap = np.concatenate([[0], np.cumsum(np.diff(unseen) > 1)])
+    white, bend = [], []
+    for u in prep.duty:
+        us = np.asarray(u, float)[i_seen]
+        dd = us[1:-1] - 0.5 * (us[:-2] + us[2:])
+        white.append(robust_std(dd) / math.sqrt(1.5) if dd.size > 4 else 0.0)
+        line = np.interp(tk, ts, us)
+        s_a = np.where(a >= 1, (us[a] - us[a - 1]) / np.maximum(ts[a] - ts[a - 1], 1e-9), 0.0)
+        s_b = np.where(b + 1 < us.size, (us[np.minimum(b + 1, us.size - 1)] - us[b])
+                       / np.maximum(ts[np.minimum(b + 1, us.size - 1)] - ts[b], 1e-9), 0.0)
+        fwd = us[a] + s_a * (tk - ts[a])
+        bwd = us[b] - s_b * (ts[b] - tk)
+        dev = np.minimum(np.maximum(np.abs(fwd - line), np.abs(bwd - line)), 1.0)
+        bend.append(dev / math.sqrt(3.0))
+    seed = int(np.uint32(int(np.sum(np.asarray(prep.run.telemetry["t_s"], float) * 1e3)) & 0xFFFFFFFF))
+    rng = np.random.default_rng([seed, unseen.size])
+    base = tuple(np.asarray(u, float) for u in prep.duty)
+    acc: dict[str, list[np.ndarray]] = {}
+    t_of: dict[str, np.ndarray] = {}
+    try:
+        for _ in range(n):
+            draw = []
+            for u, w, bd in zip(base, white, bend):
+                v = u.copy()
+                z = rng.standard_normal(int(gap[-1]) + 1)
+                v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
+                draw.append(np.clip(v, -1.0, 1.0))
+            prep.duty = tuple(draw)
+            for name, ch in channels(prep, replay.simulate_windows(prep, {}), "duty").items():
+                acc.setdefault(name, []).append(ch.resid)
+                t_of[name] = ch.t
+    finally:
+        prep.duty = base
+    prep.extras["replay_unc"] = {name: (t_of[name], np.std(np.array(v), axis=0))
+                                 for name, v in acc.items()
+                                 if len({a.size for a in v}) == 1 and t_of[name].size}
+    return int(unseen.size)
 
 
 def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int, i_b: int,
@@ -1292,8 +1449,10 @@ def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.
     on a null.  The wheels' own motion is tested by the wheel-speed, count and current
     channels; the camera channels are then compared against the replay's pose moved by the
     odometry difference (lib/control's odometry, the nominal geometry) between the replayed
-    and the recorded wheel angles.  What remains in the camera channels is what the counts
-    cannot show: the geometry (wheel radius, track width) and slip."""
+    and the recorded wheel angles, over the frame intervals in which the replay's wheels roll
+    (a slipping wheel's extra turning does not move the body).  What remains in the camera
+    channels is what the counts cannot show: the geometry (wheel radius, track width) and
+    slip."""
     zero = np.zeros(tg.size)
     if not prep.extras.get("count_anchored_pose") or t.size < 2:
         return {"x_m": zero, "y_m": zero, "phi_rad": zero}
@@ -1306,6 +1465,18 @@ def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.
     q_sim = [np.floor((th - th[0]) / k + 1e-9) for th in (th_r, th_l)]
     q_rec = [np.asarray(tel[f"enc_{s}"][i_a:i_b], float) - float(tel[f"enc_{s}"][i_a])
              for s in ("r", "l")]
+    # a replayed wheel that slips turns without moving the body: the replay's extra turning
+    # over a frame interval in which it slips is not carried into the pose
+    slip = ((np.asarray(sim.get("slip_r", np.zeros(g.size))) > 0) |
+            (np.asarray(sim.get("slip_l", np.zeros(g.size))) > 0))
+    if slip.size == g.size and slip.any():
+        cs = np.concatenate([[0], np.cumsum(slip)])
+        idx = np.searchsorted(g, t, side="right")
+        slipped = (cs[idx[1:]] - cs[idx[:-1]]) > 0
+        for j in (0, 1):
+            inc = np.diff(q_sim[j] - q_rec[j])
+            inc[slipped] = 0.0
+            q_sim[j] = q_rec[j] + np.concatenate([[0.0], np.cumsum(inc)])
     xs, ys, ps = _odometry(q_sim[0], q_sim[1], t, r, b, prep.ppr, pose0)
     xr, yr, pr = _odometry(q_rec[0], q_rec[1], t, r, b, prep.ppr, pose0)
     return {"x_m": np.interp(tg, t, xs - xr), "y_m": np.interp(tg, t, ys - yr),

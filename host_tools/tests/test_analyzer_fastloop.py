@@ -98,6 +98,10 @@ def test_count_anchored_pose_only_for_unreported_inputs(tmp_path, arc_run):
     assert not R.prepare_timed(normal).extras["count_anchored_pose"]
     duty = R.OpenLoopReplay("duty")
     R.fill_unseen_from_controller(prep, R.ClosedLoopReplay().simulate(prep, {}))
+    # a fill biased by 0.01 of duty on one wheel (what a wrong guess of the unreported
+    # commands does): the replayed wheels drift, and with them the open-loop pose
+    seen = prep.extras["seen_ticks"]
+    prep.duty = (np.where(seen, prep.duty[0], prep.duty[0] + 0.01), prep.duty[1])
     sim = duty.simulate_windows(prep, {})
     anchored = R.channels(prep, sim, "duty")
     prep.extras["count_anchored_pose"] = False
@@ -105,7 +109,7 @@ def test_count_anchored_pose_only_for_unreported_inputs(tmp_path, arc_run):
     # the wheels' channels are the same; the camera channels lose the replay's wheel drift
     assert np.array_equal(anchored["omega_r"].resid, plain["omega_r"].resid)
     cam = sum(_rms(anchored[c].resid) for c in ("x_m", "y_m"))
-    assert cam < sum(_rms(plain[c].resid) for c in ("x_m", "y_m"))
+    assert sum(_rms(plain[c].resid) for c in ("x_m", "y_m")) > 2 * cam
     assert cam < 2 * 1.5e-3   # the camera's 1 mm noise, per channel, with margin
 
 
@@ -123,3 +127,100 @@ def test_a_geometry_effect_stays_visible_in_the_anchored_pose(tmp_path):
     nom_cam = _rms(nom["x_m"].resid) + _rms(nom["y_m"].resid)
     eff_cam = _rms(eff["x_m"].resid) + _rms(eff["y_m"].resid)
     assert nom_cam > 3e-3 and eff_cam < 0.5 * nom_cam, (nom_cam, eff_cam)
+
+
+def _true_commands(prep, run) -> tuple:
+    """The commands the truth simulator gave at the prepared run's ticks."""
+    dense = _dense_truth(run.meta)
+    idx = np.searchsorted(dense["t_s"], prep.t_in + 1e-9) - 1
+    return dense["pwm_r"][idx], dense["pwm_l"][idx]
+
+
+def _fill_error_and_uncertainty(run, channels=("omega_r", "omega_l")):
+    """Per channel: (sample times, the replay's error from the filled commands against the
+    true ones, the replay uncertainty input_uncertainty gives for it)."""
+    prep = R.prepare_timed(run)
+    R.fill_unseen_from_controller(prep, R.ClosedLoopReplay().simulate(prep, {}))
+    duty = R.OpenLoopReplay("duty")
+    assert R.input_uncertainty(prep, duty) > 0
+    filled = R.channels(prep, duty.simulate_windows(prep, {}), "duty")
+    base = prep.duty
+    prep.duty = _true_commands(prep, run)
+    true = R.channels(prep, duty.simulate_windows(prep, {}), "duty")
+    prep.duty = base
+    return {c: (filled[c].t, filled[c].sim - true[c].sim, filled[c].unc) for c in channels}
+
+
+def test_replay_uncertainty_is_the_size_of_the_fill_error(arc_run):
+    """Every other tick unreported: the ensemble's spread is the size of what the fill gets
+    wrong (RMS within a factor of three either way), neither an order of magnitude below it
+    (independent per-tick errors without the bends were) nor far above it."""
+    for c, (_, err, unc) in _fill_error_and_uncertainty(arc_run).items():
+        ratio = _rms(unc) / _rms(err)
+        assert 1 / 3 < ratio < 3, (c, _rms(err), _rms(unc))
+
+
+def test_replay_uncertainty_grows_in_a_gap_of_lost_frames(arc_run):
+    """Frames lost over the end of the acceleration (0.5 s): the commands bent where no
+    frame saw it, and the replay's error after the gap is covered by its uncertainty."""
+    import copy
+    run = copy.deepcopy(arc_run)
+    t = run.telemetry["t_s"]
+    keep = (t < 0.40) | (t > 0.56)
+    run.telemetry = {k: v[keep] for k, v in run.telemetry.items()}
+    out = _fill_error_and_uncertainty(run)
+    for c, (ts, err, unc) in out.items():
+        after = (ts > 0.56) & (ts < 0.8)
+        calm = ts > 1.2
+        assert _rms(err[after]) > 3 * _rms(err[calm])                # the gap's error is real
+        assert _rms(unc[after]) > 0.5 * _rms(err[after]), (c, _rms(err[after]), _rms(unc[after]))
+        assert _rms(unc[after]) > 3 * _rms(unc[calm])
+
+
+def test_no_replay_uncertainty_when_every_tick_is_reported(tmp_path):
+    run = load_run(truth.simulate_run(tmp_path / "fw", ARC, None, clamp=True, duration_s=1.5,
+                                      seed=33))
+    prep = R.prepare_timed(run)
+    assert R.input_uncertainty(prep, R.OpenLoopReplay("duty")) == 0
+    chans = R.channels(prep, R.OpenLoopReplay("duty").simulate_windows(prep, {}), "duty")
+    assert all(ch.unc is None for ch in chans.values())
+    ch = chans["omega_r"]
+    assert np.array_equal(ch.deflated(0.1), ch.resid)
+    ch.unc = np.full(ch.t.size, 0.1)
+    assert np.allclose(ch.deflated(0.1), ch.resid / np.sqrt(2.0))
+
+
+def test_unreported_commands_stay_within_their_bracket(arc_run):
+    """A closed-loop replay whose step falls on an unreported tick the recording does not
+    show does not push the fill beyond the reported commands around it by more than the
+    tick-level scatter."""
+    prep = R.prepare_timed(arc_run)
+    cl = R.ClosedLoopReplay().simulate(prep, {})
+    seen = prep.extras["seen_ticks"]
+    k = int(np.flatnonzero(~seen & (prep.t_in > 1.0))[0])
+    j = int(np.argmin(np.abs(cl["t_s"] - prep.t_in[k])))
+    cl = dict(cl)
+    cl["pwm_r"] = np.asarray(cl["pwm_r"], float).copy()
+    cl["pwm_r"][j] += 0.1
+    R.fill_unseen_from_controller(prep, cl)
+    lo = min(prep.duty[0][k - 1], prep.duty[0][k + 1])
+    hi = max(prep.duty[0][k - 1], prep.duty[0][k + 1])
+    assert lo - 0.02 <= prep.duty[0][k] <= hi + 0.02, (lo, prep.duty[0][k], hi)
+
+
+def test_a_slipping_replayed_wheel_does_not_move_the_anchored_pose(arc_run):
+    """The count anchoring carries the replay's extra wheel turning into the pose only where
+    the replayed wheel rolls: with the replay slipping throughout, nothing is carried."""
+    prep = R.prepare_timed(arc_run)
+    sims = R.OpenLoopReplay("duty").simulate_windows(prep, {})
+    _, sim = next(iter(sims))
+    n = arc_run.telemetry["t_s"].size
+    t = arc_run.telemetry["t_s"]
+    th_r = np.interp(t, sim["t_s"], sim["theta_r_rad"]) * 1.01   # a replay that over-turns
+    th_l = np.interp(t, sim["t_s"], sim["theta_l_rad"]) * 1.01
+    tg = arc_run.groundtruth["t_s"][arc_run.groundtruth["t_s"] < t[-1]]
+    rolling = R._count_anchor_shift(prep, sim, t, th_r, th_l, 0, n, tg)
+    assert _rms(rolling["x_m"]) > 1e-3
+    slipping = dict(sim, slip_r=np.ones(np.asarray(sim["t_s"]).size))
+    shift = R._count_anchor_shift(prep, slipping, t, th_r, th_l, 0, n, tg)
+    assert all(np.abs(v).max() == 0.0 for v in shift.values())
