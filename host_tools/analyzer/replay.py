@@ -489,7 +489,9 @@ def _replay_tick_shift(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray], k: n
     do (least squares of their departures from the line through the neighbouring reported
     ticks).  A recording's tick phase a millisecond off its true value can put the replay's
     staircase and steps a whole tick early or late."""
-    i = np.flatnonzero(seen)
+    n = np.asarray(cl_sim["t_s"]).size
+    # the reported ticks that every trial shift keeps inside the replay
+    i = np.flatnonzero(seen & (k >= 1) & (k < n - 1))
     if i.size < 5:
         return 0
     x = k[i].astype(float)
@@ -497,12 +499,9 @@ def _replay_tick_shift(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray], k: n
     def bend(v: np.ndarray) -> np.ndarray:
         w = (x[1:-1] - x[:-2]) / np.maximum(x[2:] - x[:-2], 1e-9)
         return v[1:-1] - (v[:-2] + (v[2:] - v[:-2]) * w)
-    n = np.asarray(cl_sim["t_s"]).size
     best, best_s, err0 = np.inf, 0, np.inf
     for s in (0, -1, 1):
         ks = k[i] + s
-        if ks.min() < 0 or ks.max() >= n:
-            continue
         err = 0.0
         for col, rec in (("pwm_r", prep.duty[0]), ("pwm_l", prep.duty[1])):
             if col in cl_sim:

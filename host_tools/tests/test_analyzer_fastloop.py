@@ -224,3 +224,21 @@ def test_a_slipping_replayed_wheel_does_not_move_the_anchored_pose(arc_run):
     slipping = dict(sim, slip_r=np.ones(np.asarray(sim["t_s"]).size))
     shift = R._count_anchor_shift(prep, slipping, t, th_r, th_l, 0, n, tg)
     assert all(np.abs(v).max() == 0.0 for v in shift.values())
+
+
+def test_closed_loop_replay_matched_a_tick_early_or_late(tmp_path):
+    """The closed-loop replay's ticks are matched to the recording's where its duties bend
+    as the reported ones do (the outer loop's staircase, seen where consecutive ticks are
+    reported): a replay moved by one tick is moved back, an aligned one is left alone."""
+    run = load_run(truth.simulate_run(tmp_path / "r", ARC, None, clamp=True, duration_s=2.0,
+                                      seed=34, recorder={"tel_drop": 0.05}))
+    prep = R.prepare_timed(run)
+    cl = R.ClosedLoopReplay().simulate(prep, {})
+    seen = np.asarray(prep.extras["seen_ticks"], bool)
+    k = np.round((prep.t_in - cl["t_s"][0]) / (cl["t_s"][1] - cl["t_s"][0])).astype(np.int64)
+    assert R._replay_tick_shift(prep, cl, k, seen) == 0
+    for lag in (1, -1):
+        moved = dict(cl)
+        for c in ("pwm_r", "pwm_l"):
+            moved[c] = np.roll(np.asarray(cl[c], float), lag)
+        assert R._replay_tick_shift(prep, moved, k, seen) == lag
