@@ -1415,12 +1415,23 @@ def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int,
         if tg.size >= 3:
             an = _gt_anchor(prep, float(t[0])) if anchored else None
             shift = _count_anchor_shift(prep, sim, t, th_r, th_l, i_a, i_b, tg)
+            pos = {c: at(c, tg) - shift[c] for c in ("x_m", "y_m")}
+            if anchored:
+                # re-anchored in pose, not only in position: the replay's increments are
+                # turned by the heading it is off the anchor at the window's first frame (its
+                # early start's transient, a few mrad, would otherwise grow into a cross-track
+                # drift of millimetres per metre)
+                p0 = {c: float(at(c, t[:1])[0]) for c in ("x_m", "y_m")}
+                ref = {c: an[c] if an is not None else float(gt[c][inside][0])
+                       for c in ("x_m", "y_m")}
+                rot = 0.0
+                if an is not None and an.get("phi_rad") is not None:
+                    rot = float(_wrap(np.array([an["phi_rad"] - float(at("phi_rad", t[:1])[0])]))[0])
+                dx, dy = pos["x_m"] - p0["x_m"], pos["y_m"] - p0["y_m"]
+                cr, sr = math.cos(rot), math.sin(rot)
+                pos = {"x_m": cr * dx - sr * dy + ref["x_m"], "y_m": sr * dx + cr * dy + ref["y_m"]}
             for c in ("x_m", "y_m"):
-                sv = at(c, tg) - shift[c]
-                if anchored:
-                    ref = an[c] if an is not None else float(gt[c][inside][0])
-                    sv = sv - float(at(c, t[:1])[0]) + ref
-                out[c] = Channel(c, tg, gt[c][inside], sv, "m", seg(tg.size))
+                out[c] = Channel(c, tg, gt[c][inside], pos[c], "m", seg(tg.size))
             ph = gt["phi_rad"][inside]
             ok = np.isfinite(ph)
             if ok.sum() >= 3:
