@@ -39,8 +39,8 @@ def main(argv=None) -> int:
                         ("score", "summarize the scores of earlier bench runs (no analysis)")):
         p = sub.add_parser(name, help=help_)
         p.add_argument("--set", dest="which", choices=C.SETS, default="tuning",
-                       help="tuning (rules may be settled on it), heldback, heldback2, "
-                            "heldback3 or heldback4 (only scored)")
+                       help="tuning (rules may be settled on it), heldback, heldback2 to "
+                            "heldback5 (only scored)")
         p.add_argument("--fast", action="store_true", help="only the set's fast subset (CI)")
         p.add_argument("--no-long", action="store_true",
                        help="leave out the 10-minute cases (held-back set)")
@@ -78,7 +78,8 @@ def main(argv=None) -> int:
     if getattr(a, "out", "") is None:
         a.out = {"tuning": "out/suite", "heldback": "out/suite-heldback",
                  "heldback2": "out/suite-heldback2", "heldback3": "out/suite-heldback3",
-                 "heldback4": "out/suite-heldback4"}[a.which]
+                 "heldback4": "out/suite-heldback4",
+                 "heldback5": "out/suite-heldback5"}[a.which]
     for c in sel:
         c.seed += getattr(a, "seed_offset", 0)
     if getattr(a, "recorder", None):

@@ -176,6 +176,21 @@ def test_fourth_heldback_set_is_new_in_seeds_and_recorders():
     assert sum(c.expect == "no_mismatch" for c in hb4) == 18
 
 
+def test_fifth_heldback_set_is_new_in_seeds_and_recorders():
+    sets = [cases.all_cases(), cases.heldback_cases(), cases.heldback2_cases(),
+            cases.heldback3_cases(), cases.heldback4_cases()]
+    hb5 = cases.heldback5_cases()
+    assert all(c.set == "heldback5" for c in hb5) and len(hb5) == 25
+    used = {c.seed + off + k for c in sets[0] for off in (0, 1000, 2000) for k in range(4)}
+    used |= {c.seed + k for s in sets[1:] for c in s for k in range(len(c.experiments))}
+    assert not used & {c.seed + k for c in hb5 for k in range(len(c.experiments))}
+    old = [dict(r) for r in (*cases.RECORDERS.values(), *cases.RECORDERS_2.values(),
+                             *cases.RECORDERS_3.values(), *cases.RECORDERS_4.values())]
+    assert all(c.recorder and c.recorder not in old + [{}] for c in hb5)
+    assert sum(c.expect == "no_mismatch" for c in hb5) == 16
+    assert {c.length for c in hb5} == {"short", "20 s", "2 min", "10 min"}
+
+
 def test_heldback_generation_deterministic_and_hidden(tmp_path):
     case = cases.get(["hb_null_std"], which="heldback")[0]
     a = generate.generate_case(case, str(tmp_path / "a"))
