@@ -342,14 +342,34 @@ _HELDBACK2_SIZES = {
 }
 
 
+def _adder(cases: list, recorders: dict, set_name: str):
+    """``add(name, effects, exps, expect, rec, ...)`` appending a case of ``set_name`` recorded
+    with the profile ``rec`` of ``recorders``."""
+    def add(name, effects, exps, expect, rec, conc=(), note="", long=False):
+        cases.append(Case(name, effects, exps, expect, list(conc), note,
+                          recorder=dict(recorders[rec]), recorder_name=rec,
+                          long=long, set=set_name))
+    return add
+
+
+def _per_recorder(add, prefix: str, recorders: dict, nulls: tuple, second: int, short_odd: bool,
+                  extra: tuple, effects: tuple) -> None:
+    """Two null experiment sets per recorder (``nulls[j]`` and ``nulls[j + second]``, as runs
+    of 1.5 s on every other recorder) and one effect per recorder, in order."""
+    for j, rec in enumerate(recorders):
+        for name, exps in (nulls[j % 4], nulls[(j + second) % 4]):
+            short = (j % 2 == 1) if short_odd else (j % 2 == 0)
+            add(f"{prefix}_null_{name}_{rec}", {}, _short(exps, extra) if short else exps,
+                "no_mismatch", rec, note="no effect")
+    for (eff, params), rec in zip(effects, recorders):
+        _, _, exps, conc, note = _SINGLE[eff]
+        add(f"{prefix}_{eff}_{rec}", {eff: params}, exps, "explained", rec, conc, note)
+
+
 def heldback2_cases() -> list[Case]:
     """The second held-back set (blind): only scored, once (docs/suite.md)."""
     cases: list[Case] = []
-
-    def add(name, effects, exps, expect, rec, conc=(), note="", long=False):
-        cases.append(Case(name, effects, exps, expect, list(conc), note,
-                          recorder=dict(RECORDERS_2.get(rec, {})), recorder_name=rec,
-                          long=long, set="heldback2"))
+    add = _adder(cases, RECORDERS_2, "heldback2")
     extra = ({"kind": "line", "accel": 0.9, "cruise": 0.55}, True, 1.5)
     for name, exps, rec in (("null_std", STD, "loop15"), ("null_slip", SLIP, "loop10_jitter"),
                             ("null_slow", _short(SLOW, extra), "pi_loop10"),
@@ -406,24 +426,14 @@ RECORDERS_3 = {
 def heldback3_cases() -> list[Case]:
     """The third held-back set (blind): only scored, once (docs/suite.md)."""
     cases: list[Case] = []
-
-    def add(name, effects, exps, expect, rec, conc=(), note="", long=False):
-        cases.append(Case(name, effects, exps, expect, list(conc), note,
-                          recorder=dict(RECORDERS_3[rec]), recorder_name=rec,
-                          long=long, set="heldback3"))
+    add = _adder(cases, RECORDERS_3, "heldback3")
     extra = ({"kind": "line", "accel": 0.7, "cruise": 0.45}, True, 1.5)
     nulls = (("std", STD), ("slip", SLIP), ("slow", SLOW), ("eight", EIGHT))
-    for j, rec in enumerate(RECORDERS_3):
-        for name, exps in (nulls[j % 4], nulls[(j + 1) % 4]):
-            add(f"hb3_null_{name}_{rec}", {}, exps if j % 2 else _short(exps, extra),
-                "no_mismatch", rec, note="no effect")
     effects = (("motor_back_emf", {"ke_ratio": 1.1}), ("wheel_radius", {"r_eff": 0.0377}),
                ("actuation_delay", {"delay_s": 0.035}), ("axle_coulomb", {"torque": 0.018}),
                ("floor_slope", {"rad": 0.022}), ("friction_coefficient",
                                                  {"mu_s": 0.2, "mu_k": 0.185}))
-    for j, ((eff, params), rec) in enumerate(zip(effects, RECORDERS_3)):
-        _, _, exps, conc, note = _SINGLE[eff]
-        add(f"hb3_{eff}_{rec}", {eff: params}, exps, "explained", rec, conc, note)
+    _per_recorder(add, "hb3", RECORDERS_3, nulls, 1, False, extra, effects)
     add("hb3_oov_eccentric", {"eccentric_wheel": {"eps": 0.045}}, STD, "unexplained", "loop12",
         ["regime"], "rolling radius varies with the wheel angle")
     add("hb3_long_null_2min", {}, LONG_2MIN, "no_mismatch", "loop16_jitter",
@@ -455,25 +465,15 @@ RECORDERS_4 = {
 def heldback4_cases() -> list[Case]:
     """The fourth held-back set (blind): only scored, once (docs/suite.md)."""
     cases: list[Case] = []
-
-    def add(name, effects, exps, expect, rec, conc=(), note="", long=False):
-        cases.append(Case(name, effects, exps, expect, list(conc), note,
-                          recorder=dict(RECORDERS_4[rec]), recorder_name=rec,
-                          long=long, set="heldback4"))
+    add = _adder(cases, RECORDERS_4, "heldback4")
     extra = ({"kind": "line", "accel": 0.85, "cruise": 0.5}, True, 1.5)
     nulls = (("slip", SLIP), ("std", STD), ("eight", EIGHT), ("slow", SLOW))
-    for j, rec in enumerate(RECORDERS_4):
-        for name, exps in (nulls[j % 4], nulls[(j + 2) % 4]):
-            add(f"hb4_null_{name}_{rec}", {}, exps if j % 2 else _short(exps, extra),
-                "no_mismatch", rec, note="no effect")
     effects = (("motor_back_emf", {"ke_ratio": 1.13}), ("wheel_radius", {"r_eff": 0.0383}),
                ("actuation_delay", {"delay_s": 0.045}), ("floor_slope", {"rad": 0.03}),
                ("friction_coefficient", {"mu_s": 0.185, "mu_k": 0.17}),
                ("driver_voltage_drop", {"volts": 0.9}), ("track_width", {"b_eff": 0.115}),
                ("motor_lag", {"tau_s": 0.045}))
-    for j, ((eff, params), rec) in enumerate(zip(effects, RECORDERS_4)):
-        _, _, exps, conc, note = _SINGLE[eff]
-        add(f"hb4_{eff}_{rec}", {eff: params}, exps, "explained", rec, conc, note)
+    _per_recorder(add, "hb4", RECORDERS_4, nulls, 2, False, extra, effects)
     add("hb4_oov_eccentric", {"eccentric_wheel": {"eps": 0.04}}, STD, "unexplained",
         "tel40", ["regime"], "rolling radius varies with the wheel angle")
     add("hb4_oov_friction_patch", {"friction_patch": {"x0": 0.3, "x1": 0.8, "factor": 0.5}},
@@ -506,23 +506,13 @@ RECORDERS_5 = {
 def heldback5_cases() -> list[Case]:
     """The fifth held-back set (blind): only scored, once (docs/suite.md)."""
     cases: list[Case] = []
-
-    def add(name, effects, exps, expect, rec, conc=(), note="", long=False):
-        cases.append(Case(name, effects, exps, expect, list(conc), note,
-                          recorder=dict(RECORDERS_5[rec]), recorder_name=rec,
-                          long=long, set="heldback5"))
+    add = _adder(cases, RECORDERS_5, "heldback5")
     extra = ({"kind": "line", "accel": 0.75, "cruise": 0.55}, True, 1.5)
     nulls = (("eight", EIGHT), ("slip", SLIP), ("slow", SLOW), ("std", STD))
-    for j, rec in enumerate(RECORDERS_5):
-        for name, exps in (nulls[j % 4], nulls[(j + 1) % 4]):
-            add(f"hb5_null_{name}_{rec}", {}, exps if j % 2 == 0 else _short(exps, extra),
-                "no_mismatch", rec, note="no effect")
     effects = (("motor_back_emf", {"ke_ratio": 1.1}), ("wheel_radius", {"r_eff": 0.0378}),
                ("motor_lag", {"tau_s": 0.04}), ("axle_coulomb", {"torque": 0.022}),
                ("floor_slope", {"rad": 0.03}), ("caster_drag", {"mu": 0.08}))
-    for (eff, params), rec in zip(effects, RECORDERS_5):
-        _, _, exps, conc, note = _SINGLE[eff]
-        add(f"hb5_{eff}_{rec}", {eff: params}, exps, "explained", rec, conc, note)
+    _per_recorder(add, "hb5", RECORDERS_5, nulls, 1, True, extra, effects)
     add("hb5_oov_battery_sag", {"battery_sag": {"r_int": 1.4, "v_per_as": 0.7}}, STD,
         "unexplained", "loop13_adc", ["compensation"], "supply falls with current and charge")
     add("hb5_oov_eccentric", {"eccentric_wheel": {"eps": 0.04}}, STD, "unexplained",

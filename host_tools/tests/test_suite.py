@@ -149,46 +149,24 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
         cases.get(which="heldback9")
 
 
-def test_third_heldback_set_is_new_in_seeds_and_recorders():
-    sets = [cases.all_cases(), cases.heldback_cases(), cases.heldback2_cases()]
-    hb3 = cases.heldback3_cases()
-    assert all(c.set == "heldback3" for c in hb3) and len(hb3) == 20
-    used = {c.seed + off + k for c in sets[0] for off in (0, 1000, 2000) for k in range(4)}
-    used |= {c.seed + k for s in sets[1:] for c in s for k in range(len(c.experiments))}
-    assert not used & {c.seed + k for c in hb3 for k in range(len(c.experiments))}
-    old = [dict(r) for r in list(cases.RECORDERS.values()) + list(cases.RECORDERS_2.values())]
-    assert all(c.recorder and c.recorder not in old + [{}] for c in hb3)
-    assert sum(c.expect == "no_mismatch" for c in hb3) == 13
-
-
-def test_fourth_heldback_set_is_new_in_seeds_and_recorders():
-    sets = [cases.all_cases(), cases.heldback_cases(), cases.heldback2_cases(),
-            cases.heldback3_cases()]
-    hb4 = cases.heldback4_cases()
-    assert all(c.set == "heldback4" for c in hb4) and len(hb4) == 28
-    used = {c.seed + off + k for c in sets[0] for off in (0, 1000, 2000) for k in range(4)}
-    used |= {c.seed + k for s in sets[1:] for c in s for k in range(len(c.experiments))}
-    assert not used & {c.seed + k for c in hb4 for k in range(len(c.experiments))}
-    old = [dict(r) for r in (*cases.RECORDERS.values(), *cases.RECORDERS_2.values(),
-                             *cases.RECORDERS_3.values())]
-    assert all(c.recorder and c.recorder not in old + [{}] for c in hb4)
-    assert {c.recorder.get("tel_s", 0.02) for c in hb4} == {0.01, 0.02, 0.025, 0.04}
-    assert sum(c.expect == "no_mismatch" for c in hb4) == 18
-
-
-def test_fifth_heldback_set_is_new_in_seeds_and_recorders():
-    sets = [cases.all_cases(), cases.heldback_cases(), cases.heldback2_cases(),
-            cases.heldback3_cases(), cases.heldback4_cases()]
-    hb5 = cases.heldback5_cases()
-    assert all(c.set == "heldback5" for c in hb5) and len(hb5) == 25
-    used = {c.seed + off + k for c in sets[0] for off in (0, 1000, 2000) for k in range(4)}
-    used |= {c.seed + k for s in sets[1:] for c in s for k in range(len(c.experiments))}
-    assert not used & {c.seed + k for c in hb5 for k in range(len(c.experiments))}
-    old = [dict(r) for r in (*cases.RECORDERS.values(), *cases.RECORDERS_2.values(),
-                             *cases.RECORDERS_3.values(), *cases.RECORDERS_4.values())]
-    assert all(c.recorder and c.recorder not in old + [{}] for c in hb5)
-    assert sum(c.expect == "no_mismatch" for c in hb5) == 16
-    assert {c.length for c in hb5} == {"short", "20 s", "2 min", "10 min"}
+@pytest.mark.parametrize("which, size, n_nulls", [("heldback3", 20, 13), ("heldback4", 28, 18),
+                                                    ("heldback5", 25, 16)])
+def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
+    """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
+    order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5"]
+    earlier = [cases.get(which=w) for w in order[:order.index(which)]]
+    new = cases.get(which=which)
+    assert all(c.set == which for c in new) and len(new) == size
+    used = {c.seed + off + k for c in earlier[0] for off in (0, 1000, 2000) for k in range(4)}
+    used |= {c.seed + k for s in earlier[1:] for c in s for k in range(len(c.experiments))}
+    assert not used & {c.seed + k for c in new for k in range(len(c.experiments))}
+    old = [dict(c.recorder) for s in earlier for c in s]
+    assert all(c.recorder and c.recorder not in old + [{}] for c in new)
+    assert sum(c.expect == "no_mismatch" for c in new) == n_nulls
+    if which == "heldback4":
+        assert {c.recorder.get("tel_s", 0.02) for c in new} == {0.01, 0.02, 0.025, 0.04}
+    if which == "heldback5":
+        assert {c.length for c in new} == {"short", "20 s", "2 min", "10 min"}
 
 
 def test_heldback_generation_deterministic_and_hidden(tmp_path):
