@@ -23,14 +23,8 @@ static void no_wall_sleep(avr_t *avr, avr_cycle_count_t how_long) {
     (void)how_long;
 }
 
-int avrsim_open(avrsim_t *s, const char *elf_path, char *err, size_t err_len) {
+int avrsim_open_blank(avrsim_t *s, char *err, size_t err_len) {
     memset(s, 0, sizeof *s);
-    elf_firmware_t fw;
-    memset(&fw, 0, sizeof fw);
-    if (elf_read_firmware(elf_path, &fw)) {
-        snprintf(err, err_len, "libsimavr cannot load %s", elf_path);
-        return -1;
-    }
     s->avr = avr_make_mcu_by_name(AVRSIM_MCU);
     if (!s->avr) {
         snprintf(err, err_len, "libsimavr has no %s", AVRSIM_MCU);
@@ -39,6 +33,19 @@ int avrsim_open(avrsim_t *s, const char *elf_path, char *err, size_t err_len) {
     avr_init(s->avr);
     s->avr->frequency = AVRSIM_F_CPU_HZ;
     s->avr->log = 0;
+    s->avr->sleep = no_wall_sleep;
+    return 0;
+}
+
+int avrsim_open(avrsim_t *s, const char *elf_path, char *err, size_t err_len) {
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof fw);
+    if (elf_read_firmware(elf_path, &fw)) {
+        memset(s, 0, sizeof *s);
+        snprintf(err, err_len, "libsimavr cannot load %s", elf_path);
+        return -1;
+    }
+    if (avrsim_open_blank(s, err, err_len)) return -1;
     avr_load_firmware(s->avr, &fw);
     s->avr->sleep = no_wall_sleep;
     return 0;

@@ -84,6 +84,9 @@ typedef struct avrsim {
 /* Loads `elf_path` into a new ATmega2560 at AVRSIM_F_CPU_HZ, simavr's logging off. Returns 0,
  * or -1 with a message in err. */
 int avrsim_open(avrsim_t *s, const char *elf_path, char *err, size_t err_len);
+/* A new ATmega2560 at AVRSIM_F_CPU_HZ with erased flash (all 0xFF), for a harness that writes
+ * the flash itself (a bootloader image); simavr's logging off. Returns 0, or -1 with a message. */
+int avrsim_open_blank(avrsim_t *s, char *err, size_t err_len);
 
 /* One instruction (or one sleeping interval up to the next simavr cycle timer) with the
  * corrections above and the ISR accounting. Returns the core state (cpu_Running, ...). */
