@@ -126,6 +126,8 @@ def test_upload_verify_readback_and_the_firmware_runs(tmp_path):
     assert all(flash[a] == b for a, b in image.items())  # the simulated flash itself
     boot = U.hex_bytes(U.board_image().bootloader)
     assert all(flash[a] == b for a, b in boot.items())  # the bootloader is intact
-    print(f"\nupload {n} bytes (written and verified by avrdude): {upload_s:.1f} s wall (pio run -t upload); "
+    phases = dict(re.findall(r"(Writing|Reading) \| #+ \| 100% ([\d.]+)s", out))
+    print(f"\nupload {n} bytes: avrdude writing {phases.get('Writing')} s, verify reading {phases.get('Reading')} s; "
+          f"pio run -t upload {upload_s:.1f} s wall; "
           f"explicit read-back of {len(back)} bytes: {read_s:.1f} s; {len(tel)} telemetry frames; "
           f"firmware_id {firmware_id.describe(fid)}; {end}; test {time.monotonic() - t0:.1f} s")
