@@ -209,6 +209,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"USB serial (UART0): {board.uart0}\nXBee (UART2): {board.uart2}\n"
           f"upload: pio run -e megaatmega2560 -t upload --upload-port {a.uart0_link or board.uart0}\n"
           "Ctrl-C stops.", flush=True)
+    def _stop(*_):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _stop)  # a terminated driver stops the simulator too
     seen = 0
     try:
         while board.proc.poll() is None:
