@@ -162,6 +162,8 @@ class Definition:
         self.enums: dict[str, dict[str, int]] = {k: dict(v["values"]) for k, v in spec["enums"].items()}
         self.flags: dict[str, dict[str, int]] = {k: dict(v["bits"]) for k, v in spec["flags"].items()}
         self.timing: dict = spec["timing"]
+        #: the shield's current sense and the ADC that reads it (volts_per_amp, adc_bits, adc_vref_v)
+        self.current_sense: dict = {k: v for k, v in spec["current_sense"].items() if k != "doc"}
         # the parameters' defaults are the parameter table's (params/params.json)
         self.robot_defaults: dict = {"robot": dict(params.ROBOT), "motor": dict(params.MOTOR),
                                      "encoder_ppr": params.ENCODER_PPR}

@@ -24,7 +24,7 @@ from typing import Mapping
 
 import numpy as np
 
-from host_tools import _build, _cabi, _native, runfmt
+from host_tools import _build, _cabi, _native, protocol, runfmt
 from host_tools.control import INNER_S, ClosedLoop, Controller  # noqa: F401  (re-exported)
 from host_tools.control import REF_KINDS as _REF_KINDS
 
@@ -209,11 +209,12 @@ NOMINAL_META_MOTOR = dict(runfmt.DEFAULT_META["motor"])
 TELEMETRY_SPEC_COLUMNS = ("t_s", "enc_r", "enc_l", "omega_r", "omega_l", "tau_cmd_r", "tau_cmd_l",
                           "pwm_r", "pwm_l", "x_odo_m", "y_odo_m", "phi_odo_rad")
 
-#: the Motor Shield R3's current sense (protocol/protocol.json, Telemetry current_r/current_l):
-#: 1.65 V/A, magnitude only, read by the 10-bit ADC against AVcc = 5 V: A = raw * 5 / 1024 / 1.65.
+#: the Motor Shield R3's current sense (protocol/protocol.json "current_sense", the scale of
+#: Telemetry current_r/current_l): volts_per_amp, magnitude only, read by the adc_bits ADC
+#: against AVcc = adc_vref_v: A = raw * adc_vref_v / 2^adc_bits / volts_per_amp.
 #: meta.json's "current_sense" holds these and the nominal motor's stall current "stall_a" (not
 #: under "motor", whose keys readers hand to the nominal plant, which has no stall current).
-CURRENT_SENSE = {"volts_per_amp": 1.65, "adc_bits": 10, "adc_vref_v": 5.0, "magnitude_only": True}
+CURRENT_SENSE = dict(protocol.definition().current_sense, magnitude_only=True)
 
 #: The recorder: what the robot's board runs and logs. The defaults are this project's firmware
 #: pipeline (lib/control's cascade and odometry, 25/50 ms, 50 Hz telemetry, 30 Hz camera).
@@ -308,8 +309,8 @@ def wrap_heading(phi) -> np.ndarray:
 
 
 def _shield_current(i_a: np.ndarray, rng: np.random.Generator, noise_lsb: float) -> np.ndarray:
-    """What the firmware logs of an armature current: |I| through the shield's 1.65 V/A sense
-    output, read by the 10-bit ADC (AVcc 5 V) with Gaussian noise of ``noise_lsb``."""
+    """What the firmware logs of an armature current: |I| through the shield's sense output,
+    read by the ADC (CURRENT_SENSE) with Gaussian noise of ``noise_lsb``."""
     cs = CURRENT_SENSE
     lsb_v = cs["adc_vref_v"] / 2 ** cs["adc_bits"]
     raw = np.abs(i_a) * cs["volts_per_amp"] / lsb_v + rng.normal(0.0, noise_lsb, i_a.size)
