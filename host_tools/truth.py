@@ -97,6 +97,8 @@ _PARAM_EFFECTS = {("friction_coefficient", "mu_s"): "robot.mu_s",
                   ("friction_coefficient", "mu_k"): "robot.mu_k",
                   ("wheel_radius", "r_eff"): "robot.r",
                   ("track_width", "b_eff"): "robot.b"}
+#: run-format.md's vocabulary effects that lib/slipmodel's plant need not have (the truth has them)
+SPEC_EFFECTS = {"payload": ("mass_kg",)}
 #: effects the truth simulator has that run-format.md's vocabulary does not
 EXTRA_EFFECTS = {"eccentric_wheel": ("eps", "phase_r", "phase_l"),
                  "battery_sag": ("r_int", "v_per_as"),
@@ -165,7 +167,8 @@ class TruthSim:
 
     def set_effect(self, name: str, **params: float) -> None:
         """Switch on a vocabulary effect (run-format.md names) or one of :data:`EXTRA_EFFECTS`."""
-        vocab = _native.effect_vocabulary()
+        vocab = {**{k: dict.fromkeys(v, 0.0) for k, v in SPEC_EFFECTS.items()},
+                 **_native.effect_vocabulary()}
         if name in vocab:
             allowed = set(vocab[name])
         elif name in EXTRA_EFFECTS:
@@ -181,6 +184,19 @@ class TruthSim:
         for p, v in params.items():
             self.set(_PARAM_EFFECTS.get((name, p), f"{name}.{p}"), v)
 
+    def set_plant(self, callback) -> None:
+        """Drive another engine's plant (``tr_set_plant``): ``callback`` is a ctypes function
+        of the signature in ``sim/truth/truth.h`` (e.g.
+        :meth:`host_tools.engines.mujoco_robot.MujocoRobot.plant_callback`), or ``None`` for the
+        truth's own physics. Kept alive by this object."""
+        self._plant_cb = callback
+        ptr = ctypes.cast(callback, ctypes.c_void_p) if callback is not None else None
+        self._lib.tr_set_plant(self._h, ptr, None)
+
+    def plant_state_names(self) -> list[str]:
+        return [self._lib.tr_plant_state_name(i).decode()
+                for i in range(self._lib.tr_plant_state_count())]
+
     def run(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Simulate; returns (telemetry columns incl. hidden ``true_*``, camera true poses)."""
         T = self.get("sim.duration")
@@ -194,7 +210,9 @@ class TruthSim:
         rc = self._lib.tr_run(self._h, n_tel, tel.ctypes.data_as(dp), ctypes.byref(nt), n_cam,
                               cam.ctypes.data_as(dp), ctypes.byref(nc))
         if rc != 0:
-            raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}")
+            cause = getattr(getattr(self, "_plant", None), "error", None)
+            raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}"
+                             + (f": {cause}" if cause else "")) from cause
         tnames = [self._lib.tr_tel_col_name(i).decode() for i in range(tc)]
         cnames = [self._lib.tr_cam_col_name(i).decode() for i in range(cc)]
         nt, nc = nt.value, nc.value
@@ -322,7 +340,8 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
                  cam_noise_m: float | None = None, cam_noise_rad: float | None = None,
                  cam_dropout: float | None = None,
                  experiment: str | None = None, hidden_dir: str | os.PathLike | None = None,
-                 overwrite: bool = False, recorder: Mapping | None = None) -> str:
+                 overwrite: bool = False, recorder: Mapping | None = None,
+                 engine: str = "truth", engine_options: Mapping | None = None) -> str:
     """Simulate one closed-loop run with the truth simulator and write it as a ``ddrun/1`` run
     folder at ``path`` (meta.json with the NOMINAL parameters, telemetry.csv with the spec
     columns and the shield's motor current, groundtruth.csv from a noisy camera with dropouts).
@@ -334,7 +353,15 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
     [{"duration_s", "v", "omega"}, ...]}`` or ``{"kind": "tour"}`` (:func:`tour_reference` for
     ``duration_s`` and ``seed``); ``effects``: ``{name: {param: value}}`` (vocabulary or
     EXTRA_EFFECTS); ``recorder``: options of :data:`RECORDER_DEFAULTS` (the camera arguments
-    override the recorder's camera noise and dropout when given)."""
+    override the recorder's camera noise and dropout when given). ``engine``: the physics the
+    recorder drives, ``"truth"`` (``sim/truth``'s own) or ``"mujoco"``
+    (:class:`host_tools.engines.mujoco_robot.MujocoRobot` with ``effects`` and
+    ``engine_options``, e.g. ``{"inductance_h": 0.002}``); the run folder does not say which."""
+    from host_tools.engines import ENGINES
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
+    if engine_options and engine != "mujoco":
+        raise ValueError("engine options are the mujoco engine's")
     rec = recorder_config(recorder, **{k: v for k, v in (("cam_noise_m", cam_noise_m),
                                                          ("cam_noise_rad", cam_noise_rad),
                                                          ("cam_dropout", cam_dropout))
@@ -381,8 +408,15 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
     sim.set("sim.tel_phase", float(rng.choice([0.002, 0.004, 0.006, 0.008, 0.012])) % rec["tel_s"])
     sim.set("sim.cam_period", 1.0 / rec["cam_hz"])
     sim.set("sim.cam_phase", float(rng.uniform(0.0, 1.0 / rec["cam_hz"])))
-    for name, params in (effects or {}).items():
-        sim.set_effect(name, **dict(params))
+    if engine == "mujoco":
+        from host_tools.engines.mujoco_robot import MujocoRobot  # lazy: needs the mujoco package
+        plant = MujocoRobot(effects, **dict(engine_options or {}))
+        sim.set("sim.dt", plant.dt)
+        sim._plant = plant
+        sim.set_plant(plant.plant_callback())
+    else:
+        for name, params in (effects or {}).items():
+            sim.set_effect(name, **dict(params))
     tel, cam = sim.run()
     # camera: noise and dropouts (independent drops plus one short burst)
     keep = rng.random(cam["t_s"].size) > rec["cam_dropout"]
@@ -539,6 +573,11 @@ def main(argv=None) -> int:
     ap.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...")
     ap.add_argument("--hidden", default=None, help="folder for the true state (csv)")
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--engine", choices=("truth", "mujoco"), default="truth",
+                    help="the physics the recorder drives: the truth simulator's own or the "
+                         "MuJoCo model (host_tools.engines.mujoco_robot; needs the mujoco package)")
+    ap.add_argument("--inductance-mh", type=float, default=0.0,
+                    help="mujoco engine: the motors' armature inductance, mH")
     add_recorder_arguments(ap)
     a = ap.parse_args(argv)
     try:
@@ -555,7 +594,10 @@ def main(argv=None) -> int:
                    "cruise": a.cruise, "radius": a.radius}
         path = simulate_run(a.run_dir, ref, effects, clamp=not a.no_clamp,
                             duration_s=a.duration, seed=a.seed, hidden_dir=a.hidden,
-                            overwrite=a.overwrite, recorder=recorder_from_args(a))
+                            overwrite=a.overwrite, recorder=recorder_from_args(a),
+                            engine=a.engine,
+                            engine_options=({"inductance_h": a.inductance_mh / 1e3}
+                                            if a.engine == "mujoco" else None))
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
