@@ -320,6 +320,43 @@ def tour_reference(duration_s: float, seed: int = 0, accel: float = 0.6,
     return {"kind": "segments", "accel": accel, "alpha": alpha, "segments": segs}
 
 
+def reversal_reference(duration_s: float, seed: int = 0, accel: float = 1.2,
+                       alpha: float = 6.0) -> dict:
+    """A long, hard reference: a seeded sequence of fast cruises forward and backward (up to
+    1.3 m/s, where the duty saturates), direct reversals, stops from speed, arcs and spins
+    that reverse, with ramps at ``accel`` and ``alpha`` (wheel-speed changes of about 30 rad/s
+    within a second), filling ``duration_s`` and ending at rest (a ``segments`` reference)."""
+    rng = np.random.default_rng([seed, 60])
+    segs: list[dict] = []
+    t, v_last, w_last = 0.0, 0.0, 0.0
+    end = max(duration_s - 2.0, 1.0)
+    while t < end:
+        kind = str(rng.choice(["cruise", "reverse", "stop", "arc", "spin"],
+                              p=[0.3, 0.25, 0.15, 0.15, 0.15]))
+        sign = -1.0 if rng.random() < 0.35 else 1.0
+        if kind == "cruise":
+            sg = {"duration_s": rng.uniform(1.0, 3.0), "v": sign * rng.uniform(0.6, 1.3), "omega": 0.0}
+        elif kind == "reverse":  # straight to the opposite speed
+            v = -np.sign(v_last or 1.0) * rng.uniform(0.5, 0.9)
+            sg = {"duration_s": rng.uniform(1.2, 2.5), "v": v, "omega": 0.0}
+        elif kind == "stop":
+            sg = {"duration_s": rng.uniform(0.6, 1.5), "v": 0.0, "omega": 0.0}
+        elif kind == "arc":
+            v = sign * rng.uniform(0.3, 0.8)
+            R = rng.uniform(0.4, 1.2) * (1 if rng.random() < 0.5 else -1)
+            sg = {"duration_s": rng.uniform(1.0, 2.5), "v": v, "omega": v / R}
+        else:  # spin, the other way than the last turn
+            sg = {"duration_s": rng.uniform(0.8, 1.8), "v": 0.0,
+                  "omega": -np.sign(w_last or 1.0) * rng.uniform(2.0, 4.0)}
+        sg = {k: round(float(x), 4) for k, x in sg.items()}
+        sg["duration_s"] = min(sg["duration_s"], round(end - t, 4)) or 0.1
+        segs.append(sg)
+        t += sg["duration_s"]
+        v_last, w_last = sg["v"], sg["omega"] or w_last
+    segs.append({"duration_s": round(max(duration_s - t, 0.1), 4), "v": 0.0, "omega": 0.0})
+    return {"kind": "segments", "accel": accel, "alpha": alpha, "segments": segs}
+
+
 def wrap_heading(phi) -> np.ndarray:
     """Headings wrapped to (-pi, pi]."""
     return math.pi - np.mod(math.pi - np.asarray(phi, dtype=float), 2 * math.pi)
@@ -351,7 +388,8 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
     ``reference``: ``{"kind": "line"|"arc"|"figure_eight", "accel": m/s², "cruise": m/s,
     "radius": m}`` or ``{"kind": "segments", "accel": m/s², "alpha": rad/s², "segments":
     [{"duration_s", "v", "omega"}, ...]}`` or ``{"kind": "tour"}`` (:func:`tour_reference` for
-    ``duration_s`` and ``seed``); ``effects``: ``{name: {param: value}}`` (vocabulary or
+    ``duration_s`` and ``seed``) or ``{"kind": "reversals"}`` (:func:`reversal_reference`);
+    ``effects``: ``{name: {param: value}}`` (vocabulary or
     EXTRA_EFFECTS); ``recorder``: options of :data:`RECORDER_DEFAULTS` (the camera arguments
     override the recorder's camera noise and dropout when given). ``engine``: the physics the
     recorder drives, ``"truth"`` (``sim/truth``'s own) or ``"mujoco"``
@@ -371,9 +409,10 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
     sim = TruthSim()
     reference = dict(reference)
     kind = reference.get("kind", "line")
-    if kind == "tour":
-        reference = tour_reference(duration_s, seed, **{k: reference[k] for k in ("accel", "alpha")
-                                                        if k in reference})
+    if kind in ("tour", "reversals"):
+        make = tour_reference if kind == "tour" else reversal_reference
+        reference = make(duration_s, seed, **{k: reference[k] for k in ("accel", "alpha")
+                                              if k in reference})
         kind = "segments"
     if kind == "segments":
         sim.set("ref.kind", 3)
@@ -559,12 +598,14 @@ def main(argv=None) -> int:
     import sys
     ap = argparse.ArgumentParser(prog="python -m host_tools.truth", description=main.__doc__)
     ap.add_argument("run_dir")
-    ap.add_argument("--ref", default="line", choices=list(_REF_KINDS) + ["tour", "segments"])
+    ap.add_argument("--ref", default="line",
+                    choices=list(_REF_KINDS) + ["tour", "reversals", "segments"])
     ap.add_argument("--accel", type=float, default=None,
-                    help="m/s^2 (default 1.0; 0.6 for tour and segments)")
+                    help="m/s^2 (default 1.0; 0.6 for tour and segments, 1.2 for reversals)")
     ap.add_argument("--cruise", type=float, default=0.6, help="m/s")
     ap.add_argument("--radius", type=float, default=0.5, help="m (arc: > 0 turns left)")
-    ap.add_argument("--alpha", type=float, default=2.0, help="rad/s^2 (tour, segments)")
+    ap.add_argument("--alpha", type=float, default=None,
+                    help="rad/s^2 (tour, segments: default 2; reversals: 6)")
     ap.add_argument("--segments", default=None, metavar="FILE",
                     help="JSON list of {duration_s, v, omega} for --ref segments")
     ap.add_argument("--no-clamp", action="store_true", help="tau_max clamp off")
@@ -582,8 +623,10 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     try:
         effects = dict(_parse_effect(e) for e in a.effect)
-        if a.ref in ("tour", "segments"):
-            ref = {"kind": a.ref, "accel": 0.6 if a.accel is None else a.accel, "alpha": a.alpha}
+        if a.ref in ("tour", "reversals", "segments"):
+            hard = a.ref == "reversals"
+            ref = {"kind": a.ref, "accel": (1.2 if hard else 0.6) if a.accel is None else a.accel,
+                   "alpha": (6.0 if hard else 2.0) if a.alpha is None else a.alpha}
             if a.ref == "segments":
                 if not a.segments:
                     raise ValueError("--ref segments needs --segments FILE")

@@ -79,7 +79,8 @@ def main(argv=None) -> int:
         a.out = {"tuning": "out/suite", "heldback": "out/suite-heldback",
                  "heldback2": "out/suite-heldback2", "heldback3": "out/suite-heldback3",
                  "heldback4": "out/suite-heldback4",
-                 "heldback5": "out/suite-heldback5"}[a.which]
+                 "heldback5": "out/suite-heldback5", "mujoco": "out/suite-mujoco",
+                 "heldback6": "out/suite-heldback6"}[a.which]
     for c in sel:
         c.seed += getattr(a, "seed_offset", 0)
     if getattr(a, "recorder", None):
