@@ -184,13 +184,14 @@ class TruthSim:
         for p, v in params.items():
             self.set(_PARAM_EFFECTS.get((name, p), f"{name}.{p}"), v)
 
-    def set_plant(self, callback) -> None:
-        """Drive another engine's plant (``tr_set_plant``): ``callback`` is a ctypes function
-        of the signature in ``sim/truth/truth.h`` (e.g.
-        :meth:`host_tools.engines.mujoco_robot.MujocoRobot.plant_callback`), or ``None`` for the
-        truth's own physics. Kept alive by this object."""
-        self._plant_cb = callback
-        ptr = ctypes.cast(callback, ctypes.c_void_p) if callback is not None else None
+    def set_plant(self, plant) -> None:
+        """Drive another engine's plant (``tr_set_plant``): ``plant`` has ``plant_callback()``,
+        a ctypes function of the signature in ``sim/truth/truth.h``, and ``error``, the
+        exception that stopped a run (e.g. :class:`host_tools.engines.mujoco_robot.MujocoRobot`);
+        ``None``: the truth's own physics. Both are kept alive by this object."""
+        self._plant = plant
+        self._plant_cb = plant.plant_callback() if plant is not None else None
+        ptr = ctypes.cast(self._plant_cb, ctypes.c_void_p) if plant is not None else None
         self._lib.tr_set_plant(self._h, ptr, None)
 
     def plant_state_names(self) -> list[str]:
@@ -372,40 +373,19 @@ def _shield_current(i_a: np.ndarray, rng: np.random.Generator, noise_lsb: float)
     return raw * lsb_v / cs["volts_per_amp"]
 
 
-def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping | None = None,
-                 clamp: bool = True, duration_s: float = 2.0, seed: int = 0,
-                 cam_noise_m: float | None = None, cam_noise_rad: float | None = None,
-                 cam_dropout: float | None = None,
-                 experiment: str | None = None, hidden_dir: str | os.PathLike | None = None,
-                 overwrite: bool = False, recorder: Mapping | None = None,
-                 engine: str = "truth", engine_options: Mapping | None = None) -> str:
-    """Simulate one closed-loop run with the truth simulator and write it as a ``ddrun/1`` run
-    folder at ``path`` (meta.json with the NOMINAL parameters, telemetry.csv with the spec
-    columns and the shield's motor current, groundtruth.csv from a noisy camera with dropouts).
-    The true state (``true_*`` columns) goes to ``hidden_dir/<run name>.truth.csv`` when
-    ``hidden_dir`` is given — never into the run folder.
-
-    ``reference``: ``{"kind": "line"|"arc"|"figure_eight", "accel": m/s², "cruise": m/s,
-    "radius": m}`` or ``{"kind": "segments", "accel": m/s², "alpha": rad/s², "segments":
-    [{"duration_s", "v", "omega"}, ...]}`` or ``{"kind": "tour"}`` (:func:`tour_reference` for
-    ``duration_s`` and ``seed``) or ``{"kind": "reversals"}`` (:func:`reversal_reference`);
-    ``effects``: ``{name: {param: value}}`` (vocabulary or
-    EXTRA_EFFECTS); ``recorder``: options of :data:`RECORDER_DEFAULTS` (the camera arguments
-    override the recorder's camera noise and dropout when given). ``engine``: the physics the
-    recorder drives, ``"truth"`` (``sim/truth``'s own) or ``"mujoco"``
-    (:class:`host_tools.engines.mujoco_robot.MujocoRobot` with ``effects`` and
-    ``engine_options``, e.g. ``{"inductance_h": 0.002}``); the run folder does not say which."""
+def configure(reference: Mapping, effects: Mapping | None, clamp: bool, duration_s: float,
+              seed: int, rec: Mapping, rng: np.random.Generator, rng_rec: np.random.Generator,
+              engine: str = "truth", engine_options: Mapping | None = None
+              ) -> tuple[TruthSim, dict, str]:
+    """A :class:`TruthSim` set up for one run (reference, recorder ``rec`` of
+    :func:`recorder_config`, clock phases drawn from ``rng`` and ``rng_rec``, effects on the
+    chosen engine's physics): returns (simulator, reference as written to meta.json, kind).
+    :func:`simulate_run` and the engines' validation use it."""
     from host_tools.engines import ENGINES
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
     if engine_options and engine != "mujoco":
         raise ValueError("engine options are the mujoco engine's")
-    rec = recorder_config(recorder, **{k: v for k, v in (("cam_noise_m", cam_noise_m),
-                                                         ("cam_noise_rad", cam_noise_rad),
-                                                         ("cam_dropout", cam_dropout))
-                                       if v is not None})
-    rng = np.random.default_rng(seed)
-    rng_rec = np.random.default_rng([seed, 16])  # the recorder's variants draw from their own stream
     sim = TruthSim()
     reference = dict(reference)
     kind = reference.get("kind", "line")
@@ -451,11 +431,46 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
         from host_tools.engines.mujoco_robot import MujocoRobot  # lazy: needs the mujoco package
         plant = MujocoRobot(effects, **dict(engine_options or {}))
         sim.set("sim.dt", plant.dt)
-        sim._plant = plant
-        sim.set_plant(plant.plant_callback())
+        sim.set_plant(plant)
     else:
         for name, params in (effects or {}).items():
             sim.set_effect(name, **dict(params))
+    return sim, reference, kind
+
+
+def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping | None = None,
+                 clamp: bool = True, duration_s: float = 2.0, seed: int = 0,
+                 cam_noise_m: float | None = None, cam_noise_rad: float | None = None,
+                 cam_dropout: float | None = None,
+                 experiment: str | None = None, hidden_dir: str | os.PathLike | None = None,
+                 overwrite: bool = False, recorder: Mapping | None = None,
+                 engine: str = "truth", engine_options: Mapping | None = None) -> str:
+    """Simulate one closed-loop run with the truth simulator and write it as a ``ddrun/1`` run
+    folder at ``path`` (meta.json with the NOMINAL parameters, telemetry.csv with the spec
+    columns and the shield's motor current, groundtruth.csv from a noisy camera with dropouts).
+    The true state (``true_*`` columns) goes to ``hidden_dir/<run name>.truth.csv`` when
+    ``hidden_dir`` is given — never into the run folder.
+
+    ``reference``: ``{"kind": "line"|"arc"|"figure_eight", "accel": m/s², "cruise": m/s,
+    "radius": m}`` or ``{"kind": "segments", "accel": m/s², "alpha": rad/s², "segments":
+    [{"duration_s", "v", "omega"}, ...]}`` or ``{"kind": "tour"}`` (:func:`tour_reference` for
+    ``duration_s`` and ``seed``) or ``{"kind": "reversals"}`` (:func:`reversal_reference`);
+    ``effects``: ``{name: {param: value}}`` (vocabulary or
+    EXTRA_EFFECTS); ``recorder``: options of :data:`RECORDER_DEFAULTS` (the camera arguments
+    override the recorder's camera noise and dropout when given). ``engine``: the physics the
+    recorder drives, ``"truth"`` (``sim/truth``'s own) or ``"mujoco"``
+    (:class:`host_tools.engines.mujoco_robot.MujocoRobot` with ``effects`` and
+    ``engine_options``, e.g. ``{"inductance_h": 0.002}``); the run folder does not say which."""
+    rec = recorder_config(recorder, **{k: v for k, v in (("cam_noise_m", cam_noise_m),
+                                                         ("cam_noise_rad", cam_noise_rad),
+                                                         ("cam_dropout", cam_dropout))
+                                       if v is not None})
+    rng = np.random.default_rng(seed)
+    rng_rec = np.random.default_rng([seed, 16])  # the recorder's variants draw from their own stream
+    sim, reference, kind = configure(reference, effects, clamp, duration_s, seed, rec, rng,
+                                     rng_rec, engine, engine_options)
+    pi = rec["controller"] == "pi"
+    inner = rec["inner_s"]
     tel, cam = sim.run()
     # camera: noise and dropouts (independent drops plus one short burst)
     keep = rng.random(cam["t_s"].size) > rec["cam_dropout"]

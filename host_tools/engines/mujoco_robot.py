@@ -61,7 +61,7 @@ from host_tools import params as _params
 #: impedance, elliptic cones with a high ratio of frictional to normal impedance (little creep)
 CONTACT = {"solref": (0.004, 1.0), "solimp": (0.95, 0.99, 0.001), "impratio": 10.0}
 #: the engine's step (s); the recorder's step is the same, so every period must be a multiple
-DT_S = 5e-4
+DT_S = 2e-4
 #: slip speed of a wheel's contact point above which it is sliding (mu_k), m/s
 SLIP_ON_M_S = 2e-3
 #: slip speed below which a sliding contact sticks again (mu_s), m/s
@@ -112,10 +112,12 @@ def check_effects(effects: Mapping | None) -> dict[str, dict[str, float]]:
 class MujocoRobot:
     """The robot in MuJoCo with the given effects (``{name: {param: value}}``), stepped by the
     recorder. ``inductance_h``: the motors' armature inductance (0: the current follows the
-    voltage at once). ``dt_s``: the engine's step."""
+    voltage at once). ``dt_s``: the engine's step. ``lumped``: the thesis's mass distribution
+    instead of the physical one (both wheels' mass at c and ``2 m_w b^2`` added to the chassis's
+    yaw inertia, as lib/slipmodel and the truth simulator have it), for the validation."""
 
     def __init__(self, effects: Mapping | None = None, inductance_h: float = 0.0,
-                 dt_s: float = DT_S):
+                 dt_s: float = DT_S, lumped: bool = False):
         import mujoco  # lazy: only this engine needs it
         self._mj = mujoco
         self.effects = check_effects(effects)
@@ -124,6 +126,7 @@ class MujocoRobot:
         if not 1e-5 <= dt_s <= 2e-3:
             raise ValueError(f"dt_s = {dt_s:g} s is outside [1e-5, 2e-3]")
         self.dt = float(dt_s)
+        self.lumped = bool(lumped)
         robot, motor = _table()
         eff = self.effects
 
@@ -192,11 +195,14 @@ class MujocoRobot:
       <body name="wheel_{name}" pos="0 {side * b:.9g} 0">
         <joint name="axle_{name}" type="hinge" axis="0 1 0" armature="{armature:.9g}"
                damping="{self.c_visc:.9g}" frictionloss="{self.t_coul:.9g}"/>
-        <inertial pos="0 0 0" mass="{R['m_w']:.9g}" diaginertia="{iw:.9g} {i_axle:.9g} {iw:.9g}"/>
+        <inertial pos="0 0 0" mass="{m_w:.9g}" diaginertia="{iw:.9g} {i_axle:.9g} {iw:.9g}"/>
         <geom name="wheel_{name}" type="sphere" size="{r:.9g}" pos="{off}" contype="2"
               conaffinity="1" condim="3" friction="{self.mu_s:.9g} 0 0"/>
       </body>"""
         m_c = R["m_r"] + self.payload
+        m_w, I_cz = R["m_w"], I_rz
+        if self.lumped:  # the wheels' mass at c (lib/slipmodel's m_t and I_t)
+            m_c, I_cz, m_w = m_c + 2 * R["m_w"], I_rz + 2 * R["m_w"] * b * b, 1e-6
         return f"""<mujoco model="ddrobot">
   <option timestep="{self.dt:.9g}" gravity="{gx:.9g} 0 {gz:.9g}" cone="elliptic"
           impratio="{CONTACT['impratio']:.9g}" integrator="implicitfast"/>
@@ -206,7 +212,7 @@ class MujocoRobot:
     <body name="chassis" pos="0 0 {r:.9g}">
       <freejoint name="base"/>
       <inertial pos="{d:.9g} 0 {h - r:.9g}" mass="{m_c:.9g}"
-                diaginertia="{0.55 * I_rz:.9g} {0.55 * I_rz:.9g} {I_rz:.9g}"/>
+                diaginertia="{0.55 * I_cz:.9g} {0.55 * I_cz:.9g} {I_cz:.9g}"/>
       <geom name="caster" type="sphere" size="{rc:.9g}" pos="{d + e:.9g} 0 {rc - r:.9g}"
             contype="2" conaffinity="1" {caster}/>{wheel("r", -1, self.ecc_phase[0])}{wheel("l", 1, self.ecc_phase[1])}
     </body>
