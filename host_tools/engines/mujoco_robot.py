@@ -55,6 +55,8 @@ import math
 from collections import deque
 from typing import Mapping
 
+import numpy as np
+
 from host_tools import params as _params
 
 #: MuJoCo's contact settings: soft normal contact (time constant, damping ratio), its
@@ -255,6 +257,9 @@ class MujocoRobot:
         self._duties: deque = deque()
         self._u = (0.0, 0.0)
         self.tau = [0.0, 0.0]
+        self._res_buf = np.zeros(6)
+        self._nf_count, self._nf = FORCES_EVERY, (0.0, 0.0, 0.0)
+        self._cache()
 
     def _mu(self, i: int, x_contact: float) -> float:
         if not self.sliding[i]:
@@ -282,51 +287,58 @@ class MujocoRobot:
             self._u = q[0][1:]
         return self._u
 
+    def _cache(self) -> None:
+        """Constants and array views of the step (the step runs from Python every 0.2 ms)."""
+        mj, m, dd = self._mj, self.model, self.data
+        self._c = {"kt": self.stall / self.stall_a, "ke": self.ke_ratio * self.V0 / self.w0,
+                   "gain": (math.sqrt(self.asym), 1.0 / math.sqrt(self.asym)),
+                   "a_e": 1.0 - math.exp(-self.dt / self.tau_e) if self.tau_e > 0 else 1.0,
+                   "a_l": 1.0 - math.exp(-self.dt / self.lag) if self.lag > 0 else 1.0,
+                   "geom": mj.mjtObj.mjOBJ_GEOM}
+        self._qpos, self._qvel, self._ctrl = dd.qpos, dd.qvel, dd.ctrl
+        self._gf, self._xpos = m.geom_friction, dd.xpos
+        self._mu_set = [None, None]
+
     def step(self, t: float, u_r: float, u_l: float) -> None:
         """Advance one step (``dt``) with the duties ``u_r``, ``u_l`` applied by the board at
         ``t``."""
-        mj, m, dd = self._mj, self.model, self.data
+        mj, m, dd, c = self._mj, self.model, self.data, self._c
         ur, ul = self._applied_duty(t, u_r, u_l)
         # ---- drive: battery, driver drop, deadband -> armature current -> lags -> torque
-        V0 = self.V0
+        V0, ia, qvel = self.V0, self.stall_a, self._qvel
         v_avail = max(0.0, self.v_batt - self.v_drop)
-        kt = self.stall / self.stall_a
-        ke = self.ke_ratio * V0 / self.w0
-        sq = math.sqrt(self.asym)
-        for i, (u, w) in enumerate(((ur, dd.qvel[6]), (ul, dd.qvel[7]))):
+        i1, i2, tau = self.i1, self.i2, self.tau
+        for i, u in ((0, ur), (1, ul)):
             V = u * v_avail
-            V = math.copysign(max(abs(V) - self.v_dead, 0.0), V)
-            i_ss = max(-self.stall_a, min(self.stall_a, self.stall_a * (V - ke * w) / V0))
-            if self.tau_e > 0.0:
-                self.i1[i] += (1.0 - math.exp(-self.dt / self.tau_e)) * (i_ss - self.i1[i])
-            else:
-                self.i1[i] = i_ss
-            if self.lag > 0.0:
-                self.i2[i] += (1.0 - math.exp(-self.dt / self.lag)) * (self.i1[i] - self.i2[i])
-            else:
-                self.i2[i] = self.i1[i]
-            self.tau[i] = kt * self.i2[i] * (sq if i == 0 else 1.0 / sq)
-        dd.ctrl[0], dd.ctrl[1] = self.tau
-        i_draw = abs(self.i2[0]) + abs(self.i2[1])
-        self.charge_as += i_draw * self.dt
-        self.v_batt = V0 - self.r_int * i_draw - self.v_per_as * self.charge_as
+            if self.v_dead > 0.0:
+                V = math.copysign(max(abs(V) - self.v_dead, 0.0), V)
+            i_ss = ia * (V - c["ke"] * float(qvel[6 + i])) / V0
+            i_ss = -ia if i_ss < -ia else ia if i_ss > ia else i_ss
+            i1[i] += c["a_e"] * (i_ss - i1[i])     # inductance (a_e = 1 without)
+            i2[i] += c["a_l"] * (i1[i] - i2[i])    # motor lag (a_l = 1 without)
+            tau[i] = c["kt"] * i2[i] * c["gain"][i]
+        ctrl = self._ctrl
+        ctrl[0] = tau[0]
+        ctrl[1] = tau[1]
+        if self.r_int > 0.0 or self.v_per_as > 0.0:
+            i_draw = abs(i2[0]) + abs(i2[1])
+            self.charge_as += i_draw * self.dt
+            self.v_batt = V0 - self.r_int * i_draw - self.v_per_as * self.charge_as
         # ---- friction by slip state
-        for i, gid in enumerate(self._gid):
-            m.geom_friction[gid, 0] = self._mu(i, dd.xpos[self._bid[i], 0])
+        for i in (0, 1):
+            mu = self._mu(i, float(self._xpos[self._bid[i], 0]))
+            if mu != self._mu_set[i]:
+                self._gf[self._gid[i], 0] = mu
+                self._mu_set[i] = mu
         mj.mj_step(m, dd)
         # ---- slip state of each wheel's contact point (under the sphere's centre)
-        res = self._res
-        for i, bid in enumerate(self._bid):
-            mj.mj_objectVelocity(m, dd, mj.mjtObj.mjOBJ_GEOM, self._gid[i], res, 0)
-            sx = res[3] - self.r * res[1]
-            sy = res[4] + self.r * res[0]
-            s = math.hypot(sx, sy)
+        res, r = self._res_buf, self.r
+        for i in (0, 1):
+            mj.mj_objectVelocity(m, dd, c["geom"], self._gid[i], res, 0)
+            s = math.hypot(res[3] - r * res[1], res[4] + r * res[0])
             self.slip_speed[i] = s
-            if self.sliding[i]:
-                self.sliding[i] = s > SLIP_OFF_M_S
-            else:
-                self.sliding[i] = s > SLIP_ON_M_S
-        w, x, y, z = dd.qpos[3:7]
+            self.sliding[i] = s > (SLIP_OFF_M_S if self.sliding[i] else SLIP_ON_M_S)
+        w, x, y, z = self._qpos[3:7].tolist()
         yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
         dy = yaw - self._yaw_last
         self.phi += dy - 2 * math.pi * round(dy / (2 * math.pi))
@@ -340,27 +352,25 @@ class MujocoRobot:
         proto = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_double, ctypes.c_double,
                                  ctypes.c_double, ctypes.c_double, ctypes.POINTER(ctypes.c_double))
         self.error = None
+        views: dict = {}
+        n_state = len(self.state())
+        self._nf_count = FORCES_EVERY
 
         def step(_user, t, dt, u_r, u_l, out):
             try:
                 if abs(dt - self.dt) > 1e-12:
                     raise ValueError(f"the recorder steps {dt:g} s, the engine {self.dt:g} s")
                 self.step(t, u_r, u_l)
-                for i, v in enumerate(self.state()):
-                    out[i] = v
+                addr = ctypes.cast(out, ctypes.c_void_p).value
+                view = views.get(addr)
+                if view is None:  # the recorder's buffer: one address for a whole run
+                    view = views[addr] = np.ctypeslib.as_array(out, shape=(n_state,))
+                view[:] = self.state()
                 return 0
             except Exception as exc:  # noqa: BLE001 - handed back to the caller of tr_run
                 self.error = exc
                 return 1
         return proto(step)
-
-    @property
-    def _res(self):
-        import numpy as np
-        r = getattr(self, "_res_buf", None)
-        if r is None:
-            r = self._res_buf = np.zeros(6)
-        return r
 
     def normal_forces(self) -> tuple[float, float, float]:
         """Normal contact forces of the right wheel, left wheel and caster (N)."""
@@ -380,11 +390,13 @@ class MujocoRobot:
         """``sim/truth``'s plant state (``tr_plant_state_name``): pose of o, wheel angles and
         speeds, slip flags, delivered torques, normal forces (evaluated every
         :data:`FORCES_EVERY` steps), battery, currents."""
-        dd = self.data
-        self._nf_count = getattr(self, "_nf_count", 0) + 1
-        if self._nf_count >= FORCES_EVERY or not hasattr(self, "_nf"):
+        self._nf_count += 1
+        if self._nf_count >= FORCES_EVERY:
             self._nf, self._nf_count = self.normal_forces(), 0
         n = self._nf
-        return [dd.qpos[0], dd.qpos[1], self.phi, dd.qpos[7], dd.qpos[8], dd.qvel[6], dd.qvel[7],
+        x, y = self._qpos[0:2].tolist()
+        th_r, th_l = self._qpos[7:9].tolist()
+        w_r, w_l = self._qvel[6:8].tolist()
+        return [x, y, self.phi, th_r, th_l, w_r, w_l,
                 1.0 if self.sliding[0] else 0.0, 1.0 if self.sliding[1] else 0.0,
                 self.tau[0], self.tau[1], n[0], n[1], n[2], self.v_batt, self.i2[0], self.i2[1]]
