@@ -65,9 +65,9 @@ CONTACT = {"solref": (0.004, 1.0), "solimp": (0.95, 0.99, 0.001), "impratio": 10
 #: the engine's step (s); the recorder's step is the same, so every period must be a multiple
 DT_S = 2e-4
 #: slip speed of a wheel's contact point above which it is sliding (mu_k), m/s
-SLIP_ON_M_S = 2e-3
+SLIP_ON_M_S = 5e-3
 #: slip speed below which a sliding contact sticks again (mu_s), m/s
-SLIP_OFF_M_S = 1e-3
+SLIP_OFF_M_S = 2e-3
 #: steps between two evaluations of the normal contact forces (hidden columns only)
 FORCES_EVERY = 8
 #: settling time before t = 0 (the soft contacts take their load at rest), s
