@@ -234,3 +234,18 @@ def test_bench_stops_an_analyzer_past_its_time_limit(tmp_path):
     assert perf["peak_rss_mb"] > 10  # the python process was seen
     r = bench.score_case(case.label(), rc, report)
     assert r["verdict"] == "timeout" and not r["ok"]
+
+
+def test_engine_option_records_cases_on_mujoco(tmp_path):
+    """``--engine mujoco`` records a tuning case on the MuJoCo model: the label says so, the
+    runs do not."""
+    pytest.importorskip("mujoco")
+    from host_tools.suite.__main__ import main
+    assert main(["generate", "--cases", "null_std", "--engine", "mujoco", "--out",
+                 str(tmp_path)]) == 0
+    lab = json.load(open(tmp_path / "labels" / "null_std.json"))
+    assert lab["engine"] == "mujoco" and lab["set"] == "tuning"
+    meta = open(tmp_path / "runs" / "null_std" / "run-0" / "meta.json").read()
+    assert "mujoco" not in meta.lower()
+    with pytest.raises(SystemExit):
+        main(["generate", "--cases", "null_std", "--engine", "bullet", "--out", str(tmp_path)])
