@@ -97,6 +97,8 @@ _PARAM_EFFECTS = {("friction_coefficient", "mu_s"): "robot.mu_s",
                   ("friction_coefficient", "mu_k"): "robot.mu_k",
                   ("wheel_radius", "r_eff"): "robot.r",
                   ("track_width", "b_eff"): "robot.b"}
+#: run-format.md's vocabulary effects that lib/slipmodel's plant need not have (the truth has them)
+SPEC_EFFECTS = {"payload": ("mass_kg",)}
 #: effects the truth simulator has that run-format.md's vocabulary does not
 EXTRA_EFFECTS = {"eccentric_wheel": ("eps", "phase_r", "phase_l"),
                  "battery_sag": ("r_int", "v_per_as"),
@@ -165,7 +167,8 @@ class TruthSim:
 
     def set_effect(self, name: str, **params: float) -> None:
         """Switch on a vocabulary effect (run-format.md names) or one of :data:`EXTRA_EFFECTS`."""
-        vocab = _native.effect_vocabulary()
+        vocab = {**{k: dict.fromkeys(v, 0.0) for k, v in SPEC_EFFECTS.items()},
+                 **_native.effect_vocabulary()}
         if name in vocab:
             allowed = set(vocab[name])
         elif name in EXTRA_EFFECTS:
@@ -181,6 +184,20 @@ class TruthSim:
         for p, v in params.items():
             self.set(_PARAM_EFFECTS.get((name, p), f"{name}.{p}"), v)
 
+    def set_plant(self, plant) -> None:
+        """Drive another engine's plant (``tr_set_plant``): ``plant`` has ``plant_callback()``,
+        a ctypes function of the signature in ``sim/truth/truth.h``, and ``error``, the
+        exception that stopped a run (e.g. :class:`host_tools.engines.mujoco_robot.MujocoRobot`);
+        ``None``: the truth's own physics. Both are kept alive by this object."""
+        self._plant = plant
+        self._plant_cb = plant.plant_callback() if plant is not None else None
+        ptr = ctypes.cast(self._plant_cb, ctypes.c_void_p) if plant is not None else None
+        self._lib.tr_set_plant(self._h, ptr, None)
+
+    def plant_state_names(self) -> list[str]:
+        return [self._lib.tr_plant_state_name(i).decode()
+                for i in range(self._lib.tr_plant_state_count())]
+
     def run(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Simulate; returns (telemetry columns incl. hidden ``true_*``, camera true poses)."""
         T = self.get("sim.duration")
@@ -194,7 +211,9 @@ class TruthSim:
         rc = self._lib.tr_run(self._h, n_tel, tel.ctypes.data_as(dp), ctypes.byref(nt), n_cam,
                               cam.ctypes.data_as(dp), ctypes.byref(nc))
         if rc != 0:
-            raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}")
+            cause = getattr(getattr(self, "_plant", None), "error", None)
+            raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}"
+                             + (f": {cause}" if cause else "")) from cause
         tnames = [self._lib.tr_tel_col_name(i).decode() for i in range(tc)]
         cnames = [self._lib.tr_cam_col_name(i).decode() for i in range(cc)]
         nt, nc = nt.value, nc.value
@@ -303,6 +322,43 @@ def tour_reference(duration_s: float, seed: int = 0, accel: float = 0.6,
     return {"kind": "segments", "accel": accel, "alpha": alpha, "segments": segs}
 
 
+def reversal_reference(duration_s: float, seed: int = 0, accel: float = 1.2,
+                       alpha: float = 6.0) -> dict:
+    """A long, hard reference: a seeded sequence of fast cruises forward and backward (up to
+    1.3 m/s, where the duty saturates), direct reversals, stops from speed, arcs and spins
+    that reverse, with ramps at ``accel`` and ``alpha`` (wheel-speed changes of about 30 rad/s
+    within a second), filling ``duration_s`` and ending at rest (a ``segments`` reference)."""
+    rng = np.random.default_rng([seed, 60])
+    segs: list[dict] = []
+    t, v_last, w_last = 0.0, 0.0, 0.0
+    end = max(duration_s - 2.0, 1.0)
+    while t < end:
+        kind = str(rng.choice(["cruise", "reverse", "stop", "arc", "spin"],
+                              p=[0.3, 0.25, 0.15, 0.15, 0.15]))
+        sign = -1.0 if rng.random() < 0.35 else 1.0
+        if kind == "cruise":
+            sg = {"duration_s": rng.uniform(1.0, 3.0), "v": sign * rng.uniform(0.6, 1.3), "omega": 0.0}
+        elif kind == "reverse":  # straight to the opposite speed
+            v = -np.sign(v_last or 1.0) * rng.uniform(0.5, 0.9)
+            sg = {"duration_s": rng.uniform(1.2, 2.5), "v": v, "omega": 0.0}
+        elif kind == "stop":
+            sg = {"duration_s": rng.uniform(0.6, 1.5), "v": 0.0, "omega": 0.0}
+        elif kind == "arc":
+            v = sign * rng.uniform(0.3, 0.8)
+            R = rng.uniform(0.4, 1.2) * (1 if rng.random() < 0.5 else -1)
+            sg = {"duration_s": rng.uniform(1.0, 2.5), "v": v, "omega": v / R}
+        else:  # spin, the other way than the last turn
+            sg = {"duration_s": rng.uniform(0.8, 1.8), "v": 0.0,
+                  "omega": -np.sign(w_last or 1.0) * rng.uniform(2.0, 4.0)}
+        sg = {k: round(float(x), 4) for k, x in sg.items()}
+        sg["duration_s"] = min(sg["duration_s"], round(end - t, 4)) or 0.1
+        segs.append(sg)
+        t += sg["duration_s"]
+        v_last, w_last = sg["v"], sg["omega"] or w_last
+    segs.append({"duration_s": round(max(duration_s - t, 0.1), 4), "v": 0.0, "omega": 0.0})
+    return {"kind": "segments", "accel": accel, "alpha": alpha, "segments": segs}
+
+
 def wrap_heading(phi) -> np.ndarray:
     """Headings wrapped to (-pi, pi]."""
     return math.pi - np.mod(math.pi - np.asarray(phi, dtype=float), 2 * math.pi)
@@ -318,36 +374,26 @@ def _shield_current(i_a: np.ndarray, rng: np.random.Generator, noise_lsb: float)
     return raw * lsb_v / cs["volts_per_amp"]
 
 
-def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping | None = None,
-                 clamp: bool = True, duration_s: float = 2.0, seed: int = 0,
-                 cam_noise_m: float | None = None, cam_noise_rad: float | None = None,
-                 cam_dropout: float | None = None,
-                 experiment: str | None = None, hidden_dir: str | os.PathLike | None = None,
-                 overwrite: bool = False, recorder: Mapping | None = None) -> str:
-    """Simulate one closed-loop run with the truth simulator and write it as a ``ddrun/1`` run
-    folder at ``path`` (meta.json with the NOMINAL parameters, telemetry.csv with the spec
-    columns and the shield's motor current, groundtruth.csv from a noisy camera with dropouts).
-    The true state (``true_*`` columns) goes to ``hidden_dir/<run name>.truth.csv`` when
-    ``hidden_dir`` is given — never into the run folder.
-
-    ``reference``: ``{"kind": "line"|"arc"|"figure_eight", "accel": m/s², "cruise": m/s,
-    "radius": m}`` or ``{"kind": "segments", "accel": m/s², "alpha": rad/s², "segments":
-    [{"duration_s", "v", "omega"}, ...]}`` or ``{"kind": "tour"}`` (:func:`tour_reference` for
-    ``duration_s`` and ``seed``); ``effects``: ``{name: {param: value}}`` (vocabulary or
-    EXTRA_EFFECTS); ``recorder``: options of :data:`RECORDER_DEFAULTS` (the camera arguments
-    override the recorder's camera noise and dropout when given)."""
-    rec = recorder_config(recorder, **{k: v for k, v in (("cam_noise_m", cam_noise_m),
-                                                         ("cam_noise_rad", cam_noise_rad),
-                                                         ("cam_dropout", cam_dropout))
-                                       if v is not None})
-    rng = np.random.default_rng(seed)
-    rng_rec = np.random.default_rng([seed, 16])  # the recorder's variants draw from their own stream
+def configure(reference: Mapping, effects: Mapping | None, clamp: bool, duration_s: float,
+              seed: int, rec: Mapping, rng: np.random.Generator, rng_rec: np.random.Generator,
+              engine: str = "truth", engine_options: Mapping | None = None
+              ) -> tuple[TruthSim, dict, str]:
+    """A :class:`TruthSim` set up for one run (reference, recorder ``rec`` of
+    :func:`recorder_config`, clock phases drawn from ``rng`` and ``rng_rec``, effects on the
+    chosen engine's physics): returns (simulator, reference as written to meta.json, kind).
+    :func:`simulate_run` and the engines' validation use it."""
+    from host_tools.engines import ENGINES
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
+    if engine_options and engine != "mujoco":
+        raise ValueError("engine options are the mujoco engine's")
     sim = TruthSim()
     reference = dict(reference)
     kind = reference.get("kind", "line")
-    if kind == "tour":
-        reference = tour_reference(duration_s, seed, **{k: reference[k] for k in ("accel", "alpha")
-                                                        if k in reference})
+    if kind in ("tour", "reversals"):
+        make = tour_reference if kind == "tour" else reversal_reference
+        reference = make(duration_s, seed, **{k: reference[k] for k in ("accel", "alpha")
+                                              if k in reference})
         kind = "segments"
     if kind == "segments":
         sim.set("ref.kind", 3)
@@ -382,8 +428,50 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
     sim.set("sim.tel_phase", float(rng.choice([0.002, 0.004, 0.006, 0.008, 0.012])) % rec["tel_s"])
     sim.set("sim.cam_period", 1.0 / rec["cam_hz"])
     sim.set("sim.cam_phase", float(rng.uniform(0.0, 1.0 / rec["cam_hz"])))
-    for name, params in (effects or {}).items():
-        sim.set_effect(name, **dict(params))
+    if engine == "mujoco":
+        from host_tools.engines.mujoco_robot import MujocoRobot  # lazy: needs the mujoco package
+        plant = MujocoRobot(effects, **dict(engine_options or {}))
+        sim.set("sim.dt", plant.dt)
+        sim.set_plant(plant)
+    else:
+        for name, params in (effects or {}).items():
+            sim.set_effect(name, **dict(params))
+    return sim, reference, kind
+
+
+def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping | None = None,
+                 clamp: bool = True, duration_s: float = 2.0, seed: int = 0,
+                 cam_noise_m: float | None = None, cam_noise_rad: float | None = None,
+                 cam_dropout: float | None = None,
+                 experiment: str | None = None, hidden_dir: str | os.PathLike | None = None,
+                 overwrite: bool = False, recorder: Mapping | None = None,
+                 engine: str = "truth", engine_options: Mapping | None = None) -> str:
+    """Simulate one closed-loop run with the truth simulator and write it as a ``ddrun/1`` run
+    folder at ``path`` (meta.json with the NOMINAL parameters, telemetry.csv with the spec
+    columns and the shield's motor current, groundtruth.csv from a noisy camera with dropouts).
+    The true state (``true_*`` columns) goes to ``hidden_dir/<run name>.truth.csv`` when
+    ``hidden_dir`` is given — never into the run folder.
+
+    ``reference``: ``{"kind": "line"|"arc"|"figure_eight", "accel": m/s², "cruise": m/s,
+    "radius": m}`` or ``{"kind": "segments", "accel": m/s², "alpha": rad/s², "segments":
+    [{"duration_s", "v", "omega"}, ...]}`` or ``{"kind": "tour"}`` (:func:`tour_reference` for
+    ``duration_s`` and ``seed``) or ``{"kind": "reversals"}`` (:func:`reversal_reference`);
+    ``effects``: ``{name: {param: value}}`` (vocabulary or
+    EXTRA_EFFECTS); ``recorder``: options of :data:`RECORDER_DEFAULTS` (the camera arguments
+    override the recorder's camera noise and dropout when given). ``engine``: the physics the
+    recorder drives, ``"truth"`` (``sim/truth``'s own) or ``"mujoco"``
+    (:class:`host_tools.engines.mujoco_robot.MujocoRobot` with ``effects`` and
+    ``engine_options``, e.g. ``{"inductance_h": 0.002}``); the run folder does not say which."""
+    rec = recorder_config(recorder, **{k: v for k, v in (("cam_noise_m", cam_noise_m),
+                                                         ("cam_noise_rad", cam_noise_rad),
+                                                         ("cam_dropout", cam_dropout))
+                                       if v is not None})
+    rng = np.random.default_rng(seed)
+    rng_rec = np.random.default_rng([seed, 16])  # the recorder's variants draw from their own stream
+    sim, reference, kind = configure(reference, effects, clamp, duration_s, seed, rec, rng,
+                                     rng_rec, engine, engine_options)
+    pi = rec["controller"] == "pi"
+    inner = rec["inner_s"]
     tel, cam = sim.run()
     # camera: noise and dropouts (independent drops plus one short burst)
     keep = rng.random(cam["t_s"].size) > rec["cam_dropout"]
@@ -526,12 +614,14 @@ def main(argv=None) -> int:
     import sys
     ap = argparse.ArgumentParser(prog="python -m host_tools.truth", description=main.__doc__)
     ap.add_argument("run_dir")
-    ap.add_argument("--ref", default="line", choices=list(_REF_KINDS) + ["tour", "segments"])
+    ap.add_argument("--ref", default="line",
+                    choices=list(_REF_KINDS) + ["tour", "reversals", "segments"])
     ap.add_argument("--accel", type=float, default=None,
-                    help="m/s^2 (default 1.0; 0.6 for tour and segments)")
+                    help="m/s^2 (default 1.0; 0.6 for tour and segments, 1.2 for reversals)")
     ap.add_argument("--cruise", type=float, default=0.6, help="m/s")
     ap.add_argument("--radius", type=float, default=0.5, help="m (arc: > 0 turns left)")
-    ap.add_argument("--alpha", type=float, default=2.0, help="rad/s^2 (tour, segments)")
+    ap.add_argument("--alpha", type=float, default=None,
+                    help="rad/s^2 (tour, segments: default 2; reversals: 6)")
     ap.add_argument("--segments", default=None, metavar="FILE",
                     help="JSON list of {duration_s, v, omega} for --ref segments")
     ap.add_argument("--no-clamp", action="store_true", help="tau_max clamp off")
@@ -540,12 +630,19 @@ def main(argv=None) -> int:
     ap.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...")
     ap.add_argument("--hidden", default=None, help="folder for the true state (csv)")
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--engine", choices=("truth", "mujoco"), default="truth",
+                    help="the physics the recorder drives: the truth simulator's own or the "
+                         "MuJoCo model (host_tools.engines.mujoco_robot; needs the mujoco package)")
+    ap.add_argument("--inductance-mh", type=float, default=0.0,
+                    help="mujoco engine: the motors' armature inductance, mH")
     add_recorder_arguments(ap)
     a = ap.parse_args(argv)
     try:
         effects = dict(_parse_effect(e) for e in a.effect)
-        if a.ref in ("tour", "segments"):
-            ref = {"kind": a.ref, "accel": 0.6 if a.accel is None else a.accel, "alpha": a.alpha}
+        if a.ref in ("tour", "reversals", "segments"):
+            hard = a.ref == "reversals"
+            ref = {"kind": a.ref, "accel": (1.2 if hard else 0.6) if a.accel is None else a.accel,
+                   "alpha": (6.0 if hard else 2.0) if a.alpha is None else a.alpha}
             if a.ref == "segments":
                 if not a.segments:
                     raise ValueError("--ref segments needs --segments FILE")
@@ -556,7 +653,10 @@ def main(argv=None) -> int:
                    "cruise": a.cruise, "radius": a.radius}
         path = simulate_run(a.run_dir, ref, effects, clamp=not a.no_clamp,
                             duration_s=a.duration, seed=a.seed, hidden_dir=a.hidden,
-                            overwrite=a.overwrite, recorder=recorder_from_args(a))
+                            overwrite=a.overwrite, recorder=recorder_from_args(a),
+                            engine=a.engine,
+                            engine_options=({"inductance_h": a.inductance_mh / 1e3}
+                                            if a.engine == "mujoco" else None))
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
