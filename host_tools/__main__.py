@@ -2,9 +2,11 @@
 ``python -m host_tools COMMAND ...``): record a run from the robot's XBee (log), check the
 firmware's timing budgets on a run (timing), find, name and model what a recording shows and
 the nominal model leaves out (analyze), record a run from the real firmware in simavr
-against the plant (fil), reproduce the thesis's simulations and the analyzer demo (demo).
-``COMMAND --help`` gives a command's options. Exit codes: 0 done, 1 a check failed, 2 bad
-input (with the file and the place).
+against the plant (fil), reproduce the thesis's simulations and the analyzer demo (demo),
+write a run and its analysis as an MCAP file for Foxglove (export), make a run from a ROS
+bag (import).  ``COMMAND --help`` gives a command's options.  Messages go to stderr; ``-v``
+adds details, ``-q`` keeps errors only (both before COMMAND).  Exit codes: 0 done, 1 a check
+failed, 2 bad input (with the file and the place).
 """
 from __future__ import annotations
 
