@@ -171,7 +171,8 @@ def record(out: str | Path, elf: str | Path, experiment: dict | None = None, cla
     publish). Returns (logger exit code, logger, fil.json)."""
     out = Path(out)
     if controller is not None and controller not in P.definition().enums["controller"]:
-        raise FilError(f"controller {controller!r} is not one of {sorted(P.definition().enums['controller'])}")
+        raise FilError(f"controller '{controller}' is not one of "
+                       f"{', '.join(sorted(P.definition().enums['controller']))}")
     for f in ("telemetry.csv", "groundtruth.csv"):
         if (out / f).exists():
             raise FilError(f"{out / f} already exists; refusing to overwrite a recorded run")
@@ -257,7 +258,8 @@ def bench(elf: str | Path, accel: float = 48.0, duration: float = 2.0) -> int:
     fs = [e["code"] for e in s["failsafe_events"]]
     print(f"simulated {s['sim_s']:.3f} s (boot, straight line {accel:g} rad/s^2 for {duration:g} s, clamp off) "
           f"in {s['wall_s'] - s['wall_waiting_for_host_s']:.3f} s wall: {s['sim_s_per_wall_s']:.2f} simulated s per "
-          f"wall s (free running, 16 MHz, plant step {s['plant_dt_s'] * 1e3:g} ms); failsafe codes seen {fs}")
+          f"wall s (free running, 16 MHz, plant step {s['plant_dt_s'] * 1e3:g} ms); failsafe codes seen: "
+          f"{', '.join(map(str, fs)) or 'none'}")
     print(f"encoder ISR {s['encoder_isr']['mean_cycles']:.1f} cycles per edge mean, {s['encoder_isr']['max_cycles']} max, "
           f"{s['encoder_isr']['calls']} edges; task max cycles during the experiment: "
           + ", ".join(f"{k} {v['experiment_max_cycles']} ({v['experiment_overruns']} overruns)"

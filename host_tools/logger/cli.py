@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--radius", type=float, default=0.0, help="arc / figure-eight radius, m (+ = left)")
     p.add_argument("--clamp", choices=["on", "off"], help="send SetClamp before starting")
     p.add_argument("--mu-s", type=float, help="send SetMu (with --mu-k)")
-    p.add_argument("--mu-k", type=float)
+    p.add_argument("--mu-k", type=float, help="kinetic friction coefficient sent with SetMu (with --mu-s)")
     p.add_argument("--controller", choices=sorted(d.enums["controller"]),
                    help="send SetController before starting: the cascade's velocity loop "
                    "(the firmware's default: improved); meta.json controller_variant says which ran")

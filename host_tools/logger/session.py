@@ -48,8 +48,8 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         self.clamp = clamp
         self.mu = mu
         if controller is not None and controller not in self.d.enums["controller"]:
-            raise LoggerError(f"controller {controller!r} is not one of "
-                              f"{sorted(self.d.enums['controller'])}", 2)
+            raise LoggerError(f"controller '{controller}' is not one of "
+                              f"{', '.join(sorted(self.d.enums['controller']))}", 2)
         self.controller = controller
         self.record_s = record_s
         self.reconnect_timeout_s = reconnect_timeout_s
