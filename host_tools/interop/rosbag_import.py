@@ -14,6 +14,7 @@ docs/rosbag-import.md) names the topics and fields:
     pose             geometry_msgs/PoseStamped or nav_msgs/Odometry -> groundtruth.csv (own rate)
     current          like a command source -> current_r_a, current_l_a (optional)
     robot, motor, encoder_ppr, periods_s, meta   the run's parameters and other meta.json keys
+                     (periods_s.telemetry: the frames' median spacing unless given)
     time_zero_ns     the stamp (integer ns) that becomes t_s = 0, e.g. the start of the
                      experiment (default: the first wheel-position stamp)
 
@@ -258,6 +259,9 @@ def import_bag(bag_path: str, map_path: str, out: str) -> dict:
                          "velocity")
     else:
         w_r, w_l = np.gradient(th_r, t), np.gradient(th_l, t)
+    if "telemetry" not in (meta.get("periods_s") or {}) and t.size > 1:
+        # the frames' own spacing, not the default of this project's firmware
+        meta.setdefault("periods_s", {})["telemetry"] = round(float(np.median(np.diff(t))), 9)
     tel: dict[str, np.ndarray] = {
         "t_s": np.round(t, 9),
         "enc_r": np.round(th_r * ppr / (2 * math.pi)).astype(np.int64),
