@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import shutil
 import subprocess
@@ -26,6 +27,8 @@ from typing import Any
 from host_tools import _build
 from host_tools import logger as L
 from host_tools import protocol as P
+
+log = logging.getLogger("host_tools.fil")  # also when run as __main__
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD = ROOT / ".build" / "fil"
@@ -327,9 +330,13 @@ def _elf(a: argparse.Namespace) -> Path:
 
 def main(a: argparse.Namespace) -> int:
     if getattr(a, "fil_cmd", None) is None:
-        print("error: give a subcommand: record or bench", file=sys.stderr)
+        log.error("give a subcommand: record or bench")
         return 2
+    pub = None
     try:
+        if a.fil_cmd == "record" and getattr(a, "live", None) is not None:
+            from host_tools.interop import live  # a taken port is refused before any build
+            pub = live.start(a.live, L.TelemetryColumns(P.definition()).columns)
         build_sim()
         elf = _elf(a)
         if a.fil_cmd == "record":
@@ -350,28 +357,24 @@ def main(a: argparse.Namespace) -> int:
                 mu = M.firmware_mu(m, a.model)
                 opts = sim_args(M.plant_keys(m)) + opts
             clamp = None if a.clamp is None else a.clamp == "on"
-            pub = None
-            if getattr(a, "live", None) is not None:
-                from host_tools.interop import live
-                pub = live.start(a.live, L.TelemetryColumns(P.definition()).columns)
-            try:
-                code, lg, s = record(a.out, elf, exp, clamp, mu, opts, record_s=a.record_s,
-                                     controller=a.controller,
-                                     on_row=pub.publish if pub else None)
-            finally:
-                if pub:
-                    pub.close()
+            code, lg, s = record(a.out, elf, exp, clamp, mu, opts, record_s=a.record_s,
+                                 controller=a.controller, on_row=pub.publish if pub else None)
             print(f"{a.out}: {lg.stats['telemetry_rows']} telemetry rows, {s['groundtruth']['rows']} ground-truth "
                   f"rows; {s['sim_s']:.2f} simulated s at {s['sim_s_per_wall_s']:.2f} simulated s per wall s; "
                   f"logger: {lg.end_reason}")
             return code
         return bench(elf, a.accel, a.duration)
     except (FilError, P.ProtocolError, L.LoggerError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return 2
+    finally:
+        if pub:
+            pub.close()
 
 
 if __name__ == "__main__":
+    from host_tools.__main__ import setup_logging
+    setup_logging(0)
     ap = argparse.ArgumentParser(prog="python -m host_tools.fil", description=__doc__.split("\n\n")[0])
     add_arguments(ap)
     sys.exit(main(ap.parse_args()))

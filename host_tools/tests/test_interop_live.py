@@ -4,6 +4,7 @@ recorded, and receives its frames; the rows it receives are rows of telemetry.cs
 from __future__ import annotations
 
 import asyncio
+import re
 import json
 import struct
 import threading
@@ -134,3 +135,22 @@ def test_fil_recording_is_served_live(elf, tmp_path):
             assert r[c] == run.telemetry[c][i], c
     assert any(r["omega_r"] > 0 for r in rows)
     assert len(got["/odometry/tf"]) == 40
+
+
+def test_fil_record_command_serves_live(elf, tmp_path, capsys):
+    out = tmp_path / "cli_live"
+    rc = cli(["-v", "fil", "record", "--out", str(out), "--elf", str(elf), "--duration", "0.5",
+              "--live", "0"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert re.search(r"info: live view: ws://127\.0\.0\.1:\d+", err), err
+    assert runfmt.load_run(out).telemetry["t_s"].size > 20
+    # a taken port: refused before anything is built or recorded
+    pub = live.LivePublisher(port=0)
+    try:
+        rc = cli(["fil", "record", "--out", str(tmp_path / "x"), "--elf", str(elf), "--live",
+                  f"127.0.0.1:{pub.port}"])
+    finally:
+        pub.close()
+    assert rc == 2 and "cannot serve" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
