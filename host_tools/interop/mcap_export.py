@@ -184,7 +184,7 @@ def export(run_dir: str, out: str, report_dir: str | None = None) -> dict[str, i
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.description = __doc__.split("\n\n")[0].split(": ", 1)[1]
+    p.description = __doc__.split("\n\n")[0].split(": ", 1)[1].replace("``", "")
     p.epilog = ("topics: " + "; ".join(f"{t.name} ({t.schema})" for t in M.TOPICS.values())
                 + ". Open FILE.mcap in Foxglove (File > Open local file). exit status: 0 done, "
                 "2 bad input, 1 the file could not be written.")

@@ -122,7 +122,13 @@ class _Bag:
             for c in conns:
                 self.types[c.topic] = _norm_type(c.msgtype)
             for c, t_ns, raw in reader.messages(connections=conns):
-                self.msgs[c.topic].append((t_ns, reader.deserialize(raw, c.msgtype)))
+                try:
+                    msg = reader.deserialize(raw, c.msgtype)
+                except Exception as exc:  # a type rosbags cannot decode, a truncated message
+                    raise ImportError_(f"{runfmt.display(bag)}: topic {c.topic}, message "
+                                       f"{len(self.msgs[c.topic])}: cannot decode "
+                                       f"{c.msgtype}: {exc}") from None
+                self.msgs[c.topic].append((t_ns, msg))
         finally:
             reader.close()
 
@@ -320,7 +326,7 @@ def import_bag(bag_path: str, map_path: str, out: str) -> dict:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.description = __doc__.split("\n\n")[0].split(": ", 1)[1]
+    p.description = __doc__.split("\n\n")[0].split(": ", 1)[1].replace("``", "")
     p.epilog = ("The map's keys and an example: docs/rosbag-import.md. exit status: 0 done, "
                 "2 bad input (the bag's topic and message index, or the map's problem).")
     p.add_argument("bag", metavar="BAG", help="ROS 1 .bag file, or ROS 2 bag folder (sqlite3 or "

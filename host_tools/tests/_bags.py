@@ -37,12 +37,13 @@ def mapping(run: runfmt.Run) -> dict:
 
 
 def write_bag(run_dir, bag_path, fmt: str, t0_ns: int = T0_NS,
-              mutate=None, odom_every: int = 1, skip_topics=()) -> Path:
+              mutate=None, odom_every: int = 1, skip_topics=(), truncate=None) -> Path:
     """Write the run as a bag of format ``ros1``, ``sqlite3`` or ``mcap``.  ``mutate(topic, i,
     stamp_ns) -> stamp_ns`` may change a header stamp (to make bad bags; the bag's receive
     times stay in order); the odometry is published
     on every ``odom_every``-th frame only (so the import must resample it); topics named (keys
-    of TOPICS) in ``skip_topics`` are left out."""
+    of TOPICS) in ``skip_topics`` are left out; ``truncate=(key, i)`` cuts the i-th message of
+    that topic to 3 bytes (an undecodable message)."""
     from rosbags.typesys import Stores, get_typestore
     run = runfmt.load_run(run_dir)
     tel, gt, ppr = run.telemetry, run.groundtruth, int(run.meta["encoder_ppr"])
@@ -128,9 +129,13 @@ def write_bag(run_dir, bag_path, fmt: str, t0_ns: int = T0_NS,
         for _, topic, typ, _m in msgs:
             if topic not in conns:
                 conns[topic] = (w.add_connection(topic, typ, typestore=ts), typ)
+        seen: dict[str, int] = {}
         for st, topic, typ, m in msgs:
             c, _ = conns[topic]
             data = ts.serialize_ros1(m, typ) if fmt == "ros1" else ts.serialize_cdr(m, typ)
+            k = seen[topic] = seen.get(topic, -1) + 1
+            if truncate is not None and TOPICS[truncate[0]] == topic and truncate[1] == k:
+                data = bytes(data)[:3]
             w.write(c, st, data)
     return bag_path
 

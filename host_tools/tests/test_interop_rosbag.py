@@ -176,3 +176,10 @@ def test_telemetry_period_is_the_frames_spacing(runs, tmp_path):
                 str(tmp_path / "o")]) == 0
     got = runfmt.load_run(tmp_path / "o").meta["periods_s"]["telemetry"]
     assert got == pytest.approx(float(np.median(np.diff(run.telemetry["t_s"]))), abs=1e-9)
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "mcap"])
+def test_undecodable_message_names_topic_and_index(runs, tmp_path, capsys, fmt):
+    rc, out = _import(runs["null"], tmp_path, fmt, truncate=("odom", 4))
+    _bad(capsys, rc, "/odom", "message 4", "cannot decode")
+    assert not (out / "telemetry.csv").exists()
