@@ -709,7 +709,7 @@ def _fit_plot(report: dict, path: str) -> None:
     ax.set_ylabel("RMS error / noise floor")
     ax.set_title(f"verdict {report.get('verdict')}: selected "
                  f"{humanize.selected(report.get('selected'))}", fontsize=9, wrap=True)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))  # outside: never over a bar
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -93,3 +93,24 @@ def test_demo_index_has_no_reprs(tmp_path):
     line = next(x for x in text.splitlines() if "Hidden truth" in x)
     assert "motor_back_emf (ke_ratio = 1.2)" in line and "error 0.83 %" in line
     assert not re.search(r"[\[\]{}]|'\w+':", line.replace("](", "")), line
+
+
+def test_fit_plot_title_in_words_and_legend_beside_the_bars(tmp_path, monkeypatch):
+    from host_tools import demo
+    plt = demo._plt()
+    figs = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: figs.append(fig))
+    rep = {"verdict": "explained",
+           "selected": [{"effect": "motor_back_emf", "params": {"ke_ratio": 1.0601},
+                         "equivalent": []}],
+           "fit": {"noise_floor": {"omega_r": 0.1, "x_m": 0.01},
+                   "rmse_before": {"omega_r": 3.0, "x_m": 0.05},
+                   "rmse_after": {"omega_r": 0.1, "x_m": 0.01}}}
+    demo._fit_plot(rep, str(tmp_path / "fit.png"))
+    ax = figs[0].axes[0]
+    assert ax.get_title() == "verdict explained: selected motor_back_emf (ke_ratio = 1.06)"
+    figs[0].canvas.draw()
+    r = figs[0].canvas.get_renderer()
+    assert ax.get_legend().get_window_extent(r).x0 >= ax.get_window_extent(r).x1
+    monkeypatch.undo()
+    plt.close(figs[0])
