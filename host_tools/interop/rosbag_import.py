@@ -111,6 +111,9 @@ class _Bag:
         self.path = bag
         self.types: dict[str, str] = {}
         self.msgs: dict[str, list] = {t: [] for t in topics}
+        if not os.path.exists(bag):
+            raise ImportError_(f"{runfmt.display(bag)}: does not exist (a ROS 1 .bag file, or a "
+                               "ROS 2 bag folder or its .mcap file)")
         try:
             reader = AnyReader([Path(bag)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             reader.open()
@@ -330,7 +333,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.epilog = ("The map's keys and an example: docs/rosbag-import.md. exit status: 0 done, "
                 "2 bad input (the bag's topic and message index, or the map's problem).")
     p.add_argument("bag", metavar="BAG", help="ROS 1 .bag file, or ROS 2 bag folder (sqlite3 or "
-                   "MCAP storage)")
+                   "MCAP storage) or its .mcap file")
     p.add_argument("--map", required=True, metavar="MAP", help="mapping file (YAML or JSON): "
                    "topics and fields of wheel positions, commands, odometry, pose, current; "
                    "the robot's parameters")

@@ -104,6 +104,15 @@ def test_missing_topic_is_bad_input(runs, tmp_path, capsys):
     assert not (out / "telemetry.csv").exists()
 
 
+def test_missing_bag_and_a_file_that_is_no_bag(runs, tmp_path, capsys):
+    mp = _bags.write_map(runs["null"], tmp_path / "map.json")
+    rc = cli(["import", str(tmp_path / "none.bag"), "--map", str(mp), "--out", str(tmp_path / "o")])
+    _bad(capsys, rc, "none.bag: does not exist")
+    (tmp_path / "text.bag").write_text("not a bag\n")
+    rc = cli(["import", str(tmp_path / "text.bag"), "--map", str(mp), "--out", str(tmp_path / "o")])
+    _bad(capsys, rc, "text.bag: not a readable ROS 1 or ROS 2 bag")
+
+
 def test_unknown_type_is_bad_input(runs, tmp_path, capsys):
     bag = _bags.write_bag(runs["null"], tmp_path / "b", "sqlite3")
     # the wheel positions mapped to the odometry topic: an Odometry is not a JointState
