@@ -241,6 +241,8 @@ def import_bag(bag_path: str, map_path: str, out: str) -> dict:
         raise ImportError_(f"--out {runfmt.display(out)} holds a recorded run; refusing to "
                            "overwrite it")
     bag = _Bag(bag_path, {s["topic"] for s in sources.values()})
+    log.info("read %s: %s", runfmt.display(bag_path),
+             ", ".join(f"{t} {len(v)} messages" for t, v in sorted(bag.msgs.items())))
     meta = {"format": runfmt.FORMAT, "source": "rosbag",
             "experiment": f"imported from the ROS bag {os.path.basename(os.path.normpath(bag_path))}"}
     for k in ("robot", "motor", "periods_s"):
