@@ -192,3 +192,15 @@ def test_undecodable_message_names_topic_and_index(runs, tmp_path, capsys, fmt):
     rc, out = _import(runs["null"], tmp_path, fmt, truncate=("odom", 4))
     _bad(capsys, rc, "/odom", "message 4", "cannot decode")
     assert not (out / "telemetry.csv").exists()
+
+
+def test_external_pose_from_an_odometry_topic(runs, tmp_path):
+    """The external pose may be a nav_msgs/Odometry (e.g. a motion-capture bridge)."""
+    run = runfmt.load_run(runs["null"])
+    bag = _bags.write_bag(runs["null"], tmp_path / "b.bag", "ros1", skip_topics=("pose",))
+    mp = _bags.write_map(runs["null"], tmp_path / "m.json", pose={"topic": "/odom"})
+    assert cli(["import", str(bag), "--map", str(mp), "--out", str(tmp_path / "o")]) == 0
+    gt = runfmt.load_run(tmp_path / "o").groundtruth
+    np.testing.assert_allclose(gt["t_s"], run.telemetry["t_s"], atol=1e-12)
+    np.testing.assert_allclose(gt["x_m"], run.telemetry["x_odo_m"])
+    np.testing.assert_allclose(gt["phi_rad"], run.telemetry["phi_odo_rad"], atol=1e-12)
