@@ -10,8 +10,7 @@ from host_tools import runfmt
 log = logging.getLogger("host_tools.interop")
 
 
-def run(action: Callable[[], str], bad: tuple[type[BaseException], ...], out: str,
-        cleanup: Callable[[], None] | None = None) -> int:
+def run(action: Callable[[], str], bad: tuple[type[BaseException], ...], out: str) -> int:
     """Run ``action`` (which returns the line to print when done) with the exit codes."""
     try:
         line = action()
@@ -20,8 +19,6 @@ def run(action: Callable[[], str], bad: tuple[type[BaseException], ...], out: st
         return 2
     except OSError as exc:
         log.error("cannot write %s: %s", runfmt.display(out), exc.strerror or exc)
-        if cleanup is not None:
-            cleanup()
         return 1
     print(line)
     return 0

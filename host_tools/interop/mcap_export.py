@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import types
 from typing import Any
@@ -65,9 +66,23 @@ def _report_for_run(report_dir: str, run: runfmt.Run) -> dict:
     label = fake[idx[0]].label
     rep = dict(rep)
     rep["label"] = label
-    rep["mismatch"] = [m for m in rep.get("mismatch") or [] if m.get("run") == label]
-    rep["localization"] = [m for m in rep.get("localization") or [] if m.get("run") == label]
+    for key, need in (("mismatch", ("channel", "t_start_s", "t_end_s")),
+                      ("localization", ("t_start_s", "t_end_s"))):
+        entries = rep.get(key) or []
+        if not isinstance(entries, list):
+            raise ExportError(f"{runfmt.display(path)}: '{key}' is not a list")
+        for i, m in enumerate(entries):
+            bad = [k for k in need if not isinstance(m, dict) or k not in m
+                   or (k != "channel" and not _finite(m[k]))]
+            if bad:
+                raise ExportError(f"{runfmt.display(path)}: {key}[{i}]: {bad[0]} missing or "
+                                  "not a finite number")
+        rep[key] = [m for m in entries if m.get("run") == label]
     return rep
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _summary(rep: dict) -> dict:
@@ -113,70 +128,89 @@ class _Out:
         self.w.finish()
 
 
+Event = tuple  # (t_s, order, topic, data, JSON fields or None): one message to write
+
+WINDOW_FIELDS = {"run": "string", "channel": "string", "t_start_s": "number", "t_end_s": "number",
+                 "rms": "number", "noise_floor": "number", "regime": "string", "replay": "string"}
+SPAN_FIELDS = {"run": "string", "t_start_s": "number", "t_end_s": "number",
+               "peak_noise_floors": "number", "channels": "array", "strong": "boolean",
+               "rms_after_update_noise_floors": "number"}
+SUMMARY_FIELDS = {"run": "string", "verdict": "string", "selected": "array", "fit": "object",
+                  "mismatch_windows": "integer"}
+
+
+def _run_events(run: runfmt.Run) -> list[Event]:
+    """Telemetry rows, odometry and ground-truth poses and transforms."""
+    tel = run.telemetry
+    t = tel["t_s"]
+    fields = {c: "number" for c in tel}
+    cols = {c: v.tolist() for c, v in tel.items()}
+    ev: list[Event] = []
+    for i in range(t.size):
+        ti = float(t[i])
+        x, y, phi = (cols[k][i] for k in ("x_odo_m", "y_odo_m", "phi_odo_rad"))
+        ev.append((ti, 0, "/telemetry", M.json_message({c: v[i] for c, v in cols.items()}),
+                   fields))
+        ev.append((ti, 1, "/odometry/pose", M.pose_in_frame(ti, x, y, phi), None))
+        ev.append((ti, 2, "/odometry/tf", M.frame_transform(ti, M.BASE_ODO, x, y, phi), None))
+    gt = run.groundtruth
+    if gt is not None:
+        phi_gt = gt.get("phi_rad")
+        for i in range(gt["t_s"].size):
+            tg, x, y = float(gt["t_s"][i]), float(gt["x_m"][i]), float(gt["y_m"][i])
+            phi = float(phi_gt[i]) if phi_gt is not None else float("nan")
+            ev.append((tg, 3, "/groundtruth/pose", M.pose_in_frame(tg, x, y, phi), None))
+            ev.append((tg, 4, "/groundtruth/tf", M.frame_transform(tg, M.BASE_GT, x, y, phi),
+                       None))
+    return ev
+
+
+def _report_events(rep: dict, t: np.ndarray) -> list[Event]:
+    """The report's findings for this run: summary, windows, per-frame flags, spans."""
+    ev: list[Event] = [(float(t[0]) if t.size else 0.0, 5, "/analysis/summary",
+                        M.json_message(_summary(rep)), SUMMARY_FIELDS)]
+    wins = rep["mismatch"]
+    for m in wins:
+        ev.append((max(m["t_start_s"], 0.0), 6, "/analysis/mismatch",
+                   M.json_message({k: m.get(k) for k in WINDOW_FIELDS}), WINDOW_FIELDS))
+    chans = sorted({m["channel"] for m in wins})
+    flags_fields = {c: "integer" for c in chans + ["any"]}
+    for ti in t.tolist():
+        act = {c: int(any(m["channel"] == c and m["t_start_s"] <= ti <= m["t_end_s"]
+                          for m in wins)) for c in chans}
+        act["any"] = int(any(act.values()))
+        ev.append((ti, 7, "/analysis/mismatch_active", M.json_message(act), flags_fields))
+    for m in rep["localization"]:
+        ev.append((max(m["t_start_s"], 0.0), 8, "/analysis/localization",
+                   M.json_message({k: m.get(k) for k in SPAN_FIELDS}), SPAN_FIELDS))
+    return ev
+
+
 def export(run_dir: str, out: str, report_dir: str | None = None) -> dict[str, int]:
     """Write ``out`` (MCAP) from the run folder ``run_dir`` and, optionally, the analyzer's
     ``report_dir``.  Returns the message count per topic.  ExportError / RunFormatError on bad
-    input; OSError when ``out`` cannot be written."""
+    input (nothing written); OSError when ``out`` cannot be written."""
     run = runfmt.load_run(run_dir)
     rep = _report_for_run(report_dir, run) if report_dir is not None else None
-    tel = run.telemetry
-    t = np.asarray(tel["t_s"], dtype=float)
-    if t.size and t[0] < 0 or (run.groundtruth is not None and run.groundtruth["t_s"].size
-                              and run.groundtruth["t_s"][0] < 0):
+    t = np.asarray(run.telemetry["t_s"], dtype=float)
+    firsts = [t[:1]] + ([run.groundtruth["t_s"][:1]] if run.groundtruth is not None else [])
+    if any(a.size and a[0] < 0 for a in firsts):
         raise ExportError(f"{runfmt.display(run.path)}: times before 0 s cannot be MCAP log "
                           "times")
-    cols = list(tel)
-    fields = {c: "number" for c in cols}
+    events = _run_events(run) + (_report_events(rep, t) if rep is not None else [])
+    events.sort(key=lambda e: (e[0], e[1]))
     tmp = out + ".part"
-    with open(tmp, "wb") as fh:
-        o = _Out(fh)
-        events: list[tuple[float, int, str, bytes, dict | None]] = []
-        for i in range(t.size):
-            row = {c: tel[c][i] for c in cols}
-            x, y, phi = (float(tel[k][i]) for k in ("x_odo_m", "y_odo_m", "phi_odo_rad"))
-            events.append((t[i], 0, "/telemetry", M.json_message(row), fields))
-            events.append((t[i], 1, "/odometry/pose", M.pose_in_frame(t[i], x, y, phi), None))
-            events.append((t[i], 2, "/odometry/tf", M.frame_transform(t[i], M.BASE_ODO, x, y, phi),
-                           None))
-        gt = run.groundtruth
-        if gt is not None:
-            phi_gt = gt.get("phi_rad")
-            for i in range(gt["t_s"].size):
-                tg = float(gt["t_s"][i])
-                x, y = float(gt["x_m"][i]), float(gt["y_m"][i])
-                phi = float(phi_gt[i]) if phi_gt is not None else float("nan")
-                events.append((tg, 3, "/groundtruth/pose", M.pose_in_frame(tg, x, y, phi), None))
-                events.append((tg, 4, "/groundtruth/tf",
-                               M.frame_transform(tg, M.BASE_GT, x, y, phi), None))
-        if rep is not None:
-            t0 = float(t[0]) if t.size else 0.0
-            events.append((t0, 5, "/analysis/summary", M.json_message(_summary(rep)),
-                           {"run": "string", "verdict": "string", "selected": "array",
-                            "fit": "object", "mismatch_windows": "integer"}))
-            wf = {"run": "string", "channel": "string", "t_start_s": "number",
-                  "t_end_s": "number", "rms": "number", "noise_floor": "number",
-                  "regime": "string", "replay": "string"}
-            for m in rep["mismatch"]:
-                events.append((max(float(m["t_start_s"]), 0.0), 6, "/analysis/mismatch",
-                               M.json_message({k: m.get(k) for k in wf}), wf))
-            chans = sorted({m["channel"] for m in rep["mismatch"]})
-            af = {c: "integer" for c in chans + ["any"]}
-            for i in range(t.size):
-                act = {c: int(any(m["channel"] == c and m["t_start_s"] <= t[i] <= m["t_end_s"]
-                                  for m in rep["mismatch"])) for c in chans}
-                act["any"] = int(any(act.values()))
-                events.append((t[i], 7, "/analysis/mismatch_active", M.json_message(act), af))
-            lf = {"run": "string", "t_start_s": "number", "t_end_s": "number",
-                  "peak_noise_floors": "number", "channels": "array", "strong": "boolean",
-                  "rms_after_update_noise_floors": "number"}
-            for m in rep["localization"]:
-                events.append((max(float(m["t_start_s"]), 0.0), 8, "/analysis/localization",
-                               M.json_message({k: m.get(k) for k in lf}), lf))
-        events.sort(key=lambda e: (e[0], e[1]))
-        for tt, _, topic, data, f in events:
-            o.add(topic, tt, data, f)
-        o.finish()
-    os.replace(tmp, out)
+    try:
+        with open(tmp, "wb") as fh:
+            o = _Out(fh)
+            for tt, _, topic, data, f in events:
+                o.add(topic, tt, data, f)
+            o.finish()
+        os.replace(tmp, out)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
     if rep is not None:
         log.info("the analyzer writes no per-sample nominal/updated simulations or residuals; "
                  "exported its windows, verdict and fitted parameters")
@@ -206,9 +240,4 @@ def main(args: argparse.Namespace) -> int:
         return (f"{runfmt.display(args.out)}: "
                 + ", ".join(f"{t} {n}" for t, n in counts.items()) + " messages")
 
-    def cleanup() -> None:
-        try:
-            os.remove(args.out + ".part")
-        except OSError:
-            pass
-    return _cli.run(action, (ExportError, runfmt.RunFormatError), args.out, cleanup)
+    return _cli.run(action, (ExportError, runfmt.RunFormatError), args.out)

@@ -146,3 +146,16 @@ def test_bad_inputs_are_exit_2(analysed, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "report.json: line 2" in err and "Traceback" not in err
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_malformed_report_entries_are_bad_input(analysed, tmp_path, capsys):
+    d, run_dir, rep_dir = analysed
+    rep = json.loads((rep_dir / "report.json").read_text())
+    del rep["mismatch"][2]["t_end_s"]
+    (tmp_path / "rep").mkdir()
+    (tmp_path / "rep" / "report.json").write_text(json.dumps(rep))
+    out = tmp_path / "x.mcap"
+    assert cli(["export", str(run_dir), "--report", str(tmp_path / "rep"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "mismatch[2]: t_end_s missing" in err and "Traceback" not in err
+    assert not out.exists() and not (tmp_path / "x.mcap.part").exists()
