@@ -223,6 +223,17 @@ def _pose_of(m: Any) -> tuple[float, float, float]:
     return float(p.position.x), float(p.position.y), _yaw(p.orientation)
 
 
+def _poses(bag: _Bag, topic: str, msgs: list, role: str) -> np.ndarray:
+    """(x, y, heading) of each Odometry / PoseStamped message; bad input at the first one
+    that is not finite."""
+    xyz = np.array([_pose_of(mm) for _, mm in msgs], dtype=float).reshape(-1, 3)
+    bad = np.flatnonzero(~np.isfinite(xyz).all(axis=1))
+    if bad.size:
+        raise ImportError_(f"{runfmt.display(bag.path)}: topic {topic}, message {int(bad[0])}: "
+                           f"the pose is not finite ({role})")
+    return xyz
+
+
 def _hold(t_src: np.ndarray, v: np.ndarray, t: np.ndarray) -> np.ndarray:
     """The last value at or before each of ``t`` (the first value before the first one)."""
     i = np.searchsorted(t_src, t, side="right") - 1
@@ -305,7 +316,7 @@ def import_bag(bag_path: str, map_path: str, out: str) -> dict:
     od = sources["odometry"]
     ms = bag.need(od["topic"], ROLES["odometry"], "odometry")
     ts = (_times(bag, od["topic"], ms) - t0) / 1e9
-    xyz = np.array([_pose_of(mm) for _, mm in ms])
+    xyz = _poses(bag, od["topic"], ms, "odometry")
     tel["x_odo_m"] = np.interp(t, ts, xyz[:, 0])
     tel["y_odo_m"] = np.interp(t, ts, xyz[:, 1])
     tel["phi_odo_rad"] = np.interp(t, ts, np.unwrap(xyz[:, 2]))
@@ -317,7 +328,7 @@ def import_bag(bag_path: str, map_path: str, out: str) -> dict:
         ps = sources["pose"]
         ms = bag.need(ps["topic"], ROLES["pose"], "pose")
         tg = (_times(bag, ps["topic"], ms) - t0) / 1e9
-        g = np.array([_pose_of(mm) for _, mm in ms])
+        g = _poses(bag, ps["topic"], ms, "pose")
         gt = {"t_s": np.round(tg, 9), "x_m": g[:, 0], "y_m": g[:, 1], "phi_rad": np.unwrap(g[:, 2])}
     meta["import"] = {"bag": os.path.abspath(bag_path), "map": os.path.abspath(map_path),
                       "t0_unix_s": t0 / 1e9, "frames_topic": wp["topic"],

@@ -37,13 +37,15 @@ def mapping(run: runfmt.Run) -> dict:
 
 
 def write_bag(run_dir, bag_path, fmt: str, t0_ns: int = T0_NS,
-              mutate=None, odom_every: int = 1, skip_topics=(), truncate=None) -> Path:
+              mutate=None, odom_every: int = 1, skip_topics=(), truncate=None,
+              nan_odom: int | None = None) -> Path:
     """Write the run as a bag of format ``ros1``, ``sqlite3`` or ``mcap``.  ``mutate(topic, i,
     stamp_ns) -> stamp_ns`` may change a header stamp (to make bad bags; the bag's receive
     times stay in order); the odometry is published
     on every ``odom_every``-th frame only (so the import must resample it); topics named (keys
     of TOPICS) in ``skip_topics`` are left out; ``truncate=(key, i)`` cuts the i-th message of
-    that topic to 3 bytes (an undecodable message)."""
+    that topic to 3 bytes (an undecodable message); the odometry of frame ``nan_odom`` gets
+    x = NaN."""
     from rosbags.typesys import Stores, get_typestore
     run = runfmt.load_run(run_dir)
     tel, gt, ppr = run.telemetry, run.groundtruth, int(run.meta["encoder_ppr"])
@@ -99,9 +101,10 @@ def write_bag(run_dir, bag_path, fmt: str, t0_ns: int = T0_NS,
         V3 = T["geometry_msgs/msg/Vector3"]
         if i % odom_every and i != tel["t_s"].size - 1:
             continue
+        x_odo = float("nan") if nan_odom == i else tel["x_odo_m"][i]
         msgs.append((st, TOPICS["odom"], "nav_msgs/msg/Odometry", T["nav_msgs/msg/Odometry"](
             header=hdr(s["odom"]), child_frame_id="base_link",
-            pose=PWC(pose=pose(tel["x_odo_m"][i], tel["y_odo_m"][i], tel["phi_odo_rad"][i]),
+            pose=PWC(pose=pose(x_odo, tel["y_odo_m"][i], tel["phi_odo_rad"][i]),
                      covariance=z3),
             twist=TWC(twist=T["geometry_msgs/msg/Twist"](linear=V3(x=0.0, y=0.0, z=0.0),
                                                           angular=V3(x=0.0, y=0.0, z=0.0)),

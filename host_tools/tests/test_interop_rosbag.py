@@ -113,6 +113,12 @@ def test_missing_bag_and_a_file_that_is_no_bag(runs, tmp_path, capsys):
     _bad(capsys, rc, "text.bag: not a readable ROS 1 or ROS 2 bag")
 
 
+def test_a_pose_that_is_not_finite_names_topic_and_index(runs, tmp_path, capsys):
+    rc, out = _import(runs["null"], tmp_path, "mcap", odom_every=1, nan_odom=9)
+    _bad(capsys, rc, "/odom", "message 9", "not finite")
+    assert not out.exists()
+
+
 def test_unknown_type_is_bad_input(runs, tmp_path, capsys):
     bag = _bags.write_bag(runs["null"], tmp_path / "b", "sqlite3")
     # the wheel positions mapped to the odometry topic: an Odometry is not a JointState
