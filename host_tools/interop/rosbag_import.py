@@ -118,8 +118,13 @@ class _Bag:
             reader = AnyReader([Path(bag)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             reader.open()
         except Exception as exc:  # rosbags raises its own errors for unreadable bags
+            hint = ""
+            if os.path.isfile(bag) and not bag.endswith(".bag"):
+                with open(bag, "rb") as fh:
+                    if fh.read(13) == b"#ROSBAG V2.0\n":
+                        hint = " (a ROS 1 bag: its name must end in .bag)"
             raise ImportError_(f"{runfmt.display(bag)}: not a readable ROS 1 or ROS 2 bag: "
-                               f"{exc}") from None
+                               f"{exc}{hint}") from None
         try:
             conns = [c for c in reader.connections if c.topic in topics]
             for c in conns:

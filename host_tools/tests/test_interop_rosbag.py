@@ -111,6 +111,10 @@ def test_missing_bag_and_a_file_that_is_no_bag(runs, tmp_path, capsys):
     (tmp_path / "text.bag").write_text("not a bag\n")
     rc = cli(["import", str(tmp_path / "text.bag"), "--map", str(mp), "--out", str(tmp_path / "o")])
     _bad(capsys, rc, "text.bag: not a readable ROS 1 or ROS 2 bag")
+    bag = _bags.write_bag(runs["null"], tmp_path / "ros1.bag", "ros1")
+    renamed = bag.rename(tmp_path / "ros1_no_suffix")
+    rc = cli(["import", str(renamed), "--map", str(mp), "--out", str(tmp_path / "o")])
+    _bad(capsys, rc, "its name must end in .bag")
 
 
 def test_a_pose_that_is_not_finite_names_topic_and_index(runs, tmp_path, capsys):
