@@ -34,7 +34,7 @@ def _read(path):
     from mcap.reader import make_reader
     from mcap_protobuf.decoder import DecoderFactory
     with open(path, "rb") as fh:
-        r = make_reader(fh, decoder_factories=[DecoderFactory()])
+        r = make_reader(fh, validate_crcs=True, decoder_factories=[DecoderFactory()])
         summary = r.get_summary()
         info = {c.topic: (summary.schemas[c.schema_id], c.message_encoding,
                           summary.statistics.channel_message_counts[c.id])
