@@ -20,7 +20,10 @@ from host_tools.interop import live
 from host_tools.logger import TelemetryColumns
 from test_fil import elf  # noqa: F401  (the firmware fixture: skips where it cannot be built)
 
-SUBPROTOCOL = "foxglove.sdk.v1"  # foxglove-sdk 0.30 speaks the successor of foxglove.websocket.v1
+# offered as a client of both protocol generations does; foxglove-sdk's server (0.16 to 0.30)
+# accepts only foxglove.sdk.v1 (and .v1.1), the successor of foxglove.websocket.v1
+OFFERED = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
+SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # binary opcode of a message on a subscription
 
 
@@ -30,7 +33,7 @@ async def _client(port: int, topics: dict[str, int], want: int, timeout_s: float
     subscription id) and collect the first ``want`` messages of each."""
     import websockets
     got: dict[str, list] = {t: [] for t in topics}
-    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL]) as ws:
+    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=OFFERED) as ws:
         assert ws.subprotocol == SUBPROTOCOL
         channels: dict[str, dict] = {}
         info: dict = {}
