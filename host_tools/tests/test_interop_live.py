@@ -20,8 +20,8 @@ from host_tools.interop import live
 from host_tools.logger import TelemetryColumns
 from test_fil import elf  # noqa: F401  (the firmware fixture: skips where it cannot be built)
 
-# offered as a client of both protocol generations does; foxglove-sdk's server (0.16 to 0.30)
-# accepts only foxglove.sdk.v1 (and .v1.1), the successor of foxglove.websocket.v1
+# offered as a client of both protocol generations does; foxglove-sdk's server
+# (0.30.3) accepts only foxglove.sdk.v1 (and .v1.1), the successor of foxglove.websocket.v1
 OFFERED = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01  # binary opcode of a message on a subscription
