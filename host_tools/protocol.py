@@ -209,7 +209,8 @@ class Definition:
         values = dict(values or {})
         unknown = set(values) - set(msg.field_names())
         if unknown:
-            raise ProtocolError(f"{name}: unknown field(s) {sorted(unknown)}; fields are {msg.field_names()}")
+            raise ProtocolError(f"{name}: unknown field(s) {', '.join(sorted(unknown))}; fields are "
+                                f"{', '.join(msg.field_names())}")
         raws = []
         for f in msg.fields:
             if f.name not in values:
@@ -218,7 +219,7 @@ class Definition:
             if "enum" in f.spec and isinstance(v, str):
                 e = self.enums[f.spec["enum"]]
                 if v not in e:
-                    raise ProtocolError(f"{name}.{f.name}: {v!r} is not one of {sorted(e)}")
+                    raise ProtocolError(f"{name}.{f.name}: '{v}' is not one of {', '.join(sorted(e))}")
                 v = e[v]
             raws.append(f.to_raw(v, f"{name}.{f.name}"))
         by = dict(zip(msg.field_names(), raws))

@@ -174,10 +174,12 @@ class TruthSim:
         elif name in EXTRA_EFFECTS:
             allowed = set(EXTRA_EFFECTS[name])
         else:
-            raise ValueError(f"unknown effect '{name}'; known: {sorted(vocab) + sorted(EXTRA_EFFECTS)}")
+            raise ValueError(f"unknown effect '{name}'; known: "
+                             f"{', '.join(sorted(vocab) + sorted(EXTRA_EFFECTS))}")
         bad = set(params) - allowed
         if bad:
-            raise ValueError(f"effect '{name}' has no parameter(s) {sorted(bad)}; it has {sorted(allowed)}")
+            raise ValueError(f"effect '{name}' has no parameter(s) {', '.join(sorted(bad))}; "
+                             f"it has {', '.join(sorted(allowed))}")
         if name == "stribeck":
             params = {"mu_k0": params.get("mu_k0", self.get("robot.mu_k")),
                       "v_s": params.get("v_s", 0.01)}
@@ -270,13 +272,14 @@ def recorder_config(recorder: Mapping | None = None, **overrides) -> dict:
     for src in (recorder or {}), overrides:
         for k, v in src.items():
             if k not in rec:
-                raise ValueError(f"unknown recorder option '{k}'; known: {sorted(rec)}")
+                raise ValueError(f"unknown recorder option '{k}'; known: {', '.join(sorted(rec))}")
             rec[k] = v
     if rec["controller"] == "pi" and "odometry" not in {**(recorder or {}), **overrides}:
         rec["odometry"] = "ticks"  # the PI recorder has no lib/control odometry
     for k, choices in _RECORDER_CHOICES.items():
         if rec[k] not in choices:
-            raise ValueError(f"recorder {k} must be one of {list(choices)}, got {rec[k]!r}")
+            raise ValueError(f"recorder {k} must be one of {', '.join(map(str, choices))}, "
+                             f"got {rec[k]}")
     for k, (lo, hi) in _RECORDER_RANGES.items():
         try:
             rec[k] = float(rec[k])

@@ -687,7 +687,7 @@ def get(names: list[str] | None = None, fast: bool = False, which: str = "tuning
     """Cases of a set (``tuning`` or ``heldback``); ``fast``: its CI subset; ``long=False``:
     without the 10-minute cases; ``names``: those cases of the set."""
     if which not in SETS:
-        raise ValueError(f"set must be one of {list(SETS)}, got {which!r}")
+        raise ValueError(f"set must be one of {', '.join(SETS)}, got '{which}'")
     pool = {"tuning": all_cases, "heldback": heldback_cases, "heldback2": heldback2_cases,
             "heldback3": heldback3_cases, "heldback4": heldback4_cases,
             "heldback5": heldback5_cases, "mujoco": mujoco_cases,
@@ -699,7 +699,8 @@ def get(names: list[str] | None = None, fast: bool = False, which: str = "tuning
         known = {c.name: c for c in pool}
         bad = [n for n in names if n not in known]
         if bad:
-            raise ValueError(f"unknown case(s) {bad} in the {which} set; known: {sorted(known)}")
+            raise ValueError(f"unknown case(s) {', '.join(bad)} in the {which} set; known: "
+                             f"{', '.join(sorted(known))}")
         cases = [known[n] for n in names]
     if not long:
         cases = [c for c in cases if not c.long]
