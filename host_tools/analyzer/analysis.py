@@ -21,11 +21,15 @@ from host_tools.analyzer import effects as fx
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit import (HELDOUT_RULE, Candidate, Problem, evaluate_candidate,
                                     heldout_channel_check, judge, params_for)
-from host_tools.analyzer.replay import (CHANNELS, CLOSED_LOOP_CHANNELS, CUMULATIVE, DERIVED,
-                                        FIT_CHANNELS, ClosedLoopReplay, OpenLoopReplay,
-                                        fill_unseen_from_controller, input_uncertainty,
-                                        PreparedRun, channels, closed_loop_channels, note_slip_episodes,
-                                        prepare_timed, state_table)
+from host_tools.analyzer.prepare.inputs import prepare_timed
+from host_tools.analyzer.prepare.run import PreparedRun
+from host_tools.analyzer.replay.anchors import note_slip_episodes
+from host_tools.analyzer.replay.channels import (CHANNELS, CUMULATIVE, DERIVED, FIT_CHANNELS,
+                                                 channels, state_table)
+from host_tools.analyzer.replay.closedloop import (CLOSED_LOOP_CHANNELS, ClosedLoopReplay,
+                                                   closed_loop_channels)
+from host_tools.analyzer.replay.openloop import OpenLoopReplay
+from host_tools.analyzer.replay.unseen import fill_unseen_from_controller, input_uncertainty
 
 REPORT_FORMAT = "mismatch-report/1"
 

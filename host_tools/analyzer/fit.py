@@ -15,8 +15,9 @@ import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
 from host_tools.analyzer import effects as fx
-from host_tools.analyzer.replay import (CHANNELS, DERIVED, FIT_CHANNELS, OpenLoopReplay,
-                                        PreparedRun, channels)
+from host_tools.analyzer.prepare.run import PreparedRun
+from host_tools.analyzer.replay.channels import DERIVED, FIT_CHANNELS, channels
+from host_tools.analyzer.replay.openloop import OpenLoopReplay
 
 # Recording time per run that the fit replays (see Problem.select_windows).
 FIT_BUDGET_S = 16.0
