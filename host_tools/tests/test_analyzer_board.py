@@ -93,7 +93,7 @@ def test_firmware_in_the_loop_nominal_run_is_no_mismatch(tmp_path, clamp):
     a fraction of a millimetre); before the latency and the ramp were replayed the camera was
     3.3 and 12.5 floors off on the noiseless runs."""
     from host_tools import fil
-    from host_tools.analyzer.analysis import analyze
+    from host_tools.analyzer.pipeline import analyze
     try:
         elf = fil.build_firmware()
     except fil.FilError as exc:

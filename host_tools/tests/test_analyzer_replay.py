@@ -73,8 +73,8 @@ def test_closed_loop_replay_uses_the_runs_clamp_setting(tmp_path):
 
 
 def test_back_emf_nominal_closed_loop_differs_and_the_fitted_model_closes_the_gap(tmp_path):
-    from host_tools.analyzer.analysis import analyze
-    from host_tools.analyzer.report import write_outputs
+    from host_tools.analyzer.pipeline import analyze
+    from host_tools.analyzer.report.writers import write_outputs
     eff = {"motor_back_emf": {"ke_ratio": 1.2}}
     paths = [truth.simulate_run(tmp_path / f"run-{i}", ref, eff, duration_s=2.5, seed=i)
              for i, ref in enumerate([LINE, ARC])]
@@ -104,8 +104,8 @@ def test_back_emf_nominal_closed_loop_differs_and_the_fitted_model_closes_the_ga
 
 
 def test_missing_reference_is_reported_not_guessed(tmp_path):
-    from host_tools.analyzer.analysis import analyze
-    from host_tools.analyzer.report import write_outputs
+    from host_tools.analyzer.pipeline import analyze
+    from host_tools.analyzer.report.writers import write_outputs
     path = truth.simulate_run(tmp_path / "run", LINE, None, duration_s=2.0, seed=4)
     meta_p = os.path.join(path, "meta.json")
     meta = json.load(open(meta_p))
@@ -187,7 +187,7 @@ def test_actuation_delay_is_kept_and_fitted_on_the_plain_replay_grid(tmp_path):
     the plant's delay line must survive the clock re-alignment at every row, and the
     actuation_delay candidate must still recover the delay."""
     from host_tools.analyzer import synth
-    from host_tools.analyzer.analysis import analyze
+    from host_tools.analyzer.pipeline import analyze
     from host_tools.analyzer.prepare.inputs import prepare
     from host_tools.analyzer.replay.openloop import OpenLoopReplay
     paths = synth.make_case(tmp_path / "delay", {"actuation_delay": {"delay_s": 0.03}},

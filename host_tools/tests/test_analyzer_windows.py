@@ -62,8 +62,8 @@ def test_a_long_null_stays_a_null_in_windows(tmp_path):
 
 
 def test_fit_windows_hold_the_mismatch_and_a_spread(tmp_path):
-    from host_tools.analyzer.analysis import noise_floors
-    from host_tools.analyzer.fit import Problem
+    from host_tools.analyzer.locate import noise_floors
+    from host_tools.analyzer.fit.problem import Problem
     path = synth.make_run(tmp_path / "emf", "turn", {"motor_back_emf": {"ke_ratio": 1.15}},
                           duration_s=60.0, seed=4)
     prep = PI.prepare_timed(load_run(path))
@@ -83,7 +83,7 @@ def test_gap_and_board_clock_offset_are_handled_in_bounded_time(tmp_path):
     import time
 
     from host_tools import runfmt
-    from host_tools.analyzer.analysis import analyze
+    from host_tools.analyzer.pipeline import analyze
     src = synth.make_run(tmp_path / "src", "turn", duration_s=8.0, seed=5)
     run = load_run(src)
     tel = {k: np.asarray(v) for k, v in run.telemetry.items()}
