@@ -11,7 +11,7 @@ import numpy as np
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit.problem import Problem
 from host_tools.analyzer.prepare.run import PreparedRun
-from host_tools.analyzer.replay.channels import CHANNELS, CUMULATIVE, FIT_CHANNELS, state_table
+from host_tools.analyzer.replay.channels import CHANNELS, CUMULATIVE, FIT_CHANNELS
 from host_tools.analyzer.replay.closedloop import CLOSED_LOOP_CHANNELS
 from host_tools.analyzer.signals import round_sig
 
@@ -106,9 +106,9 @@ def closed_loop_floors(chans_per_run: Sequence[Mapping[str, object]]) -> dict[st
 
 
 def _window_entries(preps, chans_per_run, floors, channel_names, replay_name,
-                    regime_cands_per_run, tau_max) -> tuple[list[dict], dict, float]:
+                    regime_cands_per_run, tau_max) -> tuple[list[dict], dict]:
     """Significant windows of every channel, with the regime that best explains them.
-    Returns the report entries, {(run, channel): windows} and the significant fraction."""
+    Returns the report entries and {(run, channel): windows}."""
     entries: list[dict] = []
     wins: dict = {}
     for c in channel_names:
@@ -136,7 +136,7 @@ def _window_entries(preps, chans_per_run, floors, channel_names, replay_name,
                                 "regime": regime.description if regime else "unknown",
                                 "regime_f1": round(regime.score, 3) if regime else 0.0,
                                 "replay": replay_name})
-    return entries, wins, 0.0
+    return entries, wins
 
 
 @dataclass
@@ -167,18 +167,16 @@ def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict],
     tau_max = float(min(plant.tau_max()))
     states = [state_table(p) for p in preps]
     chan_names = [c for c in CHANNELS if any(c in ch for ch in nominal)]
-    entries, wins, _ = _window_entries(preps, nominal, floors, chan_names, "duty", states,
-                                       tau_max)
-    entries_t, _, _ = _window_entries(preps, nominal_t, floors_t, chan_names, "torque",
-                                      states, tau_max)
+    entries, wins = _window_entries(preps, nominal, floors, chan_names, "duty", states, tau_max)
+    entries_t, _ = _window_entries(preps, nominal_t, floors_t, chan_names, "torque", states,
+                                   tau_max)
     cl_floors = closed_loop_floors(cl_nominal)
     cl_entries: list[dict] = []
     cl_wins: dict = {}
     if any(cl_nominal):
-        cl_entries, cl_wins, _ = _window_entries(preps, cl_nominal, cl_floors,
-                                                 [c for c in CLOSED_LOOP_CHANNELS
-                                                  if c in cl_floors], "closed-loop", states,
-                                                 tau_max)
+        cl_entries, cl_wins = _window_entries(preps, cl_nominal, cl_floors,
+                                              [c for c in CLOSED_LOOP_CHANNELS if c in cl_floors],
+                                              "closed-loop", states, tau_max)
     return Located(floors, floors_t, cl_floors, entries, entries_t, cl_entries, wins, cl_wins)
 
 
@@ -226,3 +224,18 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict], loc: 
     log(f"nominal replay: {len(loc.entries)} significant window(s) "
         f"({len(sig_fit)} in fit channels {', '.join(fit_chans)})")
     return Detection(problem, rss0, nrms0, strong_k, mismatch_seen)
+
+
+def state_table(prep: PreparedRun) -> dict[str, np.ndarray]:
+    """Operating state at the telemetry frames (from the recording), for regime search."""
+    tel = prep.run.telemetry
+    t = tel["t_s"]
+    k = 2 * np.pi / prep.ppr
+    w_r = np.gradient(tel["enc_r"] * k, t)
+    w_l = np.gradient(tel["enc_l"] * k, t)
+    w_r, w_l = sg.smooth(w_r, 3), sg.smooth(w_l, 3)
+    return {"t": t, "w_r": w_r, "w_l": w_l,
+            "a_r": sg.smooth(np.gradient(w_r, t), 3), "a_l": sg.smooth(np.gradient(w_l, t), 3),
+            "tau_r": tel["tau_cmd_r"], "tau_l": tel["tau_cmd_l"],
+            "u_r": tel["pwm_r"], "u_l": tel["pwm_l"],
+            "yaw": float(prep.robot["r"]) * (w_r - w_l) / (2 * float(prep.robot["b"]))}

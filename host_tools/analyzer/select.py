@@ -14,9 +14,9 @@ from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit.judge import Candidate, delta_bic, judge
 from host_tools.analyzer.fit.problem import Problem, effective_n
 from host_tools.analyzer.fit.workers import run_tasks
-from host_tools.analyzer.locate import STRONG_WINDOW, Detection
+from host_tools.analyzer.locate import STRONG_WINDOW, Detection, state_table
 from host_tools.analyzer.prepare.run import PreparedRun
-from host_tools.analyzer.replay.channels import channels, state_table
+from host_tools.analyzer.replay.channels import channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
 from host_tools.analyzer.signals import round_sig
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -219,9 +218,6 @@ def r_squared(y: np.ndarray, yhat: np.ndarray) -> float:
     y = np.asarray(y, float)
     ss = float(np.sum((y - np.mean(y)) ** 2))
     return 0.0 if ss == 0 else 1.0 - float(np.sum((y - yhat) ** 2)) / ss
-
-
-Predicate = Callable[[dict[str, np.ndarray]], np.ndarray]
 
 
 def round_sig(v: float, sig: int = 4) -> float:

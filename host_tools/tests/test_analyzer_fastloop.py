@@ -70,7 +70,7 @@ def test_phase_of_a_fast_loop_from_the_board_speeds(arc_run):
 
 def test_unreported_ticks_filled_closer_to_the_commands_given(arc_run):
     prep = PI.prepare(arc_run, 0.5, 0.0)
-    seen = prep.extras["seen_ticks"]
+    seen = prep.seen_ticks
     assert seen is not None and 0.4 < seen.mean() < 0.6   # every other tick reported
     dense = _dense_truth(arc_run.meta)
     idx = np.searchsorted(dense["t_s"], prep.t_in + 1e-9) - 1
@@ -98,19 +98,19 @@ def test_unreported_ticks_filled_closer_to_the_commands_given(arc_run):
 
 def test_count_anchored_pose_only_for_unreported_inputs(tmp_path, arc_run):
     prep = PI.prepare_timed(arc_run)
-    assert prep.extras["count_anchored_pose"]
+    assert prep.count_anchored_pose
     normal = load_run(truth.simulate_run(tmp_path / "fw", ARC, None, clamp=True, duration_s=2.0,
                                          seed=31))
-    assert not PI.prepare_timed(normal).extras["count_anchored_pose"]
+    assert not PI.prepare_timed(normal).count_anchored_pose
     duty = OL.OpenLoopReplay("duty")
     UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
     # a fill biased by 0.01 of duty on one wheel (what a wrong guess of the unreported
     # commands does): the replayed wheels drift, and with them the open-loop pose
-    seen = prep.extras["seen_ticks"]
+    seen = prep.seen_ticks
     prep.duty = (np.where(seen, prep.duty[0], prep.duty[0] + 0.01), prep.duty[1])
     sim = duty.simulate_windows(prep, {})
     anchored = CH.channels(prep, sim, "duty")
-    prep.extras["count_anchored_pose"] = False
+    prep.count_anchored_pose = False
     plain = CH.channels(prep, sim, "duty")
     # the wheels' channels are the same; the camera channels lose the replay's wheel drift
     assert np.array_equal(anchored["omega_r"].resid, plain["omega_r"].resid)
@@ -202,7 +202,7 @@ def test_unreported_commands_stay_within_their_bracket(arc_run):
     tick-level scatter."""
     prep = PI.prepare_timed(arc_run)
     cl = CL.ClosedLoopReplay().simulate(prep, {})
-    seen = prep.extras["seen_ticks"]
+    seen = prep.seen_ticks
     k = int(np.flatnonzero(~seen & (prep.t_in > 1.0))[0])
     j = int(np.argmin(np.abs(cl["t_s"] - prep.t_in[k])))
     cl = dict(cl)
@@ -240,7 +240,7 @@ def test_closed_loop_replay_matched_a_tick_early_or_late(tmp_path):
                                       seed=34, recorder={"tel_drop": 0.05}))
     prep = PI.prepare_timed(run)
     cl = CL.ClosedLoopReplay().simulate(prep, {})
-    seen = np.asarray(prep.extras["seen_ticks"], bool)
+    seen = np.asarray(prep.seen_ticks, bool)
     k = np.round((prep.t_in - cl["t_s"][0]) / (cl["t_s"][1] - cl["t_s"][0])).astype(np.int64)
     assert UN._replay_tick_shift(prep, cl, k, seen) == 0
     for lag in (1, -1):

@@ -224,8 +224,8 @@ def test_tick_phase_comes_from_the_recording_not_from_the_nominal_model(tmp_path
     ref = {"kind": "line", "accel": 72 * WHEEL_R_M, "cruise": 36 * WHEEL_R_M}
     path = truth.simulate_run(tmp_path / "run", ref, effects, clamp=False, duration_s=2.0, seed=5)
     prep = prepare_timed(load_run(path))
-    assert prep.extras["timing"].startswith("board wheel speeds")
-    assert _phase_err(prep.extras["tick_phase"], 0.0) < 1e-3
+    assert prep.timing.startswith("board wheel speeds")
+    assert _phase_err(prep.tick_phase, 0.0) < 1e-3
 
 
 def test_tick_phase_of_synthetic_runs_and_no_phase_without_motion(tmp_path):
@@ -250,7 +250,7 @@ def test_replayed_odometry_is_the_pose_of_the_latest_inner_tick(tmp_path):
     rp = OpenLoopReplay("duty")
     sim = rp.simulate(prep, {})
     at_ticks = channels(prep, sim)
-    prep.extras["tick_phase"] = None          # odometry at the frame times
+    prep.tick_phase = None          # odometry at the frame times
     at_frames = channels(prep, sim)
     for c in ("x_odo_m", "y_odo_m"):
         assert _rms(at_ticks[c].resid) < 5e-4, (c, _rms(at_ticks[c].resid))

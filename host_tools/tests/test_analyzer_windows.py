@@ -57,7 +57,7 @@ def test_a_long_null_stays_a_null_in_windows(tmp_path):
     assert max(rms(one["x_m"]), rms(one["y_m"])) > 3e-3
     assert rms(win["x_m"]) < 1.5e-3 and rms(win["y_m"]) < 1.5e-3
     # the recorder (synth integrates at the ticks) is recognised as such
-    rec = prep.extras["recorder_odometry"]
+    rec = prep.recorder_odometry
     assert rec["schedule"] == "ticks" and rec["agrees"]
 
 

@@ -9,7 +9,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from host_tools.analyzer import effects as fx
-from host_tools.analyzer.fit.problem import FitResult, Problem, effective_n, params_for
+from host_tools.analyzer.fit.params import FitResult, params_for
+from host_tools.analyzer.fit.problem import Problem, effective_n
 from host_tools.analyzer.replay.channels import DERIVED
 
 

@@ -1,16 +1,14 @@
-"""The fit problem: the effects' parameters, the replayed residual in noise floors, and the
+"""The fit problem: the replayed residual of every fit channel in noise floors, and the
 least-squares fit of a set of effects."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
-
 from scipy.optimize import least_squares, minimize_scalar
 
-from host_tools.analyzer import effects as fx
+from host_tools.analyzer.fit.params import FitResult, Param, effects_dict, params_for
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import FIT_CHANNELS, channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
@@ -18,65 +16,6 @@ from host_tools.analyzer.replay.openloop import OpenLoopReplay
 
 # Recording time per run that the fit replays (see Problem.select_windows).
 FIT_BUDGET_S = 16.0
-
-
-@dataclass
-class Param:
-    effect: str
-    name: str
-    neutral: float
-    lo: float
-    hi: float
-    floor: float
-
-    def to_x(self, v: float) -> float:
-        return (v - self.lo) / (self.hi - self.lo)
-
-    def from_x(self, x: float) -> float:
-        return self.lo + float(x) * (self.hi - self.lo)
-
-
-def params_for(names: Sequence[str], meta: Mapping, vocab: Mapping[str, Mapping[str, float]]
-               ) -> list[Param]:
-    out = []
-    for n in names:
-        spec = fx.spec_for(n, vocab.get(n, {}))
-        for ps in spec.params:
-            if n in vocab and (ps.sets[0] if ps.sets else ps.name) not in vocab[n]:
-                continue
-            out.append(Param(n, ps.name, ps.neutral(meta), ps.lo(meta), ps.hi(meta),
-                             ps.floor(meta)))
-    return out
-
-
-def effects_dict(params: Sequence[Param], values: Sequence[float]) -> dict[str, dict[str, float]]:
-    """Vocabulary parameters (what the plant and the report take) of fitted coordinates."""
-    raw: dict[str, dict[str, float]] = {}
-    for p, v in zip(params, values):
-        raw.setdefault(p.effect, {})[p.name] = float(v)
-    return {e: fx.vocabulary_params(e, d) for e, d in raw.items()}
-
-
-@dataclass
-class FitResult:
-    effects: list[str]
-    params: dict[str, dict[str, float]]
-    values: list[float]
-    x: np.ndarray
-    rss: float
-    n: int
-    std: list[float]          # 1-sigma parameter uncertainty (autocorrelation-corrected)
-    nfev: int
-    ok: bool = True
-    message: str = ""
-    coords: list[tuple[str, str]] = field(default_factory=list)  # (effect, fitted coordinate)
-    fixed: dict = field(default_factory=dict)       # coordinate index -> pinned value in [0, 1]
-    unidentified: list[str] = field(default_factory=list)   # "effect.coordinate" pinned
-
-    @property
-    def n_free(self) -> int:
-        return len(self.values) - len(self.fixed)
-
 
 # A fitted coordinate is unidentified when its 1-sigma uncertainty exceeds this fraction of its
 # search range: the data say nothing about it.

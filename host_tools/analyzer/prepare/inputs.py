@@ -97,16 +97,10 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
                        duty=duty, torque=torque,
                        t_grid=grid, robot=dict(run.meta["robot"]), motor=dict(run.meta["motor"]),
                        start_pose=run.start_pose, ppr=int(run.meta["encoder_ppr"]),
-                       extras={"arc_position": arc_position, "inner_period": period,
-                               # the inner loop's tick phase: the firmware's odometry is
-                               # computed at its ticks (see channels())
-                               "tick_phase": phase,
-                               # per input tick: reported by a frame (None: every input is)
-                               "seen_ticks": seen,
-                               "t_steps": t_steps,
-                               # camera channels against the count-anchored pose (channels())
-                               "count_anchored_pose": bool(
-                                   period > 0 and t.size > 1 and period < 0.999 * dt_tel)})
+                       inner_period=period, tick_phase=phase, seen_ticks=seen,
+                       t_steps=t_steps,
+                       count_anchored_pose=bool(period > 0 and t.size > 1
+                                                and period < 0.999 * dt_tel))
 
 
 def prepare_timed(run: Run) -> PreparedRun:
@@ -143,9 +137,9 @@ def prepare_timed(run: Run) -> PreparedRun:
         timing = "half a period before the frames (phase not identified)"
         unc = 0.5 * period
     prep = prepare(run, 0.5, phase)
-    prep.extras["timing"] = timing
-    prep.extras["phase_uncertainty_s"] = unc
+    prep.timing = timing
+    prep.phase_uncertainty_s = unc
     rec = recorder_odometry(prep)
-    prep.extras["recorder_odometry"] = rec
-    prep.extras["odo_schedule"] = rec.get("schedule", "ticks")
+    prep.recorder_odometry = rec
+    prep.odo_schedule = rec.get("schedule", "ticks")
     return prep

@@ -8,8 +8,8 @@ from host_tools.analyzer.prepare.run import GAP_S, PreparedRun
 
 def _tick_of_frame(prep: PreparedRun, t: np.ndarray) -> np.ndarray | None:
     """Time of the latest inner tick at or before each time in ``t`` (None: phase unknown)."""
-    phase = prep.extras.get("tick_phase")
-    period = float(prep.extras.get("inner_period") or 0.0)
+    phase = prep.tick_phase
+    period = float(prep.inner_period or 0.0)
     if phase is None or period <= 0:
         return None
     return phase + np.floor((t - phase) / period + 1e-9) * period
@@ -20,7 +20,7 @@ def odometry_times(prep: PreparedRun) -> np.ndarray:
     a recorder that integrates at its ticks (this project's firmware), the frame itself for one
     that integrates at the frames (see :func:`recorder_odometry`)."""
     t = prep.run.telemetry["t_s"]
-    if prep.extras.get("odo_schedule") == "frames":
+    if prep.odo_schedule == "frames":
         return t
     tk = _tick_of_frame(prep, t)
     return t if tk is None else np.maximum(tk, t[0])

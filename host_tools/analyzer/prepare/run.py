@@ -22,9 +22,28 @@ class PreparedRun:
     motor: dict
     start_pose: tuple[float, float, float]
     ppr: int
-    extras: dict = field(default_factory=dict)
     # replay windows: frame index ranges [i_a, i_b) covering the run (see make_windows)
     windows: list = field(default_factory=list)
+    # input timing (prepare): the inner loop's period and its tick phase (None: not pinned
+    # down); the firmware's odometry is computed at its ticks (see replay.channels)
+    inner_period: float = 0.0
+    tick_phase: float | None = None
+    # per input tick: reported by a frame (None: every input is)
+    seen_ticks: np.ndarray | None = None
+    # ramped duty: the ticks that set it (the motor current's transients)
+    t_steps: np.ndarray | None = None
+    # camera channels against the count-anchored pose (replay.anchors._count_anchor_shift)
+    count_anchored_pose: bool = False
+    # prepare_timed: how the tick phase was found, how far the ticks may be off, and how the
+    # recorder's odometry relates to its counts (prepare.odometry.recorder_odometry)
+    timing: str | None = None
+    phase_uncertainty_s: float = 0.0
+    recorder_odometry: dict | None = None
+    odo_schedule: str | None = None        # "ticks" or "frames"
+    # replay: the nominal replay's slip episodes (board times; replay.anchors) and the replay's
+    # uncertainty from unreported commands (channel -> (t, std); replay.unseen)
+    slip_episodes: list = field(default_factory=list)
+    replay_unc: dict | None = None
 
     @property
     def name(self) -> str:

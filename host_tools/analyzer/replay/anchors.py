@@ -16,7 +16,7 @@ if TYPE_CHECKING:
 
 
 def note_slip_episodes(prep: "PreparedRun", sims: "WindowSims") -> int:
-    """Record the slip episodes of a nominal replay ``sims`` (``extras["slip_episodes"]``, board
+    """Record the slip episodes of a nominal replay ``sims`` (``slip_episodes``, board
     times): across a slip the recorder's odometry stops following the body, so a window's
     camera anchor is fitted within the slip-free span around it.  Returns their number."""
     episodes = []
@@ -32,7 +32,7 @@ def note_slip_episodes(prep: "PreparedRun", sims: "WindowSims") -> int:
         for a in starts:
             later = ends[ends >= a]
             episodes.append((float(g[a]), float(g[later[0] + 1]) if later.size else float(g[-1])))
-    prep.extras["slip_episodes"] = sorted(episodes)
+    prep.slip_episodes = sorted(episodes)
     return len(episodes)
 
 
@@ -65,7 +65,7 @@ def _gt_anchor(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
     tg = gt["t_s"]
     # within the slip-free span around ``at`` (across a slip the odometry stops following the body)
     lo, hi = at - half, at + half
-    for a, b in prep.extras.get("slip_episodes", ()):
+    for a, b in prep.slip_episodes:
         if b <= at:
             lo = max(lo, b)
         elif a >= at:
@@ -149,7 +149,7 @@ def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.
                         tg: np.ndarray) -> dict[str, np.ndarray]:
     """The part of the replayed pose that only follows from the replay's wheels turning
     otherwise than the recorded counts say, at the camera times ``tg``; zero unless the run's
-    inputs are partly unrecorded (``extras["count_anchored_pose"]``).
+    inputs are partly unrecorded (``count_anchored_pose``).
 
     When some inner ticks' commands were never recorded (a loop faster than the telemetry),
     the replayed wheels drift from the real ones by what the filled-in commands miss, and the
@@ -162,7 +162,7 @@ def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.
     channels is what the counts cannot show: the geometry (wheel radius, track width) and
     slip."""
     zero = np.zeros(tg.size)
-    if not prep.extras.get("count_anchored_pose") or t.size < 2:
+    if not prep.count_anchored_pose or t.size < 2:
         return {"x_m": zero, "y_m": zero, "phi_rad": zero}
     tel = prep.run.telemetry
     k = 2 * np.pi / prep.ppr

@@ -49,9 +49,9 @@ def _replay_odometry(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.nda
     pose is reported like that; without it, at the frame times."""
     k = 2 * np.pi / prep.ppr
     r, b = float(prep.robot["r"]), float(prep.robot["b"])
-    phase = prep.extras.get("tick_phase")
-    period = float(prep.extras.get("inner_period") or 0.0)
-    if phase is None or period <= 0 or prep.extras.get("odo_schedule") == "frames":
+    phase = prep.tick_phase
+    period = float(prep.inner_period or 0.0)
+    if phase is None or period <= 0 or prep.odo_schedule == "frames":
         q_r = np.floor((_theta_at(sim, "r", t) - th0_r) / k)
         q_l = np.floor((_theta_at(sim, "l", t) - th0_l) / k)
         return encoder_odometry(q_r, q_l, t, r, b, prep.ppr, pose0)
@@ -139,9 +139,9 @@ def channels(prep: PreparedRun, sim, mode: str = "duty") -> dict[str, Channel]:
 
 
 def _with_uncertainty(prep: PreparedRun, chans: dict[str, Channel]) -> dict[str, Channel]:
-    """Attach the run's replay uncertainty (``extras["replay_unc"]``: channel -> (t, unc), from
+    """Attach the run's replay uncertainty (``replay_unc``: channel -> (t, unc), from
     :func:`input_uncertainty`) to its channels, at their sample times."""
-    unc = prep.extras.get("replay_unc")
+    unc = prep.replay_unc
     if unc:
         for name, ch in chans.items():
             if name in unc and ch.t.size:
@@ -239,11 +239,11 @@ def _current_channels(win: _Window) -> dict[str, Channel]:
             # the current follows the duty within the armature's electrical time, and where
             # in that transient the ADC sampled is not known: samples within CURRENT_SETTLE_S
             # of a change of the duty are left out
-            t_steps = prep.extras.get("t_steps")
+            t_steps = prep.t_steps
             dt_in = (t - _last_change(prep.t_in, prep.duty, t) if t_steps is None
                      else t - _tick_before(np.asarray(t_steps, float), t))
             keep = dt_in >= CURRENT_SETTLE_S
-            unc = float(prep.extras.get("phase_uncertainty_s") or 0.0)
+            unc = float(prep.phase_uncertainty_s or 0.0)
             if unc > 0:
                 # where the ticks are known only to within unc, a sample that close to a
                 # tick may sit on either side of it: left out as well
@@ -306,19 +306,3 @@ def _camera_channels(win: _Window) -> dict[str, Channel]:
             sv = sv - float(at("phi_rad", t[:1])[0]) + ref
         out["phi_rad"] = Channel("phi_rad", tg[ok], ph[ok], sv, "rad", seg(int(ok.sum())))
     return out
-
-
-def state_table(prep: PreparedRun) -> dict[str, np.ndarray]:
-    """Operating state at the telemetry frames (from the recording), for regime search."""
-    tel = prep.run.telemetry
-    t = tel["t_s"]
-    k = 2 * np.pi / prep.ppr
-    w_r = np.gradient(tel["enc_r"] * k, t)
-    w_l = np.gradient(tel["enc_l"] * k, t)
-    from host_tools.analyzer.signals import smooth
-    w_r, w_l = smooth(w_r, 3), smooth(w_l, 3)
-    return {"t": t, "w_r": w_r, "w_l": w_l,
-            "a_r": smooth(np.gradient(w_r, t), 3), "a_l": smooth(np.gradient(w_l, t), 3),
-            "tau_r": tel["tau_cmd_r"], "tau_l": tel["tau_cmd_l"],
-            "u_r": tel["pwm_r"], "u_l": tel["pwm_l"],
-            "yaw": float(prep.robot["r"]) * (w_r - w_l) / (2 * float(prep.robot["b"]))}

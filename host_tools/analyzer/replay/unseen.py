@@ -69,12 +69,12 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
     either side (tick-level differences come from single encoder counts, which no replay
     reproduces), is added to the fill.  The reported ticks stay as recorded.  Returns the
     number of ticks changed."""
-    seen = prep.extras.get("seen_ticks")
+    seen = prep.seen_ticks
     ts = np.asarray(cl_sim.get("t_s", np.zeros(0)), float)
     if seen is None or ts.size < 3 or bool(np.all(seen)):
         return 0
     T = float(ts[1] - ts[0])
-    period = float(prep.extras.get("inner_period") or 0.0)
+    period = float(prep.inner_period or 0.0)
     if T <= 0 or abs(T - period) > 1e-6 * max(period, 1e-9):
         return 0
     k = np.round((prep.t_in - ts[0]) / T).astype(np.int64)
@@ -119,7 +119,6 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
     prep.duty = (refined(prep.duty[0], "pwm_r"), refined(prep.duty[1], "pwm_l"))
     if prep.t_in_tau.size == prep.t_in.size and np.array_equal(prep.t_in_tau, prep.t_in):
         prep.torque = (refined(prep.torque[0], "tau_cmd_r"), refined(prep.torque[1], "tau_cmd_l"))
-    prep.extras["unseen_fill"] = "closed-loop pattern"
     return int(unseen.size)
 
 
@@ -144,11 +143,11 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     / sqrt(1.5): the fill's own error for white scatter), drawn per tick.  The replay turns the
     draws into the output errors they cause, large
     where the output is sensitive to the input (a slipping wheel, a step) and small elsewhere.
-    Stored in ``extras["replay_unc"]`` (channel -> (t, std over the draws)) and attached to the
+    Stored in ``replay_unc`` (channel -> (t, std over the draws)) and attached to the
     channels by :func:`channels`; decisions compare residuals with the noise floor and this
     uncertainty in quadrature (:meth:`Channel.deflated`).  Draws are seeded by the run's
     content, so an analysis is repeatable.  Returns the number of unseen ticks (0: no draw)."""
-    seen = prep.extras.get("seen_ticks")
+    seen = prep.seen_ticks
     if seen is None:
         return 0
     seen = np.asarray(seen, bool)
@@ -194,7 +193,7 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
                 t_of[name] = ch.t
     finally:
         prep.duty = base
-    prep.extras["replay_unc"] = {name: (t_of[name], np.std(np.array(v), axis=0))
+    prep.replay_unc = {name: (t_of[name], np.std(np.array(v), axis=0))
                                  for name, v in acc.items()
                                  if len({a.size for a in v}) == 1 and t_of[name].size}
     return int(unseen.size)

@@ -138,12 +138,12 @@ def recorder_findings(preps: Sequence[PreparedRun], nominal: Sequence[Mapping], 
     odometry channels disagree with the replay while the counts agree."""
     runs = []
     for prep, chans in zip(preps, nominal):
-        rec = dict(prep.extras.get("recorder_odometry") or {})
+        rec = dict(prep.recorder_odometry or {})
         entry = {"run": prep.name, "odometry_schedule": rec.get("schedule"),
                  "odometry_matches_lib_control": rec.get("agrees"),
                  "odometry_vs_lib_control": {k: {q: round_sig(v) for q, v in d.items()}
                                              for k, d in rec.get("by_schedule", {}).items()},
-                 "input_timing": prep.extras.get("timing")}
+                 "input_timing": prep.timing}
         enc_ok = all(c in chans and floors.get(c) and
                      float(np.sqrt(np.mean(chans[c].resid ** 2))) <= floors[c]
                      for c in ("enc_r", "enc_l"))
