@@ -26,7 +26,8 @@ int16_t motor_duty_q15(Wheel w);
 // holds this minus one), for tests and the FIL simulator.
 uint16_t motor_compare(Wheel w);
 
-// Current sense: starts A0 then A1 conversions (ADC ISR); results are raw 10-bit counts.
+// Current sense: starts A0 then A1 conversions (ADC ISR, 104 us each; ignored while a pair
+// converts), every 1 kHz tick; results are raw 10-bit counts of the last completed conversions.
 void motor_sense_start();
 uint16_t motor_sense_raw(Wheel w);
 

@@ -426,11 +426,12 @@ void telemetry_task() {
     t.status = status;
     t.failsafe = g_failsafe;
     t.reset_cause = boot_reset_cause();
+    // the latest pair, started by the 1 kHz tick at most ~1.2 ms ago (sched.cpp): a sample one
+    // telemetry period old would lag the duty the inner task changed since
     t.current_r = motor_sense_raw(kRight);
     t.current_l = motor_sense_raw(kLeft);
     t.stack_hwm = stack_high_water();
     t.boot_count = boot_count();
-    motor_sense_start();  // next pair, ready for the next frame
     send_msg(t);
 }
 

@@ -12,7 +12,7 @@ bool g_braking = true;
 int16_t g_slope[2];               // duty ramp (Q15 per ms), stepped by motor_ramp_tick()
 volatile uint8_t g_ramp_left;     // ramp steps left (0: no ramp)
 volatile uint16_t g_sense[2];
-volatile uint8_t g_sense_ch;
+volatile uint8_t g_sense_ch = 2;   // channel converting: 0 = A0, 1 = A1, 2 = pair done (idle)
 
 const uint16_t kTop = MOTOR_PWM_TOP;
 
@@ -161,8 +161,10 @@ uint16_t motor_compare(Wheel w) {  // counts per period the pin is high (0..TOP 
     return (MOTOR_L_TCCRA & _BV(MOTOR_L_COM1)) ? static_cast<uint16_t>(MOTOR_L_OCR + 1u) : 0;
 }
 
+// Called by the 1 kHz tick (an ISR that re-enables interrupts): while g_sense_ch is 2 no
+// conversion runs, so no ADC interrupt can come between the test and the start.
 void motor_sense_start() {
-    if (ADCSRA & _BV(ADSC)) return;  // previous pair still converting
+    if (g_sense_ch != 2) return;  // previous pair still converting
     g_sense_ch = 0;
     ADMUX = _BV(REFS0) | MOTOR_R_SENSE_MUX;
     ADCSRA |= _BV(ADSC);
@@ -187,5 +189,6 @@ ISR(ADC_vect, ISR_NOBLOCK) {
         ADCSRA |= _BV(ADSC);
     } else {
         g_sense[1] = v;
+        g_sense_ch = 2;
     }
 }

@@ -35,6 +35,7 @@ void sat_inc(uint16_t* c) {
 ISR(SCHED_TICK_VECT, ISR_NOBLOCK) {
     g_ms = g_ms + 1;
     motor_ramp_tick();  // the duty ramp of the torque->PWM map
+    motor_sense_start();  // the current pair (A0, A1: 208 us), fresh for whatever reads it
 }
 
 namespace {

@@ -141,7 +141,9 @@ def test_motor_outputs_read_back_as_the_commanded_duty(run48):
 def test_current_sense_reads_the_plant_armature_current(run48):
     # the firmware's own ADC code (A0/A1, AVcc reference) measures the plant's armature current
     # through the shield's volts per ampere (protocol.json current_sense): each frame reports the
-    # conversion pair its previous telemetry period started (adc_samples.csv: the sample instants)
+    # latest conversion pair the 1 kHz tick started (adc_samples.csv: the sample instants), at
+    # most a tick and a pair before the frame, so the analyzer may compare it with the plant at
+    # the frame's time
     out, _, s = run48
     tel, adc, pl = csv(out / "telemetry.csv"), csv(out / "adc_samples.csv"), csv(out / "plant.csv")
     cs = D.current_sense
@@ -149,10 +151,18 @@ def test_current_sense_reads_the_plant_armature_current(run48):
     csv_a = 0.5e-4  # telemetry.csv's current columns have 4 decimals
     for w, name in ((0, "r"), (1, "l")):
         t_sh, i_sh = adc["t_s"][adc["wheel"] == w], adc["current_a"][adc["wheel"] == w]
-        k = np.searchsorted(t_sh, tel["t_s"]) - 1  # the last sample before the frame
-        ok = (k >= 0) & (tel["t_s"] - t_sh[np.clip(k, 0, None)] < 0.025)
-        meas, k = tel[f"current_{name}_a"][ok], k[ok]
-        assert ok.sum() >= 70
+        # the frame is built right after its time stamp; it reads the channel's latest completed
+        # conversion, sampled at most a tick (1 ms) and a pair (208 us) before: of the samples
+        # in [t - 1.25 ms, t + 0.25 ms] the one it reports (within the ADC's half count)
+        meas_all = tel[f"current_{name}_a"]
+        ks, ms = [], []
+        for t_f, m in zip(tel["t_s"], meas_all):
+            cand = np.nonzero((t_sh >= t_f - 1.25e-3) & (t_sh <= t_f + 0.25e-3))[0]
+            if cand.size:
+                ks.append(cand[int(np.argmin(np.abs(m - np.abs(i_sh[cand]))))])
+                ms.append(m)
+        k, meas = np.asarray(ks), np.asarray(ms)
+        assert k.size >= 70
         # the ADC rounds: half a count of the current it sampled
         err = meas - np.abs(i_sh[k])
         assert np.all(np.abs(err) <= 0.5 * lsb_a + csv_a), np.abs(err).max() / lsb_a
