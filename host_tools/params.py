@@ -88,7 +88,7 @@ def parse(spec: Any) -> Table:
         raise TableError("must be an object with 'groups'")
     if set(spec["groups"]) != set(GROUPS):
         raise TableError(f"groups must be {GROUPS}, got {sorted(spec['groups'])}")
-    params = []
+    params: list[Param] = []
     for group in GROUPS:
         entries = spec["groups"][group].get("params")
         if not isinstance(entries, list) or not entries:
@@ -117,7 +117,7 @@ def load(path: Path | str = TABLE_PATH) -> Table:
 TABLE = load()
 ROBOT: dict[str, float] = TABLE.defaults("robot")
 MOTOR: dict[str, float] = TABLE.defaults("motor")
-ENCODER_PPR: int = TABLE.encoder.value
+ENCODER_PPR: int = int(TABLE.encoder.value)  # parsed as an integer (_param)
 RANGES: dict[tuple[str, str], tuple[float, float]] = {
     (p.group, p.name): (p.min, p.max) for p in TABLE.params if p.run_format}
-ENCODER_PPR_RANGE: tuple[int, int] = (TABLE.encoder.min, TABLE.encoder.max)
+ENCODER_PPR_RANGE: tuple[int, int] = (int(TABLE.encoder.min), int(TABLE.encoder.max))

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -274,7 +273,7 @@ def render_struct(m: dict, w) -> None:
             w(f"    void set_{f['name']}_{f.get('unit', 'units')}(uint32_t v) {{ {f['name']} = sat_div_u16(v, {s}UL); }}")
         elif f["type"] != "f32":
             w(f"    float get_{f['name']}() const {{ return static_cast<float>({f['name']}) * {c_float(scale)}; }}")
-            w(f"    // Saturates; false when v was NaN (raw 0) or out of the raw range.")
+            w("    // Saturates; false when v was NaN (raw 0) or out of the raw range.")
             w(f"    bool set_{f['name']}(float v) {{ return sat_{f['type']}(v, {c_float(inverse(scale))}, &{f['name']}); }}")
         del ctype
     # encode

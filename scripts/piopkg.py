@@ -4,7 +4,7 @@
 Called by scripts/setup.sh; not meant to be run by hand.
 
   piopkg.py assemble --deps .deps --deb-list scripts/deb-packages.txt
-      builds .deps/piopkgs/{toolchain-atmelavr,tool-simavr,tool-avrdude,tool-scons}
+      builds .deps/piopkgs/{toolchain-atmelavr,tool-simavr,tool-avrdude,tool-cppcheck,tool-scons}
   piopkg.py mark-official --core-dir .platformio --name tool-scons
       records owner "platformio" in the installed package's .piopm, so that PlatformIO
       treats the local package as the official one and never asks the registry for it.
@@ -26,6 +26,7 @@ VERSIONS = {
     "toolchain-atmelavr": ("1.50400.0", "avr-gcc 5.4.0, binutils-avr 2.26, avr-libc 2.0.0 (Debian bookworm)"),
     "tool-simavr": ("1.10600.0", "simavr 1.6 with libsimavr (Debian bookworm)"),
     "tool-avrdude": ("1.70100.0", "avrdude 7.1 (Debian bookworm)"),
+    "tool-cppcheck": ("1.21000.0", "cppcheck 2.10 (Debian bookworm)"),
 }
 
 LIB_WRAPPER = """#!/bin/sh
@@ -82,6 +83,21 @@ def wrap_binary(pkg: Path, name: str, extra: str = "") -> None:
     wrapper.chmod(wrapper.stat().st_mode | stat.S_IXUSR | stat.S_IXGRP | stat.S_IXOTH)
 
 
+def finish_cppcheck(pkg: Path) -> None:
+    """`pio check` runs <package>/cppcheck. cppcheck finds std.cfg and the other library
+    configurations in cfg/ beside its executable (the Debian FILESDIR is not there), so its data
+    folder moves into libexec/ next to the binary."""
+    wrap_binary(pkg, "cppcheck")
+    data = pkg / "lib" / "x86_64-linux-gnu" / "cppcheck"
+    for item in data.iterdir():
+        shutil.move(str(item), str(pkg / "libexec" / item.name))
+    data.rmdir()
+    (pkg / "bin" / "cppcheck-htmlreport").unlink()  # needs python3-pygments; not used
+    launcher = pkg / "cppcheck"
+    launcher.write_text('#!/bin/sh\nexec "$(cd "$(dirname "$0")" && pwd)/bin/cppcheck" "$@"\n')
+    launcher.chmod(launcher.stat().st_mode | stat.S_IXUSR | stat.S_IXGRP | stat.S_IXOTH)
+
+
 def scons_version_from_requirement() -> tuple[str, str]:
     """PlatformIO asks for tool-scons '~4.XYYZZ.0' meaning SCons X.YY.ZZ."""
     from platformio.dependencies import get_core_dependencies  # pylint: disable=import-outside-toplevel
@@ -135,6 +151,8 @@ def assemble(deps: Path, deb_list: Path) -> None:
             wrap_binary(dst, "simavr")
         elif target == "tool-avrdude":
             wrap_binary(dst, "avrdude", extra='-C "$here/../etc/avrdude.conf" ')
+        elif target == "tool-cppcheck":
+            finish_cppcheck(dst)
     assemble_scons(deps, out)
 
 

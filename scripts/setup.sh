@@ -7,7 +7,7 @@
 #   .deps/         downloads (.deb files, source packages) and what is unpacked from them
 #   .build/host/   the host shared library of lib/* (built by host_tools on demand, too)
 #
-# Sources: PyPI (Python packages, SCons), Debian (gcc-avr, binutils-avr, avr-libc, simavr,
+# Sources: PyPI (Python packages, SCons), Debian (gcc-avr, binutils-avr, avr-libc, simavr, cppcheck,
 # avrdude, and Unity 2.5.1 from the ntpsec source package). The PlatformIO registry is never
 # contacted: platformio.ini names the official platforms, and this script installs our own
 # stand-ins under those names (platforms/), plus tool packages made from the Debian files.
@@ -160,7 +160,7 @@ fi
 
 tools_hash="$(hash_of "$deb_list" "$ROOT/scripts/setup.sh" "$ROOT/scripts/piopkg.py" "$ROOT/requirements.txt")"
 tools_missing=0
-for name in toolchain-atmelavr tool-simavr tool-avrdude tool-scons; do
+for name in toolchain-atmelavr tool-simavr tool-avrdude tool-cppcheck tool-scons; do
     [[ -f "$PLATFORMIO_CORE_DIR/packages/$name/.piopm" ]] || tools_missing=1
 done
 if ! stamp_ok tools "$tools_hash" || [[ $tools_missing == 1 ]]; then

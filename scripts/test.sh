@@ -8,6 +8,8 @@
 #      XBee link (sim/isr_bench/run.sh)
 #   5. the timing budgets on a firmware-in-the-loop recording (48 rad/s^2 straight line)
 #   6. the Python tests of host_tools (pytest), firmware in the loop included
+#   7. static checks: ruff (lint), mypy (types), pio check (cppcheck on src/ and lib/);
+#      configured in pyproject.toml and platformio.ini, see docs/ARCHITECTURE.md "Code rules"
 set -uo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -60,6 +62,9 @@ fil_timing() {
 }
 step timing    fil_timing
 step python    .venv/bin/python -m pytest -q host_tools/tests
+step ruff      .venv/bin/ruff check host_tools bench sim scripts protocol params
+step mypy      .venv/bin/mypy
+step cppcheck  pio check -e megaatmega2560 -e native --fail-on-defect low
 
 echo
 if ((${#failed[@]})); then

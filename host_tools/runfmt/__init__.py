@@ -25,10 +25,10 @@ from __future__ import annotations
 
 from host_tools.runfmt.spec import (DEFAULT_META, FORMAT, GROUNDTRUTH_COLUMNS,
                                     GROUNDTRUTH_REQUIRED, TELEMETRY_COLUMNS, Run,
-                                    RunFormatError, _show, display)
-from host_tools.runfmt.validate import (_PARAM_RANGES, _check_time, check_compatible,
+                                    RunFormatError, _show, display)  # noqa: F401  (re-exported)
+from host_tools.runfmt.validate import (_PARAM_RANGES, _check_time, check_compatible,  # noqa: F401  (re-exported)
                                         split_unknown, validate_meta)
-from host_tools.runfmt.read import (ANALYZER_MIN_ROWS, _json_depth_ok, _read_csv, label_runs,
+from host_tools.runfmt.read import (ANALYZER_MIN_ROWS, _json_depth_ok, _read_csv, label_runs,  # noqa: F401  (re-exported)
                                     load_meta, load_run, parse_number, read_text)
 from host_tools.runfmt.write import RunWriter, write_groundtruth, write_run
 

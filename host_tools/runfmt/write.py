@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, TextIO
 
 import numpy as np
 
@@ -50,7 +50,7 @@ class RunWriter:
         self._columns = list(columns) if columns is not None else None
         if self._columns is not None:
             self._check_columns(self._columns)
-        self._fh = open(self._tpath, "w", newline="")
+        self._fh: TextIO | None = open(self._tpath, "w", newline="")
         self._header_written = False
         self._rows = 0
         self._last_t: float | None = None
@@ -66,6 +66,7 @@ class RunWriter:
             raise RunFormatError("duplicate column names", self._tpath)
 
     def _write_header(self) -> None:
+        assert self._fh is not None and self._columns is not None  # (callers: open, columns set)
         self._fh.write(",".join(self._columns) + "\n")
         self._header_written = True
 

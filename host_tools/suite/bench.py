@@ -16,7 +16,6 @@ import subprocess
 import sys
 import time
 
-from host_tools.suite import cases as C
 from host_tools.suite.generate import generate_case
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -271,7 +270,6 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
             extra = f" (equivalent: {','.join(sorted(set(r['named']) - set(r['selected'])))})"
         L.append(f"  {'OK ' if r['ok'] else 'MISS'} {r['case']:<{w}}  -> {said}{extra}")
     # compact matrix over effect names
-    labels = sorted({e for r in effs for e in r.get("named", [])} | {"no_mismatch", "unexplained"})
     L.append("")
     L.append("confusion matrix: true effect(s) -> counts of what the analyzer named (selected or "
              "equivalent; the verdict when nothing is named)")

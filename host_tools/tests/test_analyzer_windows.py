@@ -3,7 +3,6 @@ recorder's odometry schedule found from the recording, and the fit on informativ
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from _native_skip import needs_native
 

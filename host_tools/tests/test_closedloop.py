@@ -11,7 +11,7 @@ from host_tools import params
 
 WHEEL_R_M = params.ROBOT["r"]  # Table II.2
 
-from _native_skip import needs_native
+from _native_skip import needs_native  # noqa: E402
 
 pytestmark = needs_native()
 

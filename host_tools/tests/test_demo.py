@@ -1,6 +1,5 @@
 """The demo's part 1 (II.6 on the nominal model): facts that must hold, not figures copied in."""
 import json
-import os
 
 import pytest
 

@@ -112,7 +112,7 @@ def test_a_taken_port_is_bad_input(tmp_path, capsys):
         live.parse_address("localhost:http")
 
 
-def test_fil_recording_is_served_live(elf, tmp_path):
+def test_fil_recording_is_served_live(elf, tmp_path):  # noqa: F811  (the fixture imported above)
     fil.build_sim()
     cols = TelemetryColumns(P.definition()).columns
     pub = live.LivePublisher(port=0, columns=cols)
@@ -140,7 +140,7 @@ def test_fil_recording_is_served_live(elf, tmp_path):
     assert len(got["/odometry/tf"]) == 40
 
 
-def test_fil_record_command_serves_live(elf, tmp_path, capsys):
+def test_fil_record_command_serves_live(elf, tmp_path, capsys):  # noqa: F811  (the fixture)
     out = tmp_path / "cli_live"
     rc = cli(["-v", "fil", "record", "--out", str(out), "--elf", str(elf), "--duration", "0.5",
               "--live", "0"])

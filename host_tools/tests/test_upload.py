@@ -16,7 +16,6 @@ import subprocess
 import time
 from pathlib import Path
 
-import pytest
 
 from host_tools import firmware_id
 from host_tools import protocol as P

@@ -96,7 +96,6 @@ RefSample reference_at(const ReferenceSpec& sp, float t_s) {
   const float phi = u / rad;
   o.x_m = rad * sinf(phi);
   o.y_m = rad * (1.0f - cosf(phi));
-  o.phi_rad = phi;
   // wrap to [-pi, pi)
   o.phi_rad = phi - 6.28318530717959f * floorf((phi + 3.14159265358979f) / 6.28318530717959f);
   o.omega_rad_s = v / rad;
