@@ -63,8 +63,6 @@ def main(argv=None) -> int:
             perr = ""
             for s in an.selected:
                 if s["effect"] == name and main_p in s["params"]:
-                    from host_tools.analyzer import effects as fx
-                    from host_tools.runfmt import DEFAULT_META
                     true = CASES[name][main_p]
                     perr = f"{100 * (s['params'][main_p] - true) / true:+.1f}%"
         rows.append((name, an.verdict, ok, dt))
