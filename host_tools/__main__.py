@@ -22,6 +22,7 @@ COMMANDS = {
     "analyze": ("host_tools.analyzer.cli", "find, name and model sim/real mismatch"),
     "fil": ("host_tools.fil", "firmware in the loop: record a run from firmware.elf in simavr"),
     "demo": ("host_tools.demo", "the main job: thesis reproduction and analyzer demo"),
+    "batch": ("host_tools.batch.cli", "analyze many run sets on Dask; fleet table and drift report"),
 }
 
 
