@@ -28,7 +28,9 @@ def _client(scheduler: str | None, workers: int, worker_memory: str):
         return Client(scheduler, timeout="30s"), None
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                            memory_limit=worker_memory, host="127.0.0.1",
-                           dashboard_address=None, silence_logs=40)
+                           dashboard_address=None, silence_logs=40,
+                           # no dashboard; the scheduler's HTTP endpoints on a free local port
+                           scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     return Client(cluster), cluster
 
 

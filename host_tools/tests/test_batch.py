@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import subprocess
-import sys
 import threading
 import time
 
@@ -17,6 +14,7 @@ import pytest
 from _native_skip import needs_native
 
 from host_tools.batch import fleet
+from host_tools.batch.cluster import ProcessCluster
 from host_tools.batch import task as T
 from host_tools.batch.sets import BadInput, RunSet, discover, from_manifest, from_tree
 
@@ -187,21 +185,6 @@ def test_task_records_failures_and_resumes(tmp_path):
 # ------------------------------------------------------------------ a real cluster
 
 
-def _start(cmd, log):
-    return subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
-                            start_new_session=True,
-                            env=dict(os.environ, PYTHONPATH=ROOT))
-
-
-def _stop(proc):
-    if proc.poll() is None:
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-    proc.wait(timeout=30)
-
-
 @needs_native(truth=True)
 def test_cluster_with_a_worker_killed_mid_batch(tmp_path):
     """A scheduler and two workers as separate processes on 127.0.0.1; one worker (with its
@@ -216,26 +199,9 @@ def test_cluster_with_a_worker_killed_mid_batch(tmp_path):
         run = _sim(tmp_path / "fleet" / f"r{i}" / "2026-01-01" / "run-0", eff, seed=10 + i,
                    ref=LINE if i % 2 else ARC)
         sets.append(RunSet(f"r{i}", "2026-01-01", "", [run]))
-    sched_file = str(tmp_path / "scheduler.json")
-    logs = open(tmp_path / "cluster.log", "w")
-    dask = [sys.executable, "-m", "dask"]
-    procs = [_start(dask + ["scheduler", "--host", "127.0.0.1", "--port", "0",
-                            "--no-dashboard", "--scheduler-file", sched_file], logs)]
-    try:
-        t0 = time.time()
-        while not os.path.isfile(sched_file) and time.time() - t0 < 60:
-            time.sleep(0.2)
-        with open(sched_file) as fh:
-            address = json.load(fh)["address"]
+    with ProcessCluster(2, log=str(tmp_path / "cluster.log")) as cluster:
+        address = cluster.address
         assert address.startswith("tcp://127.0.0.1:")
-        for k in range(2):
-            procs.append(_start(dask + ["worker", address, "--host", "127.0.0.1",
-                                        "--nthreads", "1", "--nworkers", "1",
-                                        "--memory-limit", "1GiB", "--no-dashboard",
-                                        "--name", f"w{k}", "--death-timeout", "60"], logs))
-        from dask.distributed import Client
-        with Client(address, timeout="60s") as c:
-            c.wait_for_workers(2, timeout=90)
         out = str(tmp_path / "out")
         result: dict = {}
         th = threading.Thread(target=lambda: result.update(
@@ -250,10 +216,11 @@ def test_cluster_with_a_worker_killed_mid_batch(tmp_path):
             time.sleep(0.1)
         in_flight = set(os.listdir(partial))
         assert len(in_flight) >= 2, "the workers never started two analyses"
-        victim = procs[1]
+        victim = cluster.workers[1]
         analyses = [p for p in psutil.Process(victim.pid).children(recursive=True)
                     if "analyze" in " ".join(p.cmdline())]
-        _stop(victim)  # nanny and worker: SIGKILL to the process group
+        assert analyses, "the killed worker was running no analysis"
+        cluster.kill_worker(1)  # nanny and worker: SIGKILL to the process group
         th.join(timeout=240)
         assert not th.is_alive(), "the batch did not finish"
         recs = result["records"]
@@ -272,7 +239,24 @@ def test_cluster_with_a_worker_killed_mid_batch(tmp_path):
             assert T.read_result(out, name.rsplit(".", 1)[0].replace("~", "/"))["status"] == "ok"
         recs2, stats2 = run_batch(sets, out, scheduler=address, progress=lambda s: None)
         assert stats2["skipped"] == len(sets) and stats2["run"] == 0
-    finally:
-        for p in reversed(procs):
-            _stop(p)
-        logs.close()
+
+
+@needs_native(truth=True)
+def test_suite_bench_through_the_batch(tmp_path):
+    """``suite bench --dask``: the cases run as one batch and are scored as before."""
+    from host_tools.suite import bench, cases
+    null, emf = cases.get(["null_std", "motor_back_emf_strong"])
+    for c in (null, emf):
+        c.experiments = c.experiments[:1]
+        c.experiments[0] = c.experiments[0][:2] + (1.5,)
+    results, m, text = bench.bench(str(tmp_path), [null, emf], jobs=2, out=lambda s: None,
+                                   scheduler="local")
+    assert [r["case"] for r in results] == ["null_std", "motor_back_emf_strong"]
+    for r in results:
+        assert r["rc"] == 0 and r["verdict"] in ("no_mismatch", "explained", "unexplained")
+        assert r["analysis_s"] > 0
+        rec = T.read_result(str(tmp_path / "reports"), r["case"])
+        assert rec["status"] == "ok" and rec["report"]["verdict"] == r["verdict"]
+        assert os.path.isfile(tmp_path / "reports" / r["case"] / "score.json")
+    assert results[0]["ok"] == (results[0]["verdict"] == "no_mismatch")
+    assert "cases: 2" in text
