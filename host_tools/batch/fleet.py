@@ -255,6 +255,11 @@ def write_report(records: Sequence[dict], out_dir: str, alpha: float = ALPHA,
         else:
             L.append(f"| {s['robot']} | {s['param']} | {len(s['value'])} | "
                      f"{np.mean(s['value']):.5g} | - | - | - | - | not tested |")
+    quiet = sorted({r.get("robot") for r in records if r.get("status") == "ok"} -
+                   {s["robot"] for s in series} - {"", None})
+    if quiet:
+        L += ["", "No effect selected on any analyzed day (nothing to trend): " +
+              ", ".join(quiet) + "."]
     failed = [r for r in records if r.get("status") != "ok"]
     if failed:
         L += ["", "## Failed run sets", "", "| set | status | error |", "|---|---|---|"]
