@@ -62,10 +62,10 @@ def main() -> int:
     print(f"{'configuration':<44} {'sets':>5} {'wall s':>8} {'sets/min':>9} {'failed':>7} "
           f"{'mean analysis s':>16}")
     last = None
+    quiet = lambda s: None  # noqa: E731
     for cfg in [c for c in a.configs.split(",") if c]:
         out = os.path.join(a.out, cfg)
         shutil.rmtree(out, ignore_errors=True)
-        quiet = lambda s: None  # noqa: E731
         if cfg.startswith("local"):
             n = int(cfg[5:] or 1)
             recs, st = run_batch(timed, out, workers=n, progress=quiet)

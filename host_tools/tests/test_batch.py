@@ -149,6 +149,20 @@ def test_table_and_report(tmp_path):
     assert os.path.isfile(tmp_path / "plots" / "wear__wheel_radius.r_eff.png")
 
 
+def test_launch_limits_the_memory_of_the_analysis():
+    """The subprocess's own limit: 600 MB fail under a 300 MB address-space limit, pass without."""
+    import subprocess
+    import sys
+    code = "b = bytearray(600 * 2**20); print('allocated')"
+    for mem_mb, ok in ((0, True), (300, False)):
+        r = subprocess.run([sys.executable, "-m", "host_tools.batch._launch", str(os.getpid()),
+                            str(mem_mb), "--", sys.executable, "-c", code],
+                           capture_output=True, text=True, cwd=ROOT, timeout=60)
+        assert (r.returncode == 0 and "allocated" in r.stdout) == ok, (mem_mb, r.stderr)
+        if not ok:
+            assert "MemoryError" in r.stderr
+
+
 # ------------------------------------------------------------------ tasks (real analyses)
 
 
@@ -204,9 +218,10 @@ def test_cluster_with_a_worker_killed_mid_batch(tmp_path):
         assert address.startswith("tcp://127.0.0.1:")
         out = str(tmp_path / "out")
         result: dict = {}
+        lines: list[str] = []
         th = threading.Thread(target=lambda: result.update(
             zip(("records", "stats"), run_batch(sets, out, scheduler=address, timeout_s=120,
-                                                progress=lambda s: None))))
+                                                progress=lines.append))))
         th.start()
         partial = os.path.join(out, ".partial")
         t0 = time.time()
@@ -228,6 +243,10 @@ def test_cluster_with_a_worker_killed_mid_batch(tmp_path):
             [(r["set_id"], r["status"], r.get("error")) for r in recs]
         for s in sets:
             assert T.read_result(out, s.set_id)["report"]["verdict"]
+        # progress: one line per finished set, with the counts
+        done = [ln for ln in lines if ln.startswith("[")]
+        assert len(done) == len(sets) and done[-1].startswith(f"[{len(sets)}/{len(sets)}]")
+        assert f"{len(sets)} ok, 0 failed" in done[-1]
         # the killed worker's analysis was stopped with it (it would race its redo)
         time.sleep(1.0)
         assert not [p for p in analyses if p.is_running() and p.status() != "zombie"]
