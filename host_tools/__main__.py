@@ -2,7 +2,8 @@
 ``python -m host_tools COMMAND ...``): record a run from the robot's XBee (log), check the
 firmware's timing budgets on a run (timing), find, name and model what a recording shows and
 the nominal model leaves out (analyze), record a run from the real firmware in simavr
-against the plant (fil), reproduce the thesis's simulations and the analyzer demo (demo).
+against the plant (fil), reproduce the thesis's simulations and the analyzer demo (demo),
+analyze many run sets on a Dask cluster into a fleet table and drift report (batch).
 ``COMMAND --help`` gives a command's options. Exit codes: 0 done, 1 a check failed, 2 bad
 input (with the file and the place).
 """
