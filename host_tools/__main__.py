@@ -4,7 +4,8 @@ firmware's timing budgets on a run (timing), find, name and model what a recordi
 the nominal model leaves out (analyze), record a run from the real firmware in simavr
 against the plant (fil), reproduce the thesis's simulations and the analyzer demo (demo),
 write a run and its analysis as an MCAP file for Foxglove (export), make a run from a ROS
-bag (import).  ``COMMAND --help`` gives a command's options.  Messages go to stderr; ``-v``
+bag (import), analyze many run sets on a Dask cluster into a fleet table and drift report
+(batch).  ``COMMAND --help`` gives a command's options.  Messages go to stderr; ``-v``
 adds details, ``-q`` keeps errors only (both before COMMAND).  Exit codes: 0 done, 1 a check
 failed, 2 bad input (with the file and the place).
 """
@@ -28,6 +29,7 @@ COMMANDS = {
     "export": ("host_tools.interop.mcap_export", "write a run (and its analysis) as an MCAP file "
                "for Foxglove"),
     "import": ("host_tools.interop.rosbag_import", "make a run folder from a ROS 1 or ROS 2 bag"),
+    "batch": ("host_tools.batch.cli", "analyze many run sets on Dask; fleet table and drift report"),
 }
 
 

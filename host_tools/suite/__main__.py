@@ -71,6 +71,11 @@ def main(argv=None) -> int:
             p.add_argument("--timeout", type=float, default=None,
                            help="analyzer time limit per case, s (default 300; a case past it "
                                 "is stopped and scored as a timeout)")
+            p.add_argument("--dask", action="store_true",
+                           help="run the cases as one batch on a local Dask cluster of --jobs "
+                                "workers (host_tools.batch)")
+            p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                           help="run the cases as one batch on the Dask cluster at ADDRESS")
     a = ap.parse_args(argv)
     try:
         sel = C.get(a.cases.split(",") if a.cases else None, fast=a.fast, which=a.which,
@@ -142,7 +147,8 @@ def main(argv=None) -> int:
     from host_tools.suite.bench import DEFAULT_TIMEOUT_S
     _, m, text = bench(a.out, sel, jobs=a.jobs, regenerate=not a.reuse,
                        out=lambda s: print(s, flush=True),
-                       timeout_s=a.timeout if a.timeout is not None else DEFAULT_TIMEOUT_S)
+                       timeout_s=a.timeout if a.timeout is not None else DEFAULT_TIMEOUT_S,
+                       scheduler=a.scheduler or ("local" if a.dask else None))
     print(f"set: {a.which}" + (" (fast subset)" if a.fast else "") +
           (" (without the 10-minute cases)" if a.no_long else ""))
     print(text)

@@ -380,17 +380,53 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
     return "\n".join(L), m
 
 
-def bench(data_dir: str, case_list: list, jobs: int = 2, regenerate: bool = True,
-          out=print, timeout_s: float | None = DEFAULT_TIMEOUT_S) -> tuple[list[dict], dict, str]:
-    t0 = time.time()
+def _case_runs(case, data_dir: str, regenerate: bool) -> list[str]:
+    run_root = os.path.join(data_dir, "runs", case.name)
+    if regenerate or not os.path.isdir(run_root):
+        return generate_case(case, data_dir, overwrite=True)
+    return sorted(os.path.join(run_root, d) for d in os.listdir(run_root))
+
+
+def _bench_dask(data_dir: str, case_list: list, jobs: int, regenerate: bool, out,
+                timeout_s: float | None, scheduler: str) -> list[dict]:
+    """The cases as one batch (host_tools.batch): on a local Dask cluster of ``jobs`` workers
+    (``scheduler`` "local") or on the cluster at the address ``scheduler``."""
+    from host_tools.batch.run import run_batch
+    from host_tools.batch.sets import RunSet
+    sets = [RunSet("", "", c.name, _case_runs(c, data_dir, regenerate)) for c in case_list]
+    recs, _ = run_batch(sets, os.path.join(data_dir, "reports"), workers=jobs,
+                        scheduler=None if scheduler == "local" else scheduler,
+                        timeout_s=timeout_s, redo=True, progress=out)
     results = []
-    for i, case in enumerate(case_list):
+    for case, rec in zip(case_list, recs):
+        rp = os.path.join(data_dir, "reports", case.name, "report.json")
+        rc = {"timeout": -9, "lost": 1}.get(rec["status"], rec.get("rc"))
+        rc = 1 if rc is None else rc
+        report = None
+        if rc == 0 and os.path.isfile(rp):
+            with open(rp) as fh:
+                report = json.load(fh)
+        with open(os.path.join(data_dir, "labels", f"{case.name}.json")) as fh:
+            r = score_case(json.load(fh), rc, report)
+        r.update(case_s=rec.get("wall_s"), analysis_s=rec.get("wall_s"),
+                 peak_rss_mb=rec.get("peak_rss_mb", 0.0))
+        with open(os.path.join(data_dir, "reports", case.name, "score.json"), "w") as fh:
+            json.dump(r, fh, indent=2)
+        results.append(r)
+    return results
+
+
+def bench(data_dir: str, case_list: list, jobs: int = 2, regenerate: bool = True,
+          out=print, timeout_s: float | None = DEFAULT_TIMEOUT_S,
+          scheduler: str | None = None) -> tuple[list[dict], dict, str]:
+    """``scheduler``: None runs the cases one after the other here; "local" or a Dask
+    scheduler's address runs them as one batch (host_tools.batch)."""
+    t0 = time.time()
+    results = [] if scheduler is None else \
+        _bench_dask(data_dir, case_list, jobs, regenerate, out, timeout_s, scheduler)
+    for i, case in enumerate(case_list if scheduler is None else []):
         tc = time.time()
-        run_root = os.path.join(data_dir, "runs", case.name)
-        if regenerate or not os.path.isdir(run_root):
-            runs = generate_case(case, data_dir, overwrite=True)
-        else:
-            runs = sorted(os.path.join(run_root, d) for d in os.listdir(run_root))
+        runs = _case_runs(case, data_dir, regenerate)
         with open(os.path.join(data_dir, "labels", f"{case.name}.json")) as fh:
             label = json.load(fh)
         rep_dir = os.path.join(data_dir, "reports", case.name)
