@@ -41,6 +41,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from host_tools import _stdio
+    try:
+        return _main(argv)
+    finally:
+        _stdio.settle()  # a closed status pipe never turns into a traceback at exit
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
@@ -49,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_import_error", None):
         print(f"error: command '{args.command}' is unavailable: {args._import_error}", file=sys.stderr)
         return 2
+    args._owns_process = argv is None  # the command line of this process, not a caller's list
     return int(importlib.import_module(args._module).main(args) or 0)
 
 
