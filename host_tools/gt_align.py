@@ -139,9 +139,5 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
     meta["groundtruth"] = info
     if start_pose is not None:
         meta["start_pose"] = [round(v, 6) for v in start_pose]
-    tmp = mpath + ".tmp"
-    with open(tmp, "w") as fh:
-        json.dump(meta, fh, indent=2)
-        fh.write("\n")
-    os.replace(tmp, mpath)
+    runfmt.write_atomic(mpath, json.dumps(meta, indent=2) + "\n")
     return info

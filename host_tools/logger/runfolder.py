@@ -134,19 +134,8 @@ class RunFolderMixin:
     def write_meta(self) -> None:
         path = os.path.join(self.out, "meta.json")
         meta = runfmt.validate_meta(self._meta(), path)
-        tmp = path + ".tmp"
-        try:
-            with open(tmp, "w") as fh:
-                fh.write(json.dumps(meta, indent=2) + "\n")
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            try:  # never leave a half-written meta.json.tmp next to the last good meta.json
-                os.remove(tmp)
-            except OSError:
-                pass
-            raise
+        # beside and renamed, in a file created exclusively: never a half-written meta.json
+        runfmt.write_atomic(path, json.dumps(meta, indent=2) + "\n")
 
     def event(self, kind: str, **kw) -> None:
         kw = {"host_t_s": round(self.clock() - self._t0, 4), "kind": kind, **kw}

@@ -9,6 +9,7 @@ import json
 import math
 import os
 import re
+import stat
 from typing import Any, Iterable
 
 import numpy as np
@@ -53,18 +54,39 @@ def _csv_column_at(data: bytes, line: int, char: int) -> str | None:
     return header[k].strip() if k < len(header) else None
 
 
-def read_text(path: str, csv_file: bool = False) -> str:
-    """The text of a run file: UTF-8 without byte-order mark and without NUL bytes;
-    anything else raises :class:`RunFormatError` naming what it is and where."""
+def _read_bytes(path: str, limit: int = _MAX_FILE_BYTES) -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes.  Opened without blocking and
+    checked on the open descriptor: a FIFO, a device (``/dev/zero``), a socket or a folder is
+    refused, never waited on or read without end; a file growing past the limit while read
+    is refused too."""
     try:
-        size = os.path.getsize(path)
-        if size > _MAX_FILE_BYTES:
-            raise RunFormatError(f"is {size} bytes, larger than the {_MAX_FILE_BYTES} this "
-                                 "reader takes", path)
-        with open(path, "rb") as fh:
-            data = fh.read()
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except OSError as exc:
         raise RunFormatError(f"cannot read: {exc.strerror or exc}", path) from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise RunFormatError("is not a regular file (a FIFO, a device or a folder is "
+                                 "not read)", path)
+        if st.st_size > limit:
+            raise RunFormatError(f"is {st.st_size} bytes, larger than the {limit} this "
+                                 "reader takes", path)
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(limit + 1)
+    except OSError as exc:
+        raise RunFormatError(f"cannot read: {exc.strerror or exc}", path) from None
+    finally:
+        os.close(fd)
+    if len(data) > limit:
+        raise RunFormatError(f"grew past the {limit} bytes this reader takes while read", path)
+    return data
+
+
+def read_text(path: str, csv_file: bool = False, limit: int = _MAX_FILE_BYTES) -> str:
+    """The text of a run file (a regular file of at most ``limit`` bytes): UTF-8 without
+    byte-order mark and without NUL bytes; anything else raises :class:`RunFormatError`
+    naming what it is and where."""
+    data = _read_bytes(path, limit)
     if data.startswith(b"\xef\xbb\xbf"):
         raise RunFormatError("starts with a UTF-8 byte-order mark (bytes EF BB BF, invisible "
                              "in most editors); the run format is UTF-8 without one: save the "

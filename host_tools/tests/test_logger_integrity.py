@@ -160,3 +160,27 @@ def test_three_quick_signals_leave_a_complete_folder(tmp_path, sig, gap_s, reaso
     assert proc.returncode == 0, err
     assert "Traceback" not in err
     _check_complete(out, reason)
+
+
+# ------------------------------------------------------------- never through a stale link
+
+
+def test_stale_temp_links_in_the_run_folder_are_never_written_through(tmp_path, monkeypatch, capsys):
+    """A ``meta.json.tmp`` left as a link to another file (another run's meta.json): the
+    logger and --attach-groundtruth write their own temporary files, never through it."""
+    victim = tmp_path / "victim.json"
+    victim.write_text('{"keep": true}\n')
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "meta.json.tmp").symlink_to(victim)
+    port = ScriptedPort(_stream(n=30), [997])
+    monkeypatch.setattr(serial, "serial_for_url", lambda *a, **k: port)
+    assert L.main(_args(["--port", "scripted", "--out", str(out), "--quiet", "--params-timeout", "0"])) == 0
+    assert victim.read_text() == '{"keep": true}\n'
+    assert json.loads((out / "meta.json").read_text())["logger"]["telemetry_rows"] == 30
+    run = rows(out)
+    trk = tmp_path / "trk.csv"
+    trk.write_text("t_s,x_m,y_m\n" + "".join(f"{t:.3f},0,0\n" for t in run.telemetry["t_s"]))
+    assert L.main(_args(["--out", str(out), "--attach-groundtruth", str(trk), "--gt-offset", "0"])) == 0
+    assert victim.read_text() == '{"keep": true}\n'
+    assert "groundtruth" in json.loads((out / "meta.json").read_text())
