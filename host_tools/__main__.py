@@ -44,8 +44,25 @@ def main(argv: list[str] | None = None) -> int:
     from host_tools import _stdio
     try:
         return _main(argv)
+    except Exception as exc:
+        if not _broken_installation(exc):
+            raise
+        msg = str(exc)
+        if "params.json" in msg or "protocol.json" in msg:
+            msg += ("\n(a file of the installation itself is broken: restore it from the "
+                    "release or from git)")
+        _stdio.say(f"error: {msg}")
+        return 2
     finally:
         _stdio.settle()  # a closed status pipe never turns into a traceback at exit
+
+
+def _broken_installation(exc: BaseException) -> bool:
+    """An error of the tables every command loads (params/params.json through
+    host_tools.params, protocol/protocol.json through host_tools.protocol).  Matched by name:
+    a module whose import failed defines a new class each time it is imported again."""
+    return (type(exc).__module__, type(exc).__name__) in (
+        ("host_tools.params", "TableError"), ("host_tools.protocol", "ProtocolError"))
 
 
 def _main(argv: list[str] | None) -> int:

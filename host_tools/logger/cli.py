@@ -86,7 +86,7 @@ def main(args: argparse.Namespace) -> int:
             mu = M.firmware_mu(M.load_model(args.model), args.model)
         if mu is not None:
             d.raw_values("SetMu", {"mu_s": mu[0], "mu_k": mu[1]})
-    except (P.ProtocolError, ValueError) as exc:
+    except (P.ProtocolError, ValueError, OverflowError) as exc:
         say(f"error: {exc}")
         return 2
     record_s = args.record_s

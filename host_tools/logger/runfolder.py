@@ -40,8 +40,8 @@ class RunFolderMixin:
         shown = runfmt.display(self.out)
         if os.path.exists(self.out) and not os.path.isdir(self.out):
             raise LoggerError(f"--out {shown} exists and is not a folder", 2)
-        for f in RUN_FILES[1:]:
-            if os.path.exists(os.path.join(self.out, f)):
+        for f in RUN_FILES:  # meta.json alone is a run someone made (or is making)
+            if os.path.lexists(os.path.join(self.out, f)):
                 raise LoggerError(f"{runfmt.display(os.path.join(self.out, f))} already exists; "
                                   "refusing to overwrite a recorded run", 2)
         reserve = os.path.join(self.out, RESERVE_NAME)

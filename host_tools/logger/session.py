@@ -89,8 +89,13 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
                 raise
             except OSError as exc:
                 self._free_reserve()
+                self._close_port()
                 raise LoggerError(f"--out {runfmt.display(self.out)} cannot be written: "
                                   f"{exc.strerror or exc}", 2) from None
+            except runfmt.RunFormatError as exc:  # the folder changed since prepare_out
+                self._free_reserve()
+                self._close_port()
+                raise LoggerError(str(exc), 2) from None
             try:
                 self._interruptible = True  # the second signal may interrupt from here on
                 try:

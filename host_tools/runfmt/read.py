@@ -163,7 +163,8 @@ def _read_csv(path: str, required: Iterable[str], may_be_empty: Iterable[str] = 
         if len(row) != len(header):
             raise RunFormatError(f"has {len(row)} fields, the header has {len(header)}", path, row=i)
         for h, cell in zip(header, row):
-            columns[h].append(cell.strip())
+            # a blank cell is empty; any other is taken as written: ' 1' is not a number
+            columns[h].append(cell if cell.strip() else "")
     out: dict[str, np.ndarray] = {}
     for h in header:
         cells = columns[h]
