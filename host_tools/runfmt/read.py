@@ -55,28 +55,13 @@ def _csv_column_at(data: bytes, line: int, char: int) -> str | None:
 
 
 def _read_bytes(path: str, limit: int = _MAX_FILE_BYTES) -> bytes:
-    """The bytes of a regular file of at most ``limit`` bytes.  Opened without blocking and
-    checked on the open descriptor: a FIFO, a device (``/dev/zero``), a socket or a folder is
-    refused, never waited on or read without end; a file growing past the limit while read
-    is refused too."""
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except OSError as exc:
-        raise RunFormatError(f"cannot read: {exc.strerror or exc}", path) from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise RunFormatError("is not a regular file (a FIFO, a device or a folder is "
-                                 "not read)", path)
-        if st.st_size > limit:
-            raise RunFormatError(f"is {st.st_size} bytes, larger than the {limit} this "
-                                 "reader takes", path)
-        with os.fdopen(fd, "rb", closefd=False) as fh:
+    """The bytes of a regular file of at most ``limit`` bytes (see :func:`_open_regular`); a
+    file growing past the limit while read is refused too."""
+    with _open_regular(path, limit) as fh:
+        try:
             data = fh.read(limit + 1)
-    except OSError as exc:
-        raise RunFormatError(f"cannot read: {exc.strerror or exc}", path) from None
-    finally:
-        os.close(fd)
+        except OSError as exc:
+            raise RunFormatError(f"cannot read: {exc.strerror or exc}", path) from None
     if len(data) > limit:
         raise RunFormatError(f"grew past the {limit} bytes this reader takes while read", path)
     return data
@@ -177,8 +162,10 @@ class _Lines:
                                  line=self.line_no, char=exc.start + 1, column=col) from None
 
 
-def _open_regular(path: str):
-    """A binary file object of a regular file of at most _MAX_FILE_BYTES (see _read_bytes)."""
+def _open_regular(path: str, limit: int = _MAX_FILE_BYTES):
+    """A binary file object of a regular file of at most ``limit`` bytes.  Opened without
+    blocking and checked on the open descriptor: a FIFO, a device (``/dev/zero``), a socket or
+    a folder is refused, never waited on or read without end."""
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except OSError as exc:
@@ -188,9 +175,9 @@ def _open_regular(path: str):
         if not stat.S_ISREG(st.st_mode):
             raise RunFormatError("is not a regular file (a FIFO, a device or a folder is "
                                  "not read)", path)
-        if st.st_size > _MAX_FILE_BYTES:
-            raise RunFormatError(f"is {st.st_size} bytes, larger than the {_MAX_FILE_BYTES} "
-                                 "this reader takes", path)
+        if st.st_size > limit:
+            raise RunFormatError(f"is {st.st_size} bytes, larger than the {limit} this "
+                                 "reader takes", path)
         return os.fdopen(fd, "rb", buffering=1 << 20)
     except BaseException:
         os.close(fd)
