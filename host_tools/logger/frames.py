@@ -330,6 +330,8 @@ class FramesMixin:
         row = self.cols.row(raws, t_s, f.seq, host_t)
         self.writer.write_row(row)
         self.stats["telemetry_rows"] += 1
+        if getattr(self, "on_row", None) is not None:
+            self.on_row(row)
         self.last_t_us, self.last_t_s, self.last_host_t, self.last_row = t_us, t_s, host_t, row
         status = raws[self.cols.index["status"]]
         flags = self.d.flags["status"]

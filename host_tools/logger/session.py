@@ -38,7 +38,8 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
                  mu: tuple[float, float] | None = None, record_s: float | None = None,
                  controller: str | None = None, reconnect_timeout_s: float = 30.0, params_timeout_s: float = 1.0,
                  status: bool = True, description: str | None = None,
-                 d: P.Definition | None = None, clock: Callable[[], float] = time.monotonic):
+                 d: P.Definition | None = None, clock: Callable[[], float] = time.monotonic,
+                 on_row: Callable[[dict], None] | None = None):
         self.d = d or P.definition()
         self.out = out_dir
         self.open_port = open_port
@@ -48,8 +49,8 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         self.clamp = clamp
         self.mu = mu
         if controller is not None and controller not in self.d.enums["controller"]:
-            raise LoggerError(f"controller {controller!r} is not one of "
-                              f"{sorted(self.d.enums['controller'])}", 2)
+            raise LoggerError(f"controller '{controller}' is not one of "
+                              f"{', '.join(sorted(self.d.enums['controller']))}", 2)
         self.controller = controller
         self.record_s = record_s
         self.reconnect_timeout_s = reconnect_timeout_s
@@ -59,6 +60,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         self.clock = clock
         self._init_link()
         self._init_frames()
+        self.on_row = on_row  # called with each telemetry row written (the live view)
         self._stop = False
         self._signals = 0
         self._interruptible = False
