@@ -15,8 +15,9 @@ import argparse
 import math
 import os
 import signal
-import sys
 import tempfile
+
+from host_tools._stdio import out, say
 
 # Bounds of the options (every option is bounded: a value outside gives exit 2).
 DT_MIN_S, DT_MAX_S = 1e-4, 1e-2   # plant step; 5e-4 is the default, 1e-4 costs 5x as long
@@ -65,7 +66,7 @@ def _native_build_error() -> type:
 
 
 def _bad(msg: str) -> int:
-    print(f"error: bad input: {msg}", file=sys.stderr)
+    say(f"error: bad input: {msg}")
     return 2
 
 
@@ -110,13 +111,20 @@ def _stop_on_signals() -> dict:
     return old
 
 
+_WRITTEN: list[bool] = []  # set once this command's outputs are all in place
+
+
 def main(args: argparse.Namespace) -> int:
     old = _stop_on_signals()
+    _WRITTEN.clear()
     try:
         return _main(args)
     except _Interrupted as exc:
-        print(f"error: interrupted by {exc}; no outputs written (report.json, report.md and "
-              "model.json are written whole or not at all)", file=sys.stderr)
+        if _WRITTEN:  # the signal came while the finished set was moved into place
+            say(f"error: interrupted by {exc} after the outputs were written whole")
+        else:
+            say(f"error: interrupted by {exc}; no outputs written (report.json, report.md, "
+                "model.json and the plots are written as one set or not at all)")
         return 1
     finally:
         for sig, h in old.items():
@@ -147,26 +155,36 @@ def _main(args: argparse.Namespace) -> int:
     except RunFormatError as exc:
         return _bad(str(exc))
     runfmt.label_runs(runs)
+    for r in runs:  # the plant steps explicitly: --dt must be stable for every run's robot
+        dt_max = runfmt.max_stable_plant_dt_s(r.meta)
+        if args.dt > dt_max:
+            return _bad(f"--dt {args.dt:g} s is longer than the longest stable plant step for "
+                        f"{runfmt.display(os.path.join(r.path, 'meta.json'))} ({dt_max:.3g} s: "
+                        "twice a slipping wheel's back-EMF time constant); pass a smaller --dt")
     notes = [n for r in runs for n in r.notes]
     for n in notes:
-        print(f"note: {n}", file=sys.stderr)
+        say(f"note: {n}")
     from host_tools.analyzer.pipeline import analyze
     from host_tools.analyzer.report.writers import write_outputs
+    from host_tools.analyzer.fit.workers import WorkerDied
     try:
         an = analyze(runs, jobs=args.jobs, effects=effects, dt_s=args.dt)
     except RunFormatError as exc:
         return _bad(str(exc))
+    except WorkerDied as exc:
+        say(f"error: {exc}")
+        return 1
     except (ImportError, OSError, _native_build_error()) as exc:
         # the native plant (lib/slipmodel via host_tools._native) could not be built or loaded
-        print(f"error: the native plant is unavailable: {type(exc).__name__}: {exc}",
-              file=sys.stderr)
+        say(f"error: the native plant is unavailable: {type(exc).__name__}: {exc}")
         return 1
     an.notes.extend(notes)
     try:
-        write_outputs(an, args.out, plots=not args.no_plots)
+        write_outputs(an, args.out, plots=not args.no_plots,
+                      on_committed=lambda: _WRITTEN.append(True))
     except OSError as exc:
-        print(f"error: cannot write the outputs into {runfmt.display(args.out)}: "
-              f"{exc.strerror or exc}", file=sys.stderr)
+        say(f"error: cannot write the outputs into {runfmt.display(args.out)}: "
+              f"{exc.strerror or exc}")
         return 1
-    print(f"verdict: {an.verdict}; report: {runfmt.display(os.path.join(args.out, 'report.json'))}")
+    out(f"verdict: {an.verdict}; report: {runfmt.display(os.path.join(args.out, 'report.json'))}")
     return 0

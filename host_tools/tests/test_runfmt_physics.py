@@ -53,3 +53,15 @@ def test_timing_refuses_such_a_run_with_exit_2(tmp_path):
                        capture_output=True, text=True)
     assert r.returncode == 2 and "meta.json" in r.stderr and "'robot.e'" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_analyze_refuses_a_dt_unstable_for_the_robot(tmp_path, capsys):
+    """A light wheel (I_wy 1e-5 kg m^2: stable up to about 1 ms steps) with --dt 0.01: exit 2
+    before the analysis, naming the file and the longest stable step."""
+    from host_tools.__main__ import main as cli
+    from test_badinput import _base
+
+    run = _base(tmp_path / "run", meta={"experiment": "light wheel", "robot": {"I_wy": 1e-5}})
+    assert cli(["analyze", str(run), "--out", str(tmp_path / "out"), "--dt", "0.01"]) == 2
+    err = capsys.readouterr().err
+    assert "longest stable plant step" in err and "meta.json" in err
