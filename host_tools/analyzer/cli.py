@@ -22,6 +22,7 @@ from host_tools._stdio import out, say
 # Bounds of the options (every option is bounded: a value outside gives exit 2).
 DT_MIN_S, DT_MAX_S = 1e-4, 1e-2   # plant step; 5e-4 is the default, 1e-4 costs 5x as long
 JOBS_MAX = 64
+MAX_PLANT_STEPS = 2e8             # per run: about 28 h of recording at the default --dt
 EFFECTS_MAX = 64
 
 EPILOG = """\
@@ -88,6 +89,26 @@ def check_out_dir(out: str) -> str | None:
     return None
 
 
+def _span_problem(run, dt_s: float) -> str | None:
+    """A recording the replay cannot step through: more than MAX_PLANT_STEPS plant steps or
+    control ticks (a clock glitch such as one t_s of 1e9 would ask for TiB of memory).  Names
+    the row after the largest time step."""
+    import numpy as np
+    from host_tools.runfmt import display
+
+    t = run.telemetry["t_s"]
+    inner = float(run.meta.get("periods_s", {}).get("inner") or dt_s)
+    span = float(t[-1] - t[0])
+    steps = span / min(dt_s, inner)
+    if steps <= MAX_PLANT_STEPS:
+        return None
+    k = int(np.argmax(np.diff(t)))
+    return (f"{display(os.path.join(run.path, 'telemetry.csv'))}, row {k + 2} (line {k + 3}), "
+            f"column 't_s': the recording spans {span:.6g} s, {steps:.3g} plant steps or control "
+            f"ticks, more than the {MAX_PLANT_STEPS:.0e} the replay takes; the largest time step "
+            f"is {float(t[k + 1] - t[k]):.6g} s, before this row (a clock glitch?)")
+
+
 class _Interrupted(Exception):
     pass
 
@@ -97,12 +118,16 @@ def _stop_on_signals() -> dict:
     processes it forks end silently on them (the default action), as the pool expects."""
     main_pid = os.getpid()
 
+    seen: list[int] = []
+
     def handler(signum, _frame):
         if os.getpid() != main_pid:
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
-        raise _Interrupted(signal.Signals(signum).name)
+        seen.append(signum)
+        if len(seen) == 1:  # later signals (a second SIGTERM) never interrupt the cleanup
+            raise _Interrupted(signal.Signals(signum).name)
     old = {}
     for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         sig = getattr(signal, name, None)
@@ -156,6 +181,9 @@ def _main(args: argparse.Namespace) -> int:
         return _bad(str(exc))
     runfmt.label_runs(runs)
     for r in runs:  # the plant steps explicitly: --dt must be stable for every run's robot
+        problem = _span_problem(r, args.dt)
+        if problem:
+            return _bad(problem)
         dt_max = runfmt.max_stable_plant_dt_s(r.meta)
         if args.dt > dt_max:
             return _bad(f"--dt {args.dt:g} s is longer than the longest stable plant step for "

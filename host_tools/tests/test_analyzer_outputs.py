@@ -3,6 +3,7 @@ a mix of two analyses or of a finished and an interrupted one, a closed status p
 nothing, and a killed fitting worker ends the analysis instead of hanging it."""
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -55,8 +56,10 @@ def _children(pid: int) -> list[int]:
         return []
 
 
-@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
-def test_a_killed_fitting_worker_ends_the_analysis_instead_of_hanging_it(tmp_path, sig):
+@contextlib.contextmanager
+def _analysis_fitting(tmp_path):
+    """``analyze`` in a subprocess, yielded once its candidate fits are under way, as
+    (process, stderr lines so far, out folder); ended however the test ends."""
     run = _base(tmp_path / "run", n=600)
     out = tmp_path / "out"
     proc = _analyze(run, out)
@@ -72,15 +75,21 @@ def test_a_killed_fitting_worker_ends_the_analysis_instead_of_hanging_it(tmp_pat
     t.start()
     try:
         assert started.wait(120), "".join(lines)
-        workers = _children(proc.pid)
-        assert workers, "no worker process to kill"
-        os.kill(workers[0], getattr(signal, sig))  # what the out-of-memory killer sends
-        rc = proc.wait(120)
+        yield proc, lines, out
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    t.join(10)
+        t.join(10)
+
+
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
+def test_a_killed_fitting_worker_ends_the_analysis_instead_of_hanging_it(tmp_path, sig):
+    with _analysis_fitting(tmp_path) as (proc, lines, out):
+        workers = _children(proc.pid)
+        assert workers, "no worker process to kill"
+        os.kill(workers[0], getattr(signal, sig))  # what the out-of-memory killer sends
+        rc = proc.wait(120)
     err = "".join(lines)
     assert rc == 1, err
     assert "worker process ended without its result" in err and "Traceback" not in err
@@ -140,3 +149,38 @@ def test_two_analyses_into_one_folder_leave_one_whole_set(tmp_path, monkeypatch)
     v = json.loads((out / "report.json").read_text())["verdict"]
     assert (out / "report.md").read_text() == f"# {v}\n"
     assert json.loads((out / "model.json").read_text())["verdict_of"] == v
+
+
+@pytest.mark.parametrize("t_last", [b"1e9", b"1e308"])
+def test_a_clock_glitch_in_the_last_row_is_bad_input_not_an_allocation(tmp_path, capsys, t_last):
+    from host_tools.__main__ import main as cli
+    from test_badinput import _set_cell
+
+    run = _base(tmp_path / "run")
+    _set_cell(run / "telemetry.csv", 76, "t_s", t_last)
+    assert cli(["analyze", str(run), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "row 76 (line 77), column 't_s'" in err and "clock glitch" in err
+
+
+def test_the_shortest_documented_inner_period_has_a_phase_search():
+    """periods_s.inner = 1e-5 (the documented minimum) is shorter than the phase search's
+    5e-5 s step: the search takes ten phases across the period instead of none."""
+    import numpy as np
+    from host_tools.analyzer.prepare.timing import board_rate_phase
+
+    t = np.arange(0, 1.5, 0.02)
+    n = np.round(1000 * t ** 2)
+    tel = {"t_s": t, "enc_r": n, "enc_l": n, "omega_r": np.gradient(n, t) * 2 * np.pi / 1856,
+           "omega_l": np.gradient(n, t) * 2 * np.pi / 1856}
+    phase = board_rate_phase(tel, 1e-5, 1856)
+    assert phase is None or 0 <= phase < 1e-5
+
+
+def test_a_second_sigterm_during_the_cleanup_gives_no_traceback(tmp_path):
+    with _analysis_fitting(tmp_path) as (proc, lines, _out):
+        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(60)
+    err = "".join(lines)
+    assert rc == 1 and "interrupted by SIGTERM" in err and "Traceback" not in err, err
