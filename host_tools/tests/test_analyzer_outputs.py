@@ -167,13 +167,15 @@ def test_the_shortest_documented_inner_period_has_a_phase_search():
     """periods_s.inner = 1e-5 (the documented minimum) is shorter than the phase search's
     5e-5 s step: the search takes ten phases across the period instead of none."""
     import numpy as np
+    from host_tools import params
     from host_tools.analyzer.prepare.timing import board_rate_phase
 
+    ppr = params.ENCODER_PPR
     t = np.arange(0, 1.5, 0.02)
     n = np.round(1000 * t ** 2)
-    tel = {"t_s": t, "enc_r": n, "enc_l": n, "omega_r": np.gradient(n, t) * 2 * np.pi / 1856,
-           "omega_l": np.gradient(n, t) * 2 * np.pi / 1856}
-    phase = board_rate_phase(tel, 1e-5, 1856)
+    w = np.gradient(n, t) * 2 * np.pi / ppr
+    tel = {"t_s": t, "enc_r": n, "enc_l": n, "omega_r": w, "omega_l": w}
+    phase = board_rate_phase(tel, 1e-5, ppr)
     assert phase is None or 0 <= phase < 1e-5
 
 
