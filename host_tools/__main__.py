@@ -88,6 +88,31 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from host_tools import _stdio
+    try:
+        return _main(argv)
+    except Exception as exc:
+        if not _broken_installation(exc):
+            raise
+        msg = str(exc)
+        if "params.json" in msg or "protocol.json" in msg:
+            msg += ("\n(a file of the installation itself is broken: restore it from the "
+                    "release or from git)")
+        _stdio.say(f"error: {msg}")
+        return 2
+    finally:
+        _stdio.settle()  # a closed status pipe never turns into a traceback at exit
+
+
+def _broken_installation(exc: BaseException) -> bool:
+    """An error of the tables every command loads (params/params.json through
+    host_tools.params, protocol/protocol.json through host_tools.protocol).  Matched by name:
+    a module whose import failed defines a new class each time it is imported again."""
+    return (type(exc).__module__, type(exc).__name__) in (
+        ("host_tools.params", "TableError"), ("host_tools.protocol", "ProtocolError"))
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     setup_logging(-1 if args.quiet_log else args.verbose)
@@ -97,6 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_import_error", None):
         print(f"error: command '{args.command}' is unavailable: {args._import_error}", file=sys.stderr)
         return 2
+    args._owns_process = argv is None  # the command line of this process, not a caller's list
     return int(importlib.import_module(args._module).main(args) or 0)
 
 

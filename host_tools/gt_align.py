@@ -19,6 +19,11 @@ import numpy as np
 from host_tools import runfmt
 
 
+MAX_OFFSET_S = 86_400.0   # --gt-max-offset bound: a tracker clock a day off is not "unsynchronised"
+GRID_DT_S = 0.01          # speed grid of the cross-correlation
+MAX_GRID = 20_000_000     # samples of one speed grid (55 h at 10 ms, 160 MB): longer is a glitch
+
+
 class GroundTruthError(Exception):
     """The tracker's file cannot be aligned; ``code`` is the exit code (1 failed, 2 bad input)."""
 
@@ -29,10 +34,18 @@ class GroundTruthError(Exception):
 
 def estimate_offset(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarray,
                     t_trk: np.ndarray, x_trk: np.ndarray, y_trk: np.ndarray,
-                    max_offset_s: float = 10.0, dt: float = 0.01) -> tuple[float, float]:
+                    max_offset_s: float = 10.0, dt: float = GRID_DT_S,
+                    labels: tuple[str, str] = ("telemetry", "tracker")) -> tuple[float, float]:
     """Offset (s) such that t_board = t_tracker + offset, by cross-correlating the speed along
     the path from odometry with that from the tracker.  Returns (offset, peak correlation)."""
-    def speed(t, x, y):
+    def speed(t, x, y, what):
+        n = (t[-1] - t[0]) / dt
+        if not n <= MAX_GRID:  # a clock glitch (one stamp years off) must not allocate TiB
+            k = int(np.argmax(np.diff(t)))
+            raise GroundTruthError(
+                f"{what}: spans {t[-1] - t[0]:.6g} s, more than the {MAX_GRID * dt:.6g} s this "
+                f"alignment takes; the largest step is {t[k + 1] - t[k]:.6g} s, before data row "
+                f"{k + 2} (a clock glitch?); fix the times or pass --gt-offset", 2)
         g = np.arange(t[0], t[-1], dt)
         if g.size < 4:
             raise GroundTruthError("too few samples to estimate the clock offset; pass --gt-offset", 2)
@@ -47,9 +60,14 @@ def estimate_offset(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarray,
         s[gap] = np.nan
         return g, s
 
-    g_a, s_a = speed(t_tel, x_odo, y_odo)
-    g_b, s_b = speed(t_trk, x_trk, y_trk)
-    lags = np.arange(-max_offset_s, max_offset_s + dt / 2, dt)
+    if not (math.isfinite(max_offset_s) and 0 < max_offset_s <= MAX_OFFSET_S):
+        raise GroundTruthError(f"--gt-max-offset {max_offset_s:g} must be in (0, {MAX_OFFSET_S:g}] s", 2)
+    g_a, s_a = speed(t_tel, x_odo, y_odo, labels[0])
+    g_b, s_b = speed(t_trk, x_trk, y_trk, labels[1])
+    # beyond these lags the two recordings cannot overlap at all: never searched
+    lo = max(-max_offset_s, g_a[0] - g_b[-1])
+    hi = min(max_offset_s, g_a[-1] - g_b[0])
+    lags = np.arange(lo, hi + dt / 2, dt) if lo <= hi else np.empty(0)
     best = (-2.0, 0.0)
     scores = np.full(lags.size, np.nan)
     for i, lag in enumerate(lags):
@@ -87,6 +105,9 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
         runfmt._check_time(trk["t_s"], csv_path)
     except runfmt.RunFormatError as exc:
         raise GroundTruthError(str(exc), 2) from None
+    if offset_s is not None and not (math.isfinite(offset_s) and abs(offset_s) <= 1e10):
+        raise GroundTruthError(f"--gt-offset {offset_s:g} must be a finite number of seconds "
+                               "within +-1e10 (Unix time is about 1.8e9)", 2)
     info: dict[str, Any] = {"file": os.path.basename(csv_path), "rows": int(trk["t_s"].size)}
     if unix_time:
         # tracker stamped by a PC clock (Unix seconds): map through the logger's host clock
@@ -104,7 +125,9 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
     elif offset_s is None:
         tel = run.telemetry
         lag, peak = estimate_offset(tel["t_s"], tel["x_odo_m"], tel["y_odo_m"],
-                                    trk["t_s"], trk["x_m"], trk["y_m"], max_offset_s)
+                                    trk["t_s"], trk["x_m"], trk["y_m"], max_offset_s,
+                                    labels=(runfmt.display(os.path.join(run_dir, "telemetry.csv")),
+                                            runfmt.display(csv_path)))
         info.update(method="speed cross-correlation (odometry vs tracker)",
                     offset_s=round(lag, 4), peak_correlation=round(peak, 4))
         if peak < min_correlation:
@@ -139,9 +162,5 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
     meta["groundtruth"] = info
     if start_pose is not None:
         meta["start_pose"] = [round(v, 6) for v in start_pose]
-    tmp = mpath + ".tmp"
-    with open(tmp, "w") as fh:
-        json.dump(meta, fh, indent=2)
-        fh.write("\n")
-    os.replace(tmp, mpath)
+    runfmt.write_atomic(mpath, json.dumps(meta, indent=2) + "\n")
     return info

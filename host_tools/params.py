@@ -103,10 +103,17 @@ def parse(spec: Any) -> Table:
 
 
 def load(path: Path | str = TABLE_PATH) -> Table:
+    """The table in ``path``; TableError naming the file (and line and character of a JSON
+    error) when it cannot be read, is not JSON, or is nested beyond any table's depth."""
     try:
         with open(path, encoding="utf-8") as fh:
             spec = json.load(fh)
-    except (OSError, ValueError) as exc:
+    except json.JSONDecodeError as exc:
+        raise TableError(f"{path}, line {exc.lineno}, character {exc.colno}: invalid JSON: "
+                         f"{exc.msg}") from None
+    except RecursionError:
+        raise TableError(f"{path}: invalid JSON: nested too deeply") from None
+    except (OSError, ValueError) as exc:  # unreadable, not UTF-8, an integer too long
         raise TableError(f"{path}: {exc}") from None
     try:
         return parse(spec)

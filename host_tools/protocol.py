@@ -88,26 +88,33 @@ class Field:
 
     def to_raw(self, value: Any, where: str) -> int | float:
         """Physical value -> raw wire value, refusing NaN and out-of-range values."""
+        if isinstance(value, bool):  # true is not 1.0 on the wire
+            raise ProtocolError(f"{where}: {value!r} is not a number")
         try:
             v = float(value)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ProtocolError(f"{where}: {value!r} is not a number") from None
         if not math.isfinite(v):
             raise ProtocolError(f"{where}: {v} is not a finite number")
         if self.type == "f32":
+            if abs(v) > _F32_MAX:
+                raise ProtocolError(f"{where}: {value!r} is beyond a 32-bit float")
             return v
         raw = v / self.scale if self.scale else v
-        r = int(round(raw))
         lo, hi = _LIMITS[self.type]
         if self.raw_min is not None:
             lo = max(lo, self.raw_min)
         if self.raw_max is not None:
             hi = min(hi, self.raw_max)
-        if not lo <= r <= hi:
+        r = int(round(raw)) if math.isfinite(raw) and abs(raw) < 2.0**63 else None
+        if r is None or not lo <= r <= hi:
             s = self.scale or 1
             raise ProtocolError(f"{where}: {value!r} {self.unit} is out of range "
                                 f"[{_fmt_num(lo * s)}, {_fmt_num(hi * s)}]")
         return r
+
+
+_F32_MAX = 3.4028234663852886e38
 
 
 def _fmt_num(x: float) -> str:
@@ -146,11 +153,17 @@ class Definition:
         self.path = Path(path)
         try:
             spec = json.loads(self.path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError) as exc:
+        except json.JSONDecodeError as exc:
+            raise ProtocolError(f"{self.path}, line {exc.lineno}, character {exc.colno}: cannot "
+                                f"load the protocol definition: {exc.msg}") from None
+        except RecursionError:
+            raise ProtocolError(f"{self.path}: cannot load the protocol definition: JSON nested "
+                                "too deeply") from None
+        except (OSError, ValueError) as exc:  # unreadable, not UTF-8, an integer too long
             raise ProtocolError(f"{self.path}: cannot load the protocol definition: {exc}") from None
         try:
             self._build(spec)
-        except (KeyError, TypeError, ValueError, struct.error) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError, struct.error) as exc:
             raise ProtocolError(f"{self.path}: malformed protocol definition: {type(exc).__name__} {exc}") from None
 
     def _build(self, spec: dict) -> None:

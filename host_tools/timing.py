@@ -46,15 +46,17 @@ import argparse
 import json
 import math
 import os
-import sys
+import tempfile
 from dataclasses import dataclass
 
 from host_tools import protocol as P
+from host_tools._stdio import out, say
 
 SATURATED_UNITS = 65535  # telemetry task times saturate at 65535 units of 16 cycles
 EDGE_RATE_MAX = 1e8      # --edge-rate bound, edges/s (the design rate is 200 000)
 ISR_CYCLES_MAX = 1e6     # --isr-cycles bound, cycles per edge
 CYCLES_MAX = 1e12        # any cycle count or event rate in a ddtiming/1 file
+JSON_MAX_BYTES = 16 << 20  # a ddtiming/1 or fil.json file (a few KB in practice)
 
 
 class TimingInputError(ValueError):
@@ -66,14 +68,14 @@ class Row:
     check: str
     source: str
     budget: float
-    worst: float
-    unit: str
+    worst: float | None  # None: no bound (the ISRs leave no time for the task)
+    unit: str            # "cycles", or "cpu" (a fraction of the CPU, shown in %)
     ok: bool
     note: str = ""
 
     @property
-    def margin(self) -> float:
-        return self.budget - self.worst
+    def margin(self) -> float | None:
+        return None if self.worst is None else self.budget - self.worst
 
 
 def edge_rate_max(d: P.Definition, meta: dict | None = None) -> float:
@@ -88,7 +90,7 @@ def _read_json(path: str) -> object:
     from host_tools import runfmt
 
     try:
-        text = runfmt.read_text(path)
+        text = runfmt.read_text(path, limit=JSON_MAX_BYTES)
     except runfmt.RunFormatError as exc:
         raise TimingInputError(str(exc)) from None
     try:
@@ -160,9 +162,37 @@ def sim_from_fil(path: str) -> dict:
            "isr": {"encoder": {"cycles_per_event": _num(path, enc, "max_cycles", "encoder_isr")}},
            "tasks": {k: {"max_cycles": _num(path, v, "max_cycles", f"tasks.{k}")}
                      for k, v in tasks.items() if isinstance(v, dict) and "max_cycles" in v}}
+    other = _fil_other_isrs(path, fil, enc)
+    if other:
+        sim["other_isr"] = [other]
     if not enc.get("calls"):
         del sim["isr"]  # no edge was driven: no ISR measurement
     return sim
+
+
+def _fil_other_isrs(path: str, fil: dict, enc: dict) -> dict | None:
+    """Every ISR fil.json measured but the encoder's (the scheduler tick, the UART, the ADC,
+    ...), as one load: the sum over vectors of calls x mean cycles per simulated second, less
+    the encoder ISR's own calls x mean cycles."""
+    vectors = fil.get("isr_cycles")
+    if not isinstance(vectors, dict) or not vectors or "sim_s" not in fil:
+        return None
+    sim_s = _num(path, fil, "sim_s", "")
+    if sim_s <= 0:
+        return None
+    calls = cycles = 0.0
+    for v, st in vectors.items():
+        n = _num(path, st, "calls", f"isr_cycles.{v}")
+        calls += n
+        cycles += n * _num(path, st, "mean", f"isr_cycles.{v}")
+    if enc.get("calls"):
+        n = _num(path, enc, "calls", "encoder_isr")
+        calls -= n
+        cycles -= n * _num(path, enc, "mean_cycles", "encoder_isr")
+    if calls <= 0 or cycles <= 0:
+        return None
+    return {"name": f"other vectors ({len(vectors)} measured, encoder's excluded)",
+            "cycles_per_event": cycles / calls, "events_per_s": calls / sim_s}
 
 
 def load_run_timing(run_dir: str, d: P.Definition) -> tuple[dict, dict]:
@@ -177,6 +207,10 @@ def load_run_timing(run_dir: str, d: P.Definition) -> tuple[dict, dict]:
     tpath = os.path.join(run_dir, "telemetry.csv")
     cols = {f.name: f for f in d.by_name["Telemetry"].fields}
     out = {}
+    boot_col = cols["boot_count"].column if "boot_count" in cols else None
+    boots = tel.get(boot_col) if boot_col else None
+    if boots is not None and boots.dtype == object:
+        boots = None  # a text column: no boot segments, every decrease counts as a wrap
     for t in d.tasks():
         name = t["name"]
         need = [cols[f"{name}_max"].column, cols[f"{name}_last"].column, cols[f"{name}_overruns"].column]
@@ -195,7 +229,7 @@ def load_run_timing(run_dir: str, d: P.Definition) -> tuple[dict, dict]:
         out[name] = {
             "max_cycles": float(max(mx.max(), last.max())),
             "saturated": bool(mx.max() >= SATURATED_UNITS * scale),
-            "overruns_delta": int(ovr[-1] - ovr[0]) if ovr.size else 0,
+            "overruns_delta": overrun_increments(ovr, boots),
             "overruns_total": int(ovr.max()) if ovr.size else 0,
         }
     period = run.meta.get("periods_s", {}).get("telemetry")
@@ -205,6 +239,24 @@ def load_run_timing(run_dir: str, d: P.Definition) -> tuple[dict, dict]:
                             "max": float(dt.max()) if dt.size else None, "period": period,
                             "frames": int(run.t_s.size)}
     return out, run.meta
+
+
+def overrun_increments(ovr, boots=None, bits: int = 16) -> int:
+    """Overruns counted during a recording: the sum of the counter's increments row to row.
+    Within one boot a decrease is the counter wrapping at 2**bits (never a smaller count);
+    where ``boots`` (the telemetry's boot_count) changes, the board restarted and its counter
+    with it: the new boot's first value is all new."""
+    import numpy as np
+
+    v = np.asarray(ovr, dtype=np.int64)
+    if v.size < 2:
+        return 0
+    step = np.mod(np.diff(v), 1 << bits)
+    if boots is not None:
+        b = np.asarray(boots)
+        restart = b[1:] != b[:-1]
+        step = np.where(restart, v[1:], step)
+    return int(step.sum())
 
 
 def check(d: P.Definition, runs: list[str], sims: list[str], edge_rate: float | None = None,
@@ -226,13 +278,14 @@ def check(d: P.Definition, runs: list[str], sims: list[str], edge_rate: float | 
     if not sim_data and not run_data:
         raise TimingInputError("nothing to check: give --run RUN_DIR and/or --sim SIM.json")
 
-    # ---- ISRs
+    # ---- ISRs: one row per ISR, the worst source
     meta0 = run_data[0][2] if run_data else None
     rate = edge_rate if edge_rate is not None else edge_rate_max(d, meta0)
     isr_budget = {i["name"]: i["budget_cycles_per_event"] for i in tim["isr"]}
-    enc_cycles = isr_cycles
-    enc_src = "--isr-cycles" if isr_cycles is not None else None
-    other_load = 0.0
+    isr_worst: dict[str, tuple[float, str]] = {}
+    if isr_cycles is not None:
+        isr_worst["encoder"] = (isr_cycles, "--isr-cycles")
+    other_load, other_src = 0.0, ""
     for src, sim in sim_data:
         fc = sim.get("f_cpu_hz", f_cpu)
         if fc != f_cpu:
@@ -242,16 +295,25 @@ def check(d: P.Definition, runs: list[str], sims: list[str], edge_rate: float | 
                 notes.append(f"{src}: ISR '{name}' has no budget in protocol.json; not checked")
                 continue
             c = isr["cycles_per_event"]
+            if name not in isr_worst or c > isr_worst[name][0]:
+                isr_worst[name] = (c, src)
+        load = sum(o["cycles_per_event"] * o["events_per_s"] / f_cpu for o in sim.get("other_isr") or [])
+        if load > other_load:  # sources describe the same firmware: the heaviest counts
+            other_load, other_src = load, src
+            for o in sim.get("other_isr") or []:
+                notes.append(f"{src}: ISR {o['name']}: {o['events_per_s']:,.0f} /s x "
+                             f"{o['cycles_per_event']:,.1f} cycles = "
+                             f"{100 * o['cycles_per_event'] * o['events_per_s'] / f_cpu:.2f} % of the CPU")
+    for name, (c, src) in isr_worst.items():
+        if name in isr_budget:
             rows.append(Row(f"isr {name} per edge", src, isr_budget[name], c, "cycles", c <= isr_budget[name]))
-            if name == "encoder" and (enc_cycles is None or c > enc_cycles):
-                enc_cycles, enc_src = c, src
-        for o in sim.get("other_isr") or []:
-            other_load += o["cycles_per_event"] * o["events_per_s"] / f_cpu
-    u_isr = 0.0
-    if enc_cycles is not None:
+    u_isr = other_load
+    if "encoder" in isr_worst:
+        enc_cycles, enc_src = isr_worst["encoder"]
         u_enc = enc_cycles * rate / f_cpu
         u_isr = u_enc + other_load
-        rows.append(Row(f"isr load at {rate:,.0f} edges/s", enc_src, 1.0, u_isr, "cpu", u_isr < 1.0,
+        src = enc_src if not other_src or other_src == enc_src else f"{enc_src} + {other_src}"
+        rows.append(Row(f"isr load at {rate:,.0f} edges/s", src, 1.0, u_isr, "cpu", u_isr < 1.0,
                         f"encoder {100 * u_enc:.2f} % + other ISRs {100 * other_load:.2f} %"))
         design = tim.get("encoder_edges_per_s_design")
         if design:
@@ -261,67 +323,89 @@ def check(d: P.Definition, runs: list[str], sims: list[str], edge_rate: float | 
     else:
         notes.append("no encoder ISR measurement (--sim with isr.encoder or --isr-cycles): task worst "
                      "cases are NOT inflated by ISR preemption")
-    inflate = 1.0 / (1.0 - u_isr) if u_isr < 1.0 else math.inf
+    # the ISRs steal a fraction u_isr of the CPU while a task runs; at u_isr >= 1 no task
+    # ever finishes: its worst case has no bound (reported as such, never as infinity)
+    bounded = u_isr < 1.0
+    inflate = 1.0 / (1.0 - u_isr) if bounded else None
 
-    # ---- tasks, per source
-    def task_rows(src: str, measured: dict[str, float], extra: dict[str, dict] | None = None):
-        worst = {}
-        for name, t in tasks.items():
-            if name not in measured:
-                notes.append(f"{src}: no measurement for task '{name}'")
-                continue
-            w = measured[name] * inflate
-            worst[name] = w
-            note = f"measured {measured[name]:,.0f} x {inflate:.3f} (ISR load)" if u_isr else ""
-            ok = w <= t["budget_cycles"]
-            if extra and name in extra:
-                e = extra[name]
-                if e["saturated"]:
-                    note += "; time saturated (>= 65.5 ms)"
-                    ok = False
-                if e["overruns_delta"] > 0:
-                    note += f"; {e['overruns_delta']} overruns during the run"
-                    ok = False
-            rows.append(Row(f"task {name} ({t['period_us'] / 1000:g} ms)", src, t["budget_cycles"], w,
-                            "cycles", ok, note.strip("; ")))
-        if len(worst) == len(tasks):
-            tmin = min(t["period_us"] for t in tasks.values()) * f_cpu / 1e6
-            s = sum(worst.values())
-            rows.append(Row("all tasks released together", src, tmin, s, "cycles", s <= tmin,
-                            "sum of worst cases within the shortest period"))
-            util = sum(worst[n] / (t["period_us"] * f_cpu / 1e6) for n, t in tasks.items()) * (1 - u_isr) + u_isr
-            lim = tim.get("cpu_utilisation_limit", 1.0)
-            rows.append(Row("cpu utilisation", src, lim, util, "cpu", util <= lim, "tasks + ISRs"))
-
+    # ---- tasks: one row per task, the worst of every source
+    per_task: dict[str, list[tuple[float, str, dict | None]]] = {n: [] for n in tasks}
     for src, sim in sim_data:
-        if sim.get("tasks"):
-            task_rows(src, {n: v["max_cycles"] for n, v in sim["tasks"].items()})
+        for n, v in (sim.get("tasks") or {}).items():
+            if n in per_task:
+                per_task[n].append((v["max_cycles"], src, None))
     for src, tm, meta in run_data:
-        task_rows(src, {n: v["max_cycles"] for n, v in tm.items() if not n.startswith("_")},
-                  {n: v for n, v in tm.items() if not n.startswith("_")})
+        for n, v in tm.items():
+            if n in per_task:
+                per_task[n].append((v["max_cycles"], src, v))
         dt = tm["_telemetry_dt"]
         if dt["median"] is not None and dt["period"]:
             notes.append(f"{src}: {dt['frames']} frames, telemetry interval median {dt['median'] * 1000:.2f} ms "
                          f"(period {dt['period'] * 1000:g} ms), max {dt['max'] * 1000:.1f} ms")
+    measured: dict[str, float] = {}
+    for name, t in tasks.items():
+        if not per_task[name]:
+            notes.append(f"no measurement for task '{name}'")
+            continue
+        c, src, _ = max(per_task[name], key=lambda m: m[0])
+        measured[name] = c
+        w = c * inflate if bounded else None
+        parts = []
+        if u_isr and bounded:
+            parts.append(f"measured {c:,.0f} cycles x {inflate:.3f} (ISR load)")
+        elif not bounded:
+            parts.append(f"measured {c:,.0f} cycles; unbounded: the ISRs take the whole CPU")
+        if len(per_task[name]) > 1:
+            parts.append("worst of " + ", ".join(f"{s_} {m:,.0f}" for m, s_, _ in per_task[name]))
+        ok = bounded and w <= t["budget_cycles"]
+        for _, s_, e in per_task[name]:
+            if e is None:
+                continue
+            if e["saturated"]:
+                parts.append(f"{s_}: time saturated (>= 65.5 ms)")
+                ok = False
+            if e["overruns_delta"] > 0:
+                parts.append(f"{s_}: {e['overruns_delta']} overruns during the run")
+                ok = False
+        rows.append(Row(f"task {name} ({t['period_us'] / 1000:g} ms)", src, t["budget_cycles"], w,
+                        "cycles", ok, "; ".join(parts)))
+    if len(measured) == len(tasks):
+        src = "all sources"
+        tmin = min(t["period_us"] for t in tasks.values()) * f_cpu / 1e6
+        s_ = sum(measured.values()) * inflate if bounded else None
+        rows.append(Row("all tasks released together", src, tmin, s_, "cycles",
+                        bounded and s_ <= tmin, "sum of worst cases within the shortest period"))
+        # demand: every task's measured cycles per period plus the ISRs' share
+        util = sum(measured[n] / (t["period_us"] * f_cpu / 1e6) for n, t in tasks.items()) + u_isr
+        lim = tim.get("cpu_utilisation_limit", 1.0)
+        rows.append(Row("cpu utilisation", src, lim, util, "cpu", util <= lim, "tasks + ISRs"))
+    for r in rows:
+        for v in (r.budget, r.worst):
+            if v is not None and not math.isfinite(v):
+                raise TimingInputError(f"{r.check} [{r.source}]: the figure {v} is not finite; "
+                                       "the inputs are out of any physical range")
     return rows, notes
 
 
 def render(rows: list[Row], notes: list[str]) -> str:
-    head = f"{'check':34s} {'source':22s} {'budget':>14s} {'worst':>14s} {'margin':>16s}  result"
+    head = (f"{'check':34s} {'source':22s} {'budget':>16s} {'worst':>16s} {'margin':>18s}  result")
     lines = [head, "-" * len(head)]
 
     def fmt(v, unit):
-        if unit == "cpu":
-            return f"{100 * v:.2f} %"
-        return "inf" if math.isinf(v) else f"{v:,.0f}"
+        if v is None:
+            return "unbounded"
+        return f"{100 * v:.2f} % CPU" if unit == "cpu" else f"{v:,.0f} cycles"
     for r in rows:
-        if r.unit == "cpu":
+        if r.worst is None:
+            margin = "none"
+        elif r.unit == "cpu":
             margin = f"{100 * r.margin:+.2f} pt"
         else:
-            margin = ("-inf" if math.isinf(r.worst) else
-                      f"{r.margin:+,.0f} ({100 * r.margin / r.budget:+.0f}%)" if r.budget else f"{r.margin:+,.0f}")
-        lines.append(f"{r.check:34s} {r.source[:22]:22s} {fmt(r.budget, r.unit):>14s} {fmt(r.worst, r.unit):>14s} "
-                     f"{margin:>16s}  {'ok' if r.ok else 'OVER BUDGET'}" + (f"  {r.note}" if r.note else ""))
+            margin = (f"{r.margin:+,.0f} ({100 * r.margin / r.budget:+.0f}%)" if r.budget
+                      else f"{r.margin:+,.0f}")
+        lines.append(f"{r.check:34s} {r.source[:22]:22s} {fmt(r.budget, r.unit):>16s} "
+                     f"{fmt(r.worst, r.unit):>16s} {margin:>18s}  {'ok' if r.ok else 'OVER BUDGET'}"
+                     + (f"  {r.note}" if r.note else ""))
     for n in notes:
         lines.append(f"note: {n}")
     return "\n".join(lines)
@@ -349,17 +433,33 @@ def _check_options(args: argparse.Namespace) -> str | None:
     if len(args.run) + len(args.sim) > 1000:
         return "at most 1000 --run and --sim sources"
     if args.json:
-        from host_tools.runfmt import display
-        if os.path.isdir(args.json):
-            return f"--json {display(args.json)} is a folder"
-        existed = os.path.exists(args.json)
-        try:
-            with open(args.json, "a"):
-                pass
-        except OSError as exc:
-            return f"--json {display(args.json)} cannot be written: {exc.strerror or exc}"
-        if not existed:
-            os.remove(args.json)
+        return _check_json_out(args)
+    return None
+
+
+def _check_json_out(args: argparse.Namespace) -> str | None:
+    """--json never names an input: a --sim file or a file a --run folder already holds
+    (meta.json, telemetry.csv, fil.json, ...), also through a link; its folder must take a new
+    file (tested by creating one exclusively and removing it)."""
+    from host_tools.runfmt import display
+
+    shown = display(args.json)
+    if os.path.isdir(args.json):
+        return f"--json {shown} is a folder"
+    target = os.path.realpath(args.json)
+    for r in args.run:
+        inside = os.path.realpath(r) + os.sep
+        if target.startswith(inside) and os.path.lexists(target):
+            return f"--json {shown} is a file of the run {display(r)}; refusing to overwrite it"
+    for f in args.sim:
+        if os.path.exists(f) and os.path.realpath(f) == target:
+            return f"--json {shown} is the --sim input {display(f)}; refusing to overwrite it"
+    folder = os.path.dirname(os.path.abspath(args.json))
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".timing-check-"):
+            pass
+    except OSError as exc:
+        return f"--json {shown} cannot be written: {exc.strerror or exc}"
     return None
 
 
@@ -367,26 +467,25 @@ def main(args: argparse.Namespace) -> int:
     d = P.definition()
     problem = _check_options(args)
     if problem:
-        print(f"error: {problem}", file=sys.stderr)
+        say(f"error: {problem}")
         return 2
     try:
         rows, notes = check(d, args.run, args.sim, args.edge_rate, args.isr_cycles, not args.no_fil)
     except TimingInputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        say(f"error: {exc}")
         return 2
-    print(render(rows, notes))
     if args.json:
         try:
-            with open(args.json, "w", encoding="utf-8", errors="backslashreplace") as fh:
-                json.dump({"rows": [dict(r.__dict__, margin=r.margin) for r in rows],
-                           "notes": notes}, fh, indent=2)
+            from host_tools.runfmt import write_atomic
+            doc = {"rows": [dict(r.__dict__, margin=r.margin) for r in rows], "notes": notes}
+            write_atomic(args.json, json.dumps(doc, indent=2, allow_nan=False) + "\n")
         except OSError as exc:
-            print(f"error: cannot write --json {args.json!r}: {exc.strerror or exc}",
-                  file=sys.stderr)
+            say(f"error: cannot write --json {args.json!r}: {exc.strerror or exc}")
             return 1
+    out(render(rows, notes))
     bad = [r for r in rows if not r.ok]
     if bad:
-        print(f"\nFAILED: {len(bad)} check(s) over budget: " + ", ".join(f"{r.check} [{r.source}]" for r in bad))
+        out(f"\nFAILED: {len(bad)} check(s) over budget: " + ", ".join(f"{r.check} [{r.source}]" for r in bad))
         return 1
-    print(f"\nall {len(rows)} checks within budget")
+    out(f"\nall {len(rows)} checks within budget")
     return 0

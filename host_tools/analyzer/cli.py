@@ -15,12 +15,14 @@ import argparse
 import math
 import os
 import signal
-import sys
 import tempfile
+
+from host_tools._stdio import out, say
 
 # Bounds of the options (every option is bounded: a value outside gives exit 2).
 DT_MIN_S, DT_MAX_S = 1e-4, 1e-2   # plant step; 5e-4 is the default, 1e-4 costs 5x as long
 JOBS_MAX = 64
+MAX_PLANT_STEPS = 2e8             # per run: about 28 h of recording at the default --dt
 EFFECTS_MAX = 64
 
 EPILOG = """\
@@ -65,7 +67,7 @@ def _native_build_error() -> type:
 
 
 def _bad(msg: str) -> int:
-    print(f"error: bad input: {msg}", file=sys.stderr)
+    say(f"error: bad input: {msg}")
     return 2
 
 
@@ -87,6 +89,26 @@ def check_out_dir(out: str) -> str | None:
     return None
 
 
+def _span_problem(run, dt_s: float) -> str | None:
+    """A recording the replay cannot step through: more than MAX_PLANT_STEPS plant steps or
+    control ticks (a clock glitch such as one t_s of 1e9 would ask for TiB of memory).  Names
+    the row after the largest time step."""
+    import numpy as np
+    from host_tools.runfmt import display
+
+    t = run.telemetry["t_s"]
+    inner = float(run.meta.get("periods_s", {}).get("inner") or dt_s)
+    span = float(t[-1] - t[0])
+    steps = span / min(dt_s, inner)
+    if steps <= MAX_PLANT_STEPS:
+        return None
+    k = int(np.argmax(np.diff(t)))
+    return (f"{display(os.path.join(run.path, 'telemetry.csv'))}, row {k + 2} (line {k + 3}), "
+            f"column 't_s': the recording spans {span:.6g} s, {steps:.3g} plant steps or control "
+            f"ticks, more than the {MAX_PLANT_STEPS:.0e} the replay takes; the largest time step "
+            f"is {float(t[k + 1] - t[k]):.6g} s, before this row (a clock glitch?)")
+
+
 class _Interrupted(Exception):
     pass
 
@@ -96,12 +118,16 @@ def _stop_on_signals() -> dict:
     processes it forks end silently on them (the default action), as the pool expects."""
     main_pid = os.getpid()
 
+    seen: list[int] = []
+
     def handler(signum, _frame):
         if os.getpid() != main_pid:
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
-        raise _Interrupted(signal.Signals(signum).name)
+        seen.append(signum)
+        if len(seen) == 1:  # later signals (a second SIGTERM) never interrupt the cleanup
+            raise _Interrupted(signal.Signals(signum).name)
     old = {}
     for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         sig = getattr(signal, name, None)
@@ -110,13 +136,20 @@ def _stop_on_signals() -> dict:
     return old
 
 
+_WRITTEN: list[bool] = []  # set once this command's outputs are all in place
+
+
 def main(args: argparse.Namespace) -> int:
     old = _stop_on_signals()
+    _WRITTEN.clear()
     try:
         return _main(args)
     except _Interrupted as exc:
-        print(f"error: interrupted by {exc}; no outputs written (report.json, report.md and "
-              "model.json are written whole or not at all)", file=sys.stderr)
+        if _WRITTEN:  # the signal came while the finished set was moved into place
+            say(f"error: interrupted by {exc} after the outputs were written whole")
+        else:
+            say(f"error: interrupted by {exc}; no outputs written (report.json, report.md, "
+                "model.json and the plots are written as one set or not at all)")
         return 1
     finally:
         for sig, h in old.items():
@@ -147,26 +180,39 @@ def _main(args: argparse.Namespace) -> int:
     except RunFormatError as exc:
         return _bad(str(exc))
     runfmt.label_runs(runs)
+    for r in runs:  # the plant steps explicitly: --dt must be stable for every run's robot
+        problem = _span_problem(r, args.dt)
+        if problem:
+            return _bad(problem)
+        dt_max = runfmt.max_stable_plant_dt_s(r.meta)
+        if args.dt > dt_max:
+            return _bad(f"--dt {args.dt:g} s is longer than the longest stable plant step for "
+                        f"{runfmt.display(os.path.join(r.path, 'meta.json'))} ({dt_max:.3g} s: "
+                        "twice a slipping wheel's back-EMF time constant); pass a smaller --dt")
     notes = [n for r in runs for n in r.notes]
     for n in notes:
-        print(f"note: {n}", file=sys.stderr)
+        say(f"note: {n}")
     from host_tools.analyzer.pipeline import analyze
     from host_tools.analyzer.report.writers import write_outputs
+    from host_tools.analyzer.fit.workers import WorkerDied
     try:
         an = analyze(runs, jobs=args.jobs, effects=effects, dt_s=args.dt)
     except RunFormatError as exc:
         return _bad(str(exc))
+    except WorkerDied as exc:
+        say(f"error: {exc}")
+        return 1
     except (ImportError, OSError, _native_build_error()) as exc:
         # the native plant (lib/slipmodel via host_tools._native) could not be built or loaded
-        print(f"error: the native plant is unavailable: {type(exc).__name__}: {exc}",
-              file=sys.stderr)
+        say(f"error: the native plant is unavailable: {type(exc).__name__}: {exc}")
         return 1
     an.notes.extend(notes)
     try:
-        write_outputs(an, args.out, plots=not args.no_plots)
+        write_outputs(an, args.out, plots=not args.no_plots,
+                      on_committed=lambda: _WRITTEN.append(True))
     except OSError as exc:
-        print(f"error: cannot write the outputs into {runfmt.display(args.out)}: "
-              f"{exc.strerror or exc}", file=sys.stderr)
+        say(f"error: cannot write the outputs into {runfmt.display(args.out)}: "
+              f"{exc.strerror or exc}")
         return 1
-    print(f"verdict: {an.verdict}; report: {runfmt.display(os.path.join(args.out, 'report.json'))}")
+    out(f"verdict: {an.verdict}; report: {runfmt.display(os.path.join(args.out, 'report.json'))}")
     return 0

@@ -17,19 +17,23 @@ starts an experiment (keeping it alive with heartbeats), decodes every frame and
                    rejected_block (raw_offset
                    into raw.bin, length, reason cobs/short/long/crc/version), gap (missing),
                    duplicate, stale, time_not_increasing, robot_reset, failsafe (reason),
+                   implausible (a verified frame no following frame confirmed: all its
+                   values and the reason; counted in meta.json logger.implausible),
                    unknown_type, bad_length, disconnect, reconnect
 
 Files are flushed as they are written; the folder is complete and readable after Ctrl-C, a
 pulled cable (the logger waits for the port to come back and carries on) or a robot power loss
-(a board reset is recognised from the boot counter in telemetry, ``boot_count``, and the board
-time is kept increasing; an old frame arriving late is stale, never a reset).
+(a board reset is recognised from the boot counter in telemetry, ``boot_count``, once the 2
+following frames confirm it, and the board time is kept increasing; an old frame arriving late
+is stale, never a reset).  Every frame that passed the CRC is a row, counted, or flagged.
 
 Guarantees:
 * SIGINT (Ctrl-C), SIGTERM and SIGHUP stop the recording the same way, exit 0: the bytes
   already read are decoded to the end, every frame that passed the CRC is written as a row or
   counted (duplicate, stale, unknown type, ...), events.jsonl gets its "end" line, meta.json
   its row count and end_reason ("interrupted (Ctrl-C)", "stopped by SIGTERM", ...).  A second
-  signal interrupts at once (the folder is still closed the same way).
+  signal interrupts at once (the folder is still closed the same way); later ones are ignored.
+  A closed status pipe (stderr to ``head``) never ends the recording.
 * A full disk (or any other write error) stops the recording with exit 1 and a message: a
   256 KB reserve file kept in the run folder while recording is deleted so that meta.json
   (end_reason "write failed: ...", the rows on disk, frames_not_written for the verified frames

@@ -6,12 +6,14 @@ adds an external tracker's CSV to a recorded run (:mod:`host_tools.gt_align`).
 from __future__ import annotations
 
 import argparse
-import sys
+import signal
+import threading
 
 from host_tools import gt_align
 from host_tools import protocol as P
+from host_tools._stdio import out, say
 from host_tools.logger.errors import LoggerError
-from host_tools.logger.session import Logger
+from host_tools.logger.session import STOP_SIGNALS, Logger
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -59,13 +61,13 @@ def main(args: argparse.Namespace) -> int:
                                                args.gt_max_offset, set_start_pose=args.gt_start_pose,
                                                unix_time=args.gt_unix_time)
         except gt_align.GroundTruthError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            say(f"error: {exc}")
             return exc.code
-        print(f"groundtruth.csv written: offset {info['offset_s']} s ({info['method']}"
+        out(f"groundtruth.csv written: offset {info['offset_s']} s ({info['method']}"
               + (f", peak correlation {info['peak_correlation']}" if "peak_correlation" in info else "") + ")")
         return 0
     if not args.port:
-        print("error: --port is required (or --attach-groundtruth)", file=sys.stderr)
+        say("error: --port is required (or --attach-groundtruth)")
         return 2
     d = P.definition()
     experiment = None
@@ -86,8 +88,8 @@ def main(args: argparse.Namespace) -> int:
             mu = M.firmware_mu(M.load_model(args.model), args.model)
         if mu is not None:
             d.raw_values("SetMu", {"mu_s": mu[0], "mu_k": mu[1]})
-    except (P.ProtocolError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except (P.ProtocolError, ValueError, OverflowError) as exc:
+        say(f"error: {exc}")
         return 2
     record_s = args.record_s
     if record_s is None and experiment is not None:
@@ -100,7 +102,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         pub = _live(args, d)
     except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        say(f"error: {exc}")
         return 2
     lg = Logger(args.out, open_port, args.port, args.baud, experiment=experiment,
                 clamp=None if args.clamp is None else args.clamp == "on", mu=mu, record_s=record_s,
@@ -108,21 +110,45 @@ def main(args: argparse.Namespace) -> int:
                 reconnect_timeout_s=args.reconnect_timeout, params_timeout_s=args.params_timeout,
                 status=not args.quiet, description=args.description, d=d,
                 on_row=pub.publish if pub else None)
+    # signals before and after the recording (a third quick Ctrl-C arriving while the summary
+    # is printed or the process exits) are ignored: the recording owns them while it runs.
+    # Run as the process's command, they stay ignored until the process has exited.
+    held = _hold_signals()
+    try:
+        return _record(args, lg, pub)
+    finally:
+        if not getattr(args, "_owns_process", False):
+            for sig, handler in held.items():
+                signal.signal(sig, handler)
+
+
+def _hold_signals() -> dict:
+    held = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in STOP_SIGNALS:
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                held[sig] = signal.signal(sig, signal.SIG_IGN)
+    return held
+
+
+def _record(args: argparse.Namespace, lg: Logger, pub) -> int:
     try:
         code = lg.run()
     except LoggerError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        say(f"error: {exc}")
         return exc.code
     finally:
         if pub:
             pub.close()
     s = lg.stats
-    print(f"\n{args.out}: {s['telemetry_rows']} rows, {lg.dec.crc_errors} CRC errors, "
+    say(f"\n{args.out}: {s['telemetry_rows']} rows, {lg.dec.crc_errors} CRC errors, "
           f"{lg.dec.bad_blocks - lg.dec.crc_errors} other bad blocks, {s['gaps']} gaps "
-          f"({s['lost_frames']} frames lost), {s['duplicates']} duplicates, {s['robot_resets']} resets, "
-          f"{s['disconnects']} disconnects; end: {lg.end_reason}", file=sys.stderr)
+          f"({s['lost_frames']} frames lost), {s['duplicates']} duplicates, {s['stale']} stale, "
+          f"{s['implausible']} implausible (flagged in events.jsonl), {s['robot_resets']} resets, "
+          f"{s['disconnects']} disconnects; end: {lg.end_reason}")
     if code:
-        print(f"error: {lg.end_reason}", file=sys.stderr)
+        say(f"error: {lg.end_reason}")
     return code
 
 

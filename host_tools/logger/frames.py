@@ -10,14 +10,17 @@ records Acks and Params, and counts everything in ``stats``.  It uses the sessio
 from __future__ import annotations
 
 import math
-import sys
 from typing import Any
 
 import numpy as np
 
 from host_tools import protocol as P
 from host_tools import runfmt
+from host_tools._stdio import say
 from host_tools.logger.errors import LoggerError
+
+CONFIRM_FRAMES = 2   # following frames that must continue a reset, a jump or the first frame
+MAX_AHEAD_S = 2.0    # board time may run ahead of the host time elapsed by this much
 
 
 def shortest_f32(v: float) -> float:
@@ -68,7 +71,7 @@ class FramesMixin:
         self._queue: list[P.Frame] = []  # verified frames not yet handled
         self.stats = {"frames": 0, "telemetry_rows": 0, "gaps": 0, "lost_frames": 0,
                       "duplicates": 0, "stale": 0, "robot_resets": 0, "disconnects": 0,
-                      "unknown_type": 0, "bad_length": 0, "bytes": 0}
+                      "unknown_type": 0, "bad_length": 0, "bytes": 0, "implausible": 0}
         self.last_seq: int | None = None
         self.boot: int | None = None  # boot_count of the current boot
         self.boots_seen: set[int] = set()
@@ -85,6 +88,8 @@ class FramesMixin:
         self._last_failsafe = 0
         self._params_count = 0
         self._errors_logged = 0
+        self._chain: _Chain | None = None  # telemetry held until following frames confirm it
+        self._flagged_seqs: list[int] = []  # flagged since the last row: received, not lost
 
     def _drain(self) -> None:
         """Handle the verified frames in the queue.  A frame leaves the queue only after it
@@ -97,6 +102,18 @@ class FramesMixin:
         while self._queue:
             self._frame(self._queue[0])
             self._queue.pop(0)
+
+    def _end_frames(self) -> None:
+        """At the end of the recording: telemetry still held for confirmation.  The first
+        frames of a recording stand on their own; a reset or a jump that no following frame
+        confirmed is not recognised: its frames are flagged (kept in events.jsonl)."""
+        ch, self._chain = self._chain, None
+        if ch is None:
+            return
+        if ch.kind == "first":
+            self._commit(ch)
+        else:
+            self._flag(ch, "unconfirmed " + ch.kind)
 
     def _frame(self, f: P.Frame) -> None:
         msg = self.d.by_type.get(f.type)
@@ -113,7 +130,7 @@ class FramesMixin:
         if msg.name == "Telemetry":
             self._telemetry(f, raws, host_t)
             return
-        if self._sequence(f, host_t, t_us=None) == "drop":
+        if self._sequence(f) == "drop":
             return
         if msg.name == "Ack":
             cmd_seq, _cmd_type, result, detail = raws
@@ -129,7 +146,7 @@ class FramesMixin:
                 self.params = old
                 self.event("bad_params", reason=str(exc), seq=f.seq,
                            **{k: (v if not isinstance(v, float) or math.isfinite(v) else str(v)) for k, v in shown.items()})
-                sys.stderr.write(f"\nwarning: ignoring the robot's Params (seq {f.seq}): {exc}\n")
+                say(f"\nwarning: ignoring the robot's Params (seq {f.seq}): {exc}")
                 return
             self._params_count += 1
             self.event("params", **shown)
@@ -151,66 +168,24 @@ class FramesMixin:
             bad.append(f"controller {p['controller']} (commanded {self.controller})")
         if bad:
             self.event("params_mismatch", detail=bad)
-            sys.stderr.write("\nwarning: the robot reports " + ", ".join(bad) + "\n")
+            say("\nwarning: the robot reports " + ", ".join(bad))
 
-    def _sequence(self, f: P.Frame, host_t: float, t_us: int | None,
-                  boot: int | None = None) -> str:
-        """Track the robot's frame counter.  Returns "ok", "reset" (the board restarted: seq
-        and clock start again) or "drop" (a duplicate or stale frame, recorded as an event).
-
-        A reset is recognised only from what a reset changes: the boot counter in telemetry
-        (``boot_count``, EEPROM, +1 per boot).  A boot number never seen before is a reset; a
-        frame of an earlier boot is stale.  Within one boot the board time decides: later than
-        the last frame means new (a seq jump is a gap, however long the outage), not later
-        means a duplicate or a stale frame.  Other frames only drop exact repeats."""
-        if boot is not None:
-            if self.boot is None:
-                self.boot = boot
-                self.boots_seen.add(boot)
-            elif boot != self.boot:
-                if boot in self.boots_seen:  # a late frame from before the last reset
-                    self.stats["stale"] += 1
-                    self.event("stale", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset,
-                               boot=boot, current_boot=self.boot)
-                    return "drop"
-                self._reset(f, host_t, t_us, boot)
-                self.boot = boot
-                self.boots_seen.add(boot)
-                self.last_seq = f.seq
-                return "reset"
+    def _sequence(self, f: P.Frame) -> str:
+        """Track the robot's frame counter for Ack and Params frames (they carry neither board
+        time nor boot number): "drop" for an exact repeat, else "ok" (a seq jump is a gap).
+        Telemetry goes through :meth:`_telemetry`, where resets are recognised."""
         if self.last_seq is None:
             self.last_seq = f.seq
             return "ok"
         ahead = (f.seq - self.last_seq) & 0xFFFF
-        if t_us is None:  # Ack / Params
-            if ahead == 0:
-                self.stats["duplicates"] += 1
-                self.event("duplicate", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
-                return "drop"
-            if ahead < 0x8000:
-                self._count_gap(f, ahead - 1)
-                self.last_seq = f.seq
-            return "ok"
-        if self.last_t_us is None:  # first telemetry frame (or the first after a reset)
-            if 0 < ahead < 0x8000:
-                self._count_gap(f, ahead - 1)
+        if ahead == 0:
+            self.stats["duplicates"] += 1
+            self.event("duplicate", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
+            return "drop"
+        if ahead < 0x8000:
+            self._count_gap(f, ahead - 1)
             self.last_seq = f.seq
-            return "ok"
-        dt = (t_us - self.last_t_us) & 0xFFFFFFFF
-        if 0 < dt < 0x80000000:
-            if ahead >= 0x8000 or ahead == 0:
-                # the 16-bit counter is ambiguous after a long outage: count from the board time
-                period = self.d.by_name["Telemetry"].spec.get("rate_hz", 50)
-                missing = max(0, int(round(dt * 1e-6 * period)) - 1)
-            else:
-                missing = ahead - 1
-            self._count_gap(f, missing)
-            self.last_seq = f.seq
-            return "ok"
-        kind = "duplicate" if ahead == 0 else "stale"
-        self.stats["duplicates" if ahead == 0 else "stale"] += 1
-        self.event(kind, seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
-        return "drop"
+        return "ok"
 
     def _count_gap(self, f: P.Frame, missing: int) -> None:
         if missing > 0:
@@ -230,9 +205,121 @@ class FramesMixin:
                    t_epoch_s=round(self.t_epoch, 6), boot=boot, last_boot=self.boot)
 
     def _telemetry(self, f: P.Frame, raws: tuple, host_t: float) -> None:
+        """A verified Telemetry frame.  A frame that continues the current boot in time is a
+        row at once.  One that would change what the rows mean -- a boot number never seen
+        (a reset), a board time far ahead of the host time elapsed (a jump), or the first
+        frame of the recording -- is held until CONFIRM_FRAMES following frames continue it;
+        a frame that continues the old state instead shows it was implausible (a bit error
+        the CRC missed, a robot bug): it is flagged and kept in events.jsonl with all its
+        values, and the recording carries on without losing a row."""
+        item = (f, raws, host_t)
+        t_us, boot = raws[0], raws[self.cols.index["boot_count"]]
+        ch = self._chain
+        if ch is not None:
+            tail_f, tail_raws, tail_host = ch.frames[-1]
+            rel = self._relation(tail_raws[0], tail_raws[self.cols.index["boot_count"]], tail_host,
+                                 t_us, boot, host_t)
+            if rel == "next":
+                ch.frames.append(item)
+                if len(ch.frames) > CONFIRM_FRAMES:
+                    self._chain = None
+                    self._commit(ch)
+                return
+            if rel == "same" or any(c[0].seq == f.seq and c[1][0] == t_us for c in ch.frames):
+                self.stats["duplicates"] += 1
+                self.event("duplicate", seq=f.seq, last_seq=tail_f.seq, raw_offset=f.offset)
+                return
+            if rel == "earlier":  # a reordered frame of the chain's own boot
+                self._drop(f, "stale", boot)
+                return
+            old = self._classify(t_us, boot, host_t)
+            if old in ("duplicate", "stale", "stale_boot") and ch.kind != "first":
+                self._drop(f, old, boot)  # a late frame of the old state: the chain stands
+                return
+            self._chain = None
+            self._flag(ch, f"not confirmed: seq {f.seq} continues the recording instead"
+                       if old == "ok" else f"not confirmed: seq {f.seq} does not continue it")
+        kind = self._classify(t_us, boot, host_t)
+        if kind == "ok":
+            self._accept(f, raws, host_t)
+        elif kind in ("first", "reset", "jump"):
+            self._chain = _Chain(kind, [item])
+        else:
+            self._drop(f, kind, boot)
+
+    def _relation(self, t0_us: int, boot0: int, host0: float, t_us: int, boot: int,
+                  host_t: float) -> str:
+        """How a frame stands to one before it: "next" (same boot, later by a plausible
+        step), "same" (same boot and time), "earlier" (same boot, earlier by at most
+        MAX_AHEAD_S: arrived late), else "other"."""
+        if boot != boot0:
+            return "other"
+        dt = (t_us - t0_us) & 0xFFFFFFFF
+        if dt == 0:
+            return "same"
+        if dt < 0x80000000:
+            return "next" if dt * 1e-6 <= max(host_t - host0, 0.0) + MAX_AHEAD_S else "other"
+        return "earlier" if (2**32 - dt) * 1e-6 <= MAX_AHEAD_S else "other"
+
+    def _classify(self, t_us: int, boot: int, host_t: float) -> str:
+        """A Telemetry frame against the rows written so far: "first", "ok", "reset" (a boot
+        number never seen), "jump" (same boot, board time far ahead of the host time
+        elapsed), "duplicate", "stale" (not later), "stale_boot" (a boot before the current)."""
+        if self.boot is None:
+            return "first"
+        if boot != self.boot:
+            return "stale_boot" if boot in self.boots_seen else "reset"
+        if self.last_t_us is None:
+            return "ok"  # the first frame after a confirmed reset
+        dt = (t_us - self.last_t_us) & 0xFFFFFFFF
+        if dt == 0:
+            return "duplicate"
+        if dt >= 0x80000000:
+            return "stale"
+        elapsed = max(host_t - (self.last_host_t if self.last_host_t is not None else host_t), 0.0)
+        return "ok" if dt * 1e-6 <= elapsed + MAX_AHEAD_S else "jump"
+
+    def _drop(self, f: P.Frame, kind: str, boot: int) -> None:
+        if kind == "duplicate":
+            self.stats["duplicates"] += 1
+            self.event("duplicate", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
+        elif kind == "stale_boot":
+            self.stats["stale"] += 1
+            self.event("stale", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset,
+                       boot=boot, current_boot=self.boot)
+        else:
+            self.stats["stale"] += 1
+            self.event("stale", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
+
+    def _commit(self, ch: "_Chain") -> None:
+        """A confirmed chain: its first frame starts the boot (a reset), continues after a
+        jump or starts the recording; every frame of it becomes a row."""
+        f, raws, host_t = ch.frames[0]
+        boot = raws[self.cols.index["boot_count"]]
+        if ch.kind == "reset":
+            self._reset(f, host_t, raws[0], boot)
+            self.last_seq = None
+        if ch.kind in ("reset", "first"):
+            self.boot = boot
+            self.boots_seen.add(boot)
+        for f, raws, host_t in ch.frames:
+            self._accept(f, raws, host_t)
+
+    def _flag(self, ch: "_Chain", reason: str) -> None:
+        """Frames that no following frame confirmed: kept (events.jsonl, all values) and
+        counted, never written as rows (their time cannot be placed among the rows)."""
+        for f, raws, host_t in ch.frames:
+            self.stats["implausible"] += 1
+            self._flagged_seqs.append(f.seq)
+            values = self.cols.row(raws, 0.0, f.seq, host_t)
+            del values["t_s"]
+            self.event("implausible", seq=f.seq, raw_offset=f.offset, t_us=raws[0],
+                       boot=raws[self.cols.index["boot_count"]], current_boot=self.boot,
+                       reason=reason, values=values)
+
+    def _accept(self, f: P.Frame, raws: tuple, host_t: float) -> None:
         t_us = raws[0]
-        if self._sequence(f, host_t, t_us, raws[self.cols.index["boot_count"]]) == "drop":
-            return
+        self._count_seq(f, t_us)
         if self.last_t_us is not None and t_us < self.last_t_us:
             self.t_wraps += 1  # accepted as forward in time: the u32 microsecond clock wrapped
         t_s = self.t_epoch + (self.t_wraps * 2**32 + t_us) * 1e-6
@@ -256,3 +343,32 @@ class FramesMixin:
             names = {v: k for k, v in self.d.enums["failsafe"].items()}
             self.event("failsafe", seq=f.seq, reason=names.get(failsafe, failsafe))
             self._last_failsafe = failsafe
+
+    def _count_seq(self, f: P.Frame, t_us: int) -> None:
+        """Gaps before an accepted telemetry frame, from seq (or the board time when the
+        16-bit counter is ambiguous after a long outage)."""
+        flagged, self._flagged_seqs = self._flagged_seqs, []
+        if self.last_seq is None:
+            self.last_seq = f.seq
+            return
+        ahead = (f.seq - self.last_seq) & 0xFFFF
+        # frames flagged in between were received: not lost
+        between = sum(1 for s in flagged if 0 < (s - self.last_seq) & 0xFFFF < ahead)
+        if self.last_t_us is None:  # the first frame after a reset
+            if 0 < ahead < 0x8000:
+                self._count_gap(f, ahead - 1 - between)
+        elif ahead >= 0x8000 or ahead == 0:
+            dt = (t_us - self.last_t_us) & 0xFFFFFFFF
+            period = self.d.by_name["Telemetry"].spec.get("rate_hz", 50)
+            self._count_gap(f, max(0, int(round(dt * 1e-6 * period)) - 1))
+        else:
+            self._count_gap(f, ahead - 1 - between)
+        self.last_seq = f.seq
+
+
+class _Chain:
+    """Telemetry frames held until confirmed: ``kind`` "first", "reset" or "jump"."""
+
+    def __init__(self, kind: str, frames: list):
+        self.kind = kind
+        self.frames = frames

@@ -40,8 +40,8 @@ class RunFolderMixin:
         shown = runfmt.display(self.out)
         if os.path.exists(self.out) and not os.path.isdir(self.out):
             raise LoggerError(f"--out {shown} exists and is not a folder", 2)
-        for f in RUN_FILES[1:]:
-            if os.path.exists(os.path.join(self.out, f)):
+        for f in RUN_FILES:  # meta.json alone is a run someone made (or is making)
+            if os.path.lexists(os.path.join(self.out, f)):
                 raise LoggerError(f"{runfmt.display(os.path.join(self.out, f))} already exists; "
                                   "refusing to overwrite a recorded run", 2)
         reserve = os.path.join(self.out, RESERVE_NAME)
@@ -134,19 +134,8 @@ class RunFolderMixin:
     def write_meta(self) -> None:
         path = os.path.join(self.out, "meta.json")
         meta = runfmt.validate_meta(self._meta(), path)
-        tmp = path + ".tmp"
-        try:
-            with open(tmp, "w") as fh:
-                fh.write(json.dumps(meta, indent=2) + "\n")
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            try:  # never leave a half-written meta.json.tmp next to the last good meta.json
-                os.remove(tmp)
-            except OSError:
-                pass
-            raise
+        # beside and renamed, in a file created exclusively: never a half-written meta.json
+        runfmt.write_atomic(path, json.dumps(meta, indent=2) + "\n")
 
     def event(self, kind: str, **kw) -> None:
         kw = {"host_t_s": round(self.clock() - self._t0, 4), "kind": kind, **kw}

@@ -17,6 +17,7 @@ from typing import Any, Callable
 
 from host_tools import protocol as P
 from host_tools import runfmt
+from host_tools._stdio import say
 from host_tools.logger.errors import LoggerError, Stopped
 from host_tools.logger.frames import FramesMixin
 from host_tools.logger.link import LinkMixin
@@ -62,6 +63,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         self.on_row = on_row  # called with each telemetry row written (the live view)
         self._stop = False
         self._signals = 0
+        self._interruptible = False
         self._write_error: OSError | None = None
         self.commands: list[dict] = []
         self._params_before_config = 0
@@ -89,25 +91,36 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
                 raise
             except OSError as exc:
                 self._free_reserve()
+                self._close_port()
                 raise LoggerError(f"--out {runfmt.display(self.out)} cannot be written: "
                                   f"{exc.strerror or exc}", 2) from None
+            except runfmt.RunFormatError as exc:  # the folder changed since prepare_out
+                self._free_reserve()
+                self._close_port()
+                raise LoggerError(str(exc), 2) from None
             try:
-                self._session()
-            except (KeyboardInterrupt, Stopped):
+                self._interruptible = True  # the second signal may interrupt from here on
+                try:
+                    self._session()
+                except (KeyboardInterrupt, Stopped):
+                    self.end_reason = self.end_reason or "interrupted (Ctrl-C)"
+                    self._send_stop()
+                except LoggerError as exc:
+                    self.end_reason = str(exc)
+                    code = exc.code
+                    self._send_stop()
+                except OSError as exc:  # a write failed: disk full, file system gone read-only
+                    self._write_error = exc
+                    self.end_reason = f"write failed: {exc.strerror or exc}"
+                    code = 1
+                    self._send_stop()
+            except KeyboardInterrupt:  # the one interruption landed in a handler above
                 self.end_reason = self.end_reason or "interrupted (Ctrl-C)"
-                if self.experiment is not None:
-                    try:
-                        self.send("Stop")
-                    except Exception:
-                        pass
-            except LoggerError as exc:
-                self.end_reason = str(exc)
-                code = exc.code
-            except OSError as exc:  # a write failed: disk full, file system gone read-only
-                self._write_error = exc
-                self.end_reason = f"write failed: {exc.strerror or exc}"
-                code = 1
             finally:
+                try:
+                    self._interruptible = False
+                except KeyboardInterrupt:  # raised just before the line above: the only one
+                    self.end_reason = self.end_reason or "interrupted (Ctrl-C)"
                 if self.end_reason == "" and self._stop:
                     self.end_reason = "stopped"
                 if self.close() and code == 0:
@@ -152,6 +165,16 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         else:
             self.pump()
 
+    def _send_stop(self) -> None:
+        """Stop the robot's experiment when the recording ends before it did."""
+        if self.experiment is None:
+            return
+        self._heartbeat = False
+        try:
+            self.send("Stop")
+        except BaseException:  # a further signal or a dead port: the failsafe stops the robot
+            pass
+
     def command(self, name: str, values: dict | None = None) -> None:
         """Send a command and wait for its Ack (retrying); LoggerError if rejected/unanswered."""
         rec = {"command": name, "values": values or {}, "result": None}
@@ -187,13 +210,18 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         return False
 
     def _on_signal(self, signum, _frame) -> None:
+        """The first signal asks the session to stop; a later one interrupts it at once, but
+        only once and only while the session runs: closing the folder (the queued frames, the
+        end event, meta.json, the reserve file) is never interrupted, however many follow."""
+        if not self._signals:  # named before counting: a signal landing in this handler
+            name = signal.Signals(signum).name  # finds the reason already set
+            self.end_reason = self.end_reason or ("interrupted (Ctrl-C)" if name == "SIGINT"
+                                                  else f"stopped by {name}")
+            self._stop = True
         self._signals += 1
-        if self._signals > 1:
+        if self._signals > 1 and self._interruptible:
+            self._interruptible = False
             raise KeyboardInterrupt  # a second signal: stop at once (close() still runs)
-        name = signal.Signals(signum).name
-        self.end_reason = self.end_reason or ("interrupted (Ctrl-C)" if name == "SIGINT"
-                                              else f"stopped by {name}")
-        self._stop = True
 
     def _install_signals(self) -> dict:
         if threading.current_thread() is not threading.main_thread():
@@ -229,11 +257,11 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
             live = "no telemetry yet"
         line = (f"{self._fps:5.1f} frames/s  rows {self.stats['telemetry_rows']}  crc {self.dec.crc_errors}"
                 f"  bad {self.dec.bad_blocks - self.dec.crc_errors}  gaps {self.stats['gaps']}"
-                f" (lost {self.stats['lost_frames']})  dup {self.stats['duplicates']}  | {live}")
+                f" (lost {self.stats['lost_frames']})  dup {self.stats['duplicates']}"
+                f"  flagged {self.stats['implausible']}  | {live}")
         if note:
             line += f"  [{note}]"
-        sys.stderr.write("\r" + line[:160].ljust(160) + ("\n" if note else ""))
-        sys.stderr.flush()
+        say("\r" + line[:160].ljust(160), end="\n" if note else "")
 
     def close(self) -> bool:
         """Handle the frames still queued, close the files, finalize meta.json.  Returns True
@@ -245,6 +273,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
             for _ in range(2):  # a second try after a second Ctrl-C
                 try:
                     self._drain()
+                    self._end_frames()
                     break
                 except KeyboardInterrupt:
                     continue
@@ -265,7 +294,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
             self.write_meta()
         except Exception as exc:  # never lose the data over a meta problem
             failed = True
-            sys.stderr.write(f"\nwarning: could not rewrite meta.json: {exc}\n")
+            say(f"\nwarning: could not rewrite meta.json: {exc}")
         self._free_reserve()
         self._close_port()
         self._status(force=True, note=self.end_reason or "stopped")

@@ -4,11 +4,11 @@ no NUL), CSV columns of plain decimal numbers, meta.json, and a whole folder int
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
 import os
 import re
+import stat
 from typing import Any, Iterable
 
 import numpy as np
@@ -53,18 +53,24 @@ def _csv_column_at(data: bytes, line: int, char: int) -> str | None:
     return header[k].strip() if k < len(header) else None
 
 
-def read_text(path: str, csv_file: bool = False) -> str:
-    """The text of a run file: UTF-8 without byte-order mark and without NUL bytes;
-    anything else raises :class:`RunFormatError` naming what it is and where."""
-    try:
-        size = os.path.getsize(path)
-        if size > _MAX_FILE_BYTES:
-            raise RunFormatError(f"is {size} bytes, larger than the {_MAX_FILE_BYTES} this "
-                                 "reader takes", path)
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except OSError as exc:
-        raise RunFormatError(f"cannot read: {exc.strerror or exc}", path) from None
+def _read_bytes(path: str, limit: int = _MAX_FILE_BYTES) -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes (see :func:`_open_regular`); a
+    file growing past the limit while read is refused too."""
+    with _open_regular(path, limit) as fh:
+        try:
+            data = fh.read(limit + 1)
+        except OSError as exc:
+            raise RunFormatError(f"cannot read: {exc.strerror or exc}", path) from None
+    if len(data) > limit:
+        raise RunFormatError(f"grew past the {limit} bytes this reader takes while read", path)
+    return data
+
+
+def read_text(path: str, csv_file: bool = False, limit: int = _MAX_FILE_BYTES) -> str:
+    """The text of a run file (a regular file of at most ``limit`` bytes): UTF-8 without
+    byte-order mark and without NUL bytes; anything else raises :class:`RunFormatError`
+    naming what it is and where."""
+    data = _read_bytes(path, limit)
     if data.startswith(b"\xef\xbb\xbf"):
         raise RunFormatError("starts with a UTF-8 byte-order mark (bytes EF BB BF, invisible "
                              "in most editors); the run format is UTF-8 without one: save the "
@@ -100,23 +106,120 @@ def parse_number(cell: str) -> float | None:
     return float(cell)
 
 
+class _Lines:
+    """The lines of a CSV file, read as bytes and checked one by one as the csv module asks
+    for them (UTF-8, no byte-order mark, no NUL; the same messages as :func:`read_text`), so
+    that the file is never held whole: the header is refused having read only the header,
+    and the rows end up in numeric columns of 8 bytes a cell."""
+
+    def __init__(self, fh, path: str):
+        self.fh, self.path = fh, path
+        self.line_no = 0
+        self.header: bytes | None = None
+
+    def __iter__(self):
+        return self
+
+    def _where(self, raw: bytes, off: int) -> tuple[int | None, str | None]:
+        col = None
+        if self.header is not None and self.line_no > 1:
+            names = self.header.decode("utf-8", "replace").rstrip("\r\n").split(",")
+            k = raw[:off].count(b",")
+            col = names[k].strip() if k < len(names) else None
+        return (self.line_no - 1 if col else None), col
+
+    def __next__(self) -> str:
+        raw = self.fh.readline()
+        if not raw:
+            raise StopIteration
+        self.line_no += 1
+        if self.line_no == 1:
+            if raw.startswith(b"\xef\xbb\xbf"):
+                raise RunFormatError("starts with a UTF-8 byte-order mark (bytes EF BB BF, "
+                                     "invisible in most editors); the run format is UTF-8 "
+                                     "without one: save the file without BOM", self.path,
+                                     line=1, char=1)
+            for bom, name in ((b"\xff\xfe", "UTF-16 little-endian"),
+                              (b"\xfe\xff", "UTF-16 big-endian")):
+                if raw.startswith(bom):
+                    raise RunFormatError(f"is {name} text (byte-order mark "
+                                         f"{bom.hex(' ').upper()}); the run format is UTF-8",
+                                         self.path, line=1, char=1)
+            self.header = raw
+        nul = raw.find(b"\x00")
+        if nul >= 0:
+            row, col = self._where(raw, nul)
+            raise RunFormatError("holds a NUL byte - UTF-16 or a binary file? The run format "
+                                 "is UTF-8 text", self.path, row=row, line=self.line_no,
+                                 char=nul + 1, column=col)
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            row, col = self._where(raw, exc.start)
+            raise RunFormatError(f"is not UTF-8: byte {raw[exc.start]:02X} ({exc.reason}); the "
+                                 "run format is UTF-8 text", self.path, row=row,
+                                 line=self.line_no, char=exc.start + 1, column=col) from None
+
+
+def _open_regular(path: str, limit: int = _MAX_FILE_BYTES):
+    """A binary file object of a regular file of at most ``limit`` bytes.  Opened without
+    blocking and checked on the open descriptor: a FIFO, a device (``/dev/zero``), a socket or
+    a folder is refused, never waited on or read without end."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        raise RunFormatError(f"cannot read: {exc.strerror or exc}", path) from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise RunFormatError("is not a regular file (a FIFO, a device or a folder is "
+                                 "not read)", path)
+        if st.st_size > limit:
+            raise RunFormatError(f"is {st.st_size} bytes, larger than the {limit} this "
+                                 "reader takes", path)
+        return os.fdopen(fd, "rb", buffering=1 << 20)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def _read_csv(path: str, required: Iterable[str], may_be_empty: Iterable[str] = ()
               ) -> dict[str, np.ndarray]:
     required = list(required)
     may_be_empty = set(may_be_empty)
-    text = read_text(path, csv_file=True)
-    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
-    try:
+    with _open_regular(path) as fh:
+        lines = _Lines(fh, path)
+        reader = csv.reader(lines, strict=True)
         try:
-            header = next(reader)
-        except StopIteration:
-            raise RunFormatError("file is empty (no header row)", path) from None
-        rows = list(reader)
-    except csv.Error as exc:
-        line = reader.line_num
-        raise RunFormatError(f"is not valid CSV: {exc}", path,
-                             row=line - 1 if line > 1 else None,
-                             line=line if line <= 1 else None) from None
+            try:
+                header = next(reader)
+            except StopIteration:
+                raise RunFormatError("file is empty (no header row)", path) from None
+            header = _check_header(header, required, path)
+            columns, text_cols = _read_rows(reader, header, required, may_be_empty, path)
+        except csv.Error as exc:
+            line = reader.line_num
+            raise RunFormatError(f"is not valid CSV: {exc}", path,
+                                 row=line - 1 if line > 1 else None,
+                                 line=line if line <= 1 else None) from None
+        if text_cols:  # extra columns that are not numbers: a second pass keeps their text
+            fh.seek(0)
+            reader = csv.reader(_Lines(fh, path), strict=True)
+            next(reader)
+            idx = {h: header.index(h) for h in text_cols}
+            texts: dict[str, list[str]] = {h: [] for h in text_cols}
+            for row in reader:
+                if not any(c.strip() for c in row):
+                    continue
+                for h, j in idx.items():
+                    texts[h].append(row[j] if row[j].strip() else "")
+            n = len(next(iter(columns.values())))
+            for h in text_cols:
+                columns[h] = np.array(texts[h][:n], dtype=object)
+    return {h: columns[h] for h in header}
+
+
+def _check_header(header: list[str], required: list[str], path: str) -> list[str]:
     header = [h.strip() for h in header]
     seen = set()
     for k, h in enumerate(header, start=1):
@@ -131,51 +234,73 @@ def _read_csv(path: str, required: Iterable[str], may_be_empty: Iterable[str] = 
             raise RunFormatError(
                 f"missing required column (header has: {shown[:300]}"
                 f"{'...' if len(shown) > 300 else ''})", path, line=1, column=col)
-    # drop trailing blank lines only
-    while rows and not any(c.strip() for c in rows[-1]):
-        rows.pop()
-    if not rows:
-        raise RunFormatError("has a header but no data rows", path)
-    columns: dict[str, list] = {h: [] for h in header}
-    for i, row in enumerate(rows, start=1):
-        if len(row) != len(header):
-            raise RunFormatError(f"has {len(row)} fields, the header has {len(header)}", path, row=i)
-        for h, cell in zip(header, row):
-            columns[h].append(cell.strip())
-    out: dict[str, np.ndarray] = {}
-    for h in header:
-        cells = columns[h]
-        known = h in required or h in may_be_empty
-        values = np.empty(len(cells))
-        ok = True
-        for i, cell in enumerate(cells, start=1):
-            if cell == "":
-                if h in may_be_empty:
-                    values[i - 1] = np.nan
+    return header
+
+
+def _read_rows(reader, header: list[str], required: list[str], may_be_empty: set, path: str
+               ) -> tuple[dict[str, Any], list[str]]:
+    """Every data row into one array('d') per column (numbers checked as they come);
+    returns the columns (numpy views) and the extra columns found not to be numbers."""
+    from array import array
+
+    ncol = len(header)
+    known = [h in required or h in may_be_empty for h in header]
+    blank_ok = [h in may_be_empty for h in header]
+    cols = [array("d") for _ in header]
+    text = [False] * ncol  # an extra column seen to hold text: no longer parsed
+    nan = math.nan
+
+    def take(row: list[str], n: int) -> None:
+        if len(row) != ncol:
+            raise RunFormatError(f"has {len(row)} fields, the header has {ncol}", path, row=n)
+        for j in range(ncol):
+            if text[j]:
+                continue
+            cell = row[j]
+            if not cell.strip():
+                if blank_ok[j]:
+                    cols[j].append(nan)
                     continue
-                if known:
-                    raise RunFormatError("empty value", path, row=i, column=h)
-                ok = False
-                break
+                if known[j]:
+                    raise RunFormatError("empty value", path, row=n, column=header[j])
+                text[j] = True
+                continue
             v = parse_number(cell)
             if v is None:
-                if known:
+                if known[j]:
                     if _NONFINITE.match(cell):
                         raise RunFormatError(f"value is {cell} (NaN and infinity are not "
-                                             "allowed)", path, row=i, column=h)
+                                             "allowed)", path, row=n, column=header[j])
                     raise RunFormatError(f"not a number: {_show(cell)} (numbers are plain "
-                                         "decimal, e.g. -1.5 or 2e-3)", path, row=i, column=h)
-                ok = False
-                break
+                                         "decimal, e.g. -1.5 or 2e-3)", path, row=n,
+                                         column=header[j])
+                text[j] = True
+                continue
             if not math.isfinite(v):
-                if known:
+                if known[j]:
                     raise RunFormatError(f"value {_show(cell)} is too large for a double",
-                                         path, row=i, column=h)
-                ok = False
-                break
-            values[i - 1] = v
-        out[h] = values if ok else np.array(cells, dtype=object)  # extra text column: kept as is
-    return out
+                                         path, row=n, column=header[j])
+                text[j] = True
+                continue
+            cols[j].append(v)
+
+    n = 0
+    blanks: list[list[str]] = []  # blank rows not yet known to be trailing (those are dropped)
+    for row in reader:
+        if not any(c.strip() for c in row):
+            blanks.append(row)
+            continue
+        for b in blanks:
+            n += 1
+            take(b, n)
+        blanks.clear()
+        n += 1
+        take(row, n)
+    if n == 0:
+        raise RunFormatError("has a header but no data rows", path)
+    out = {h: (np.frombuffer(c, dtype=np.float64) if len(c) else np.empty(0))
+           for h, c, t in zip(header, cols, text) if not t}
+    return out, [h for h, t in zip(header, text) if t]
 
 
 def _json_depth_ok(obj: Any, limit: int) -> bool:

@@ -26,6 +26,11 @@ _PPR_MIN, _PPR_MAX = params.ENCODER_PPR_RANGE  # encoder counts per wheel turn
 _START_POS_MAX_M = 10_000.0   # |x|, |y| of start_pose
 _START_PHI_MAX_RAD = 1_000.0  # |phi| of start_pose (about 160 turns)
 
+# The smallest step any tool simulates the plant with (the analyzer's --dt lower bound).  The
+# plant steps explicitly: a robot whose fastest physical mode is quicker than half this step
+# cannot be simulated stably by any tool (see _check_physics).
+PLANT_DT_MIN_S = 1e-4
+
 # The largest yaw rate a wheeled robot of this kind can plausibly reach, rad/s.
 # A heading recorded in degrees turns 57 times faster than the same one in rad.
 _MAX_YAW_RATE = 60.0
@@ -66,6 +71,7 @@ def validate_meta(meta: Mapping[str, Any], file: str = "meta.json") -> dict:
             raise RunFormatError(
                 f"'{name}' = {value} is outside the plausible range [{lo}, {hi}] (SI units: "
                 "metres, kilograms, seconds, volts, N m) - wrong units?", file, column=name)
+    _check_physics(full, file)
     ppr = full["encoder_ppr"]
     if not _is_number(ppr) or not _PPR_MIN <= ppr <= _PPR_MAX or ppr != int(ppr):
         raise RunFormatError(f"'encoder_ppr' must be an integer in [{_PPR_MIN}, {_PPR_MAX}], got "
@@ -96,6 +102,45 @@ def validate_meta(meta: Mapping[str, Any], file: str = "meta.json") -> dict:
                 raise RunFormatError(f"'reference.{k}' must be a number within +-1e6, got "
                                      f"{_show(v)}", file, column=f"reference.{k}")
     return full
+
+
+def wheel_time_constant_s(meta: Mapping[str, Any]) -> float:
+    """The fastest mode of the plant: a slipping wheel's speed settles against the motor's
+    back-EMF damping, stall_nm / no_load_rad_s (N m s/rad), with the time constant
+    I_wy * no_load_rad_s / stall_nm.  An explicit step longer than twice it diverges."""
+    r, m = meta["robot"], meta["motor"]
+    return r["I_wy"] * m["no_load_rad_s"] / m["stall_nm"]
+
+
+def max_stable_plant_dt_s(meta: Mapping[str, Any]) -> float:
+    """The longest explicit plant step that stays stable for this robot (validated meta)."""
+    return 2.0 * wheel_time_constant_s(meta)
+
+
+def _check_physics(full: dict, file: str) -> None:
+    """Values inside their unit ranges that no robot can have, refused with the reason.
+
+    * The static loads (thesis II.27-II.29): the caster carries N_c = m g d / (d + e) and the
+      wheels m g e / (d + e).  e = 0 puts the centre of mass over the caster contact: the
+      wheels carry no load and cannot drive (and with d = 0 too the loads are 0/0).
+    * The plant's fastest mode (:func:`wheel_time_constant_s`) must allow a stable step of
+      :data:`PLANT_DT_MIN_S`: an I_wy far too small for the motor (1e-9 kg m^2) makes every
+      replay diverge."""
+    r = full["robot"]
+    if not r["e"] > 0:
+        loads = ("0/0: undefined" if not r["d"] + r["e"] > 0 else "m g e / (d + e) = 0")
+        raise RunFormatError(
+            f"'robot.e' = {r['e']}: the centre of mass sits over the caster contact, so the "
+            f"wheels' normal load is {loads} and they cannot drive; e (centre of mass to "
+            "caster contact) must be > 0 m", file, column="robot.e")
+    tau = wheel_time_constant_s(full)
+    if not tau * 2.0 >= PLANT_DT_MIN_S:
+        raise RunFormatError(
+            f"'robot.I_wy' = {r['I_wy']} kg m^2 with this motor: a slipping wheel settles "
+            f"against the back-EMF with time constant I_wy * no_load_rad_s / stall_nm = "
+            f"{tau:.3g} s, shorter than half the plant's smallest step ({PLANT_DT_MIN_S:g} s), so "
+            "no simulation of this robot is stable - a wheel inertia that small is not physical "
+            "(wrong units?)", file, column="robot.I_wy")
 
 
 def _is_number(v: Any) -> bool:

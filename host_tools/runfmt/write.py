@@ -14,6 +14,33 @@ from host_tools.runfmt.spec import (GROUNDTRUTH_COLUMNS, TELEMETRY_COLUMNS, RunF
                                     _show)
 from host_tools.runfmt.validate import _check_time, validate_meta
 
+def write_atomic(path: str | os.PathLike, text: str, fsync: bool = True) -> None:
+    """Write ``text`` (UTF-8; characters UTF-8 cannot hold, such as undecodable bytes of a
+    path, as backslash escapes) beside ``path`` into a file created exclusively (a name
+    nobody holds, never a stale ``.tmp`` or a link someone left), then rename it over
+    ``path``: the previous file or the new one, never a torn one, and nothing is written
+    through a link or into a file this call did not create.  A failure removes the
+    temporary file and raises."""
+    import tempfile
+
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
+    try:
+        with open(fd, "w", encoding="utf-8", errors="backslashreplace") as fh:
+            fh.write(text)
+            fh.flush()
+            if fsync:
+                os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise
+
+
 def _fmt(v: Any) -> str:
     if isinstance(v, (bool, np.bool_)):
         raise TypeError("booleans are not column values")

@@ -132,10 +132,10 @@ def main(argv=None) -> int:
               "nominal truth: odometry (mm), board wheel speed (rad/s), duty")
         return 0
     if a.cmd == "score":
-        from host_tools.suite.bench import collect, summarize
+        from host_tools.suite.bench import ScoreFileError, collect, summarize
         try:
             res = collect(a.out, sel, rescore=a.rescore)
-        except FileNotFoundError as exc:
+        except (FileNotFoundError, ScoreFileError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         text, _ = summarize(res, sum(r.get("case_s", 0.0) for r in res))

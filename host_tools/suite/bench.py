@@ -15,7 +15,9 @@ import signal
 import subprocess
 import sys
 import time
+from typing import Any
 
+from host_tools import runfmt
 from host_tools.suite.generate import generate_case
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -229,29 +231,72 @@ def score_case(label: dict, rc: int, report: dict | None) -> dict:
     return res
 
 
+class ScoreFileError(ValueError):
+    """A stored score, report or label that cannot be used; the message names the file."""
+
+
+def _read_json_file(path: str) -> Any:
+    from host_tools import runfmt
+
+    try:
+        text = runfmt.read_text(path, limit=64 << 20)
+        return json.loads(text)
+    except runfmt.RunFormatError as exc:
+        raise ScoreFileError(str(exc)) from None
+    except json.JSONDecodeError as exc:
+        raise ScoreFileError(f"{runfmt.display(path)}, line {exc.lineno}, character {exc.colno}: "
+                             f"invalid JSON: {exc.msg} (re-run the bench for this case)") from None
+    except (RecursionError, ValueError) as exc:
+        raise ScoreFileError(f"{runfmt.display(path)}: invalid JSON: "
+                             f"{'nested too deeply' if isinstance(exc, RecursionError) else exc}") from None
+
+
+def _checked_score(path: str, r: Any) -> dict:
+    """A stored score that summarize() can use (tried on its own), or ScoreFileError."""
+    from host_tools import runfmt
+
+    try:
+        if not isinstance(r, dict):
+            raise TypeError("not a JSON object")
+        summarize([r], 0.0)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, ZeroDivisionError) as exc:
+        what = f"key {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise ScoreFileError(f"{runfmt.display(path)}: not a score of this suite ({type(exc).__name__}: "
+                             f"{what}); re-run the bench for this case") from None
+    return r
+
+
 def collect(data_dir: str, case_list: list, rescore: bool = False) -> list[dict]:
     """The scores of earlier bench runs (reports/<case>/score.json) for these cases; with
-    ``rescore``, scored again from the stored report.json and label (scorer changes)."""
-    out = []
+    ``rescore``, scored again from the stored report.json and label (scorer changes).  A
+    stored file that cannot be used raises ScoreFileError naming it, before anything is
+    written; the rescored files are then each written beside and renamed into place."""
+    from host_tools import runfmt
+
+    out, rewrite = [], []
     for c in case_list:
         p = os.path.join(data_dir, "reports", c.name, "score.json")
         if not os.path.isfile(p):
             raise FileNotFoundError(f"{p}: case {c.name} was not benchmarked yet")
-        with open(p) as fh:
-            r = json.load(fh)
+        r = _checked_score(p, _read_json_file(p))
         if rescore:
             rp = os.path.join(data_dir, "reports", c.name, "report.json")
             report = None
             if r.get("rc") == 0 and os.path.isfile(rp):
-                with open(rp) as fh:
-                    report = json.load(fh)
-            with open(os.path.join(data_dir, "labels", f"{c.name}.json")) as fh:
-                label = json.load(fh)
-            r = dict(score_case(label, r.get("rc", 1), report),
-                     **{k: r[k] for k in ("case_s", "analysis_s", "peak_rss_mb") if k in r})
-            with open(p, "w") as fh:
-                json.dump(r, fh, indent=2)
+                report = _read_json_file(rp)
+            lp = os.path.join(data_dir, "labels", f"{c.name}.json")
+            label = _read_json_file(lp)
+            try:
+                scored = score_case(label, r.get("rc", 1), report)
+            except (KeyError, TypeError, ValueError, AttributeError) as exc:
+                raise ScoreFileError(f"{runfmt.display(rp)} or {runfmt.display(lp)}: cannot be "
+                                     f"scored ({type(exc).__name__}: {exc})") from None
+            r = _checked_score(p, dict(scored, **{k: r[k] for k in ("case_s", "analysis_s", "peak_rss_mb")
+                                                  if k in r}))
+            rewrite.append((p, r))
         out.append(r)
+    for p, r in rewrite:
+        runfmt.write_atomic(p, json.dumps(r, indent=2))
     return out
 
 
@@ -439,15 +484,13 @@ def bench(data_dir: str, case_list: list, jobs: int = 2, regenerate: bool = True
         r["case_s"] = time.time() - tc
         r["analysis_s"] = perf["wall_s"]
         r["peak_rss_mb"] = perf["peak_rss_mb"]
-        with open(os.path.join(rep_dir, "score.json"), "w") as fh:
-            json.dump(r, fh, indent=2)
+        runfmt.write_atomic(os.path.join(rep_dir, "score.json"), json.dumps(r, indent=2))
         results.append(r)
         out(f"[{i + 1}/{len(case_list)}] {case.name}: {'OK' if r['ok'] else 'MISS'} "
             f"verdict {r['verdict']} named {r['named']} (analysis {r['analysis_s']:.0f} s, "
             f"{r['peak_rss_mb']:.0f} MB; case {r['case_s']:.0f} s)")
     text, m = summarize(results, time.time() - t0)
-    with open(os.path.join(data_dir, "bench.json"), "w") as fh:
-        json.dump({"results": results, "metrics": m}, fh, indent=2)
-    with open(os.path.join(data_dir, "bench.txt"), "w") as fh:
-        fh.write(text + "\n")
+    runfmt.write_atomic(os.path.join(data_dir, "bench.json"),
+                        json.dumps({"results": results, "metrics": m}, indent=2))
+    runfmt.write_atomic(os.path.join(data_dir, "bench.txt"), text + "\n")
     return results, m, text

@@ -410,3 +410,12 @@ def test_analyzer_stopped_by_a_signal_exits_1_without_partial_outputs(tmp_path, 
     assert proc.returncode == 1, err
     assert f"interrupted by {sig}" in err and "Traceback" not in err, err
     assert not any(out.glob("report.*")) and not any(out.glob("*.tmp"))
+
+
+def test_a_cell_with_a_leading_space_is_not_a_number(tmp_path, capsys):
+    """docs/reliability.md: ' 1' is not a number (Python's float() takes it)."""
+    run = _base(tmp_path / "run")
+    _set_cell(run / "telemetry.csv", 3, "omega_r", b" 1")
+    assert cli(["timing", "--run", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert "row 3" in err and "'omega_r'" in err and "not a number" in err

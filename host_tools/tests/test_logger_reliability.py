@@ -46,7 +46,7 @@ def _check_complete(out: Path, end_reason: str, raw_complete: bool = True):
         assert len(tel) >= lg["telemetry_rows"] and lg["frames"] == len(frames)
     else:
         assert lg["frames"] >= len(frames)
-    assert not (out / "meta.json.tmp").exists()
+    assert not (out / "meta.json.tmp").exists() and not list(out.glob(".*.tmp"))
     assert not (out / L.RESERVE_NAME).exists()
     return meta
 
@@ -116,7 +116,7 @@ class FullDisk:
 
         class F:
             def __init__(self, path, mode, **kw):
-                self.path = os.path.abspath(path)
+                self.path = os.path.abspath(path) if not isinstance(path, int) else f"fd {path}"
                 self.fh = real_open(path, mode, **kw)
                 self.text = "b" not in mode
                 disk.sizes.setdefault(self.path, 0)

@@ -4,15 +4,20 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
-import sys
 import time
 
+from host_tools._stdio import say
 from host_tools.analyzer.fit.judge import Candidate, evaluate_candidate
 from host_tools.analyzer.fit.problem import Problem
 
 
+class WorkerDied(RuntimeError):
+    """A fitting worker process ended without a result (SIGKILL from the out-of-memory
+    killer, a signal to that one process): the analysis cannot be completed."""
+
+
 def log_stderr(msg: str) -> None:
-    print(f"[analyze {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+    say(f"[analyze {time.strftime('%H:%M:%S')}] {msg}")  # a closed pipe never ends the analysis
 
 
 _PROBLEM: Problem | None = None
@@ -51,11 +56,35 @@ def run_tasks(problem: Problem, tasks: list, jobs: int, label: str) -> list[Cand
             out.append(cand)
             log_stderr(f"{label} {i}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
         return out
-    ctx = mp.get_context("fork")
-    with ctx.Pool(jobs, initializer=_init_worker, initargs=(problem,)) as pool:
-        for i, (cand, dt) in enumerate(pool.imap_unordered(_eval_task, tasks), 1):
-            out.append(cand)
-            log_stderr(f"{label} {i}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
+    # concurrent.futures notices a worker that died without a result (BrokenProcessPool);
+    # multiprocessing.Pool would wait for its result for ever
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    ex = ProcessPoolExecutor(jobs, mp_context=mp.get_context("fork"), initializer=_init_worker,
+                             initargs=(problem,))
+    try:
+        pending = {ex.submit(_eval_task, t) for t in tasks}
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                try:
+                    cand, dt = fut.result()
+                except BrokenProcessPool:
+                    raise WorkerDied("a fitting worker process ended without its result (killed: "
+                                     "by the out-of-memory killer or a signal to that process); "
+                                     "nothing was written. Run again, with fewer --jobs if memory "
+                                     "is short") from None
+                out.append(cand)
+                log_stderr(f"{label} {len(out)}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
+    finally:
+        procs = list(getattr(ex, "_processes", {}).values())  # end the workers at once, as
+        ex.shutdown(wait=False, cancel_futures=True)          # Pool.terminate() did
+        for proc in procs:
+            if proc.is_alive():
+                proc.terminate()
+        for proc in procs:
+            proc.join(5)
     order = {tuple(t[0]): i for i, t in enumerate(tasks)}
     out.sort(key=lambda c: order[tuple(c.effects)])
     return out

@@ -210,6 +210,8 @@ def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
         if w.size != t.size or n.size != t.size or not np.all(np.isfinite(w)):
             return None
         sides.append((n, w))
+    if period < step:  # a loop faster than the search step: ten phases across its period
+        step = period / 10
     start, width = arc if arc is not None else (0.0, period - step)
     phases = start + np.arange(0.0, width + 0.5 * step, step)
 

@@ -212,29 +212,73 @@ def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
     return "\n".join(L)
 
 
-def _write_text(path: str, text: str) -> None:
-    """Write ``text`` as UTF-8 to a temporary file, then rename it over ``path``: a failure
-    (a full disk) leaves the previous file or none, never a truncated one.  Characters that
-    UTF-8 cannot hold (undecodable bytes of a path) are written as backslash escapes."""
-    tmp = path + ".tmp"
+OUTPUTS_MANIFEST = ".analyze.outputs"  # the files of the set last written into --out
+LOCK_NAME = ".analyze.lock"
+
+
+def _commit(staging: str, out_dir: str, names: list[str], on_committed=None) -> None:
+    """Move the set staged in ``staging`` into ``out_dir`` as one: under an exclusive lock
+    (a second analysis into the same folder waits: never report.json of one and report.md of
+    the other), with SIGINT/SIGTERM/SIGHUP held back until every file is in place (a signal
+    then ends the command after it), each file renamed over the previous one (nothing is
+    written through a link or a stale .tmp left in --out), plots of the previous set that
+    this set does not have removed."""
+    import fcntl
+    import signal
+
+    sigs = {getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)}
+    fd = os.open(os.path.join(out_dir, LOCK_NAME), os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
     try:
-        with open(tmp, "w", encoding="utf-8", errors="backslashreplace") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
         try:
-            os.remove(tmp)
-        except OSError:
-            pass
-        raise
+            man = os.path.join(out_dir, OUTPUTS_MANIFEST)
+            try:
+                with open(man, "rb") as fh:
+                    previous = json.loads(fh.read(1 << 20) or b"[]")
+            except (OSError, ValueError):
+                previous = []
+            for name in names:
+                os.replace(os.path.join(staging, name), os.path.join(out_dir, name))
+            for name in previous if isinstance(previous, list) else []:
+                if (isinstance(name, str) and name not in names and name.endswith(".png")
+                        and os.sep not in name and not name.startswith(".")):
+                    try:
+                        os.remove(os.path.join(out_dir, name))
+                    except OSError:
+                        pass
+            os.replace(os.path.join(staging, OUTPUTS_MANIFEST), man)
+            if on_committed is not None:
+                on_committed()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
+    finally:
+        os.close(fd)
 
 
-def write_outputs(an: Analysis, out_dir: str, plots: bool = True) -> dict:
+def write_outputs(an: Analysis, out_dir: str, plots: bool = True, on_committed=None) -> dict:
+    """report.json, model.json, report.md and the plots, all or nothing: written into a fresh
+    folder inside ``out_dir`` (created exclusively), then moved into place together
+    (:func:`_commit`).  A failure or a signal before that leaves the previous set whole."""
+    import shutil
+    import tempfile
+
     os.makedirs(out_dir, exist_ok=True)
     rep = report_dict(an)
-    _write_text(os.path.join(out_dir, "report.json"), json.dumps(rep, indent=2) + "\n")
-    _write_text(os.path.join(out_dir, "model.json"),
-                json.dumps(_finite(an.model), indent=2) + "\n")
-    files = _plots(an, out_dir) if plots else []
-    _write_text(os.path.join(out_dir, "report.md"), _md(an, rep, files))
+    staging = tempfile.mkdtemp(prefix=".analyze-stage-", dir=out_dir)
+    try:
+        texts = {"report.json": json.dumps(rep, indent=2) + "\n",
+                 "model.json": json.dumps(_finite(an.model), indent=2) + "\n"}
+        files = _plots(an, staging) if plots else []
+        texts["report.md"] = _md(an, rep, files)
+        for name, text in texts.items():
+            with open(os.path.join(staging, name), "w", encoding="utf-8",
+                      errors="backslashreplace") as fh:
+                fh.write(text)
+        names = files + ["model.json", "report.json", "report.md"]
+        with open(os.path.join(staging, OUTPUTS_MANIFEST), "w") as fh:
+            fh.write(json.dumps(names))
+        _commit(staging, out_dir, names, on_committed)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
     return rep
