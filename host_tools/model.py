@@ -60,11 +60,11 @@ def load_model(path: str | Path) -> dict[str, Any]:
         raise ModelError(f"{p}: not readable JSON: nested more than {MAX_DEPTH} levels deep") from None
     except ValueError as exc:  # an integer of more digits than Python converts
         raise ModelError(f"{p}: not readable JSON: {exc}") from None
-    if not runfmt._json_depth_ok(model, MAX_DEPTH):
+    if not runfmt.json_depth_ok(model, MAX_DEPTH):
         raise ModelError(f"{p}: JSON nested more than {MAX_DEPTH} levels deep")
     if not isinstance(model, dict) or model.get("format") != FORMAT:
         shown = model.get("format") if isinstance(model, dict) else None
-        raise ModelError(f"{p}: 'format' is {runfmt._show(shown)}, expected {FORMAT!r}")
+        raise ModelError(f"{p}: 'format' is {runfmt.show_value(shown)}, expected {FORMAT!r}")
     for group in ("robot", "motor", "effects"):
         value = model.get(group, {})
         if not isinstance(value, dict):

@@ -102,7 +102,7 @@ def _read_json(path: str) -> object:
         raise TimingInputError(f"{runfmt.display(path)}: invalid JSON: "
                                f"{'nested too deeply' if isinstance(exc, RecursionError) else exc}"
                                ) from None
-    if not runfmt._json_depth_ok(doc, 64):
+    if not runfmt.json_depth_ok(doc, 64):
         raise TimingInputError(f"{runfmt.display(path)}: JSON nested more than 64 levels deep")
     return doc
 
@@ -111,9 +111,9 @@ def _num(path: str, obj, key: str, where: str, hi: float = CYCLES_MAX) -> float:
     v = obj.get(key) if isinstance(obj, dict) else None
     if (isinstance(v, bool) or not isinstance(v, (int, float))
             or (isinstance(v, float) and not math.isfinite(v)) or not 0 <= v <= hi):
-        from host_tools.runfmt import _show, display
+        from host_tools.runfmt import show_value, display
         raise TimingInputError(f"{display(path)}, key '{where}.{key}': must be a number in "
-                               f"[0, {hi:g}], got {_show(v)}")
+                               f"[0, {hi:g}], got {show_value(v)}")
     return float(v)
 
 
@@ -223,7 +223,7 @@ def load_run_timing(run_dir: str, d: P.Definition) -> tuple[dict, dict]:
                          or not math.isfinite(runfmt.parse_number(str(v))))
                 raise TimingInputError(f"{runfmt.display(tpath)}, row {i + 1} (line {i + 2}), "
                                        f"column '{c}': not a finite number: "
-                                       f"{runfmt._show(tel[c][i])}")
+                                       f"{runfmt.show_value(tel[c][i])}")
         mx, last, ovr = (tel[c] for c in need)
         scale = cols[f"{name}_max"].scale or 1
         out[name] = {

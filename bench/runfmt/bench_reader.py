@@ -26,7 +26,6 @@ ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
 sys.path.insert(0, ROOT)
 
 from host_tools import protocol as P  # noqa: E402
-from host_tools import runfmt  # noqa: E402
 from host_tools.logger import TelemetryColumns  # noqa: E402
 
 CHILD = r"""

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import signal
 import threading
+from typing import Any
 
 from host_tools import gt_align
 from host_tools import protocol as P
@@ -122,7 +123,7 @@ def main(args: argparse.Namespace) -> int:
                 signal.signal(sig, handler)
 
 
-def _hold_signals() -> dict:
+def _hold_signals() -> dict[int, Any]:
     held = {}
     if threading.current_thread() is threading.main_thread():
         for name in STOP_SIGNALS:

@@ -10,7 +10,6 @@ shows the live status line.
 from __future__ import annotations
 
 import signal
-import sys
 import threading
 import time
 from typing import Any, Callable

@@ -25,16 +25,16 @@ from __future__ import annotations
 
 from host_tools.runfmt.spec import (DEFAULT_META, FORMAT, GROUNDTRUTH_COLUMNS,
                                     GROUNDTRUTH_REQUIRED, TELEMETRY_COLUMNS, Run,
-                                    RunFormatError, _show, display)  # noqa: F401  (re-exported)
+                                    RunFormatError, show_value, display)  # noqa: F401  (re-exported)
 from host_tools.runfmt.validate import (_PARAM_RANGES, _check_time, check_compatible,  # noqa: F401  (re-exported)
                                         max_stable_plant_dt_s, split_unknown, validate_meta)
-from host_tools.runfmt.read import (ANALYZER_MIN_ROWS, _json_depth_ok, _read_csv, label_runs,  # noqa: F401  (re-exported)
+from host_tools.runfmt.read import (ANALYZER_MIN_ROWS, json_depth_ok, _read_csv, label_runs,  # noqa: F401  (re-exported)
                                     load_meta, load_run, parse_number, read_text)
 from host_tools.runfmt.write import RunWriter, write_atomic, write_groundtruth, write_run
 
 __all__ = [
     "ANALYZER_MIN_ROWS", "DEFAULT_META", "FORMAT", "GROUNDTRUTH_COLUMNS", "GROUNDTRUTH_REQUIRED",
-    "TELEMETRY_COLUMNS", "Run", "RunFormatError", "RunWriter", "check_compatible", "display",
+    "TELEMETRY_COLUMNS", "Run", "RunFormatError", "RunWriter", "check_compatible", "display", "json_depth_ok", "show_value",
     "label_runs", "load_meta", "load_run", "max_stable_plant_dt_s", "parse_number", "read_text", "split_unknown",
     "validate_meta", "write_atomic", "write_groundtruth", "write_run",
 ]

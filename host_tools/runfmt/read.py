@@ -9,12 +9,12 @@ import math
 import os
 import re
 import stat
-from typing import Any, Iterable
+from typing import IO, Any, Iterable
 
 import numpy as np
 
 from host_tools.runfmt.spec import (GROUNDTRUTH_REQUIRED, TELEMETRY_COLUMNS, Run, RunFormatError,
-                                    _show, display)
+                                    show_value, display)
 from host_tools.runfmt.validate import (_check_time, _check_units_groundtruth,
                                         _check_units_telemetry, split_unknown, validate_meta)
 
@@ -112,12 +112,12 @@ class _Lines:
     that the file is never held whole: the header is refused having read only the header,
     and the rows end up in numeric columns of 8 bytes a cell."""
 
-    def __init__(self, fh, path: str):
+    def __init__(self, fh: IO[bytes], path: str):
         self.fh, self.path = fh, path
         self.line_no = 0
         self.header: bytes | None = None
 
-    def __iter__(self):
+    def __iter__(self) -> _Lines:
         return self
 
     def _where(self, raw: bytes, off: int) -> tuple[int | None, str | None]:
@@ -161,7 +161,7 @@ class _Lines:
                                  line=self.line_no, char=exc.start + 1, column=col) from None
 
 
-def _open_regular(path: str, limit: int = _MAX_FILE_BYTES):
+def _open_regular(path: str, limit: int = _MAX_FILE_BYTES) -> IO[bytes]:
     """A binary file object of a regular file of at most ``limit`` bytes.  Opened without
     blocking and checked on the open descriptor: a FIFO, a device (``/dev/zero``), a socket or
     a folder is refused, never waited on or read without end."""
@@ -237,7 +237,8 @@ def _check_header(header: list[str], required: list[str], path: str) -> list[str
     return header
 
 
-def _read_rows(reader, header: list[str], required: list[str], may_be_empty: set, path: str
+def _read_rows(reader: Iterable[list[str]], header: list[str], required: list[str],
+               may_be_empty: set[str], path: str
                ) -> tuple[dict[str, Any], list[str]]:
     """Every data row into one array('d') per column (numbers checked as they come);
     returns the columns (numpy views) and the extra columns found not to be numbers."""
@@ -271,14 +272,14 @@ def _read_rows(reader, header: list[str], required: list[str], may_be_empty: set
                     if _NONFINITE.match(cell):
                         raise RunFormatError(f"value is {cell} (NaN and infinity are not "
                                              "allowed)", path, row=n, column=header[j])
-                    raise RunFormatError(f"not a number: {_show(cell)} (numbers are plain "
+                    raise RunFormatError(f"not a number: {show_value(cell)} (numbers are plain "
                                          "decimal, e.g. -1.5 or 2e-3)", path, row=n,
                                          column=header[j])
                 text[j] = True
                 continue
             if not math.isfinite(v):
                 if known[j]:
-                    raise RunFormatError(f"value {_show(cell)} is too large for a double",
+                    raise RunFormatError(f"value {show_value(cell)} is too large for a double",
                                          path, row=n, column=header[j])
                 text[j] = True
                 continue
@@ -303,7 +304,7 @@ def _read_rows(reader, header: list[str], required: list[str], may_be_empty: set
     return out, [h for h, t in zip(header, text) if t]
 
 
-def _json_depth_ok(obj: Any, limit: int) -> bool:
+def json_depth_ok(obj: Any, limit: int) -> bool:
     """True if ``obj`` nests objects/arrays at most ``limit`` deep (iterative walk)."""
     stack = [(obj, 1)]
     while stack:
@@ -336,7 +337,7 @@ def load_meta(path: str | os.PathLike) -> dict:
                              "levels)", mpath) from None
     except ValueError as exc:  # e.g. an integer with more digits than Python converts
         raise RunFormatError(f"invalid JSON: {exc}", mpath) from None
-    if not _json_depth_ok(meta, _JSON_MAX_DEPTH):
+    if not json_depth_ok(meta, _JSON_MAX_DEPTH):
         raise RunFormatError(f"JSON nested more than {_JSON_MAX_DEPTH} levels deep", mpath)
     return validate_meta(meta, mpath)
 

@@ -78,7 +78,7 @@ def display(text: str | bytes) -> str:
     return out
 
 
-def _show(v: Any, limit: int = 80) -> str:
+def show_value(v: Any, limit: int = 80) -> str:
     """A value for a message: numpy scalars as plain numbers, long values cut."""
     if isinstance(v, np.generic):
         v = v.item()

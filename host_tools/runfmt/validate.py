@@ -11,7 +11,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from host_tools import params
-from host_tools.runfmt.spec import DEFAULT_META, FORMAT, Run, RunFormatError, _show, display
+from host_tools.runfmt.spec import DEFAULT_META, FORMAT, Run, RunFormatError, show_value, display
 
 # Accepted ranges of the physical parameters (SI): the parameter table's.  They catch wrong
 # units (millimetres, grams, degrees), not unusual robots, so they are generous.
@@ -53,7 +53,7 @@ def validate_meta(meta: Mapping[str, Any], file: str = "meta.json") -> dict:
         raise RunFormatError("must hold a JSON object", file)
     fmt = meta.get("format", FORMAT)
     if fmt != FORMAT:
-        raise RunFormatError(f"unknown format version {_show(fmt)}; this tool reads {FORMAT!r}",
+        raise RunFormatError(f"unknown format version {show_value(fmt)}; this tool reads {FORMAT!r}",
                              file, column="format")
     for key in ("robot", "motor", "periods_s"):
         if key in meta and not isinstance(meta[key], Mapping):
@@ -63,7 +63,7 @@ def validate_meta(meta: Mapping[str, Any], file: str = "meta.json") -> dict:
         value = full[group][key]
         name = f"{group}.{key}"
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise RunFormatError(f"'{name}' must be a number, got {_show(value)}", file,
+            raise RunFormatError(f"'{name}' must be a number, got {show_value(value)}", file,
                                  column=name)
         if isinstance(value, float) and not math.isfinite(value):
             raise RunFormatError(f"'{name}' is {value}", file, column=name)
@@ -75,11 +75,11 @@ def validate_meta(meta: Mapping[str, Any], file: str = "meta.json") -> dict:
     ppr = full["encoder_ppr"]
     if not _is_number(ppr) or not _PPR_MIN <= ppr <= _PPR_MAX or ppr != int(ppr):
         raise RunFormatError(f"'encoder_ppr' must be an integer in [{_PPR_MIN}, {_PPR_MAX}], got "
-                             f"{_show(ppr)}", file, column="encoder_ppr")
+                             f"{show_value(ppr)}", file, column="encoder_ppr")
     full["encoder_ppr"] = int(ppr)
     if not isinstance(full["torque_clamp"], bool):
         raise RunFormatError(f"'torque_clamp' must be true or false, got "
-                             f"{_show(full['torque_clamp'])}", file, column="torque_clamp")
+                             f"{show_value(full['torque_clamp'])}", file, column="torque_clamp")
     if "start_pose" in full:
         sp = full["start_pose"]
         lim = (_START_POS_MAX_M, _START_POS_MAX_M, _START_PHI_MAX_RAD)
@@ -87,12 +87,12 @@ def validate_meta(meta: Mapping[str, Any], file: str = "meta.json") -> dict:
                 or not all(_is_number(v) and abs(v) <= m for v, m in zip(sp, lim))):
             raise RunFormatError(
                 f"'start_pose' must be [x_m, y_m, phi_rad] with |x|, |y| <= {_START_POS_MAX_M:g} m "
-                f"and |phi| <= {_START_PHI_MAX_RAD:g} rad, got {_show(sp)}", file,
+                f"and |phi| <= {_START_PHI_MAX_RAD:g} rad, got {show_value(sp)}", file,
                 column="start_pose")
     ref = full.get("reference")
     if isinstance(ref, Mapping):
         if "kind" in ref and not isinstance(ref["kind"], str):
-            raise RunFormatError(f"'reference.kind' must be a string, got {_show(ref['kind'])}",
+            raise RunFormatError(f"'reference.kind' must be a string, got {show_value(ref['kind'])}",
                                  file, column="reference.kind")
         for k in ("accel", "cruise", "radius", "t0_s"):
             v = ref.get(k)
@@ -100,7 +100,7 @@ def validate_meta(meta: Mapping[str, Any], file: str = "meta.json") -> dict:
                 continue
             if not _is_number(v) or abs(v) > 1e6:
                 raise RunFormatError(f"'reference.{k}' must be a number within +-1e6, got "
-                                     f"{_show(v)}", file, column=f"reference.{k}")
+                                     f"{show_value(v)}", file, column=f"reference.{k}")
     return full
 
 
@@ -109,7 +109,7 @@ def wheel_time_constant_s(meta: Mapping[str, Any]) -> float:
     back-EMF damping, stall_nm / no_load_rad_s (N m s/rad), with the time constant
     I_wy * no_load_rad_s / stall_nm.  An explicit step longer than twice it diverges."""
     r, m = meta["robot"], meta["motor"]
-    return r["I_wy"] * m["no_load_rad_s"] / m["stall_nm"]
+    return float(r["I_wy"]) * float(m["no_load_rad_s"]) / float(m["stall_nm"])
 
 
 def max_stable_plant_dt_s(meta: Mapping[str, Any]) -> float:
@@ -324,7 +324,7 @@ def check_compatible(runs: list[Run], rel_tol: float = 1e-9) -> None:
                     math.isclose(va, vb, rel_tol=rel_tol, abs_tol=0.0)
                 if not same:
                     raise RunFormatError(
-                        f"runs disagree on '{name}': {_show(va)} in {display(ref.path)} but "
-                        f"{_show(vb)} in {display(run.path)}; runs analysed together must come "
+                        f"runs disagree on '{name}': {show_value(va)} in {display(ref.path)} but "
+                        f"{show_value(vb)} in {display(run.path)}; runs analysed together must come "
                         "from one robot",
                         os.path.join(run.path, "meta.json"), column=name)

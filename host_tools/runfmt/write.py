@@ -11,7 +11,7 @@ from typing import Any, Iterable, Mapping, TextIO
 import numpy as np
 
 from host_tools.runfmt.spec import (GROUNDTRUTH_COLUMNS, TELEMETRY_COLUMNS, RunFormatError,
-                                    _show)
+                                    show_value)
 from host_tools.runfmt.validate import _check_time, validate_meta
 
 def write_atomic(path: str | os.PathLike, text: str, fsync: bool = True) -> None:
@@ -119,13 +119,13 @@ class RunWriter:
             v = row[c]
             if isinstance(v, str):
                 if c in TELEMETRY_COLUMNS:
-                    raise RunFormatError(f"not a number: {_show(v)}", self._tpath, row=n, column=c)
+                    raise RunFormatError(f"not a number: {show_value(v)}", self._tpath, row=n, column=c)
                 cells.append(v)
                 continue
             try:
                 f = float(v)
             except (TypeError, ValueError):
-                raise RunFormatError(f"not a number: {_show(v)}", self._tpath, row=n, column=c) from None
+                raise RunFormatError(f"not a number: {show_value(v)}", self._tpath, row=n, column=c) from None
             if not math.isfinite(f):
                 raise RunFormatError(f"value is {f} (NaN and infinity are not allowed)",
                                      self._tpath, row=n, column=c)
