@@ -242,6 +242,7 @@ class FramesMixin:
             return
         row = self.cols.row(raws, t_s, f.seq, host_t)
         self.writer.write_row(row)
+        self.reftrack.row(row)  # the reference the firmware tracks (meta.json "reference")
         self.stats["telemetry_rows"] += 1
         self.last_t_us, self.last_t_s, self.last_host_t, self.last_row = t_us, t_s, host_t, row
         status = raws[self.cols.index["status"]]

@@ -103,6 +103,11 @@ class RunFolderMixin:
         variant = self._variant_reported(fresh)
         if variant is not None:
             meta["controller_variant"] = variant
+        if p is not None:  # the torque->duty map's fit (SetModel); meta "motor" already includes it
+            meta["motor_model"] = {"ke_ratio": shortest_f32(p["ke_ratio"]), "drop_v": shortest_f32(p["drop_v"])}
+        ref = self.reftrack.reference(self.experiment, meta["robot"]["r"], self._drive_limits_in_force())
+        if ref is not None:
+            meta["reference"] = ref
         meta["commands"] = self.commands
         self.stats["frames"] = self.dec.frames
         meta["logger"] = dict(
@@ -124,6 +129,13 @@ class RunFolderMixin:
             names = {v: k for k, v in self.d.enums["controller"].items()}
             return names.get(int(p["controller"]), f"unknown (code {int(p['controller'])})")
         return self.controller if ctl_ok else None
+
+    def _drive_limits_in_force(self) -> dict:
+        """The drive limits: the acknowledged SetDriveLimits, else the firmware's boot defaults
+        (protocol.json drive)."""
+        if self.drive_limits is not None and self._acked("SetDriveLimits"):
+            return dict(self.drive_limits)
+        return {k: self.d.spec["drive"][k] for k in ("accel", "alpha", "cmd_timeout")}
 
     def _acked(self, name: str) -> bool:
         return any(c["command"] == name and c["result"] == "ok" for c in self.commands)
