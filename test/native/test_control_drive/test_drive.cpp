@@ -32,6 +32,21 @@ void test_targets_in_controller_formats() {
   TEST_ASSERT_EQUAL_INT16(2, drive_omega_q11(1));    // 2.048
   TEST_ASSERT_EQUAL_INT16(30720, drive_omega_q11(15000));
   TEST_ASSERT_EQUAL_INT16(-30720, drive_omega_q11(-15000));
+  // every value of the Drive ranges: the nearest integer (division-free; a result within 0.07
+  // of a half may round either way)
+  int exact = 0;
+  for (int32_t x = -15000; x <= 15000; ++x) {
+    const double w = x * 2.048, f = fabs(w - floor(w)) - 0.5;  // Q16 constant: off by <= 0.062 at 15000
+    if (fabs(f) > 0.07) {
+      TEST_ASSERT_EQUAL_INT16(static_cast<int16_t>(lround(w)), drive_omega_q11(static_cast<int16_t>(x)));
+      ++exact;
+    }
+    if (x >= -4000 && x <= 4000) {
+      const double v = x * 4.096, g = fabs(v - floor(v)) - 0.5;
+      if (fabs(g) > 0.07) TEST_ASSERT_EQUAL_INT16(static_cast<int16_t>(lround(v)), drive_v_q12(static_cast<int16_t>(x)));
+    }
+  }
+  TEST_ASSERT_TRUE(exact > 25000);
 }
 
 void test_config() {
