@@ -19,25 +19,12 @@ from host_tools import params
 from host_tools import protocol as P
 from host_tools.robot import Robot, RobotError, read_path
 
-from test_fil import HostScript, csv  # noqa: E402  (the FIL tests' host and CSV reader)
+from test_fil import HostScript, csv, elf, sim  # noqa: E402,F401  (the FIL tests' host, CSV reader, fixtures)
 
 D = P.definition()
 RUNNING = 1 << D.flags["status"]["running"]
 DRIVE = 1 << D.flags["status"]["drive_mode"]
 FAST = ["--realtime", "2"]
-
-
-@pytest.fixture(scope="module")
-def elf():
-    try:
-        return fil.build_firmware()
-    except fil.FilError as exc:
-        pytest.skip(f"firmware cannot be built here, so there is nothing to run in the loop: {exc}")
-
-
-@pytest.fixture(scope="module")
-def sim():
-    return fil.build_sim()
 
 
 def test_drive_ramps_times_out_and_the_failsafe_still_brakes(elf, sim, tmp_path):
