@@ -172,6 +172,8 @@ def record(out: str | Path, elf: str | Path, experiment: dict | None = None, cla
     out = Path(out)
     if controller is not None and controller not in P.definition().enums["controller"]:
         raise FilError(f"controller {controller!r} is not one of {sorted(P.definition().enums['controller'])}")
+    from host_tools.logger.runfolder import clear_failed
+    clear_failed(str(out))  # a retry replaces a failed recording
     for f in ("telemetry.csv", "groundtruth.csv"):
         if (out / f).exists():
             raise FilError(f"{out / f} already exists; refusing to overwrite a recorded run")

@@ -75,7 +75,8 @@ def firmware_mu(model: dict[str, Any], path: str | Path = "model") -> tuple[floa
 
 def firmware_model(model: dict[str, Any], path: str | Path = "model") -> dict[str, float]:
     """The SetModel values of a model: wheel radius ``r`` and half track ``b`` (the model's
-    robot, in which the analyzer folds wheel_radius and track_width), and the motor's back-EMF
+    robot, in which the analyzer folds wheel_radius and track_width; params/params.json's where
+    the model has none), and the motor's back-EMF
     ratio and voltage drop relative to the datasheet motor the firmware holds (params/params.json).
 
     The model's motor is the one the recording's torque->duty map assumed (meta.json ``motor``:
@@ -85,9 +86,7 @@ def firmware_model(model: dict[str, Any], path: str | Path = "model") -> dict[st
     total relative to the datasheet (st0, nl0) is D = S - st_m (S - D_m)/st0 and
     k = k_m (st_m/nl_m) (nl0/st0) (the inverse of motor_as_driven, composed)."""
     robot, motor, eff = model.get("robot", {}), model.get("motor", {}), model.get("effects", {})
-    for k in ("r", "b"):
-        if k not in robot:
-            raise ModelError(f"{path}: robot.{k} is needed for the firmware")
+    robot = {**param_table.ROBOT, **robot}  # a key the model leaves out: the nominal value
     sheet = param_table.MOTOR
     supply = float(motor.get("supply_v", sheet["supply_v"]))
     if abs(supply - sheet["supply_v"]) > 1e-9 * sheet["supply_v"]:

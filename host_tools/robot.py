@@ -57,6 +57,7 @@ class DriveSession(L.Logger):
     def __init__(self, *a, fil_meta: dict | None = None, **kw):
         super().__init__(*a, **kw)
         self.fil_meta = fil_meta
+        self.drives = True
         self.ready = threading.Event()
         self.queue: "queue.Queue[tuple]" = queue.Queue()
         self.drive_sent = 0

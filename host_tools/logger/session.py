@@ -57,6 +57,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         self.model = model
         self.drive_limits = drive_limits
         self.reftrack = ReferenceTracker(self.d)
+        self.drives = False  # a drive session (host_tools.robot) is an experiment too
         self.record_s = record_s
         self.reconnect_timeout_s = reconnect_timeout_s
         self.params_timeout_s = params_timeout_s
@@ -88,6 +89,10 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         try:
             try:
                 self._connect(first=True)
+            except LoggerError:
+                self._remove_if_created()  # one clear message, nothing left behind
+                raise
+            try:
                 self._open_files()
             except LoggerError:
                 self._free_reserve()
@@ -115,6 +120,11 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
             finally:
                 if self.end_reason == "" and self._stop:
                     self.end_reason = "stopped"
+                # failed before the experiment ran (nothing of it recorded): marked so; a free
+                # recording's data is never marked (a retry would replace it)
+                if (code != 0 and self._write_error is None and self._run_frames == 0
+                        and (self.experiment is not None or self.drives or self.stats["telemetry_rows"] == 0)):
+                    self.mark_failed(self.end_reason or f"exit code {code}")
                 if self.close() and code == 0:
                     code = 1
         finally:

@@ -79,8 +79,8 @@ def test_set_model_is_validated_and_reported_back(elf, sim, tmp_path):
     typ = D.by_name["SetModel"].type
     lo_r = params.RANGES[("robot", "r")][0]
     steps = [
-        (0.10, D.frame(typ, 10, D.by_name["SetModel"].struct.pack(int(lo_r * 1e6) - 1, 105000, 10000, 0))),
-        (0.15, D.encode("SetModel", 11, {"r": 0.9, "b": 0.105, "ke_ratio": 1.0, "drop_v": 0.0})),
+        (0.10, D.frame(typ, 10, D.by_name["SetModel"].struct.pack(int(lo_r * 1e6) - 1, int(params.ROBOT["b"] * 1e6), 10000, 0))),
+        (0.15, D.encode("SetModel", 11, {"r": 0.9, "b": params.ROBOT["b"], "ke_ratio": 1.0, "drop_v": 0.0})),
         (0.20, D.encode("SetModel", 12, {"r": 0.03723, "b": 0.107, "ke_ratio": 1.2, "drop_v": 1.5})
          + D.encode("RequestParams", 13)),
     ]
