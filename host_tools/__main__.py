@@ -2,14 +2,17 @@
 ``python -m host_tools COMMAND ...``): record a run from the robot's XBee (log), check the
 firmware's timing budgets on a run (timing), find, name and model what a recording shows and
 the nominal model leaves out (analyze), record a run from the real firmware in simavr
-against the plant (fil), reproduce the thesis's simulations and the analyzer demo (demo).
-``COMMAND --help`` gives a command's options. Exit codes: 0 done, 1 a check failed, 2 bad
-input (with the file and the place).
+against the plant (fil), reproduce the thesis's simulations and the analyzer demo (demo),
+write a run and its analysis as an MCAP file for Foxglove (export), make a run from a ROS
+bag (import).  ``COMMAND --help`` gives a command's options.  Messages go to stderr; ``-v``
+adds details, ``-q`` keeps errors only (both before COMMAND).  Exit codes: 0 done, 1 a check
+failed, 2 bad input (with the file and the place).
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import os
 import sys
 
@@ -23,13 +26,55 @@ COMMANDS = {
     "fil": ("host_tools.fil", "firmware in the loop: record a run from firmware.elf in simavr"),
     "drive": ("host_tools.robot", "drive the robot (keys or a scripted path), recording as it drives"),
     "demo": ("host_tools.demo", "the main job: thesis reproduction and analyzer demo"),
+    "export": ("host_tools.interop.mcap_export", "write a run (and its analysis) as an MCAP file "
+               "for Foxglove"),
+    "import": ("host_tools.interop.rosbag_import", "make a run folder from a ROS 1 or ROS 2 bag"),
 }
+
+
+def version() -> str:
+    """The installed package's version (pyproject.toml), or 'unknown' when not installed."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as _v
+    try:
+        return _v("ddrobot-host-tools")
+    except PackageNotFoundError:
+        return "unknown (not installed: pip install -e .)"
+
+
+def setup_logging(verbosity: int) -> None:
+    """Messages to stderr: warnings and errors by default, INFO with -v, DEBUG with -vv,
+    errors only with -q.  Idempotent (the handler is replaced, not added twice)."""
+    level = {-1: logging.ERROR, 0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG)
+    root = logging.getLogger("host_tools")
+    for h in list(root.handlers):
+        if getattr(h, "_ddrobot", False):
+            root.removeHandler(h)
+    h = logging.StreamHandler(sys.stderr)
+    h._ddrobot = True  # type: ignore[attr-defined]
+    h.setFormatter(logging.Formatter("%(levelname_lower)s: %(message)s"))
+    h.addFilter(_lower_level)
+    root.addHandler(h)
+    root.setLevel(level)
+    root.propagate = False
+
+
+def _lower_level(record: logging.LogRecord) -> bool:
+    record.levelname_lower = record.levelname.lower()
+    return True
 
 
 def build_parser() -> argparse.ArgumentParser:
     prog = "ddrobot" if os.path.basename(sys.argv[0]) == "ddrobot" else "python -m host_tools"
     parser = argparse.ArgumentParser(prog=prog, description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {version()}",
+                        help="print the version and exit")
+    loud = parser.add_mutually_exclusive_group()
+    loud.add_argument("-v", "--verbose", action="count", default=0,
+                      help="more messages on stderr (-v: progress details, -vv: debugging)")
+    loud.add_argument("-q", "--quiet", dest="quiet_log", action="store_true",
+                      help="errors only on stderr")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -44,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    setup_logging(-1 if args.quiet_log else args.verbose)
     if not getattr(args, "command", None):
         parser.print_help()
         return 2

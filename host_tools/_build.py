@@ -173,6 +173,7 @@ TARGETS: dict[str, Target] = {t.name: t for t in (
            ("bench/control_avr/profile.c",), simavr=True),
     Target("avr_cycles_harness", ".build/bench/avr_cycles_harness",
            ("bench/plant/avr_cycles_harness.c",), simavr=True),
+    Target("upload_sim", ".build/upload_sim/upload_sim", ("sim/upload/upload_sim.c",), simavr=True),
 )}
 
 

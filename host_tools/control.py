@@ -286,3 +286,24 @@ def resimulate_from_rest(kind, accel, cruise, radius, *, fixed_point, clamp, t0,
     out = {c: np.array([r[c] for r in rows]) for c in rows[0]}
     out["theta_r_rad"], out["theta_l_rad"] = th[:, 0], th[:, 1]
     return out, st
+
+
+def odometry_series(counts_r, counts_l, t, r: float, b: float, ppr: int,
+                    pose0: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """lib/control's odometry (the firmware's formula, III.1-III.4) over a series of cumulative
+    counts at times ``t``, from ``pose0``: (x, y, phi) after each sample (C ABI
+    ``ctl_odometry_series``)."""
+    fn = _native.library().ctl_odometry_series  # signature: host_tools/native/control_capi.h
+    i32p = ctypes.POINTER(ctypes.c_int32)
+    dp = ctypes.POINTER(ctypes.c_double)
+    n = len(t)
+    cr = np.ascontiguousarray(counts_r, dtype=np.int32)
+    cl = np.ascontiguousarray(counts_l, dtype=np.int32)
+    tt = np.ascontiguousarray(t, dtype=np.float64)
+    x, y, phi = (np.empty(n) for _ in range(3))
+    rc = fn(r, b, int(ppr), n, cr.ctypes.data_as(i32p), cl.ctypes.data_as(i32p), tt.ctypes.data_as(dp),
+            float(pose0[0]), float(pose0[1]), float(pose0[2]),
+            x.ctypes.data_as(dp), y.ctypes.data_as(dp), phi.ctypes.data_as(dp))
+    if rc < 0:
+        raise ValueError(f"ctl_odometry_series failed ({rc}): r={r}, b={b}, ppr={ppr}")
+    return x, y, phi

@@ -26,6 +26,7 @@ import time
 
 import numpy as np
 
+from host_tools import humanize
 from host_tools import protocol as P
 
 THESIS = {
@@ -706,11 +707,9 @@ def _fit_plot(report: dict, path: str) -> None:
     ax.set_xticks(x)
     ax.set_xticklabels(chans, rotation=30, ha="right")
     ax.set_ylabel("RMS error / noise floor")
-    sel = ", ".join(f"{s['effect']} {s.get('params')}"
-                    + (f" (equivalent: {', '.join(s['equivalent'])})" if s.get("equivalent") else "")
-                    for s in report.get("selected", []))
-    ax.set_title(f"verdict {report.get('verdict')}: {sel or 'nothing selected'}", fontsize=9)
-    ax.legend(fontsize=7)
+    ax.set_title(f"verdict {report.get('verdict')}: selected "
+                 f"{humanize.selected(report.get('selected'))}", fontsize=9, wrap=True)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))  # outside: never over a bar
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -732,9 +731,10 @@ def _index(out: str, elapsed_s: float) -> None:
                  "(analyzer/report/report.md) (report.json, plots, model.json beside it); "
                  "`analyzer/fit_improvement.png`; runs under `analyzer/dataset/runs/`, hidden "
                  "label under `analyzer/dataset/labels/`.")
-        L.append(f"  Hidden truth: `{sm['case']['effects']}`; the analyzer said "
-                 f"`{sc.get('verdict')}`, selected `{sc.get('selected')}`, named "
-                 f"`{sc.get('named')}`; main parameter {sc.get('param')}.")
+        L.append(f"  Hidden truth: {humanize.effects(sm['case']['effects'])}; the analyzer said "
+                 f"`{sc.get('verdict')}`, selected {humanize.names(sc.get('selected') or [])}, "
+                 f"named {humanize.names(sc.get('named') or [])}; main parameter "
+                 f"{humanize.param_score(sc.get('param'))}.")
     L += ["", f"Made by `python -m host_tools demo` in {elapsed_s:.0f} s.", ""]
     with open(os.path.join(out, "README.md"), "w") as fh:
         fh.write("\n".join(L))
@@ -764,10 +764,10 @@ def main(args) -> int:
         rep = r["report"] or {}
         sc = r.get("score") or {}
         print(f"  verdict: {rep.get('verdict')}; selected: "
-              f"{[(x.get('effect'), x.get('params')) for x in rep.get('selected', [])]}; "
-              f"equivalent: {[x.get('equivalent') for x in rep.get('selected', [])]}")
-        print(f"  hidden truth: {r['case']['effects']}; named: {sc.get('named_all')}; "
-              f"parameter: {sc.get('param')}")
+              f"{humanize.selected(rep.get('selected'))}")
+        print(f"  hidden truth: {humanize.effects(r['case']['effects'])}; all named: "
+              f"{humanize.number(sc.get('named_all'))}; parameter: "
+              f"{humanize.param_score(sc.get('param'))}")
         fit = rep.get("fit", {})
         for ch in ("omega_r", "x_m"):
             if ch in fit.get("heldout_rmse_before", {}):

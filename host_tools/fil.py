@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import shutil
 import subprocess
@@ -26,6 +27,8 @@ from typing import Any
 from host_tools import _build
 from host_tools import logger as L
 from host_tools import protocol as P
+
+log = logging.getLogger("host_tools.fil")  # also when run as __main__
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD = ROOT / ".build" / "fil"
@@ -164,14 +167,17 @@ def sim_args(keys: dict[str, float] | None = None, **opts: Any) -> list[str]:
 def record(out: str | Path, elf: str | Path, experiment: dict | None = None, clamp: bool | None = None,
            mu: tuple[float, float] | None = None, args: list[str] | None = None,
            record_s: float | None = None, timeout_s: float = 60.0,
-           controller: str | None = None, model: dict | None = None) -> tuple[int, L.Logger, dict]:
+           controller: str | None = None, model: dict | None = None,
+           on_row=None) -> tuple[int, L.Logger, dict]:
     """Runs the simulator and records through its pty with the logger (``controller``:
     the velocity loop the logger sets with SetController before the Start, None: the
-    firmware's default; ``model``: SetModel values, host_tools.model.firmware_model). Returns
+    firmware's default; ``model``: SetModel values, host_tools.model.firmware_model;
+    ``on_row``: called with each telemetry row, e.g. the live view's publish). Returns
     (logger exit code, logger, fil.json)."""
     out = Path(out)
     if controller is not None and controller not in P.definition().enums["controller"]:
-        raise FilError(f"controller {controller!r} is not one of {sorted(P.definition().enums['controller'])}")
+        raise FilError(f"controller '{controller}' is not one of "
+                       f"{', '.join(sorted(P.definition().enums['controller']))}")
     from host_tools.logger.runfolder import clear_failed
     clear_failed(str(out))  # a retry replaces a failed recording
     for f in ("telemetry.csv", "groundtruth.csv"):
@@ -190,7 +196,7 @@ def record(out: str | Path, elf: str | Path, experiment: dict | None = None, cla
         return serial.serial_for_url(sim.pty, baudrate=d.baud, timeout=0.05, write_timeout=0.5)
 
     lg = FilLogger(str(out), open_port, sim.pty, d.baud, experiment=experiment, clamp=clamp, mu=mu,
-                   record_s=record_s, controller=controller, status=False, d=d, model=model,
+                   record_s=record_s, controller=controller, status=False, d=d, model=model, on_row=on_row,
                    fil_meta={"command": sim.cmd[1:], "elf": str(elf)})
     try:
         code = lg.run()
@@ -259,7 +265,8 @@ def bench(elf: str | Path, accel: float = 48.0, duration: float = 2.0) -> int:
     fs = [e["code"] for e in s["failsafe_events"]]
     print(f"simulated {s['sim_s']:.3f} s (boot, straight line {accel:g} rad/s^2 for {duration:g} s, clamp off) "
           f"in {s['wall_s'] - s['wall_waiting_for_host_s']:.3f} s wall: {s['sim_s_per_wall_s']:.2f} simulated s per "
-          f"wall s (free running, 16 MHz, plant step {s['plant_dt_s'] * 1e3:g} ms); failsafe codes seen {fs}")
+          f"wall s (free running, 16 MHz, plant step {s['plant_dt_s'] * 1e3:g} ms); failsafe codes seen: "
+          f"{', '.join(map(str, fs)) or 'none'}")
     print(f"encoder ISR {s['encoder_isr']['mean_cycles']:.1f} cycles per edge mean, {s['encoder_isr']['max_cycles']} max, "
           f"{s['encoder_isr']['calls']} edges; task max cycles during the experiment: "
           + ", ".join(f"{k} {v['experiment_max_cycles']} ({v['experiment_overruns']} overruns)"
@@ -271,31 +278,55 @@ def bench(elf: str | Path, accel: float = 48.0, duration: float = 2.0) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.description = ("firmware in the loop: the real firmware.elf in simavr against the plant, "
+                     "recorded through the simulated XBee link by the telemetry logger "
+                     "(docs/fil.md)")
     sub = p.add_subparsers(dest="fil_cmd", metavar="SUBCOMMAND")
-    r = sub.add_parser("record", help="run the firmware in the simulator and record a run")
-    r.add_argument("--out", required=True, metavar="RUN_DIR")
+    r = sub.add_parser("record", help="run the firmware in the simulator and record a run",
+                       description="Run firmware.elf in simavr against lib/slipmodel's plant and "
+                       "record it through the simulated XBee pty with the telemetry logger: a "
+                       "run folder with the logger's files (meta.json, telemetry.csv, raw.bin, "
+                       "events.jsonl) and the simulator's (groundtruth.csv, plant.csv, "
+                       "encoder_samples.csv, fil.json). Exit status: 0 done, 1 the recording "
+                       "failed, 2 bad input or the simulator/firmware could not be built or run.")
+    r.add_argument("--out", required=True, metavar="RUN_DIR",
+                   help="run folder to write (must not hold a recorded run)")
     r.add_argument("--elf", help="firmware ELF (default: build megaatmega2560)")
-    r.add_argument("--experiment", default="straight", choices=sorted(P.definition().enums["profile"]) + ["none"])
+    r.add_argument("--experiment", default="straight",
+                   choices=sorted(P.definition().enums["profile"]) + ["none"],
+                   help="the experiment profile sent with Start (default straight; none: record "
+                   "without starting one, for --record-s)")
     r.add_argument("--accel", type=float, default=48.0, help="wheel acceleration, rad/s^2 (default 48)")
-    r.add_argument("--accel-time", type=float, default=0.5)
+    r.add_argument("--accel-time", type=float, default=0.5,
+                   help="acceleration phase, s (default 0.5)")
     r.add_argument("--duration", type=float, default=2.0, help="experiment length, s (default 2)")
-    r.add_argument("--radius", type=float, default=0.0)
-    r.add_argument("--clamp", choices=["on", "off"])
-    r.add_argument("--mu-s", type=float)
-    r.add_argument("--mu-k", type=float)
+    r.add_argument("--radius", type=float, default=0.0,
+                   help="arc / figure-eight radius, m (+ = left; default 0)")
+    r.add_argument("--clamp", choices=["on", "off"],
+                   help="send SetClamp before starting (default: the firmware's setting)")
+    r.add_argument("--mu-s", type=float, help="static friction coefficient sent with SetMu "
+                   "(with --mu-k)")
+    r.add_argument("--mu-k", type=float, help="kinetic friction coefficient sent with SetMu "
+                   "(with --mu-s)")
     r.add_argument("--controller", choices=sorted(P.definition().enums["controller"]),
                    help="the cascade's velocity loop, sent as SetController before the Start "
                    "(default: the firmware's, improved)")
     r.add_argument("--model", metavar="MODEL_JSON", help="an analyzer model.json (ddmodel/1): its parameters "
                    "and effects go to the simulated plant, its mu_s/mu_k (SetMu) and wheel radius, half track, "
                    "back-EMF ratio and voltage drop (SetModel) to the firmware")
-    r.add_argument("--record-s", type=float, help="free recording length (with --experiment none)")
+    r.add_argument("--record-s", type=float, help="free recording length, s (with --experiment "
+                   "none; default: the experiment's length + 5 s)")
+    from host_tools.interop import live
+    live.add_option(r)
     r.add_argument("sim_options", nargs=argparse.REMAINDER,
                    help="after '--': options of .build/fil/fil (see .build/fil/fil --help)")
-    b = sub.add_parser("bench", help="print simulated seconds per wall-clock second")
-    b.add_argument("--elf")
-    b.add_argument("--accel", type=float, default=48.0)
-    b.add_argument("--duration", type=float, default=2.0)
+    b = sub.add_parser("bench", help="print simulated seconds per wall-clock second",
+                       description="Run the simulator free (no pacing) through one straight-line "
+                       "experiment and print simulated seconds per wall-clock second and the "
+                       "ISR and task cycles.")
+    b.add_argument("--elf", help="firmware ELF (default: build megaatmega2560)")
+    b.add_argument("--accel", type=float, default=48.0, help="wheel acceleration, rad/s^2 (default 48)")
+    b.add_argument("--duration", type=float, default=2.0, help="experiment length, s (default 2)")
 
 
 def _elf(a: argparse.Namespace) -> Path:
@@ -304,9 +335,13 @@ def _elf(a: argparse.Namespace) -> Path:
 
 def main(a: argparse.Namespace) -> int:
     if getattr(a, "fil_cmd", None) is None:
-        print("error: give a subcommand: record or bench", file=sys.stderr)
+        log.error("give a subcommand: record or bench")
         return 2
+    pub = None
     try:
+        if a.fil_cmd == "record" and getattr(a, "live", None) is not None:
+            from host_tools.interop import live  # a taken port is refused before any build
+            pub = live.start(a.live, L.TelemetryColumns(P.definition()).columns)
         build_sim()
         elf = _elf(a)
         if a.fil_cmd == "record":
@@ -329,18 +364,24 @@ def main(a: argparse.Namespace) -> int:
                 opts = sim_args(M.plant_keys(m)) + opts
             clamp = None if a.clamp is None else a.clamp == "on"
             code, lg, s = record(a.out, elf, exp, clamp, mu, opts, record_s=a.record_s,
-                                 controller=a.controller, model=fw_model)
+                                 controller=a.controller, model=fw_model,
+                                 on_row=pub.publish if pub else None)
             print(f"{a.out}: {lg.stats['telemetry_rows']} telemetry rows, {s['groundtruth']['rows']} ground-truth "
                   f"rows; {s['sim_s']:.2f} simulated s at {s['sim_s_per_wall_s']:.2f} simulated s per wall s; "
                   f"logger: {lg.end_reason}")
             return code
         return bench(elf, a.accel, a.duration)
     except (FilError, P.ProtocolError, L.LoggerError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return 2
+    finally:
+        if pub:
+            pub.close()
 
 
 if __name__ == "__main__":
+    from host_tools.__main__ import setup_logging
+    setup_logging(0)
     ap = argparse.ArgumentParser(prog="python -m host_tools.fil", description=__doc__.split("\n\n")[0])
     add_arguments(ap)
     sys.exit(main(ap.parse_args()))

@@ -166,6 +166,8 @@ class Definition:
         self.enums: dict[str, dict[str, int]] = {k: dict(v["values"]) for k, v in spec["enums"].items()}
         self.flags: dict[str, dict[str, int]] = {k: dict(v["bits"]) for k, v in spec["flags"].items()}
         self.timing: dict = spec["timing"]
+        #: the shield's current sense and the ADC that reads it (volts_per_amp, adc_bits, adc_vref_v)
+        self.current_sense: dict = {k: v for k, v in spec["current_sense"].items() if k != "doc"}
         # the parameters' defaults are the parameter table's (params/params.json)
         self.robot_defaults: dict = {"robot": dict(params.ROBOT), "motor": dict(params.MOTOR),
                                      "encoder_ppr": params.ENCODER_PPR}
@@ -211,7 +213,8 @@ class Definition:
         values = dict(values or {})
         unknown = set(values) - set(msg.field_names())
         if unknown:
-            raise ProtocolError(f"{name}: unknown field(s) {sorted(unknown)}; fields are {msg.field_names()}")
+            raise ProtocolError(f"{name}: unknown field(s) {', '.join(sorted(unknown))}; fields are "
+                                f"{', '.join(msg.field_names())}")
         raws = []
         for f in msg.fields:
             if f.name not in values:
@@ -220,7 +223,7 @@ class Definition:
             if "enum" in f.spec and isinstance(v, str):
                 e = self.enums[f.spec["enum"]]
                 if v not in e:
-                    raise ProtocolError(f"{name}.{f.name}: {v!r} is not one of {sorted(e)}")
+                    raise ProtocolError(f"{name}.{f.name}: '{v}' is not one of {', '.join(sorted(e))}")
                 v = e[v]
             raws.append(f.to_raw(v, f"{name}.{f.name}"))
         by = dict(zip(msg.field_names(), raws))

@@ -24,7 +24,7 @@ from typing import Mapping
 
 import numpy as np
 
-from host_tools import _build, _cabi, _native, runfmt
+from host_tools import _build, _cabi, _native, protocol, runfmt
 from host_tools.control import INNER_S, ClosedLoop, Controller  # noqa: F401  (re-exported)
 from host_tools.control import REF_KINDS as _REF_KINDS
 
@@ -97,6 +97,8 @@ _PARAM_EFFECTS = {("friction_coefficient", "mu_s"): "robot.mu_s",
                   ("friction_coefficient", "mu_k"): "robot.mu_k",
                   ("wheel_radius", "r_eff"): "robot.r",
                   ("track_width", "b_eff"): "robot.b"}
+#: run-format.md's vocabulary effects that lib/slipmodel's plant need not have (the truth has them)
+SPEC_EFFECTS = {"payload": ("mass_kg",)}
 #: effects the truth simulator has that run-format.md's vocabulary does not
 EXTRA_EFFECTS = {"eccentric_wheel": ("eps", "phase_r", "phase_l"),
                  "battery_sag": ("r_int", "v_per_as"),
@@ -165,21 +167,38 @@ class TruthSim:
 
     def set_effect(self, name: str, **params: float) -> None:
         """Switch on a vocabulary effect (run-format.md names) or one of :data:`EXTRA_EFFECTS`."""
-        vocab = _native.effect_vocabulary()
+        vocab = {**{k: dict.fromkeys(v, 0.0) for k, v in SPEC_EFFECTS.items()},
+                 **_native.effect_vocabulary()}
         if name in vocab:
             allowed = set(vocab[name])
         elif name in EXTRA_EFFECTS:
             allowed = set(EXTRA_EFFECTS[name])
         else:
-            raise ValueError(f"unknown effect '{name}'; known: {sorted(vocab) + sorted(EXTRA_EFFECTS)}")
+            raise ValueError(f"unknown effect '{name}'; known: "
+                             f"{', '.join(sorted(vocab) + sorted(EXTRA_EFFECTS))}")
         bad = set(params) - allowed
         if bad:
-            raise ValueError(f"effect '{name}' has no parameter(s) {sorted(bad)}; it has {sorted(allowed)}")
+            raise ValueError(f"effect '{name}' has no parameter(s) {', '.join(sorted(bad))}; "
+                             f"it has {', '.join(sorted(allowed))}")
         if name == "stribeck":
             params = {"mu_k0": params.get("mu_k0", self.get("robot.mu_k")),
                       "v_s": params.get("v_s", 0.01)}
         for p, v in params.items():
             self.set(_PARAM_EFFECTS.get((name, p), f"{name}.{p}"), v)
+
+    def set_plant(self, plant) -> None:
+        """Drive another engine's plant (``tr_set_plant``): ``plant`` has ``plant_callback()``,
+        a ctypes function of the signature in ``sim/truth/truth.h``, and ``error``, the
+        exception that stopped a run (e.g. :class:`host_tools.engines.mujoco_robot.MujocoRobot`);
+        ``None``: the truth's own physics. Both are kept alive by this object."""
+        self._plant = plant
+        self._plant_cb = plant.plant_callback() if plant is not None else None
+        ptr = ctypes.cast(self._plant_cb, ctypes.c_void_p) if plant is not None else None
+        self._lib.tr_set_plant(self._h, ptr, None)
+
+    def plant_state_names(self) -> list[str]:
+        return [self._lib.tr_plant_state_name(i).decode()
+                for i in range(self._lib.tr_plant_state_count())]
 
     def run(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Simulate; returns (telemetry columns incl. hidden ``true_*``, camera true poses)."""
@@ -194,7 +213,9 @@ class TruthSim:
         rc = self._lib.tr_run(self._h, n_tel, tel.ctypes.data_as(dp), ctypes.byref(nt), n_cam,
                               cam.ctypes.data_as(dp), ctypes.byref(nc))
         if rc != 0:
-            raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}")
+            cause = getattr(getattr(self, "_plant", None), "error", None)
+            raise ValueError(f"truth simulator: {self._lib.tr_last_error(self._h).decode()}"
+                             + (f": {cause}" if cause else "")) from cause
         tnames = [self._lib.tr_tel_col_name(i).decode() for i in range(tc)]
         cnames = [self._lib.tr_cam_col_name(i).decode() for i in range(cc)]
         nt, nc = nt.value, nc.value
@@ -209,11 +230,12 @@ NOMINAL_META_MOTOR = dict(runfmt.DEFAULT_META["motor"])
 TELEMETRY_SPEC_COLUMNS = ("t_s", "enc_r", "enc_l", "omega_r", "omega_l", "tau_cmd_r", "tau_cmd_l",
                           "pwm_r", "pwm_l", "x_odo_m", "y_odo_m", "phi_odo_rad")
 
-#: the Motor Shield R3's current sense (protocol/protocol.json, Telemetry current_r/current_l):
-#: 1.65 V/A, magnitude only, read by the 10-bit ADC against AVcc = 5 V: A = raw * 5 / 1024 / 1.65.
+#: the Motor Shield R3's current sense (protocol/protocol.json "current_sense", the scale of
+#: Telemetry current_r/current_l): volts_per_amp, magnitude only, read by the adc_bits ADC
+#: against AVcc = adc_vref_v: A = raw * adc_vref_v / 2^adc_bits / volts_per_amp.
 #: meta.json's "current_sense" holds these and the nominal motor's stall current "stall_a" (not
 #: under "motor", whose keys readers hand to the nominal plant, which has no stall current).
-CURRENT_SENSE = {"volts_per_amp": 1.65, "adc_bits": 10, "adc_vref_v": 5.0, "magnitude_only": True}
+CURRENT_SENSE = dict(protocol.definition().current_sense, magnitude_only=True)
 
 #: The recorder: what the robot's board runs and logs. The defaults are this project's firmware
 #: pipeline (lib/control's cascade and odometry, 25/50 ms, 50 Hz telemetry, 30 Hz camera).
@@ -250,13 +272,14 @@ def recorder_config(recorder: Mapping | None = None, **overrides) -> dict:
     for src in (recorder or {}), overrides:
         for k, v in src.items():
             if k not in rec:
-                raise ValueError(f"unknown recorder option '{k}'; known: {sorted(rec)}")
+                raise ValueError(f"unknown recorder option '{k}'; known: {', '.join(sorted(rec))}")
             rec[k] = v
     if rec["controller"] == "pi" and "odometry" not in {**(recorder or {}), **overrides}:
         rec["odometry"] = "ticks"  # the PI recorder has no lib/control odometry
     for k, choices in _RECORDER_CHOICES.items():
         if rec[k] not in choices:
-            raise ValueError(f"recorder {k} must be one of {list(choices)}, got {rec[k]!r}")
+            raise ValueError(f"recorder {k} must be one of {', '.join(map(str, choices))}, "
+                             f"got {rec[k]}")
     for k, (lo, hi) in _RECORDER_RANGES.items():
         try:
             rec[k] = float(rec[k])
@@ -302,14 +325,51 @@ def tour_reference(duration_s: float, seed: int = 0, accel: float = 0.6,
     return {"kind": "segments", "accel": accel, "alpha": alpha, "segments": segs}
 
 
+def reversal_reference(duration_s: float, seed: int = 0, accel: float = 1.2,
+                       alpha: float = 6.0) -> dict:
+    """A long, hard reference: a seeded sequence of fast cruises forward and backward (up to
+    1.3 m/s, where the duty saturates), direct reversals, stops from speed, arcs and spins
+    that reverse, with ramps at ``accel`` and ``alpha`` (wheel-speed changes of about 30 rad/s
+    within a second), filling ``duration_s`` and ending at rest (a ``segments`` reference)."""
+    rng = np.random.default_rng([seed, 60])
+    segs: list[dict] = []
+    t, v_last, w_last = 0.0, 0.0, 0.0
+    end = max(duration_s - 2.0, 1.0)
+    while t < end:
+        kind = str(rng.choice(["cruise", "reverse", "stop", "arc", "spin"],
+                              p=[0.3, 0.25, 0.15, 0.15, 0.15]))
+        sign = -1.0 if rng.random() < 0.35 else 1.0
+        if kind == "cruise":
+            sg = {"duration_s": rng.uniform(1.0, 3.0), "v": sign * rng.uniform(0.6, 1.3), "omega": 0.0}
+        elif kind == "reverse":  # straight to the opposite speed
+            v = -np.sign(v_last or 1.0) * rng.uniform(0.5, 0.9)
+            sg = {"duration_s": rng.uniform(1.2, 2.5), "v": v, "omega": 0.0}
+        elif kind == "stop":
+            sg = {"duration_s": rng.uniform(0.6, 1.5), "v": 0.0, "omega": 0.0}
+        elif kind == "arc":
+            v = sign * rng.uniform(0.3, 0.8)
+            R = rng.uniform(0.4, 1.2) * (1 if rng.random() < 0.5 else -1)
+            sg = {"duration_s": rng.uniform(1.0, 2.5), "v": v, "omega": v / R}
+        else:  # spin, the other way than the last turn
+            sg = {"duration_s": rng.uniform(0.8, 1.8), "v": 0.0,
+                  "omega": -np.sign(w_last or 1.0) * rng.uniform(2.0, 4.0)}
+        sg = {k: round(float(x), 4) for k, x in sg.items()}
+        sg["duration_s"] = min(sg["duration_s"], round(end - t, 4)) or 0.1
+        segs.append(sg)
+        t += sg["duration_s"]
+        v_last, w_last = sg["v"], sg["omega"] or w_last
+    segs.append({"duration_s": round(max(duration_s - t, 0.1), 4), "v": 0.0, "omega": 0.0})
+    return {"kind": "segments", "accel": accel, "alpha": alpha, "segments": segs}
+
+
 def wrap_heading(phi) -> np.ndarray:
     """Headings wrapped to (-pi, pi]."""
     return math.pi - np.mod(math.pi - np.asarray(phi, dtype=float), 2 * math.pi)
 
 
 def _shield_current(i_a: np.ndarray, rng: np.random.Generator, noise_lsb: float) -> np.ndarray:
-    """What the firmware logs of an armature current: |I| through the shield's 1.65 V/A sense
-    output, read by the 10-bit ADC (AVcc 5 V) with Gaussian noise of ``noise_lsb``."""
+    """What the firmware logs of an armature current: |I| through the shield's sense output,
+    read by the ADC (CURRENT_SENSE) with Gaussian noise of ``noise_lsb``."""
     cs = CURRENT_SENSE
     lsb_v = cs["adc_vref_v"] / 2 ** cs["adc_bits"]
     raw = np.abs(i_a) * cs["volts_per_amp"] / lsb_v + rng.normal(0.0, noise_lsb, i_a.size)
@@ -317,36 +377,26 @@ def _shield_current(i_a: np.ndarray, rng: np.random.Generator, noise_lsb: float)
     return raw * lsb_v / cs["volts_per_amp"]
 
 
-def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping | None = None,
-                 clamp: bool = True, duration_s: float = 2.0, seed: int = 0,
-                 cam_noise_m: float | None = None, cam_noise_rad: float | None = None,
-                 cam_dropout: float | None = None,
-                 experiment: str | None = None, hidden_dir: str | os.PathLike | None = None,
-                 overwrite: bool = False, recorder: Mapping | None = None) -> str:
-    """Simulate one closed-loop run with the truth simulator and write it as a ``ddrun/1`` run
-    folder at ``path`` (meta.json with the NOMINAL parameters, telemetry.csv with the spec
-    columns and the shield's motor current, groundtruth.csv from a noisy camera with dropouts).
-    The true state (``true_*`` columns) goes to ``hidden_dir/<run name>.truth.csv`` when
-    ``hidden_dir`` is given — never into the run folder.
-
-    ``reference``: ``{"kind": "line"|"arc"|"figure_eight", "accel": m/s², "cruise": m/s,
-    "radius": m}`` or ``{"kind": "segments", "accel": m/s², "alpha": rad/s², "segments":
-    [{"duration_s", "v", "omega"}, ...]}`` or ``{"kind": "tour"}`` (:func:`tour_reference` for
-    ``duration_s`` and ``seed``); ``effects``: ``{name: {param: value}}`` (vocabulary or
-    EXTRA_EFFECTS); ``recorder``: options of :data:`RECORDER_DEFAULTS` (the camera arguments
-    override the recorder's camera noise and dropout when given)."""
-    rec = recorder_config(recorder, **{k: v for k, v in (("cam_noise_m", cam_noise_m),
-                                                         ("cam_noise_rad", cam_noise_rad),
-                                                         ("cam_dropout", cam_dropout))
-                                       if v is not None})
-    rng = np.random.default_rng(seed)
-    rng_rec = np.random.default_rng([seed, 16])  # the recorder's variants draw from their own stream
+def configure(reference: Mapping, effects: Mapping | None, clamp: bool, duration_s: float,
+              seed: int, rec: Mapping, rng: np.random.Generator, rng_rec: np.random.Generator,
+              engine: str = "truth", engine_options: Mapping | None = None
+              ) -> tuple[TruthSim, dict, str]:
+    """A :class:`TruthSim` set up for one run (reference, recorder ``rec`` of
+    :func:`recorder_config`, clock phases drawn from ``rng`` and ``rng_rec``, effects on the
+    chosen engine's physics): returns (simulator, reference as written to meta.json, kind).
+    :func:`simulate_run` and the engines' validation use it."""
+    from host_tools.engines import ENGINES
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
+    if engine_options and engine != "mujoco":
+        raise ValueError("engine options are the mujoco engine's")
     sim = TruthSim()
     reference = dict(reference)
     kind = reference.get("kind", "line")
-    if kind == "tour":
-        reference = tour_reference(duration_s, seed, **{k: reference[k] for k in ("accel", "alpha")
-                                                        if k in reference})
+    if kind in ("tour", "reversals"):
+        make = tour_reference if kind == "tour" else reversal_reference
+        reference = make(duration_s, seed, **{k: reference[k] for k in ("accel", "alpha")
+                                              if k in reference})
         kind = "segments"
     if kind == "segments":
         sim.set("ref.kind", 3)
@@ -381,8 +431,50 @@ def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping |
     sim.set("sim.tel_phase", float(rng.choice([0.002, 0.004, 0.006, 0.008, 0.012])) % rec["tel_s"])
     sim.set("sim.cam_period", 1.0 / rec["cam_hz"])
     sim.set("sim.cam_phase", float(rng.uniform(0.0, 1.0 / rec["cam_hz"])))
-    for name, params in (effects or {}).items():
-        sim.set_effect(name, **dict(params))
+    if engine == "mujoco":
+        from host_tools.engines.mujoco_robot import MujocoRobot  # lazy: needs the mujoco package
+        plant = MujocoRobot(effects, **dict(engine_options or {}))
+        sim.set("sim.dt", plant.dt)
+        sim.set_plant(plant)
+    else:
+        for name, params in (effects or {}).items():
+            sim.set_effect(name, **dict(params))
+    return sim, reference, kind
+
+
+def simulate_run(path: str | os.PathLike, reference: Mapping, effects: Mapping | None = None,
+                 clamp: bool = True, duration_s: float = 2.0, seed: int = 0,
+                 cam_noise_m: float | None = None, cam_noise_rad: float | None = None,
+                 cam_dropout: float | None = None,
+                 experiment: str | None = None, hidden_dir: str | os.PathLike | None = None,
+                 overwrite: bool = False, recorder: Mapping | None = None,
+                 engine: str = "truth", engine_options: Mapping | None = None) -> str:
+    """Simulate one closed-loop run with the truth simulator and write it as a ``ddrun/1`` run
+    folder at ``path`` (meta.json with the NOMINAL parameters, telemetry.csv with the spec
+    columns and the shield's motor current, groundtruth.csv from a noisy camera with dropouts).
+    The true state (``true_*`` columns) goes to ``hidden_dir/<run name>.truth.csv`` when
+    ``hidden_dir`` is given — never into the run folder.
+
+    ``reference``: ``{"kind": "line"|"arc"|"figure_eight", "accel": m/s², "cruise": m/s,
+    "radius": m}`` or ``{"kind": "segments", "accel": m/s², "alpha": rad/s², "segments":
+    [{"duration_s", "v", "omega"}, ...]}`` or ``{"kind": "tour"}`` (:func:`tour_reference` for
+    ``duration_s`` and ``seed``) or ``{"kind": "reversals"}`` (:func:`reversal_reference`);
+    ``effects``: ``{name: {param: value}}`` (vocabulary or
+    EXTRA_EFFECTS); ``recorder``: options of :data:`RECORDER_DEFAULTS` (the camera arguments
+    override the recorder's camera noise and dropout when given). ``engine``: the physics the
+    recorder drives, ``"truth"`` (``sim/truth``'s own) or ``"mujoco"``
+    (:class:`host_tools.engines.mujoco_robot.MujocoRobot` with ``effects`` and
+    ``engine_options``, e.g. ``{"inductance_h": 0.002}``); the run folder does not say which."""
+    rec = recorder_config(recorder, **{k: v for k, v in (("cam_noise_m", cam_noise_m),
+                                                         ("cam_noise_rad", cam_noise_rad),
+                                                         ("cam_dropout", cam_dropout))
+                                       if v is not None})
+    rng = np.random.default_rng(seed)
+    rng_rec = np.random.default_rng([seed, 16])  # the recorder's variants draw from their own stream
+    sim, reference, kind = configure(reference, effects, clamp, duration_s, seed, rec, rng,
+                                     rng_rec, engine, engine_options)
+    pi = rec["controller"] == "pi"
+    inner = rec["inner_s"]
     tel, cam = sim.run()
     # camera: noise and dropouts (independent drops plus one short burst)
     keep = rng.random(cam["t_s"].size) > rec["cam_dropout"]
@@ -525,12 +617,14 @@ def main(argv=None) -> int:
     import sys
     ap = argparse.ArgumentParser(prog="python -m host_tools.truth", description=main.__doc__)
     ap.add_argument("run_dir")
-    ap.add_argument("--ref", default="line", choices=list(_REF_KINDS) + ["tour", "segments"])
+    ap.add_argument("--ref", default="line",
+                    choices=list(_REF_KINDS) + ["tour", "reversals", "segments"])
     ap.add_argument("--accel", type=float, default=None,
-                    help="m/s^2 (default 1.0; 0.6 for tour and segments)")
+                    help="m/s^2 (default 1.0; 0.6 for tour and segments, 1.2 for reversals)")
     ap.add_argument("--cruise", type=float, default=0.6, help="m/s")
     ap.add_argument("--radius", type=float, default=0.5, help="m (arc: > 0 turns left)")
-    ap.add_argument("--alpha", type=float, default=2.0, help="rad/s^2 (tour, segments)")
+    ap.add_argument("--alpha", type=float, default=None,
+                    help="rad/s^2 (tour, segments: default 2; reversals: 6)")
     ap.add_argument("--segments", default=None, metavar="FILE",
                     help="JSON list of {duration_s, v, omega} for --ref segments")
     ap.add_argument("--no-clamp", action="store_true", help="tau_max clamp off")
@@ -539,12 +633,19 @@ def main(argv=None) -> int:
     ap.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...")
     ap.add_argument("--hidden", default=None, help="folder for the true state (csv)")
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--engine", choices=("truth", "mujoco"), default="truth",
+                    help="the physics the recorder drives: the truth simulator's own or the "
+                         "MuJoCo model (host_tools.engines.mujoco_robot; needs the mujoco package)")
+    ap.add_argument("--inductance-mh", type=float, default=0.0,
+                    help="mujoco engine: the motors' armature inductance, mH")
     add_recorder_arguments(ap)
     a = ap.parse_args(argv)
     try:
         effects = dict(_parse_effect(e) for e in a.effect)
-        if a.ref in ("tour", "segments"):
-            ref = {"kind": a.ref, "accel": 0.6 if a.accel is None else a.accel, "alpha": a.alpha}
+        if a.ref in ("tour", "reversals", "segments"):
+            hard = a.ref == "reversals"
+            ref = {"kind": a.ref, "accel": (1.2 if hard else 0.6) if a.accel is None else a.accel,
+                   "alpha": (6.0 if hard else 2.0) if a.alpha is None else a.alpha}
             if a.ref == "segments":
                 if not a.segments:
                     raise ValueError("--ref segments needs --segments FILE")
@@ -555,7 +656,10 @@ def main(argv=None) -> int:
                    "cruise": a.cruise, "radius": a.radius}
         path = simulate_run(a.run_dir, ref, effects, clamp=not a.no_clamp,
                             duration_s=a.duration, seed=a.seed, hidden_dir=a.hidden,
-                            overwrite=a.overwrite, recorder=recorder_from_args(a))
+                            overwrite=a.overwrite, recorder=recorder_from_args(a),
+                            engine=a.engine,
+                            engine_options=({"inductance_h": a.inductance_mh / 1e3}
+                                            if a.engine == "mujoco" else None))
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

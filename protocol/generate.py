@@ -70,8 +70,20 @@ def raw_bound(field: dict, key: str) -> int | None:
     return int(round(raw))
 
 
+def current_scale(defn: dict) -> float:
+    """Amperes per raw count of the current sense (protocol.json current_sense)."""
+    cs = defn["current_sense"]
+    return cs["adc_vref_v"] / 2 ** cs["adc_bits"] / cs["volts_per_amp"]
+
+
 def check(defn: dict) -> None:
     types_seen: dict[int, str] = {}
+    amps = current_scale(defn)
+    for msg in defn["messages"]:
+        for f in msg["fields"]:
+            if f.get("unit") == "A" and abs(f.get("scale", 1) / amps - 1) > 1e-4:
+                raise DefinitionError(f"{msg['name']}.{f['name']}: scale {f.get('scale')} is not current_sense's "
+                                      f"{amps:.7g} A per count")
     maxp = defn["framing"]["max_payload"]
     if defn["framing"]["header_bytes"] + maxp + defn["framing"]["crc_bytes"] >= 254:
         raise DefinitionError("max body must stay below 254 bytes (one COBS block)")
@@ -159,6 +171,11 @@ def render_header(defn: dict) -> str:
     w(f"static const uint8_t kMaxPayload = {fr['max_payload']};")
     w(f"static const uint32_t kBaud = {link['baud']}UL;  // {link['format']}")
     w(f"static const uint32_t kFcpuHz = {tim['f_cpu_hz']}UL;")
+    cs = defn["current_sense"]
+    w(f"// current sense: {cs.get('doc', '')}")
+    w(f"static const float kCurrentSenseVoltsPerAmp = {c_float(cs['volts_per_amp'])};")
+    w(f"static const uint8_t kCurrentSenseAdcBits = {cs['adc_bits']};")
+    w(f"static const float kCurrentSenseAdcVrefV = {c_float(cs['adc_vref_v'])};")
     drv = defn["drive"]
     w("// ---- drive mode defaults at boot (SetDriveLimits changes them) ----")
     w(f"static const float kDriveAccelDefault = {c_float(drv['accel'])};  // m/s^2")

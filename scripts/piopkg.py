@@ -44,12 +44,16 @@ def read_deb_list(path: Path) -> dict[str, list[str]]:
         if not line or line.startswith("#"):
             continue
         pkg, _ver, target = line.split()
-        groups.setdefault(target, []).append(pkg)
+        if target != "-":  # "-": unpacked only (.deps/unpacked/<pkg>), no PlatformIO package
+            groups.setdefault(target, []).append(pkg)
     return groups
 
 
 def merge_usr(src: Path, dst: Path) -> None:
-    """Copy SRC/usr/* (and SRC/etc) into DST, without documentation."""
+    """Copy SRC/usr/* (and SRC/etc, and SRC/lib: a package not yet moved to /usr, such as
+    libusb-0.1-4, keeps its libraries in /lib) into DST, without documentation."""
+    if (src / "lib").is_dir():
+        shutil.copytree(src / "lib", dst / "lib", symlinks=True, dirs_exist_ok=True)
     usr = src / "usr"
     for item in usr.iterdir():
         if item.name == "share":

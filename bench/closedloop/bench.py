@@ -74,7 +74,8 @@ def main(argv=None) -> int:
 
     if not a.no_replay:
         from host_tools import truth
-        from host_tools.analyzer.replay import ClosedLoopReplay, prepare
+        from host_tools.analyzer.prepare.inputs import prepare
+        from host_tools.analyzer.replay.closedloop import ClosedLoopReplay
         from host_tools.runfmt import load_run
         with tempfile.TemporaryDirectory() as d:
             path = truth.simulate_run(os.path.join(d, "run"),

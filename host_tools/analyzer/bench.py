@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", default=None, help="keep the generated runs and reports here")
     args = ap.parse_args(argv)
     from host_tools.analyzer import synth
-    from host_tools.analyzer.analysis import analyze
+    from host_tools.analyzer.pipeline import analyze
 
     root = args.keep or tempfile.mkdtemp(prefix="analyzer-bench-")
     rows = []

@@ -150,8 +150,8 @@ def _main(args: argparse.Namespace) -> int:
     notes = [n for r in runs for n in r.notes]
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
-    from host_tools.analyzer.analysis import analyze
-    from host_tools.analyzer.report import write_outputs
+    from host_tools.analyzer.pipeline import analyze
+    from host_tools.analyzer.report.writers import write_outputs
     try:
         an = analyze(runs, jobs=args.jobs, effects=effects, dt_s=args.dt)
     except RunFormatError as exc:

@@ -3,8 +3,8 @@ from the data, significant windows of a residual, and the operating regime that
 best explains where a residual is significant."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -220,4 +220,9 @@ def r_squared(y: np.ndarray, yhat: np.ndarray) -> float:
     return 0.0 if ss == 0 else 1.0 - float(np.sum((y - yhat) ** 2)) / ss
 
 
-Predicate = Callable[[dict[str, np.ndarray]], np.ndarray]
+def round_sig(v: float, sig: int = 4) -> float:
+    """``v`` to ``sig`` significant digits, as the report gives its figures (None for a value
+    that is not finite, which JSON cannot carry)."""
+    if v == 0 or not math.isfinite(v):
+        return float(v) if math.isfinite(v) else None  # type: ignore[return-value]
+    return float(f"{v:.{sig}g}")

@@ -32,7 +32,7 @@ PROFILES: dict[str, Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]] = {
 
 
 def _odometry(counts_r, counts_l, t, r, b, ppr):
-    from host_tools.analyzer.replay import _odometry as odo
+    from host_tools.analyzer.prepare.odometry import encoder_odometry as odo
     return odo(counts_r, counts_l, t, r, b, ppr, (0.0, 0.0, 0.0))
 
 

@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--radius", type=float, default=0.0, help="arc / figure-eight radius, m (+ = left)")
     p.add_argument("--clamp", choices=["on", "off"], help="send SetClamp before starting")
     p.add_argument("--mu-s", type=float, help="send SetMu (with --mu-k)")
-    p.add_argument("--mu-k", type=float)
+    p.add_argument("--mu-k", type=float, help="kinetic friction coefficient sent with SetMu (with --mu-s)")
     p.add_argument("--controller", choices=sorted(d.enums["controller"]),
                    help="send SetController before starting: the cascade's velocity loop "
                    "(the firmware's default: improved); meta.json controller_variant says which ran")
@@ -49,6 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "align through the logger's host clock instead of estimating")
     p.add_argument("--gt-start-pose", action="store_true", help="set meta.json start_pose to the tracker's "
                    "pose at the first telemetry frame (tracker in room coordinates; needs phi_rad)")
+    from host_tools.interop import live
+    live.add_option(p)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -97,16 +99,25 @@ def main(args: argparse.Namespace) -> int:
         import serial
         return serial.serial_for_url(args.port, baudrate=args.baud, timeout=0.05, write_timeout=0.5)
 
+    try:
+        pub = _live(args, d)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     lg = Logger(args.out, open_port, args.port, args.baud, experiment=experiment,
                 clamp=None if args.clamp is None else args.clamp == "on", mu=mu, record_s=record_s,
                 controller=getattr(args, "controller", None), model=model,
                 reconnect_timeout_s=args.reconnect_timeout, params_timeout_s=args.params_timeout,
-                status=not args.quiet, description=args.description, d=d)
+                status=not args.quiet, description=args.description, d=d,
+                on_row=pub.publish if pub else None)
     try:
         code = lg.run()
     except LoggerError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return exc.code
+    finally:
+        if pub:
+            pub.close()
     s = lg.stats
     print(f"\n{args.out}: {s['telemetry_rows']} rows, {lg.dec.crc_errors} CRC errors, "
           f"{lg.dec.bad_blocks - lg.dec.crc_errors} other bad blocks, {s['gaps']} gaps "
@@ -115,3 +126,12 @@ def main(args: argparse.Namespace) -> int:
     if code:
         print(f"error: {lg.end_reason}", file=sys.stderr)
     return code
+
+
+def _live(args: argparse.Namespace, d: P.Definition):
+    """The live view's server of --live, or None."""
+    if getattr(args, "live", None) is None:
+        return None
+    from host_tools.interop import live
+    from host_tools.logger.frames import TelemetryColumns
+    return live.start(args.live, TelemetryColumns(d).columns)

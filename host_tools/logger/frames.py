@@ -244,6 +244,8 @@ class FramesMixin:
         self.writer.write_row(row)
         self.reftrack.row(row)  # the reference the firmware tracks (meta.json "reference")
         self.stats["telemetry_rows"] += 1
+        if getattr(self, "on_row", None) is not None:
+            self.on_row(row)
         self.last_t_us, self.last_t_s, self.last_host_t, self.last_row = t_us, t_s, host_t, row
         status = raws[self.cols.index["status"]]
         flags = self.d.flags["status"]

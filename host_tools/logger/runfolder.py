@@ -12,7 +12,7 @@ import json
 import os
 from typing import Any
 
-from host_tools import runfmt
+from host_tools import firmware_id, runfmt
 from host_tools.logger.errors import LoggerError
 from host_tools.logger.frames import shortest_f32
 
@@ -170,7 +170,7 @@ class RunFolderMixin:
             host_t0_unix_s=round(getattr(self, "_t0_unix", 0.0), 6),
             crc_errors=self.dec.crc_errors, rejected_blocks=dict(self.dec.rejected),
             params_source="robot" if p is not None else "defaults (the robot never reported Params)",
-            firmware_id=(f"{p['firmware_id']:08x}" if p is not None else None),
+            firmware_id=(firmware_id.describe(p["firmware_id"]) if p is not None else None),
             robot_baud=(p["baud"] if p is not None else None),
             end_reason=self.end_reason or "recording")
         return meta

@@ -39,7 +39,8 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
                  controller: str | None = None, reconnect_timeout_s: float = 30.0, params_timeout_s: float = 1.0,
                  status: bool = True, description: str | None = None,
                  d: P.Definition | None = None, clock: Callable[[], float] = time.monotonic,
-                 model: dict | None = None, drive_limits: dict | None = None):
+                 model: dict | None = None, drive_limits: dict | None = None,
+                 on_row: Callable[[dict], None] | None = None):
         self.d = d or P.definition()
         self.out = out_dir
         self.open_port = open_port
@@ -49,8 +50,8 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         self.clamp = clamp
         self.mu = mu
         if controller is not None and controller not in self.d.enums["controller"]:
-            raise LoggerError(f"controller {controller!r} is not one of "
-                              f"{sorted(self.d.enums['controller'])}", 2)
+            raise LoggerError(f"controller '{controller}' is not one of "
+                              f"{', '.join(sorted(self.d.enums['controller']))}", 2)
         self.controller = controller
         # SetModel values (host_tools.model.firmware_model) and SetDriveLimits values: sent with
         # the configuration; the drive limits in force go into meta.json's drive reference
@@ -66,6 +67,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         self.clock = clock
         self._init_link()
         self._init_frames()
+        self.on_row = on_row  # called with each telemetry row written (the live view)
         self._stop = False
         self._signals = 0
         self._write_error: OSError | None = None

@@ -39,8 +39,8 @@ def main(argv=None) -> int:
                         ("score", "summarize the scores of earlier bench runs (no analysis)")):
         p = sub.add_parser(name, help=help_)
         p.add_argument("--set", dest="which", choices=C.SETS, default="tuning",
-                       help="tuning (rules may be settled on it), heldback, heldback2 to "
-                            "heldback5 (only scored)")
+                       help="tuning or mujoco (rules may be settled on them), heldback, "
+                            "heldback2 to heldback6 (only scored)")
         p.add_argument("--fast", action="store_true", help="only the set's fast subset (CI)")
         p.add_argument("--no-long", action="store_true",
                        help="leave out the 10-minute cases (held-back set)")
@@ -59,6 +59,9 @@ def main(argv=None) -> int:
                                 "cam_noise_rad, cam_dropout, heading_tel=unwrapped|wrapped, "
                                 "heading_gt=unwrapped|wrapped, current=0|1, adc_noise_lsb), "
                                 "applied over each case's own")
+            p.add_argument("--engine", choices=("truth", "mujoco"), default=None,
+                           help="record the selected cases on this physics engine instead of "
+                                "each case's own (the MuJoCo model needs the mujoco package)")
         if name == "score":
             p.add_argument("--rescore", action="store_true",
                            help="score again from the stored reports and labels")
@@ -79,7 +82,8 @@ def main(argv=None) -> int:
         a.out = {"tuning": "out/suite", "heldback": "out/suite-heldback",
                  "heldback2": "out/suite-heldback2", "heldback3": "out/suite-heldback3",
                  "heldback4": "out/suite-heldback4",
-                 "heldback5": "out/suite-heldback5"}[a.which]
+                 "heldback5": "out/suite-heldback5", "mujoco": "out/suite-mujoco",
+                 "heldback6": "out/suite-heldback6"}[a.which]
     for c in sel:
         c.seed += getattr(a, "seed_offset", 0)
     if getattr(a, "recorder", None):
@@ -91,6 +95,10 @@ def main(argv=None) -> int:
         for c in sel:
             c.recorder = {**c.recorder, **extra}
             c.recorder_name = name if c.recorder_name == "firmware" else f"{c.recorder_name}+{name}"
+    if getattr(a, "engine", None):
+        for c in sel:
+            if c.engine != a.engine:
+                c.engine, c.engine_options = a.engine, {}
     if a.cmd == "list":
         for c in sel:
             print(f"{c.name:<32} expect {c.expect:<12} {len(c.experiments)} runs "

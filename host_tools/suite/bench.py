@@ -333,7 +333,7 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
     m["impossible"] = len(imp)
     m["impossible_selected"] = sum(1 for r in imp if any(x.startswith("selected") for x in r["impossible"]))
     # analysis time and peak memory by run length (the time target: ``long_s``)
-    lengths = [ln for ln in ("20 s", "2 min", "10 min") if any(r.get("length") == ln for r in results)]
+    lengths = [ln for ln in ("20 s", "1 min", "2 min", "10 min") if any(r.get("length") == ln for r in results)]
     if any(r.get("analysis_s") is not None for r in results):
         L.append("")
         L.append("analysis time (wall) and peak memory of the analyzer's process tree, by run length")

@@ -21,7 +21,8 @@ def _null_runs(case: Case, tmp: str) -> list[tuple[dict, dict]]:
     for k, (ref, clamp, dur) in enumerate(case.experiments):
         p = os.path.join(tmp, f"null-{k}")
         truth.simulate_run(p, ref, {}, clamp=clamp, duration_s=dur, seed=case.seed + k,
-                           hidden_dir=tmp, recorder=case.recorder)
+                           hidden_dir=tmp, recorder=case.recorder, engine=case.engine,
+                           engine_options=case.engine_options or None)
         out.append((runfmt.load_run(p).telemetry,
                     np.genfromtxt(os.path.join(tmp, f"null-{k}.truth.csv"), delimiter=",", names=True)))
     return out

@@ -1,5 +1,6 @@
-"""Generate the suite's run folders with the truth simulator, deterministically, each case
-with its own recorder (``Case.recorder``: host_tools.truth.RECORDER_DEFAULTS overrides).
+"""Generate the suite's run folders with the truth simulator's recorder, deterministically,
+each case with its own recorder (``Case.recorder``: host_tools.truth.RECORDER_DEFAULTS
+overrides) and engine (``Case.engine``: the truth's physics or the MuJoCo model).
 
 Layout under the data folder::
 
@@ -32,7 +33,8 @@ def generate_case(case: Case, data_dir: str, overwrite: bool = False) -> list[st
     for k, (ref, clamp, dur) in enumerate(case.experiments):
         path = os.path.join(run_root, f"run-{k}")
         truth.simulate_run(path, ref, case.effects, clamp=clamp, duration_s=dur,
-                           seed=case.seed + k, hidden_dir=hidden, recorder=case.recorder)
+                           seed=case.seed + k, hidden_dir=hidden, recorder=case.recorder,
+                           engine=case.engine, engine_options=case.engine_options or None)
         runs.append(path)
     with open(os.path.join(label_root, f"{case.name}.json"), "w") as fh:
         json.dump(case.label(), fh, indent=2)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from host_tools.analyzer import replay as R
+from host_tools.analyzer.prepare import timing as PT
 from host_tools.params import ENCODER_PPR
 from host_tools.runfmt import Run
 
@@ -33,7 +33,7 @@ def test_ramped_duty_reconstructed_from_frames():
         return base[k] + slope[k] * np.where(x - ticks[k] < lat, 0, m)
     t = 0.0045 + 0.02 * np.arange(48)
     d = duty_at(t)
-    t_in, (u_r, u_l) = R._ramped_duty(t, (d, d), phase, period, np.full(t.size, lat))
+    t_in, (u_r, u_l) = PT._ramped_duty(t, (d, d), phase, period, np.full(t.size, lat))
     assert np.array_equal(u_r, u_l)
     # against the true duty at every input time: the ramp steps and the tick steps
     inside = (t_in > t[0] + period) & (t_in < t[-1] - period)
@@ -55,11 +55,11 @@ def test_ramped_duty_reconstructed_from_frames():
 def test_compute_latency_from_the_boards_task_cycles():
     t = 0.02 * np.arange(5)
     meta = {"periods_s": {"inner": 0.025}}
-    lat = R.compute_latency_s(_run({"t_s": t, "inner_last_cyc": np.full(5, 10240.0)}, meta))
+    lat = PT.compute_latency_s(_run({"t_s": t, "inner_last_cyc": np.full(5, 10240.0)}, meta))
     assert lat == pytest.approx(np.full(5, 10240 / 16e6))
-    assert R.compute_latency_s(_run({"t_s": t}, meta)) is None          # another recorder
+    assert PT.compute_latency_s(_run({"t_s": t}, meta)) is None          # another recorder
     # never more than a period (a saturated or corrupt count)
-    assert R.compute_latency_s(_run({"t_s": t, "inner_last_cyc": np.full(5, 1e7)}, meta)).max() \
+    assert PT.compute_latency_s(_run({"t_s": t, "inner_last_cyc": np.full(5, 1e7)}, meta)).max() \
         == pytest.approx(0.025)
 
 
@@ -77,11 +77,11 @@ def test_board_rate_phase_ignores_a_few_restarted_speed_estimates():
              - np.floor(np.interp(tick - period, t, theta) / k)) / period
     w[110:112] = 0.0
     tel = {"t_s": t, "enc_r": n, "enc_l": n, "omega_r": w, "omega_l": w}
-    est = R.board_rate_phase(tel, period, ENCODER_PPR)
+    est = PT.board_rate_phase(tel, period, ENCODER_PPR)
     assert est is not None and abs((est - phase + period / 2) % period - period / 2) < 0.002
     w2 = w.copy()
     w2[::4] = 0.0   # a quarter of the frames: not a count-difference recorder
-    assert R.board_rate_phase({**tel, "omega_r": w2, "omega_l": w2}, period, ENCODER_PPR) is None
+    assert PT.board_rate_phase({**tel, "omega_r": w2, "omega_l": w2}, period, ENCODER_PPR) is None
 
 
 @pytest.mark.parametrize("clamp", [False, True])
@@ -93,7 +93,7 @@ def test_firmware_in_the_loop_nominal_run_is_no_mismatch(tmp_path, clamp):
     a fraction of a millimetre); before the latency and the ramp were replayed the camera was
     3.3 and 12.5 floors off on the noiseless runs."""
     from host_tools import fil
-    from host_tools.analyzer.analysis import analyze
+    from host_tools.analyzer.pipeline import analyze
     try:
         elf = fil.build_firmware()
     except fil.FilError as exc:

@@ -14,7 +14,13 @@ pytestmark = needs_native(truth=True)
 from host_tools import truth  # noqa: E402
 
 from host_tools import params  # noqa: E402
-from host_tools.analyzer import replay as R  # noqa: E402
+from host_tools.analyzer.prepare import inputs as PI  # noqa: E402
+from host_tools.analyzer.prepare import timing as PT  # noqa: E402
+from host_tools.analyzer.replay import anchors as AN  # noqa: E402
+from host_tools.analyzer.replay import channels as CH  # noqa: E402
+from host_tools.analyzer.replay import closedloop as CL  # noqa: E402
+from host_tools.analyzer.replay import openloop as OL  # noqa: E402
+from host_tools.analyzer.replay import unseen as UN  # noqa: E402
 from host_tools.runfmt import load_run  # noqa: E402
 
 ARC = {"kind": "arc", "accel": 1.0, "cruise": 0.5, "radius": 0.6}
@@ -56,15 +62,15 @@ def test_phase_of_a_fast_loop_from_the_board_speeds(arc_run):
     """The truth simulator's ticks lie at board time 0, 10 ms, ...; with a straight line
     through the counts every phase would fit equally (the estimate was None)."""
     tel = arc_run.telemetry
-    phase = R.board_rate_phase(tel, 0.010, int(arc_run.meta["encoder_ppr"]))
+    phase = PT.board_rate_phase(tel, 0.010, int(arc_run.meta["encoder_ppr"]))
     assert phase is not None
     err = min(phase % 0.010, 0.010 - phase % 0.010)
     assert err <= 0.0025, phase
 
 
 def test_unreported_ticks_filled_closer_to_the_commands_given(arc_run):
-    prep = R.prepare(arc_run, 0.5, 0.0)
-    seen = prep.extras["seen_ticks"]
+    prep = PI.prepare(arc_run, 0.5, 0.0)
+    seen = prep.seen_ticks
     assert seen is not None and 0.4 < seen.mean() < 0.6   # every other tick reported
     dense = _dense_truth(arc_run.meta)
     idx = np.searchsorted(dense["t_s"], prep.t_in + 1e-9) - 1
@@ -82,8 +88,8 @@ def test_unreported_ticks_filled_closer_to_the_commands_given(arc_run):
             out += [e[(t_un >= a) & (t_un < a + 0.25)].mean() for a in np.arange(0, 2.0, 0.25)]
         return _rms(out)
     line = bias()
-    cl = R.ClosedLoopReplay().simulate(prep, {})
-    n = R.fill_unseen_from_controller(prep, cl)
+    cl = CL.ClosedLoopReplay().simulate(prep, {})
+    n = UN.fill_unseen_from_controller(prep, cl)
     in_cl = (prep.t_in >= cl["t_s"][0] - 1e-9) & (prep.t_in <= cl["t_s"][-1] + 1e-9)
     assert n == int((~seen & in_cl).sum()) > 0.4 * seen.size
     assert np.array_equal(prep.duty[0][seen], given[0][seen])
@@ -91,21 +97,21 @@ def test_unreported_ticks_filled_closer_to_the_commands_given(arc_run):
 
 
 def test_count_anchored_pose_only_for_unreported_inputs(tmp_path, arc_run):
-    prep = R.prepare_timed(arc_run)
-    assert prep.extras["count_anchored_pose"]
+    prep = PI.prepare_timed(arc_run)
+    assert prep.count_anchored_pose
     normal = load_run(truth.simulate_run(tmp_path / "fw", ARC, None, clamp=True, duration_s=2.0,
                                          seed=31))
-    assert not R.prepare_timed(normal).extras["count_anchored_pose"]
-    duty = R.OpenLoopReplay("duty")
-    R.fill_unseen_from_controller(prep, R.ClosedLoopReplay().simulate(prep, {}))
+    assert not PI.prepare_timed(normal).count_anchored_pose
+    duty = OL.OpenLoopReplay("duty")
+    UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
     # a fill biased by 0.01 of duty on one wheel (what a wrong guess of the unreported
     # commands does): the replayed wheels drift, and with them the open-loop pose
-    seen = prep.extras["seen_ticks"]
+    seen = prep.seen_ticks
     prep.duty = (np.where(seen, prep.duty[0], prep.duty[0] + 0.01), prep.duty[1])
     sim = duty.simulate_windows(prep, {})
-    anchored = R.channels(prep, sim, "duty")
-    prep.extras["count_anchored_pose"] = False
-    plain = R.channels(prep, sim, "duty")
+    anchored = CH.channels(prep, sim, "duty")
+    prep.count_anchored_pose = False
+    plain = CH.channels(prep, sim, "duty")
     # the wheels' channels are the same; the camera channels lose the replay's wheel drift
     assert np.array_equal(anchored["omega_r"].resid, plain["omega_r"].resid)
     cam = sum(_rms(anchored[c].resid) for c in ("x_m", "y_m"))
@@ -118,11 +124,11 @@ def test_a_geometry_effect_stays_visible_in_the_anchored_pose(tmp_path):
     moves the body further for the same counts."""
     run = load_run(truth.simulate_run(tmp_path / "r", ARC, {"wheel_radius": {"r_eff": 0.0376}},
                                       clamp=True, duration_s=2.0, seed=32, recorder=LOOP10))
-    prep = R.prepare_timed(run)
-    R.fill_unseen_from_controller(prep, R.ClosedLoopReplay().simulate(prep, {}))
-    duty = R.OpenLoopReplay("duty")
-    nom = R.channels(prep, duty.simulate_windows(prep, {}), "duty")
-    eff = R.channels(prep, duty.simulate_windows(prep, {"wheel_radius": {"r_eff": 0.0376}}),
+    prep = PI.prepare_timed(run)
+    UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
+    duty = OL.OpenLoopReplay("duty")
+    nom = CH.channels(prep, duty.simulate_windows(prep, {}), "duty")
+    eff = CH.channels(prep, duty.simulate_windows(prep, {"wheel_radius": {"r_eff": 0.0376}}),
                      "duty")
     nom_cam = _rms(nom["x_m"].resid) + _rms(nom["y_m"].resid)
     eff_cam = _rms(eff["x_m"].resid) + _rms(eff["y_m"].resid)
@@ -139,14 +145,14 @@ def _true_commands(prep, run) -> tuple:
 def _fill_error_and_uncertainty(run, channels=("omega_r", "omega_l")):
     """Per channel: (sample times, the replay's error from the filled commands against the
     true ones, the replay uncertainty input_uncertainty gives for it)."""
-    prep = R.prepare_timed(run)
-    R.fill_unseen_from_controller(prep, R.ClosedLoopReplay().simulate(prep, {}))
-    duty = R.OpenLoopReplay("duty")
-    assert R.input_uncertainty(prep, duty) > 0
-    filled = R.channels(prep, duty.simulate_windows(prep, {}), "duty")
+    prep = PI.prepare_timed(run)
+    UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
+    duty = OL.OpenLoopReplay("duty")
+    assert UN.input_uncertainty(prep, duty) > 0
+    filled = CH.channels(prep, duty.simulate_windows(prep, {}), "duty")
     base = prep.duty
     prep.duty = _true_commands(prep, run)
-    true = R.channels(prep, duty.simulate_windows(prep, {}), "duty")
+    true = CH.channels(prep, duty.simulate_windows(prep, {}), "duty")
     prep.duty = base
     return {c: (filled[c].t, filled[c].sim - true[c].sim, filled[c].unc) for c in channels}
 
@@ -180,9 +186,9 @@ def test_replay_uncertainty_grows_in_a_gap_of_lost_frames(arc_run):
 def test_no_replay_uncertainty_when_every_tick_is_reported(tmp_path):
     run = load_run(truth.simulate_run(tmp_path / "fw", ARC, None, clamp=True, duration_s=1.5,
                                       seed=33))
-    prep = R.prepare_timed(run)
-    assert R.input_uncertainty(prep, R.OpenLoopReplay("duty")) == 0
-    chans = R.channels(prep, R.OpenLoopReplay("duty").simulate_windows(prep, {}), "duty")
+    prep = PI.prepare_timed(run)
+    assert UN.input_uncertainty(prep, OL.OpenLoopReplay("duty")) == 0
+    chans = CH.channels(prep, OL.OpenLoopReplay("duty").simulate_windows(prep, {}), "duty")
     assert all(ch.unc is None for ch in chans.values())
     ch = chans["omega_r"]
     assert np.array_equal(ch.deflated(0.1), ch.resid)
@@ -194,15 +200,15 @@ def test_unreported_commands_stay_within_their_bracket(arc_run):
     """A closed-loop replay whose step falls on an unreported tick the recording does not
     show does not push the fill beyond the reported commands around it by more than the
     tick-level scatter."""
-    prep = R.prepare_timed(arc_run)
-    cl = R.ClosedLoopReplay().simulate(prep, {})
-    seen = prep.extras["seen_ticks"]
+    prep = PI.prepare_timed(arc_run)
+    cl = CL.ClosedLoopReplay().simulate(prep, {})
+    seen = prep.seen_ticks
     k = int(np.flatnonzero(~seen & (prep.t_in > 1.0))[0])
     j = int(np.argmin(np.abs(cl["t_s"] - prep.t_in[k])))
     cl = dict(cl)
     cl["pwm_r"] = np.asarray(cl["pwm_r"], float).copy()
     cl["pwm_r"][j] += 0.1
-    R.fill_unseen_from_controller(prep, cl)
+    UN.fill_unseen_from_controller(prep, cl)
     lo = min(prep.duty[0][k - 1], prep.duty[0][k + 1])
     hi = max(prep.duty[0][k - 1], prep.duty[0][k + 1])
     assert lo - 0.02 <= prep.duty[0][k] <= hi + 0.02, (lo, prep.duty[0][k], hi)
@@ -211,18 +217,18 @@ def test_unreported_commands_stay_within_their_bracket(arc_run):
 def test_a_slipping_replayed_wheel_does_not_move_the_anchored_pose(arc_run):
     """The count anchoring carries the replay's extra wheel turning into the pose only where
     the replayed wheel rolls: with the replay slipping throughout, nothing is carried."""
-    prep = R.prepare_timed(arc_run)
-    sims = R.OpenLoopReplay("duty").simulate_windows(prep, {})
+    prep = PI.prepare_timed(arc_run)
+    sims = OL.OpenLoopReplay("duty").simulate_windows(prep, {})
     _, sim = next(iter(sims))
     n = arc_run.telemetry["t_s"].size
     t = arc_run.telemetry["t_s"]
     th_r = np.interp(t, sim["t_s"], sim["theta_r_rad"]) * 1.01   # a replay that over-turns
     th_l = np.interp(t, sim["t_s"], sim["theta_l_rad"]) * 1.01
     tg = arc_run.groundtruth["t_s"][arc_run.groundtruth["t_s"] < t[-1]]
-    rolling = R._count_anchor_shift(prep, sim, t, th_r, th_l, 0, n, tg)
+    rolling = AN._count_anchor_shift(prep, sim, t, th_r, th_l, 0, n, tg)
     assert _rms(rolling["x_m"]) > 1e-3
     slipping = dict(sim, slip_r=np.ones(np.asarray(sim["t_s"]).size))
-    shift = R._count_anchor_shift(prep, slipping, t, th_r, th_l, 0, n, tg)
+    shift = AN._count_anchor_shift(prep, slipping, t, th_r, th_l, 0, n, tg)
     assert all(np.abs(v).max() == 0.0 for v in shift.values())
 
 
@@ -232,13 +238,13 @@ def test_closed_loop_replay_matched_a_tick_early_or_late(tmp_path):
     reported): a replay moved by one tick is moved back, an aligned one is left alone."""
     run = load_run(truth.simulate_run(tmp_path / "r", ARC, None, clamp=True, duration_s=2.0,
                                       seed=34, recorder={"tel_drop": 0.05}))
-    prep = R.prepare_timed(run)
-    cl = R.ClosedLoopReplay().simulate(prep, {})
-    seen = np.asarray(prep.extras["seen_ticks"], bool)
+    prep = PI.prepare_timed(run)
+    cl = CL.ClosedLoopReplay().simulate(prep, {})
+    seen = np.asarray(prep.seen_ticks, bool)
     k = np.round((prep.t_in - cl["t_s"][0]) / (cl["t_s"][1] - cl["t_s"][0])).astype(np.int64)
-    assert R._replay_tick_shift(prep, cl, k, seen) == 0
+    assert UN._replay_tick_shift(prep, cl, k, seen) == 0
     for lag in (1, -1):
         moved = dict(cl)
         for c in ("pwm_r", "pwm_l"):
             moved[c] = np.roll(np.asarray(cl[c], float), lag)
-        assert R._replay_tick_shift(prep, moved, k, seen) == lag
+        assert UN._replay_tick_shift(prep, moved, k, seen) == lag

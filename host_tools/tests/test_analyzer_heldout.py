@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 
 from host_tools.analyzer import effects as fx
-from host_tools.analyzer.fit import (HELDOUT_TOL, Candidate, FitResult, effects_dict,
-                                     heldout_channel_check, judge, paired_worse, params_for)
+from host_tools.analyzer.fit.judge import (HELDOUT_TOL, Candidate, heldout_channel_check, judge,
+                                           paired_worse)
+from host_tools.analyzer.fit.params import FitResult, effects_dict, params_for
 from host_tools.params import ROBOT
 
 

@@ -36,7 +36,8 @@ def _rms(x):
 
 
 def _replay(path, effects=None):
-    from host_tools.analyzer.replay import ClosedLoopReplay, closed_loop_channels, prepare
+    from host_tools.analyzer.prepare.inputs import prepare
+    from host_tools.analyzer.replay.closedloop import ClosedLoopReplay, closed_loop_channels
     prep = prepare(load_run(path))
     cl = ClosedLoopReplay()
     setup, problems, assumptions = cl.setup(prep)
@@ -72,8 +73,8 @@ def test_closed_loop_replay_uses_the_runs_clamp_setting(tmp_path):
 
 
 def test_back_emf_nominal_closed_loop_differs_and_the_fitted_model_closes_the_gap(tmp_path):
-    from host_tools.analyzer.analysis import analyze
-    from host_tools.analyzer.report import write_outputs
+    from host_tools.analyzer.pipeline import analyze
+    from host_tools.analyzer.report.writers import write_outputs
     eff = {"motor_back_emf": {"ke_ratio": 1.2}}
     paths = [truth.simulate_run(tmp_path / f"run-{i}", ref, eff, duration_s=2.5, seed=i)
              for i, ref in enumerate([LINE, ARC])]
@@ -103,8 +104,8 @@ def test_back_emf_nominal_closed_loop_differs_and_the_fitted_model_closes_the_ga
 
 
 def test_missing_reference_is_reported_not_guessed(tmp_path):
-    from host_tools.analyzer.analysis import analyze
-    from host_tools.analyzer.report import write_outputs
+    from host_tools.analyzer.pipeline import analyze
+    from host_tools.analyzer.report.writers import write_outputs
     path = truth.simulate_run(tmp_path / "run", LINE, None, duration_s=2.0, seed=4)
     meta_p = os.path.join(path, "meta.json")
     meta = json.load(open(meta_p))
@@ -122,7 +123,8 @@ def test_missing_reference_is_reported_not_guessed(tmp_path):
 
 
 def test_a_defaulted_clamp_setting_is_stated_as_an_assumption(tmp_path):
-    from host_tools.analyzer.replay import ClosedLoopReplay, prepare
+    from host_tools.analyzer.prepare.inputs import prepare
+    from host_tools.analyzer.replay.closedloop import ClosedLoopReplay
     path = truth.simulate_run(tmp_path / "run", LINE, None, clamp=False, duration_s=1.0, seed=5)
     meta_p = os.path.join(path, "meta.json")
     meta = json.load(open(meta_p))
@@ -148,7 +150,7 @@ def test_closed_loop_replay_uses_the_runs_velocity_loop(tmp_path):
 
 
 def test_closed_loop_setup_checks_the_tick_schedule_and_the_meta():
-    from host_tools.analyzer.replay import closed_loop_setup
+    from host_tools.analyzer.replay.closedloop import closed_loop_setup
     t = np.round(0.004 + 0.02 * np.arange(100), 6)
     ticks = np.floor(t / 0.025)            # a controller ticking at 0, 25, 50 ms ...
     tau = ticks * 1e-3
@@ -185,8 +187,9 @@ def test_actuation_delay_is_kept_and_fitted_on_the_plain_replay_grid(tmp_path):
     the plant's delay line must survive the clock re-alignment at every row, and the
     actuation_delay candidate must still recover the delay."""
     from host_tools.analyzer import synth
-    from host_tools.analyzer.analysis import analyze
-    from host_tools.analyzer.replay import OpenLoopReplay, prepare
+    from host_tools.analyzer.pipeline import analyze
+    from host_tools.analyzer.prepare.inputs import prepare
+    from host_tools.analyzer.replay.openloop import OpenLoopReplay
     paths = synth.make_case(tmp_path / "delay", {"actuation_delay": {"delay_s": 0.03}},
                             profiles=("ramp", "turn"), seed=11)
     prep = prepare(load_run(paths[0]))
@@ -217,17 +220,17 @@ def test_tick_phase_comes_from_the_recording_not_from_the_nominal_model(tmp_path
     """The truth simulator ticks at t = 0, 25 ms, ...  The phase is found from the board's
     reported wheel speeds against the recorded counts (no model), so an effect that delays the
     wheels cannot pull it (choosing it by the nominal replay's error did, by up to 3 ms)."""
-    from host_tools.analyzer.replay import prepare_timed
+    from host_tools.analyzer.prepare.inputs import prepare_timed
     ref = {"kind": "line", "accel": 72 * WHEEL_R_M, "cruise": 36 * WHEEL_R_M}
     path = truth.simulate_run(tmp_path / "run", ref, effects, clamp=False, duration_s=2.0, seed=5)
     prep = prepare_timed(load_run(path))
-    assert prep.extras["timing"].startswith("board wheel speeds")
-    assert _phase_err(prep.extras["tick_phase"], 0.0) < 1e-3
+    assert prep.timing.startswith("board wheel speeds")
+    assert _phase_err(prep.tick_phase, 0.0) < 1e-3
 
 
 def test_tick_phase_of_synthetic_runs_and_no_phase_without_motion(tmp_path):
     from host_tools.analyzer import synth
-    from host_tools.analyzer.replay import board_rate_phase
+    from host_tools.analyzer.prepare.timing import board_rate_phase
     run = load_run(synth.make_run(tmp_path / "r", "ramp", None, seed=1, tick_phase=0.0123))
     phase = board_rate_phase(run.telemetry, 0.025, params.ENCODER_PPR)
     assert phase is not None and _phase_err(phase, 0.0123) < 1e-3
@@ -239,13 +242,15 @@ def test_replayed_odometry_is_the_pose_of_the_latest_inner_tick(tmp_path):
     """The firmware integrates odometry at its inner ticks and a frame reports the latest tick's
     pose; the replay does the same.  Computing it at the frame times instead lags by up to a
     tick (at 1 m/s, millimetres)."""
-    from host_tools.analyzer.replay import OpenLoopReplay, channels, prepare_timed
+    from host_tools.analyzer.prepare.inputs import prepare_timed
+    from host_tools.analyzer.replay.channels import channels
+    from host_tools.analyzer.replay.openloop import OpenLoopReplay
     path = truth.simulate_run(tmp_path / "run", ARC, None, duration_s=2.5, seed=6)
     prep = prepare_timed(load_run(path))
     rp = OpenLoopReplay("duty")
     sim = rp.simulate(prep, {})
     at_ticks = channels(prep, sim)
-    prep.extras["tick_phase"] = None          # odometry at the frame times
+    prep.tick_phase = None          # odometry at the frame times
     at_frames = channels(prep, sim)
     for c in ("x_odo_m", "y_odo_m"):
         assert _rms(at_ticks[c].resid) < 5e-4, (c, _rms(at_ticks[c].resid))

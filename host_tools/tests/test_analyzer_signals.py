@@ -7,7 +7,7 @@ import pytest
 
 from host_tools import params
 from host_tools.analyzer import signals as sg
-from host_tools.analyzer.replay import reconstruct_input_times
+from host_tools.analyzer.prepare.timing import reconstruct_input_times
 
 
 @pytest.mark.parametrize("seed", range(5))

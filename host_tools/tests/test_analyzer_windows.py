@@ -11,22 +11,26 @@ pytestmark = needs_native()
 
 from host_tools import _native  # noqa: E402
 
-from host_tools.analyzer import replay as R  # noqa: E402
+from host_tools.analyzer.prepare import inputs as PI  # noqa: E402
+from host_tools.analyzer.prepare import run as PR  # noqa: E402
+from host_tools.analyzer.replay import anchors as AN  # noqa: E402
+from host_tools.analyzer.replay import channels as CH  # noqa: E402
+from host_tools.analyzer.replay import openloop as OL  # noqa: E402
 from host_tools.analyzer import synth  # noqa: E402
 from host_tools.runfmt import load_run  # noqa: E402
 
 
 def test_windows_cover_the_run_and_split_at_gaps():
     t = np.arange(0.0, 2.9, 0.02)
-    assert R.make_windows(t) == [(0, t.size)]            # a short run: one window
+    assert PR.make_windows(t) == [(0, t.size)]            # a short run: one window
     t = np.arange(0.0, 40.0, 0.02)
-    w = R.make_windows(t)
+    w = PR.make_windows(t)
     assert w[0][0] == 0 and w[-1][1] == t.size and len(w) == 10
     assert all(a1 == b0 for (_, a1), (b0, _) in zip(w[:-1], w[1:]))   # contiguous
     spans = [t[b - 1] - t[a] for a, b in w]
     assert max(spans) < 4.1 and min(spans) > 3.9
     tg = np.concatenate([np.arange(0.0, 2.0, 0.02), 100.0 + np.arange(0.0, 2.0, 0.02)])
-    w = R.make_windows(tg)                               # a gap ends a window
+    w = PR.make_windows(tg)                               # a gap ends a window
     assert w == [(0, 100), (100, 200)]
 
 
@@ -43,27 +47,27 @@ class _SlightlyNarrow:
 def test_a_long_null_stays_a_null_in_windows(tmp_path):
     path = synth.make_run(tmp_path / "long", "turn", duration_s=40.0, seed=3,
                           plant_factory=_SlightlyNarrow)
-    prep = R.prepare_timed(load_run(path))
+    prep = PI.prepare_timed(load_run(path))
     assert len(prep.windows) == 10
-    rp = R.OpenLoopReplay("duty")
-    one = R.channels(prep, rp.simulate(prep, {}))                  # one integration over 40 s
-    win = R.channels(prep, rp.simulate_windows(prep, {}))
+    rp = OL.OpenLoopReplay("duty")
+    one = CH.channels(prep, rp.simulate(prep, {}))                  # one integration over 40 s
+    win = CH.channels(prep, rp.simulate_windows(prep, {}))
     rms = lambda c: float(np.sqrt(np.mean(c.resid ** 2)))  # noqa: E731
     # one integration drifts by centimetres; windows stay at the camera noise (1 mm)
     assert max(rms(one["x_m"]), rms(one["y_m"])) > 3e-3
     assert rms(win["x_m"]) < 1.5e-3 and rms(win["y_m"]) < 1.5e-3
     # the recorder (synth integrates at the ticks) is recognised as such
-    rec = prep.extras["recorder_odometry"]
+    rec = prep.recorder_odometry
     assert rec["schedule"] == "ticks" and rec["agrees"]
 
 
 def test_fit_windows_hold_the_mismatch_and_a_spread(tmp_path):
-    from host_tools.analyzer.analysis import noise_floors
-    from host_tools.analyzer.fit import Problem
+    from host_tools.analyzer.locate import noise_floors
+    from host_tools.analyzer.fit.problem import Problem
     path = synth.make_run(tmp_path / "emf", "turn", {"motor_back_emf": {"ke_ratio": 1.15}},
                           duration_s=60.0, seed=4)
-    prep = R.prepare_timed(load_run(path))
-    nominal = [R.channels(prep, R.OpenLoopReplay("duty").simulate_windows(prep, {}))]
+    prep = PI.prepare_timed(load_run(path))
+    nominal = [CH.channels(prep, OL.OpenLoopReplay("duty").simulate_windows(prep, {}))]
     floors = noise_floors([prep], nominal)
     pb = Problem([prep], floors, _native.effect_vocabulary())
     sel = pb.select_windows(nominal, budget_s=16.0)
@@ -79,7 +83,7 @@ def test_gap_and_board_clock_offset_are_handled_in_bounded_time(tmp_path):
     import time
 
     from host_tools import runfmt
-    from host_tools.analyzer.analysis import analyze
+    from host_tools.analyzer.pipeline import analyze
     src = synth.make_run(tmp_path / "src", "turn", duration_s=8.0, seed=5)
     run = load_run(src)
     tel = {k: np.asarray(v) for k, v in run.telemetry.items()}
@@ -87,7 +91,7 @@ def test_gap_and_board_clock_offset_are_handled_in_bounded_time(tmp_path):
     shift = lambda t: 1e5 + t + np.where(t > 4.0, 100.0, 0.0)  # noqa: E731
     tel["t_s"], gt["t_s"] = shift(tel["t_s"]), shift(gt["t_s"])
     runfmt.write_run(tmp_path / "gap", run.meta, tel, gt, overwrite=True)
-    prep = R.prepare_timed(load_run(tmp_path / "gap"))
+    prep = PI.prepare_timed(load_run(tmp_path / "gap"))
     t = prep.run.telemetry["t_s"]
     assert any(t[b - 1] < 1e5 + 4.01 and t[b] > 1e5 + 100 for a, b in prep.windows if b < t.size) \
         or any(t[a] > 1e5 + 100 and t[a - 1] < 1e5 + 4.01 for a, _ in prep.windows if a > 0)
@@ -102,17 +106,17 @@ def test_a_window_is_re_anchored_in_heading_too(tmp_path, monkeypatch):
     is compared turned onto the anchor's heading: the camera channels stay at the camera's
     noise instead of drifting sideways by the heading error times the distance."""
     path = synth.make_run(tmp_path / "long", "turn", duration_s=20.0, seed=4)
-    prep = R.prepare_timed(load_run(path))
-    rp = R.OpenLoopReplay("duty")
+    prep = PI.prepare_timed(load_run(path))
+    rp = OL.OpenLoopReplay("duty")
     rms = lambda c: float(np.sqrt(np.mean(c.resid[c.seg >= 1] ** 2)))  # noqa: E731
-    base = R.channels(prep, rp.simulate_windows(prep, {}))
-    start = R.window_start
+    base = CH.channels(prep, rp.simulate_windows(prep, {}))
+    start = AN.window_start
 
     def off_by_10_mrad(p, w):
         t0, pose, vel = start(p, w)
         return t0, (pose[0], pose[1], pose[2] + (0.01 if w else 0.0)), vel
-    monkeypatch.setattr(R, "window_start", off_by_10_mrad)
-    turned = R.channels(prep, rp.simulate_windows(prep, {}))
+    monkeypatch.setattr(AN, "window_start", off_by_10_mrad)
+    turned = CH.channels(prep, rp.simulate_windows(prep, {}))
     # the heading channel is re-anchored by an offset and does not show it ...
     assert rms(turned["phi_rad"]) < 1.5 * rms(base["phi_rad"]) + 1e-3
     # ... and the positions do not drift with it (10 mrad over a 4 s window is ~1 cm)

@@ -203,7 +203,7 @@ def test_bad_input_exit_2_with_where_and_no_traceback(tmp_path, capsys, monkeypa
     run = _base(tmp_path / "run")
     attack(run)
     # the analysis itself must never start on bad input: the runs are validated first
-    import host_tools.analyzer.analysis as analysis
+    import host_tools.analyzer.pipeline as analysis
     monkeypatch.setattr(analysis, "analyze", lambda *a, **k: pytest.fail("analysis started"))
     rc = cli(["analyze", str(run), "--out", str(tmp_path / "out"), "--no-plots"])
     err = capsys.readouterr().err
@@ -233,7 +233,7 @@ OPTION_CASES = {
 def test_every_analyzer_option_is_bounded(tmp_path, capsys, monkeypatch, name):
     extra, expect = OPTION_CASES[name]
     run = _base(tmp_path / "run")
-    import host_tools.analyzer.analysis as analysis
+    import host_tools.analyzer.pipeline as analysis
     monkeypatch.setattr(analysis, "analyze", lambda *a, **k: pytest.fail("analysis started"))
     rc = cli(["analyze", str(run), "--out", str(tmp_path / "out"), *extra])
     err = capsys.readouterr().err
@@ -261,7 +261,7 @@ def test_out_that_cannot_be_created_is_refused_before_reading_or_analysis(
     blocker.write_text("x")
     out = {"existing file": blocker, "below a file": blocker / "sub",
            "under /proc": "/proc/no-such-dir/out"}[how]
-    import host_tools.analyzer.analysis as analysis
+    import host_tools.analyzer.pipeline as analysis
     monkeypatch.setattr(analysis, "analyze", lambda *a, **k: pytest.fail("analysis started"))
     monkeypatch.setattr(runfmt, "load_run", lambda *a, **k: pytest.fail("runs read first"))
     rc = cli(["analyze", str(run), "--out", str(out)])

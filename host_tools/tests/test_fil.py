@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from host_tools import fil
+from host_tools import firmware_id
 from host_tools import params
 from host_tools import protocol as P
 from host_tools import runfmt
@@ -135,6 +136,44 @@ def test_motor_outputs_read_back_as_the_commanded_duty(run48):
         assert np.all(np.abs(d) <= 1.5 / 800 + 1e-4), np.abs(d).max()
         print(f"\nduty read from the timers - duty reported by the firmware ({w}): median {np.median(d) * 800:+.2f}"
               " PWM counts", end="")
+
+
+def test_current_sense_reads_the_plant_armature_current(run48):
+    # the firmware's own ADC code (A0/A1, AVcc reference) measures the plant's armature current
+    # through the shield's volts per ampere (protocol.json current_sense): each frame reports the
+    # conversion pair its previous telemetry period started (adc_samples.csv: the sample instants)
+    out, _, s = run48
+    tel, adc, pl = csv(out / "telemetry.csv"), csv(out / "adc_samples.csv"), csv(out / "plant.csv")
+    cs = D.current_sense
+    lsb_a = cs["adc_vref_v"] / 2 ** cs["adc_bits"] / cs["volts_per_amp"]
+    csv_a = 0.5e-4  # telemetry.csv's current columns have 4 decimals
+    for w, name in ((0, "r"), (1, "l")):
+        t_sh, i_sh = adc["t_s"][adc["wheel"] == w], adc["current_a"][adc["wheel"] == w]
+        k = np.searchsorted(t_sh, tel["t_s"]) - 1  # the last sample before the frame
+        ok = (k >= 0) & (tel["t_s"] - t_sh[np.clip(k, 0, None)] < 0.025)
+        meas, k = tel[f"current_{name}_a"][ok], k[ok]
+        assert ok.sum() >= 70
+        # the ADC rounds: half a count of the current it sampled
+        err = meas - np.abs(i_sh[k])
+        assert np.all(np.abs(err) <= 0.5 * lsb_a + csv_a), np.abs(err).max() / lsb_a
+        # the plant's own record: the step that holds the sample instant, within one count plus
+        # the model's ripple (the change to the steps either side)
+        j = np.clip(np.searchsorted(pl["t_s"], t_sh[k]), 1, pl["t_s"].size - 2)
+        i_pl = np.abs(pl[f"current_{name}_a"])
+        ripple = np.maximum(np.abs(i_pl[j - 1] - i_pl[j]), np.abs(i_pl[j + 1] - i_pl[j]))
+        err_pl = np.abs(meas - i_pl[j])
+        assert np.all(err_pl <= lsb_a + ripple + csv_a), float(np.max(err_pl - ripple) / lsb_a)
+        assert meas.max() > 0.2, meas.max()  # currents well above the resolution were measured
+        print(f"\ncurrent sense ({name}): {meas.size} frames, max {meas.max():.3f} A, "
+              f"|frame - sampled| <= {np.abs(err).max() / lsb_a:.3f} counts, "
+              f"|frame - plant| - ripple <= {np.max(err_pl - ripple) / lsb_a:.3f} counts", end="")
+    assert s["current_sense"]["samples"] >= 2 * 70
+
+
+def test_meta_carries_the_builds_firmware_id(run48):
+    out, _, _ = run48
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["logger"]["firmware_id"] == firmware_id.revision(fil.ROOT)[1] != "unknown"
 
 
 def test_no_task_overran_and_cycles_reported(run48):

@@ -209,7 +209,7 @@ _NOT_COPIES = {
     ("bench/logger/avr_codec_cycles.cpp", "36.65"): "arbitrary inputs of the codec cycle benchmark",
     ("bench/logger/avr_codec_cycles.cpp", "0.095"): "arbitrary inputs of the codec cycle benchmark",
     ("bench/logger/avr_codec_cycles.cpp", "0.77"): "arbitrary inputs of the codec cycle benchmark",
-    ("host_tools/analyzer/analysis.py", "0.77"): "analyzer score figures in a comment",
+    ("host_tools/analyzer/select.py", "0.77"): "analyzer score figures in a comment",
     ("host_tools/suite/cases.py", "0.055"): "a load_transfer effect size (h), not d",
 }
 #: The same for the tests, which take the table's values from host_tools.params (Python) and

@@ -134,3 +134,16 @@ def test_link_budget_figures_in_the_readmes_are_the_definitions():
     top = (ROOT / "README.md").read_text()
     assert f"A telemetry frame is {wire} bytes on the wire ({payload} payload bytes" in top
     assert f"{wire} B frames at {rate} Hz = {per_s:,} B/s, {pct:.0f} % of" in top
+
+
+def test_current_scale_is_the_current_sense():
+    """The telemetry's ampere scale derives from current_sense (one home for the V/A);
+    a sense gain that no longer matches the scale is refused, and the header carries it."""
+    gen = _generator()
+    defn = gen.load()
+    vpa = gen.c_float(defn["current_sense"]["volts_per_amp"])
+    assert f"kCurrentSenseVoltsPerAmp = {vpa};" in gen.render_header(defn)
+    bad = copy.deepcopy(defn)
+    bad["current_sense"]["volts_per_amp"] *= 1.01
+    with pytest.raises(gen.DefinitionError, match="current_sense"):
+        gen.check(bad)

@@ -150,10 +150,12 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
 
 
 @pytest.mark.parametrize("which, size, n_nulls", [("heldback3", 20, 13), ("heldback4", 28, 18),
-                                                    ("heldback5", 25, 16)])
+                                                    ("heldback5", 25, 16),
+                                                    ("heldback6", 24, 11)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
-    order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5"]
+    order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
+             "heldback6"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -167,6 +169,27 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
         assert {c.recorder.get("tel_s", 0.02) for c in new} == {0.01, 0.02, 0.025, 0.04}
     if which == "heldback5":
         assert {c.length for c in new} == {"short", "20 s", "2 min", "10 min"}
+    if which == "heldback6":  # both engines, payload, long hard runs, two out of vocabulary
+        assert {c.engine for c in new} == {"truth", "mujoco"}
+        assert {c.engine for c in new if "payload" in c.effects} == {"truth", "mujoco"}
+        assert {c.engine for c in new if c.length == "1 min"} == {"truth", "mujoco"}
+        assert sum(c.expect == "unexplained" for c in new) == 2
+        assert any(not clamp for c in new for _, clamp, _ in c.experiments
+                   if c.length == "1 min")
+
+
+def test_mujoco_tuning_group():
+    """The MuJoCo engine's tuning group: every vocabulary effect and payload, nulls and long
+    runs of reversals, all on the MuJoCo engine, seeds apart from the held-back sets'."""
+    mj = cases.get(which="mujoco")
+    assert all(c.engine == "mujoco" and c.set == "mujoco" for c in mj)
+    named = {e for c in mj for e in c.true_effects}
+    assert named == set(cases.MAIN_PARAM)
+    assert sum(c.expect == "no_mismatch" for c in mj) >= 8
+    assert sum(c.length == "1 min" for c in mj) >= 5
+    held = {c.seed + k for w in cases.SETS if w.startswith("heldback")
+            for c in cases.get(which=w) for k in range(len(c.experiments))}
+    assert not held & {c.seed + k for c in mj for k in range(len(c.experiments))}
 
 
 def test_heldback_generation_deterministic_and_hidden(tmp_path):
@@ -211,3 +234,18 @@ def test_bench_stops_an_analyzer_past_its_time_limit(tmp_path):
     assert perf["peak_rss_mb"] > 10  # the python process was seen
     r = bench.score_case(case.label(), rc, report)
     assert r["verdict"] == "timeout" and not r["ok"]
+
+
+def test_engine_option_records_cases_on_mujoco(tmp_path):
+    """``--engine mujoco`` records a tuning case on the MuJoCo model: the label says so, the
+    runs do not."""
+    pytest.importorskip("mujoco")
+    from host_tools.suite.__main__ import main
+    assert main(["generate", "--cases", "null_std", "--engine", "mujoco", "--out",
+                 str(tmp_path)]) == 0
+    lab = json.load(open(tmp_path / "labels" / "null_std.json"))
+    assert lab["engine"] == "mujoco" and lab["set"] == "tuning"
+    meta = open(tmp_path / "runs" / "null_std" / "run-0" / "meta.json").read()
+    assert "mujoco" not in meta.lower()
+    with pytest.raises(SystemExit):
+        main(["generate", "--cases", "null_std", "--engine", "bullet", "--out", str(tmp_path)])

@@ -1,6 +1,8 @@
 """The independent truth simulator (sim/truth): it agrees with lib/slipmodel where both model
 the same physics, every effect changes the recording, and its runs are valid run folders with
 the true state kept out of them."""
+import math
+
 import numpy as np
 import pytest
 
@@ -52,6 +54,7 @@ EFFECTS = {
     "motor_gain_asymmetry": {"ratio": 1.15}, "floor_slope": {"rad": 0.03},
     "eccentric_wheel": {"eps": 0.03}, "battery_sag": {"r_int": 1.0, "v_per_as": 0.5},
     "friction_patch": {"x0": 0.3, "x1": 0.8, "factor": 0.4},
+    "payload": {"mass_kg": 0.5},
 }
 
 
@@ -390,3 +393,86 @@ def test_telemetry_period_option(tmp_path):
             assert np.abs(a - base.telemetry[c][10:-10]).max() < 0.05 * np.ptp(base.telemetry[c])
     with pytest.raises(ValueError):
         truth.recorder_config(tel_s=0.0)
+
+
+def test_payload_is_mass_at_c():
+    """payload.mass_kg: m_r + mass_kg at c, I_rz unchanged: the normal forces carry it (the
+    caster m g d/(d+e)), and the same duties accelerate the robot less."""
+    m0 = ROBOT["m_r"] + 2 * ROBOT["m_w"]
+    for extra in (0.0, 0.6):
+        tel, _ = _open_loop(0.0, 0.0, T=0.1, **{"payload.mass_kg": extra})
+        W = (m0 + extra) * ROBOT["g"]
+        n = tel["true_N_r"][-1] + tel["true_N_l"][-1] + tel["true_N_c"][-1]
+        assert n == pytest.approx(W, rel=1e-9)
+        assert tel["true_N_c"][-1] == pytest.approx(W * ROBOT["d"] / (ROBOT["d"] + ROBOT["e"]))
+    light, _ = _open_loop(0.2, 0.2, T=0.3)
+    heavy, _ = _open_loop(0.2, 0.2, T=0.3, **{"payload.mass_kg": 0.6})
+    k = np.searchsorted(light["t_s"], 0.1)  # still accelerating: 4.4 against 3.9 rad/s
+    assert heavy["true_dtheta_r"][k] < light["true_dtheta_r"][k] - 0.3
+
+
+def test_external_plant_drives_the_recorder():
+    """tr_set_plant: the recorder (controller, encoders, telemetry, camera) runs on another
+    engine's state. A kinematic stand-in: wheel speed = duty x no-load speed, rolling."""
+    import ctypes
+    r, b, w0 = ROBOT["r"], ROBOT["b"], MOTOR["no_load_rad_s"]
+
+    class Kinematic:
+        error = None
+
+        def __init__(self):
+            self.s = [0.0] * 17
+            self.calls = 0
+
+        def plant_callback(self):
+            proto = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_double,
+                                     ctypes.c_double, ctypes.c_double, ctypes.c_double,
+                                     ctypes.POINTER(ctypes.c_double))
+
+            def step(_u, t, dt, u_r, u_l, out):
+                s = self.s
+                s[5], s[6] = u_r * w0, u_l * w0
+                s[3] += dt * s[5]
+                s[4] += dt * s[6]
+                v, w = r * (s[5] + s[6]) / 2, r * (s[5] - s[6]) / (2 * b)
+                s[0] += dt * v * math.cos(s[2])
+                s[1] += dt * v * math.sin(s[2])
+                s[2] += dt * w
+                for i, x in enumerate(s):
+                    out[i] = x
+                self.calls += 1
+                return 0
+            return proto(step)
+
+    sim = truth.TruthSim()
+    assert len(sim.plant_state_names()) == 17 and sim.plant_state_names()[:3] == ["x_m", "y_m", "phi_rad"]
+    k = Kinematic()
+    sim.set_plant(k)
+    for key, v in {"ref.kind": 1, "ref.accel": 0.8, "ref.cruise": 0.5, "ref.radius": 0.5,
+                   "sim.duration": 2.0, "sim.tel_phase": 0.0}.items():
+        sim.set(key, v)
+    tel, cam = sim.run()
+    assert k.calls == round(2.0 / sim.get("sim.dt"))
+    # the encoders count the stand-in's wheel angles, the camera sees its pose
+    th = np.array(k.s[3:5])
+    assert tel["enc_r"][-1] == np.floor(th[0] * PPR / (2 * math.pi))
+    assert cam["x_m"][-1] == pytest.approx(tel["true_x_m"][-1], abs=0.02)
+    # the cascade drives the stand-in around the arc: the heading grows by v/R
+    assert tel["true_phi_rad"][-1] > 1.0
+    sim.set_plant(None)
+    own, _ = sim.run()
+    assert own["true_x_m"][-1] != tel["true_x_m"][-1]
+
+
+def test_reversal_reference():
+    ref = truth.reversal_reference(60.0, seed=3)
+    segs = ref["segments"]
+    assert ref["kind"] == "segments" and ref["accel"] == 1.2 and ref["alpha"] == 6.0
+    assert sum(s["duration_s"] for s in segs) == pytest.approx(60.0)
+    assert segs[-1]["v"] == 0 and segs[-1]["omega"] == 0
+    v = [s["v"] for s in segs]
+    assert max(v) > 1.1 and min(v) < -0.5  # fast cruises, both ways
+    assert any(a * b < 0 for a, b in zip(v, v[1:]))  # a direct reversal
+    w = [s["omega"] for s in segs if s["v"] == 0 and s["omega"]]
+    assert w and min(w) < 0 < max(w)  # spins both ways
+    assert truth.reversal_reference(60.0, seed=3) == ref != truth.reversal_reference(60.0, seed=4)

@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <simavr/avr_adc.h>
 #include <simavr/sim_cycle_timers.h>
 #include <simavr/sim_elf.h>
 #include <simavr/sim_interrupts.h>
@@ -23,14 +24,8 @@ static void no_wall_sleep(avr_t *avr, avr_cycle_count_t how_long) {
     (void)how_long;
 }
 
-int avrsim_open(avrsim_t *s, const char *elf_path, char *err, size_t err_len) {
+int avrsim_open_blank(avrsim_t *s, char *err, size_t err_len) {
     memset(s, 0, sizeof *s);
-    elf_firmware_t fw;
-    memset(&fw, 0, sizeof fw);
-    if (elf_read_firmware(elf_path, &fw)) {
-        snprintf(err, err_len, "libsimavr cannot load %s", elf_path);
-        return -1;
-    }
     s->avr = avr_make_mcu_by_name(AVRSIM_MCU);
     if (!s->avr) {
         snprintf(err, err_len, "libsimavr has no %s", AVRSIM_MCU);
@@ -39,6 +34,19 @@ int avrsim_open(avrsim_t *s, const char *elf_path, char *err, size_t err_len) {
     avr_init(s->avr);
     s->avr->frequency = AVRSIM_F_CPU_HZ;
     s->avr->log = 0;
+    s->avr->sleep = no_wall_sleep;
+    return 0;
+}
+
+int avrsim_open(avrsim_t *s, const char *elf_path, char *err, size_t err_len) {
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof fw);
+    if (elf_read_firmware(elf_path, &fw)) {
+        memset(s, 0, sizeof *s);
+        snprintf(err, err_len, "libsimavr cannot load %s", elf_path);
+        return -1;
+    }
+    if (avrsim_open_blank(s, err, err_len)) return -1;
     avr_load_firmware(s->avr, &fw);
     s->avr->sleep = no_wall_sleep;
     return 0;
@@ -149,6 +157,43 @@ void avrsim_clear_isr_stats(avrsim_t *s) {
 }
 
 void avrsim_abandon_isrs(avrsim_t *s) { s->depth = 0; }
+
+/* ------------------------------------------------------------------------------ ADC */
+static avr_cycle_count_t adc_sample_now(avr_t *avr, avr_cycle_count_t when, void *param) {
+    (void)avr;
+    avrsim_t *s = (avrsim_t *)param;
+    if (s->adc_fn && s->adc_channel >= 0) s->adc_fn(s->adc_ctx, s->adc_channel, when);
+    return 0;
+}
+
+static void adc_started(avr_irq_t *irq, uint32_t value, void *param) {
+    (void)irq;
+    avrsim_t *s = (avrsim_t *)param;
+    union { avr_adc_mux_t mux; uint32_t v; } e;
+    e.v = value;
+    s->adc_channel = e.mux.kind == ADC_MUX_SINGLE ? (int)e.mux.src : -1;
+    ++s->adc_conversions;
+    /* ADC clock: the prescaler of ADCSRA's ADPS bits (0 divides by 2, as 1) */
+    unsigned adps = s->avr->data[ADCSRA] & 7u;
+    avr_cycle_count_t div = 1u << (adps ? adps : 1u);
+    avr_cycle_timer_register(s->avr, div * AVRSIM_ADC_SH_CLOCKS_X2 / 2u, adc_sample_now, s);
+}
+
+void avrsim_adc_sampler(avrsim_t *s, void (*fn)(void *ctx, int channel, avr_cycle_count_t when), void *ctx) {
+    s->adc_fn = fn;
+    s->adc_ctx = ctx;
+    s->adc_channel = -1;
+    s->avr->avcc = 1023u * AVRSIM_ADC_SUBCOUNTS;
+    avr_irq_register_notify(avr_io_getirq(s->avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_started, s);
+}
+
+void avrsim_adc_input(avrsim_t *s, int channel, double vin_over_avcc) {
+    double f = vin_over_avcc > 1.0 ? 1.0 : vin_over_avcc > 0.0 ? vin_over_avcc : 0.0; /* NaN -> 0 */
+    /* simavr: code = value * 1023 / avcc, truncated; value = (Vin/AVcc 1024 + 0.5) SUB rounds */
+    double v = (f * 1024.0 + 0.5) * AVRSIM_ADC_SUBCOUNTS;
+    uint32_t value = v > 1023.0 * AVRSIM_ADC_SUBCOUNTS ? 1023u * AVRSIM_ADC_SUBCOUNTS : (uint32_t)v;
+    avr_raise_irq(avr_io_getirq(s->avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0 + channel), value);
+}
 
 uint16_t avrsim_rd16(const avrsim_t *s, uint16_t addr) {
     return (uint16_t)(s->avr->data[addr] | (s->avr->data[addr + 1] << 8));

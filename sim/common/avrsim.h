@@ -43,6 +43,20 @@ extern "C" {
  *    instruction as well.
  * Not corrected, because simavr already charges the datasheet's figure (the self-test checks):
  *    RETI 5 cycles (3-byte PC popped), the vector's JMP 3 cycles. */
+/* ---- ADC inputs (sim/common/README.md, "ADC") ---------------------------------------------
+ * 4. Conversion: the ATmega2560 gives ADC = Vin 1024 / Vref (datasheet, "ADC Conversion Result"),
+ *    its ideal first transition at 0.5 LSB ("ADC Accuracy Definitions"), i.e. rounded; simavr 1.6 computes value 1023 / vref
+ *    truncated, from integer millivolts held in 16 bits. avrsim_adc_input hands simavr the input
+ *    and AVcc in units of Vref / (1024 AVRSIM_ADC_SUBCOUNTS) (1023 x 64 fits the 16 bits), so that
+ *    its arithmetic gives the datasheet's code to 1/64 count (AVcc reference only: the internal
+ *    1.1 V / 2.56 V references are not rescaled).
+ * 5. Sample instant: the hardware samples 1.5 ADC clocks after ADSC is set ("Prescaling and
+ *    Conversion Timing"; 13.5 for the first conversion after ADEN); simavr reads its input value when the program reads ADCL.
+ *    avrsim_adc_sampler calls the harness back at the sample instant of every conversion, which
+ *    then sets that channel's input once (held until the next conversion of that channel). */
+#define AVRSIM_ADC_SUBCOUNTS 64u
+#define AVRSIM_ADC_SH_CLOCKS_X2 3u /* 1.5 ADC clocks */
+
 #define AVRSIM_IRQ_RESPONSE_CYCLES 5u
 #define AVRSIM_WAKE_CYCLES 5u
 #define AVRSIM_RETI_CYCLES 5u /* as simavr charges it: 1 + 1 + 3-byte PC */
@@ -79,11 +93,19 @@ typedef struct avrsim {
     unsigned long left_cycles;       /* that invocation's own cycles */
     avr_flashaddr_t pc_before;       /* program address of the step (byte address) */
     avr_cycle_count_t cycle_before;  /* cycle count before the step */
+    /* avrsim_adc_sampler */
+    void (*adc_fn)(void *ctx, int channel, avr_cycle_count_t when);
+    void *adc_ctx;
+    int adc_channel;        /* single-ended channel of the conversion in progress, -1 if other */
+    unsigned long adc_conversions;
 } avrsim_t;
 
 /* Loads `elf_path` into a new ATmega2560 at AVRSIM_F_CPU_HZ, simavr's logging off. Returns 0,
  * or -1 with a message in err. */
 int avrsim_open(avrsim_t *s, const char *elf_path, char *err, size_t err_len);
+/* A new ATmega2560 at AVRSIM_F_CPU_HZ with erased flash (all 0xFF), for a harness that writes
+ * the flash itself (a bootloader image); simavr's logging off. Returns 0, or -1 with a message. */
+int avrsim_open_blank(avrsim_t *s, char *err, size_t err_len);
 
 /* One instruction (or one sleeping interval up to the next simavr cycle timer) with the
  * corrections above and the ISR accounting. Returns the core state (cpu_Running, ...). */
@@ -102,6 +124,13 @@ void avrsim_clear_isr_stats(avrsim_t *s);
 
 /* Forgets the invocations in progress (a reset abandons them). */
 void avrsim_abandon_isrs(avrsim_t *s);
+
+/* ADC (corrections 4 and 5): sets simavr's AVcc to the scaled reference and calls
+ * fn(ctx, channel, cycle) at the sample instant of every single-ended conversion (channel 0-15);
+ * fn then calls avrsim_adc_input. Call once after avrsim_open; a reset keeps it. */
+void avrsim_adc_sampler(avrsim_t *s, void (*fn)(void *ctx, int channel, avr_cycle_count_t when), void *ctx);
+/* Input of single-ended channel `channel` as a fraction of AVcc (clipped to [0, 1]). */
+void avrsim_adc_input(avrsim_t *s, int channel, double vin_over_avcc);
 
 /* 16-bit little-endian value in data space. */
 uint16_t avrsim_rd16(const avrsim_t *s, uint16_t addr);

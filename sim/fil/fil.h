@@ -9,10 +9,12 @@
  *              of a count boundary becomes one quadrature edge on PD0..PD3, scheduled as a
  *              simavr cycle timer at the cycle of the crossing (so edges wake a sleeping core
  *              at the right cycle, not once per step).
+ *   current    the shield's sense outputs: at each ADC conversion's sample instant, A0/A1 get
+ *              |armature current| (the plant's) x protocol.json's volts per ampere.
  *   XBee       USART2 <-> a pseudo-terminal (its path is printed: "PTY /dev/pts/N"); the host
  *              sees the same bytes as from the radio. Host bytes are delivered at the line
  *              rate (10 bits per byte at the USART's actual baud rate).
- *   recording  groundtruth.csv (camera model), plant.csv (true plant state) and fil.json
+ *   recording  groundtruth.csv (camera model), plant.csv (true plant state), adc_samples.csv, fil.json
  *              (measurements, link statistics) in --run-dir, all on the board clock (Timer5,
  *              which the firmware's time_us() counts, started at its first boot).
  * Interrupt timing: sim/common's corrections (avrsim_step), as in sim/isr_bench.
@@ -22,6 +24,7 @@
  *   options.cpp   command line            avr.cpp       libsimavr set-up, stepping, board clock
  *   plant.cpp     plant coupling, pacing  encoders.cpp  quadrature edges from the wheel angles
  *   link.cpp      XBee link (pty, USART2, corruption, telemetry tap)
+ *   sense.cpp     current sense (ADC inputs A0/A1)
  *   recorder.cpp  groundtruth.csv, plant.csv, encoder_samples.csv, fil.json
  *   main.cpp      the run loop
  */
@@ -201,6 +204,13 @@ struct Fil {
     void host_byte(uint8_t b);
     bool poll_host();
     void on_uart_out(uint32_t value);
+
+    // sense.cpp: the shield's current sense (A0 right, A1 left) through the ADC
+    FILE* adc_f = nullptr;  // adc_samples.csv
+    unsigned long adc_samples = 0;
+    double sense_max_a[2] = {0, 0};
+    void setup_sense();
+    void sense_sample(int channel, avr_cycle_count_t when);
 
     // recorder.cpp
     FILE* gt_f = nullptr;

@@ -28,6 +28,7 @@ int main(int argc, char** argv) {
     f.open_recording();
     f.setup_avr();
     f.setup_encoders();
+    f.setup_sense();
     f.setup_link();
     printf("PTY %s\n", f.pty_name.c_str());
     fflush(stdout);

@@ -17,29 +17,32 @@ void Fil::open_recording() {
     gt_f = fopen(gp.c_str(), "w");
     plant_f = fopen(pp.c_str(), "w");
     snap_f = fopen((opt.run_dir + "/encoder_samples.csv").c_str(), "w");
-    if (!gt_f || !plant_f || !snap_f) die("cannot write in %s: %s", opt.run_dir.c_str(), strerror(errno));
+    adc_f = fopen((opt.run_dir + "/adc_samples.csv").c_str(), "w");
+    if (!gt_f || !plant_f || !snap_f || !adc_f) die("cannot write in %s: %s", opt.run_dir.c_str(), strerror(errno));
     fprintf(gt_f, "t_s,x_m,y_m,phi_rad\n");
     fprintf(snap_f, "t_s,counts_true_r,counts_true_l,edges_driven_r,edges_driven_l,boot\n");
+    fprintf(adc_f, "t_s,wheel,current_a,sense_v\n");
     fprintf(plant_f, "t_s,x_m,y_m,phi_rad,v_m_s,w_m_s,omega_rad_s,theta_r_rad,theta_l_rad,dtheta_r_rad_s,"
                      "dtheta_l_rad_s,duty_r,duty_l,tau_r_nm,tau_l_nm,slipping_r,slipping_l,enc_pins_r,enc_pins_l,"
-                     "counts_true_r,counts_true_l\n");
+                     "counts_true_r,counts_true_l,current_r_a,current_l_a\n");
 }
 
 void Fil::close_recording() {
     fclose(gt_f);
     fclose(plant_f);
     fclose(snap_f);
-    gt_f = plant_f = snap_f = nullptr;
+    fclose(adc_f);
+    gt_f = plant_f = snap_f = adc_f = nullptr;
 }
 
 void Fil::write_plant_row(const slip::PlantState& s, double t) {
     if (!plant_f || t < 0) return;
     fprintf(plant_f,
-            "%.6f,%.9f,%.9f,%.9f,%.6f,%.6f,%.6f,%.6f,%.6f,%.6f,%.6f,%.5f,%.5f,%.6f,%.6f,%d,%d,%ld,%ld,%.3f,%.3f\n",
+            "%.6f,%.9f,%.9f,%.9f,%.6f,%.6f,%.6f,%.6f,%.6f,%.6f,%.6f,%.5f,%.5f,%.6f,%.6f,%d,%d,%ld,%ld,%.3f,%.3f,%.6f,%.6f\n",
             t, s.x_m, s.y_m, s.phi_rad, s.v_m_s, s.w_m_s, s.omega_rad_s, s.theta_r_rad, s.theta_l_rad,
             s.dtheta_r_rad_s, s.dtheta_l_rad_s, duty[0], duty[1], s.tau_r_nm, s.tau_l_nm,
             s.slipping_r ? 1 : 0, s.slipping_l ? 1 : 0, pos_now[0], pos_now[1],
-            s.theta_r_rad * counts_per_rad(), s.theta_l_rad * counts_per_rad());
+            s.theta_r_rad * counts_per_rad(), s.theta_l_rad * counts_per_rad(), plant.current_a(0), plant.current_a(1));
 }
 
 // camera samples at board times k / cam_rate inside (t0, t1], interpolated linearly
@@ -124,6 +127,8 @@ void Fil::write_summary(double wall_s) {
                " \"illegal_max_r\": %u, \"illegal_max_l\": %u, \"jitter_us\": %g, \"glitch_p\": %g, \"pin_conflicts\": %lu,\n    \"snapshot_calls\": %lu, \"frames_counts_not_edges_driven\": %lu, \"max_snapshot_to_t_us_s\": %.7f},\n",
             enc_checked, enc_err_max[0], enc_err_max[1], illegal_max[0], illegal_max[1], opt.enc_jitter_us, opt.enc_glitch,
             pin_conflicts, snap_calls, enc_pin_mismatch, snap_lag_max);
+    fprintf(f, "  \"current_sense\": {\"samples\": %lu, \"max_abs_current_r_a\": %.6f, \"max_abs_current_l_a\": %.6f},\n",
+            adc_samples, sense_max_a[0], sense_max_a[1]);
     fprintf(f, "  \"slip\": {\"steps_slipping_r\": %lu, \"steps_slipping_l\": %lu, \"max_slip_speed_m_s\": %.6f},\n",
             steps_slipping[0], steps_slipping[1], max_slip_speed);
     const slip::PlantState& s = plant.state();

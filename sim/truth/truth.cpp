@@ -73,6 +73,7 @@ const KeyDef kKeys[] = {
     {"deadband.volts", 0.0, 0, 50},
     {"motor_gain_asymmetry.ratio", 1.0, 0.1, 10},
     {"floor_slope.rad", 0.0, -0.5, 0.5},
+    {"payload.mass_kg", 0.0, 0, 50},         // extra mass at c: m_r + mass_kg, I_rz unchanged
     {"eccentric_wheel.eps", 0.0, 0, 0.3},    // r(theta) = r (1 + eps cos(theta + phase))
     {"eccentric_wheel.phase_r", 0.0, -10, 10},
     {"eccentric_wheel.phase_l", 1.3, -10, 10},
@@ -95,6 +96,13 @@ const char* const kTelCols[] = {
     "true_slip_l", "true_tau_r_nm", "true_tau_l_nm", "true_N_r", "true_N_l", "true_N_c",
     "true_v_batt", "clamped", "true_i_r_a", "true_i_l_a"};
 const int kTelColCount = static_cast<int>(sizeof(kTelCols) / sizeof(kTelCols[0]));
+// what an external plant (tr_set_plant) reports after each step
+const char* const kPlantState[] = {"x_m", "y_m", "phi_rad", "theta_r", "theta_l", "dtheta_r", "dtheta_l",
+                                   "slip_r", "slip_l", "tau_r_nm", "tau_l_nm", "N_r", "N_l", "N_c",
+                                   "v_batt", "i_r_a", "i_l_a"};
+const int kPlantStateCount = static_cast<int>(sizeof(kPlantState) / sizeof(kPlantState[0]));
+typedef int (*PlantStepFn)(void* user, double t_s, double dt_s, double duty_r, double duty_l, double* state);
+
 const char* const kCamCols[] = {"t_s", "x_m", "y_m", "phi_rad"};
 const int kCamColCount = 4;
 
@@ -102,6 +110,8 @@ struct Handle {
   double v[sizeof(kKeys) / sizeof(kKeys[0])];
   char err[256];
   std::vector<double> seg_dur, seg_v, seg_w;  // ref.kind 3: segment durations, targets v, omega
+  PlantStepFn plant = nullptr;                // external plant (tr_set_plant) or this file's physics
+  void* plant_user = nullptr;
   Handle() {
     for (int i = 0; i < kKeyCount; ++i) v[i] = kKeys[i].def;
     err[0] = '\0';
@@ -379,6 +389,16 @@ int tr_set(void* p, const char* key, double value) {
   return 0;
 }
 
+int tr_set_plant(void* p, void* fn, void* user) {
+  if (!p) return -3;
+  Handle* h = static_cast<Handle*>(p);
+  h->plant = reinterpret_cast<PlantStepFn>(fn);
+  h->plant_user = user;
+  return 0;
+}
+int tr_plant_state_count(void) { return kPlantStateCount; }
+const char* tr_plant_state_name(int i) { return (i >= 0 && i < kPlantStateCount) ? kPlantState[i] : nullptr; }
+
 int tr_set_segments(void* p, int n, const double* dur, const double* v, const double* w) {
   if (!p || n < 0 || (n > 0 && (!dur || !v || !w))) return -3;
   Handle* h = static_cast<Handle*>(p);
@@ -413,7 +433,7 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   const double mu_s = H("robot.mu_s"), mu_k = fmin(H("robot.mu_k"), mu_s);
   const double b = H("robot.b"), e = H("robot.e"), d = H("robot.d"), g = H("robot.g");
   const double h_lat = H("robot.h");
-  const double m = H("robot.m_r") + 2.0 * H("robot.m_w");
+  const double m = H("robot.m_r") + H("payload.mass_kg") + 2.0 * H("robot.m_w");
   const double Ic = H("robot.I_rz") + 2.0 * (H("robot.I_wz") + H("robot.m_w") * b * b);
   const double Iw = H("robot.I_wy"), r0 = H("robot.r");
   const double V0 = H("motor.supply_v"), w0 = H("motor.no_load_rad_s"), stall = H("motor.stall_nm");
@@ -523,6 +543,9 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   double last_tau_r = 0, last_tau_l = 0;
   double cur_r = 0.0, cur_l = 0.0;  // armature currents (after the lag), A
   long tel_j = 0, tel_next = next_frame(0), tel_prev = -1;
+  const PlantStepFn ext = H.plant;
+  double ext_state[kPlantStateCount] = {0};
+  double xo_ext = 0.0, yo_ext = 0.0;  // an external plant's axle centre
 
   for (long n = 0; n <= n_steps; ++n) {
     const double t = n * dt;
@@ -590,7 +613,7 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
       const long slot = hist_n % kHist;
       hist_t[slot] = t; hist_r[slot] = io.pwm_r; hist_l[slot] = io.pwm_l; ++hist_n;
     }
-    const double xo = X - d * ct, yo = Y - d * st;
+    const double xo = ext ? xo_ext : X - d * ct, yo = ext ? yo_ext : Y - d * st;
     while (tel_next <= tel_prev || tel_next < 0) tel_next = next_frame(++tel_j);  // frames stay in order
     if (n == tel_next) {
       tel_prev = n;
@@ -625,6 +648,17 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
       if (hist_t[i % kHist] <= t - delay + 1e-12) { u_r = hist_r[i % kHist]; u_l = hist_l[i % kHist]; break; }
     u_r = fmax(-1.0, fmin(1.0, u_r));
     u_l = fmax(-1.0, fmin(1.0, u_l));
+    if (ext) {  // another engine's physics; the recorder above and below is unchanged
+      if (ext(H.plant_user, t, dt, u_r, u_l, ext_state) != 0) {
+        snprintf(H.err, sizeof H.err, "external plant failed at t = %g s", t);
+        return -2;
+      }
+      const double* s = ext_state;
+      xo_ext = s[0]; yo_ext = s[1]; phi = s[2]; th_r = s[3]; th_l = s[4]; q[3] = s[5]; q[4] = s[6];
+      stuck_r = s[7] == 0.0; stuck_l = s[8] == 0.0; last_tau_r = s[9]; last_tau_l = s[10];
+      N_r = s[11]; N_l = s[12]; N_c = s[13]; v_batt = s[14]; cur_r = s[15]; cur_l = s[16];
+      X = xo_ext; Y = yo_ext;  // for the divergence check below
+    } else {
     const double i_draw = (fabs(tau_del_r) + fabs(tau_del_l)) / k_t;
     charge_as += i_draw * dt;
     v_batt = V0 - r_int * i_draw - v_per_as * charge_as;
@@ -747,6 +781,7 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
     phi += dt * q[2];
     th_r += dt * q[3];
     th_l += dt * q[4];
+    }  // this file's physics
     if (segments) {
       double v1, w1, dv1, dw1;
       sref.at(t + dt, &v1, &w1, &dv1, &dw1);

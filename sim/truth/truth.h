@@ -65,6 +65,19 @@ int tr_tel_cols(void);
 const char* tr_tel_col_name(int i);
 int tr_cam_cols(void);
 const char* tr_cam_col_name(int i);
+/// External plant: the recorder above (board, controller, sensors, telemetry and camera timing)
+/// drives another physics engine instead of this file's. fn is a pointer to a function
+///   int step(void* user, double t_s, double dt_s, double duty_r, double duty_l, double* state)
+/// (passed as void* so that the C ABI stays scalar) called once per simulation step after the
+/// board: it gets the duties the board applies now (clipped to [-1, 1], before any actuation
+/// delay: the external engine models the whole drive), advances its plant from t_s to
+/// t_s + dt_s and writes tr_plant_state_count() values (tr_plant_state_name) at t_s + dt_s;
+/// a non-zero return stops the run (-2, "external plant failed"). The true-robot keys of this
+/// file's physics (robot.*, motor.* and the effects) are then unused; fn = NULL restores this
+/// file's own physics.
+int tr_set_plant(void* h, void* fn, void* user);
+int tr_plant_state_count(void);
+const char* tr_plant_state_name(int i);
 /// Run for sim.duration seconds. Fills tel (max_tel rows x tr_tel_cols) and cam (max_cam rows x
 /// tr_cam_cols), row-major; *n_tel and *n_cam get the row counts. Returns 0 or a negative code.
 int tr_run(void* h, int max_tel, double* tel, int* n_tel, int max_cam, double* cam, int* n_cam);

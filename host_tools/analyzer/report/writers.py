@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from host_tools.analyzer.analysis import REPORT_FORMAT, Analysis, _r
+from host_tools.analyzer.report.sections import REPORT_FORMAT, Analysis
+from host_tools.analyzer.signals import round_sig
 from host_tools.runfmt import display
 
 
@@ -31,23 +32,23 @@ def _finite(obj: Any) -> Any:
 def report_dict(an: Analysis) -> dict:
     cands = []
     for c in an.candidates:
-        entry = {"effect": c.name, "params": {}, "delta_bic": _r(c.delta_bic, 5),
-                 "heldout_rmse_before": _r(c.heldout_before), "heldout_rmse_after":
-                     _r(c.heldout_after),
+        entry = {"effect": c.name, "params": {}, "delta_bic": round_sig(c.delta_bic, 5),
+                 "heldout_rmse_before": round_sig(c.heldout_before), "heldout_rmse_after":
+                     round_sig(c.heldout_after),
                  "accepted": c.accepted, "checks": dict(c.checks), "why_not": c.reasons,
-                 "output_change_noise_floors": _r(c.output_size),
-                 "heldout_per_channel": {ch: {q: (_r(x) if isinstance(x, float) else x)
+                 "output_change_noise_floors": round_sig(c.output_size),
+                 "heldout_per_channel": {ch: {q: (round_sig(x) if isinstance(x, float) else x)
                                               for q, x in v.items()}
                                          for ch, v in c.heldout_per_channel.items()},
                  "param_std": {}, "unidentified": list(c.fit.unidentified)}
         for e, ps in c.fit.params.items():
             for k, v in ps.items():
                 key = k if len(c.effects) == 1 else f"{e}.{k}"
-                entry["params"][key] = _r(v, 5)
+                entry["params"][key] = round_sig(v, 5)
         # 1-sigma uncertainty of each fitted coordinate (e.g. mu_k_over_mu_s for friction)
         for (e, k), sd in zip(c.fit.coords, c.fit.std):
             key = k if len(c.effects) == 1 else f"{e}.{k}"
-            entry["param_std"][key] = _r(sd)
+            entry["param_std"][key] = round_sig(sd)
         cands.append(entry)
     return _finite({
         "format": REPORT_FORMAT,

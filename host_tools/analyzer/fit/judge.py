@@ -1,0 +1,244 @@
+"""A fitted candidate effect and its judgement: BIC, held-out error, size, physical
+possibility, per-channel veto."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from host_tools.analyzer import effects as fx
+from host_tools.analyzer.fit.params import FitResult, params_for
+from host_tools.analyzer.fit.problem import Problem, effective_n
+from host_tools.analyzer.replay.channels import DERIVED
+
+
+def delta_bic(rss1: float, rss0: float, n_eff: float, k: int) -> float:
+    """BIC(model) - BIC(nominal) with Gaussian errors of unknown variance over n_eff samples."""
+    if rss0 <= 0 or rss1 <= 0:
+        return 0.0
+    return float(n_eff * math.log(rss1 / rss0) + k * math.log(max(n_eff, 2.0)))
+
+
+@dataclass
+class Candidate:
+    effects: list[str]
+    fit: FitResult
+    delta_bic: float
+    heldout_before: float        # normalized held-out RMSE, nominal
+    heldout_after: float
+    heldout_channels_before: dict[str, float]
+    heldout_channels_after: dict[str, float]
+    fold_values: list[list[float]]
+    output_size: float           # RMS change of the fit channels, in noise floors
+    checks: dict[str, bool] = field(default_factory=dict)
+    reasons: list[str] = field(default_factory=list)
+    heldout_per_channel: dict = field(default_factory=dict)
+    # per channel: held-out residuals (unit of the channel) before and after, sample by sample
+    heldout_pairs: dict = field(default_factory=dict)
+    recorder_notes: list[str] = field(default_factory=list)
+
+    @property
+    def accepted(self) -> bool:
+        return bool(self.checks) and all(self.checks.values())
+
+    @property
+    def name(self) -> str:
+        return "+".join(self.effects)
+
+
+def evaluate_candidate(problem: Problem, names: Sequence[str], base: Mapping | None = None,
+                       x0: np.ndarray | None = None, ref_rss: float | None = None,
+                       ref_effects: Mapping | None = None) -> Candidate:
+    """Fit ``names`` on all runs, then held-out: leave one run out (several runs) or a time
+    split (one run).  Comparisons are against ``ref_effects`` (default: nominal)."""
+    runs = list(range(len(problem.preps)))
+    ref_effects = dict(ref_effects or {})
+    full = problem.fit(names, runs, x0=x0)
+    r_ref = problem.residual(ref_effects, runs)
+    rss_ref = float(np.sum(r_ref ** 2)) if ref_rss is None else ref_rss
+    n_eff = effective_n(r_ref)
+    k = full.n_free
+    dbic = delta_bic(full.rss, rss_ref, n_eff, k)
+    # held-out
+    folds: list[tuple[list[int], list[int], str, str]] = []
+    if len(runs) >= 2:
+        for i in runs:
+            folds.append(([j for j in runs if j != i], [i], "all", "all"))
+    else:
+        folds.append((runs, runs, "early", "late"))
+    sq_b = sq_a = 0.0
+    cnt = 0
+    ch_b: dict[str, list[float]] = {}
+    ch_a: dict[str, list[float]] = {}
+    pairs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    fold_values = []
+    res_b: dict[str, list[np.ndarray]] = {}
+    res_a: dict[str, list[np.ndarray]] = {}
+    for train, test, ptrain, ptest in folds:
+        f = problem.fit(names, train, part=ptrain, x0=full.x, max_nfev=25, fixed=full.fixed)
+        fold_values.append(f.values)
+        rb = problem.residual(ref_effects, test, ptest)
+        ra = problem.residual(f.params, test, ptest)
+        sq_b += float(np.sum(rb ** 2))
+        sq_a += float(np.sum(ra ** 2))
+        cnt += rb.size
+        cb = problem.channel_resids(ref_effects, test, ptest)
+        ca = problem.channel_resids(f.params, test, ptest)
+        for c in cb:
+            if c in ca and ca[c].size == cb[c].size:
+                res_b.setdefault(c, []).append(cb[c])
+                res_a.setdefault(c, []).append(ca[c])
+    for c in res_b:
+        vb, va = np.concatenate(res_b[c]), np.concatenate(res_a[c])
+        ch_b[c] = [float(np.sqrt(np.mean(vb ** 2)))]
+        ch_a[c] = [float(np.sqrt(np.mean(va ** 2)))]
+        pairs[c] = (vb, va)
+    hb = math.sqrt(sq_b / max(cnt, 1))
+    ha = math.sqrt(sq_a / max(cnt, 1))
+    rfit = problem.residual(full.params, runs)
+    size = float(np.sqrt(np.mean((rfit - r_ref) ** 2))) if r_ref.size == rfit.size else 0.0
+    rms = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
+    return Candidate(list(names), full, dbic, hb, ha,
+                     {c: rms(v) for c, v in ch_b.items()}, {c: rms(v) for c, v in ch_a.items()},
+                     fold_values, size, heldout_pairs=pairs)
+
+
+# The per-channel held-out rule (docs/analyzer.md, "The held-out rule"): an update is adopted
+# only if no channel that measures physics gets worse on the held-out data, judged against that
+# channel's noise: a channel is worse when its held-out RMS error grows by more than
+# HELDOUT_TOL noise floors AND the growth is significant in a paired test over the held-out
+# samples (mean of after^2 - before^2 above HELDOUT_Z standard errors, with the sample count
+# corrected for autocorrelation).  Differences far below the noise floor, or within what the
+# noise makes of a held-out RMS, are no evidence.  Derived channels (the recorder's odometry,
+# computed from the counts) are reported but veto nothing: recorders integrate odometry
+# differently (schedule, integration rule, geometry), and a physics update cannot be judged by
+# how well it reproduces another program's arithmetic.  The held-out data only accept or
+# reject an update; they fit nothing.
+HELDOUT_TOL = 0.1     # noise floors
+
+HELDOUT_Z = 2.33      # one-sided 1 %
+
+HELDOUT_RULE = (f"a channel that measures physics is worse after the update when its held-out "
+                f"RMS error grows by more than {HELDOUT_TOL} noise floors and the growth is "
+                f"significant (paired test over the held-out samples, z > {HELDOUT_Z}, "
+                f"autocorrelation-corrected); an update that makes any such channel worse is "
+                f"not adopted. Derived channels ({', '.join(DERIVED)}) are reported, not used "
+                f"to veto. Held-out data only accept or reject an update, they fit nothing")
+
+
+BIC_MARGIN = -10.0
+
+
+def paired_worse(before: np.ndarray, after: np.ndarray, floor: float,
+                 tol: float = HELDOUT_TOL, z: float = HELDOUT_Z) -> tuple[bool, float, float]:
+    """(worse, increase in noise floors, z statistic) of held-out residuals ``before`` and
+    ``after`` of one channel, sample by sample (see HELDOUT_RULE)."""
+    b, a = np.asarray(before, float), np.asarray(after, float)
+    if b.size == 0 or a.size != b.size or not floor > 0:
+        return False, 0.0, 0.0
+    incr = (math.sqrt(float(np.mean(a ** 2))) - math.sqrt(float(np.mean(b ** 2)))) / floor
+    d = (a ** 2 - b ** 2) / floor ** 2
+    if d.size < 3:
+        return incr > tol, incr, math.inf if incr > 0 else 0.0
+    sd = float(np.std(d, ddof=1))
+    se = sd / math.sqrt(effective_n(d)) if sd > 0 else 0.0
+    mean = float(np.mean(d))
+    zstat = mean / se if se > 0 else (math.inf if mean > 0 else 0.0)
+    return bool(incr > tol and zstat > z), incr, zstat
+
+
+def heldout_channel_check(before: Mapping[str, float], after: Mapping[str, float],
+                          floors: Mapping[str, float], pairs: Mapping | None = None
+                          ) -> dict[str, dict]:
+    """Per channel: held-out RMSE before and after the update, the increase in noise floors,
+    the paired test's z, whether the channel is derived, and whether it holds.  Channels
+    without a noise floor or without both values are left out."""
+    out = {}
+    for ch, b in before.items():
+        a = after.get(ch)
+        f = floors.get(ch)
+        if a is None or f is None or not (math.isfinite(b) and math.isfinite(a)):
+            continue
+        if pairs is not None and ch in pairs:
+            worse, incr, zs = paired_worse(pairs[ch][0], pairs[ch][1], f)
+        else:
+            incr = (a - b) / f if f > 0 else 0.0
+            worse, zs = incr > HELDOUT_TOL, math.nan
+        derived = ch in DERIVED
+        out[ch] = {"before": b, "after": a, "noise_floor": f,
+                   "increase_noise_floors": incr, "z": zs, "derived": derived,
+                   "worse": bool(worse), "ok": bool(derived or not worse)}
+    return out
+
+
+def judge(problem: Problem, cand: Candidate, ref_effects: Mapping | None = None,
+          only: Sequence[str] | None = None, bic_margin: float = BIC_MARGIN,
+          heldout_gain: float = 0.05, stability: float = 0.5, min_output: float = 0.5) -> None:
+    """Fill ``cand.checks`` with the acceptance tests (and why they failed): ``bic``,
+    ``heldout`` (pooled gain), ``heldout_channels`` (no channel worse), ``size``, ``stable``.
+    ``only`` restricts the size/stability tests to these effects (the added one of a pair)."""
+    params = params_for(cand.effects, problem.meta, problem.vocab)
+    ref_effects = ref_effects or {}
+    c = cand.checks
+    c["bic"] = cand.delta_bic < bic_margin
+    if not c["bic"]:
+        cand.reasons.append(f"BIC does not improve enough ({cand.delta_bic:.1f} >= {bic_margin})")
+    # pooled over the fit channels (normalized): the update must predict held-out data better
+    c["heldout"] = cand.heldout_after < (1 - heldout_gain) * cand.heldout_before
+    if not c["heldout"]:
+        cand.reasons.append(f"held-out error does not improve by {heldout_gain:.0%} "
+                            f"({cand.heldout_before:.3g} -> {cand.heldout_after:.3g})")
+    # channel by channel: no physics channel worse beyond its noise (HELDOUT_RULE)
+    cand.heldout_per_channel = heldout_channel_check(cand.heldout_channels_before,
+                                                     cand.heldout_channels_after, problem.floors,
+                                                     cand.heldout_pairs)
+    worse = [ch for ch, v in cand.heldout_per_channel.items() if not v["ok"]]
+    c["heldout_channels"] = not worse
+    if worse:
+        cand.reasons.append("held-out error larger after the update, beyond the noise, on " +
+                            ", ".join(f"{ch} ({cand.heldout_per_channel[ch]['before']:.4g} -> "
+                                      f"{cand.heldout_per_channel[ch]['after']:.4g}, "
+                                      f"+{cand.heldout_per_channel[ch]['increase_noise_floors']:.2f}"
+                                      f" floors)" for ch in worse))
+    dworse = [ch for ch, v in cand.heldout_per_channel.items() if v["derived"] and v["worse"]]
+    if dworse:
+        cand.recorder_notes.append("derived channel(s) " + ", ".join(dworse) + " worse after the "
+                                   "update (not a veto: the recorder's own odometry)")
+    # physically possible parameters only
+    impossible = [w for e, ps in cand.fit.params.items() for w in fx.physically_possible(e, ps)]
+    c["physical"] = not impossible
+    if impossible:
+        cand.reasons.append("physically impossible fit: " + "; ".join(impossible))
+    size_ok = False
+    stable = True
+    for j, p in enumerate(params):
+        if only is not None and p.effect not in only:
+            continue
+        dev = cand.fit.values[j] - p.neutral
+        if p.floor > 0 and abs(dev) >= p.floor:
+            size_ok = True
+        if p.floor <= 0:
+            continue  # shape parameter (e.g. v_s): stability judged through its partner
+        folds = [fv[j] for fv in cand.fold_values]
+        if abs(dev) >= p.floor:
+            if any(np.sign(f - p.neutral) != np.sign(dev) for f in folds):
+                stable = False
+                cand.reasons.append(f"{p.effect}.{p.name}: held-out folds disagree in sign")
+            spread = (max(folds + [cand.fit.values[j]]) - min(folds + [cand.fit.values[j]]))
+            if spread > stability * abs(dev):
+                stable = False
+                cand.reasons.append(f"{p.effect}.{p.name}: spread over folds {spread:.3g} "
+                                    f"> {stability:.0%} of its size {abs(dev):.3g}")
+            if math.isfinite(cand.fit.std[j]) and cand.fit.std[j] > abs(dev) / 2:
+                stable = False
+                cand.reasons.append(f"{p.effect}.{p.name}: uncertainty {cand.fit.std[j]:.3g} "
+                                    f"> half its size")
+    if not size_ok:
+        cand.reasons.append("fitted size below the floor")
+    if cand.output_size < min_output:
+        size_ok = False
+        cand.reasons.append(f"changes the outputs by only {cand.output_size:.2f} noise floors")
+    c["size"] = size_ok
+    c["stable"] = stable and cand.fit.ok

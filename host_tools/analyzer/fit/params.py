@@ -1,0 +1,68 @@
+"""The effects' parameters as fit coordinates (each mapped onto [0, 1] over its search range)
+and the result of a fit."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from host_tools.analyzer import effects as fx
+
+
+@dataclass
+class Param:
+    effect: str
+    name: str
+    neutral: float
+    lo: float
+    hi: float
+    floor: float
+
+    def to_x(self, v: float) -> float:
+        return (v - self.lo) / (self.hi - self.lo)
+
+    def from_x(self, x: float) -> float:
+        return self.lo + float(x) * (self.hi - self.lo)
+
+
+def params_for(names: Sequence[str], meta: Mapping, vocab: Mapping[str, Mapping[str, float]]
+               ) -> list[Param]:
+    out = []
+    for n in names:
+        spec = fx.spec_for(n, vocab.get(n, {}))
+        for ps in spec.params:
+            if n in vocab and (ps.sets[0] if ps.sets else ps.name) not in vocab[n]:
+                continue
+            out.append(Param(n, ps.name, ps.neutral(meta), ps.lo(meta), ps.hi(meta),
+                             ps.floor(meta)))
+    return out
+
+
+def effects_dict(params: Sequence[Param], values: Sequence[float]) -> dict[str, dict[str, float]]:
+    """Vocabulary parameters (what the plant and the report take) of fitted coordinates."""
+    raw: dict[str, dict[str, float]] = {}
+    for p, v in zip(params, values):
+        raw.setdefault(p.effect, {})[p.name] = float(v)
+    return {e: fx.vocabulary_params(e, d) for e, d in raw.items()}
+
+
+@dataclass
+class FitResult:
+    effects: list[str]
+    params: dict[str, dict[str, float]]
+    values: list[float]
+    x: np.ndarray
+    rss: float
+    n: int
+    std: list[float]          # 1-sigma parameter uncertainty (autocorrelation-corrected)
+    nfev: int
+    ok: bool = True
+    message: str = ""
+    coords: list[tuple[str, str]] = field(default_factory=list)  # (effect, fitted coordinate)
+    fixed: dict = field(default_factory=dict)       # coordinate index -> pinned value in [0, 1]
+    unidentified: list[str] = field(default_factory=list)   # "effect.coordinate" pinned
+
+    @property
+    def n_free(self) -> int:
+        return len(self.values) - len(self.fixed)

@@ -1,0 +1,298 @@
+"""The fit problem: the replayed residual of every fit channel in noise floors, and the
+least-squares fit of a set of effects."""
+from __future__ import annotations
+
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+from scipy.optimize import least_squares, minimize_scalar
+
+from host_tools.analyzer.fit.params import FitResult, Param, effects_dict, params_for
+from host_tools.analyzer.prepare.run import PreparedRun
+from host_tools.analyzer.replay.channels import FIT_CHANNELS, channels
+from host_tools.analyzer.replay.openloop import OpenLoopReplay
+
+
+# Recording time per run that the fit replays (see Problem.select_windows).
+FIT_BUDGET_S = 16.0
+
+# A fitted coordinate is unidentified when its 1-sigma uncertainty exceeds this fraction of its
+# search range: the data say nothing about it.
+UNIDENTIFIED = 0.5
+
+
+def effective_n(r: np.ndarray) -> float:
+    """Number of independent samples in a residual with AR(1)-like correlation."""
+    r = np.asarray(r, float)
+    if r.size < 3:
+        return float(r.size)
+    a, b = r[:-1] - r.mean(), r[1:] - r.mean()
+    den = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    rho = 0.0 if den == 0 else float(np.sum(a * b) / den)
+    rho = min(max(rho, 0.0), 0.995)
+    return max(r.size * (1 - rho) / (1 + rho), 2.0)
+
+
+class Problem:
+    """The fitting problem over a set of runs; picklable (plants are made lazily)."""
+
+    def __init__(self, preps: list[PreparedRun], floors: Mapping[str, float],
+                 vocab: Mapping[str, Mapping[str, float]], dt_s: float = 5e-4,
+                 fit_channels: Sequence[str] = FIT_CHANNELS, split_frac: float = 0.6):
+        self.preps = preps
+        self.floors = dict(floors)
+        self.vocab = {k: dict(v) for k, v in vocab.items()}
+        self.dt_s = dt_s
+        self.fit_channels = [c for c in fit_channels if c in self.floors]
+        self.split_frac = split_frac
+        self._replay: OpenLoopReplay | None = None
+        self.meta = preps[0].run.meta
+        self.fit_windows: dict[int, list[int]] | None = None
+
+    @property
+    def replay(self) -> OpenLoopReplay:
+        if self._replay is None:
+            self._replay = OpenLoopReplay("duty", dt_s=self.dt_s)
+        return self._replay
+
+    def __getstate__(self):
+        d = dict(self.__dict__)
+        d["_replay"] = None
+        return d
+
+    # ------------------------------------------------------------------ residuals
+
+    def _split_t(self, prep: PreparedRun) -> float:
+        t = prep.run.telemetry["t_s"]
+        return float(t[0] + self.split_frac * (t[-1] - t[0]))
+
+    def sim_channels(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int],
+                     full: bool = False):
+        """Channels of ``runs`` replayed with ``effects``: on the fitting windows
+        (:meth:`select_windows`) unless ``full``."""
+        out = []
+        for i in runs:
+            prep = self.preps[i]
+            which = None if (full or self.fit_windows is None) else self.fit_windows.get(i)
+            sim = self.replay.simulate_windows(prep, effects, which)
+            out.append(channels(prep, sim, "duty"))
+        return out
+
+    def select_windows(self, nominal: Sequence[Mapping[str, object]],
+                       budget_s: float = FIT_BUDGET_S) -> dict[int, list[int]] | None:
+        """Fit on the windows that carry information, so that the cost of a fit grows with the
+        budget and not with the run's length: per run, the replay windows whose nominal
+        normalized residual over the fit channels is largest (where a mismatch is), half of the
+        budget, and windows spread evenly over the rest of the run (what the update must not
+        spoil), the other half.  None (all windows) when every run fits in the budget."""
+        sel: dict[int, list[int]] = {}
+        any_cut = False
+        for i, (prep, chans) in enumerate(zip(self.preps, nominal)):
+            nw = len(prep.windows)
+            dur = [max(b - a, 1e-9) for a, b in (prep.window_times(w) for w in range(nw))]
+            if sum(dur) <= budget_s or nw <= 2:
+                sel[i] = list(range(nw))
+                continue
+            any_cut = True
+            energy = np.zeros(nw)
+            for c in self.fit_channels:
+                ch = chans.get(c)
+                if ch is None or ch.seg is None:
+                    continue
+                np.add.at(energy, ch.seg, (ch.deflated(self.floors[c]) / self.floors[c]) ** 2)
+            per = energy / np.maximum(np.bincount(np.concatenate(
+                [chans[c].seg for c in self.fit_channels if c in chans and chans[c].seg is not None]
+                or [np.zeros(0, int)]), minlength=nw), 1)
+            mean_d = float(np.mean(dur))
+            k = max(2, int(budget_s / mean_d))
+            top = [int(w) for w in np.argsort(-per)[:max(1, k // 2)]]
+            rest = [w for w in range(nw) if w not in top]
+            spread = [rest[int(j)] for j in np.linspace(0, len(rest) - 1, k - len(top)).round()
+                      ] if rest else []
+            sel[i] = sorted(set(top) | set(spread))
+        self.fit_windows = sel if any_cut else None
+        return self.fit_windows
+
+    def residual(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int],
+                 part: str = "all", full: bool = False) -> np.ndarray:
+        """Stacked normalized residual of the fit channels.  ``part``: "all", "early" (before
+        the time split) or "late" (after it)."""
+        parts = []
+        for i, chans in zip(runs, self.sim_channels(effects, runs, full)):
+            ts = self._split_t(self.preps[i])
+            for c in self.fit_channels:
+                ch = chans.get(c)
+                if ch is None:
+                    continue
+                r = ch.deflated(self.floors[c]) / self.floors[c]
+                if part == "early":
+                    r = r[ch.t <= ts]
+                elif part == "late":
+                    r = r[ch.t > ts]
+                parts.append(r)
+        if not parts:
+            return np.zeros(0)
+        r = np.concatenate(parts)
+        return np.where(np.isfinite(r), r, 1e6)
+
+    def channel_resids(self, effects, runs: Sequence[int], part: str = "all",
+                       full: bool = False) -> dict[str, np.ndarray]:
+        """Residual per channel in the channel's unit, concatenated over ``runs``."""
+        acc: dict[str, list[np.ndarray]] = {}
+        for i, chans in zip(runs, self.sim_channels(effects, runs, full)):
+            ts = self._split_t(self.preps[i])
+            for c, ch in chans.items():
+                r = ch.resid
+                if part == "early":
+                    r = r[ch.t <= ts]
+                elif part == "late":
+                    r = r[ch.t > ts]
+                acc.setdefault(c, []).append(r)
+        return {c: np.concatenate(v) for c, v in acc.items() if sum(a.size for a in v)}
+
+    def channel_rmse(self, effects, runs: Sequence[int], part: str = "all",
+                     full: bool = False) -> dict[str, float]:
+        """RMSE per channel in the channel's unit, pooled over ``runs``."""
+        return {c: float(np.sqrt(np.mean(v ** 2)))
+                for c, v in self.channel_resids(effects, runs, part, full).items()}
+
+    # ----------------------------------------------------------------------- fit
+
+    def fit(self, names: Sequence[str], runs: Sequence[int], part: str = "all",
+            x0: np.ndarray | None = None, max_nfev: int = 60, grid: int = 7,
+            fixed: Mapping[int, float] | None = None) -> FitResult:
+        """Fit the coordinates of ``names`` (bounded, after a coarse grid).  ``fixed`` pins
+        coordinates (index -> value in [0, 1]).  Without ``fixed``, a coordinate that the data
+        do not identify (1-sigma uncertainty above UNIDENTIFIED of its search range) while
+        another one is identified is pinned at its neutral value and the rest refitted; the
+        result names it in ``unidentified``."""
+        params = params_for(names, self.meta, self.vocab)
+        k_all = len(params)
+        fixed = dict(fixed or {})
+        free = [i for i in range(k_all) if i not in fixed]
+        k = len(free)
+        full0 = np.array([np.clip(p.to_x(p.neutral), 0, 1) for p in params])
+        for i, v in fixed.items():
+            full0[i] = v
+
+        def expand(xf):
+            x = full0.copy()
+            x[free] = xf
+            return x
+
+        def fun(xf):
+            x = expand(xf)
+            return self.residual(effects_dict(params, [p.from_x(v) for p, v in zip(params, x)]),
+                                 runs, part)
+
+        nfev = 0
+        if x0 is not None:
+            x0 = np.asarray(x0, float)
+            x0 = x0[free] if x0.size == k_all else x0
+        else:
+            x0, nfev = _grid_start(fun, full0[free].copy(), grid)
+        x0 = np.clip(np.asarray(x0, float), 1e-6, 1 - 1e-6)
+        x, r, J, ok, msg, n_solve = _solve(fun, x0, grid, max_nfev)
+        nfev += n_solve
+        xfull = expand(x)
+        values = [p.from_x(v) for p, v in zip(params, xfull)]
+        std = _param_std(J, r, params, free)
+        out = FitResult(list(names), effects_dict(params, values), values, np.asarray(xfull),
+                        float(np.sum(r ** 2)), int(r.size), std, nfev, ok, msg,
+                        [(p.effect, p.name) for p in params], fixed=fixed)
+        out.unidentified = [f"{params[i].effect}.{params[i].name}" for i in fixed]
+        if not fixed and k >= 2 and ok:
+            unid = [i for i in free if not (std[i] <= UNIDENTIFIED * (params[i].hi - params[i].lo))]
+            if unid and len(unid) < k:
+                re = self.fit(names, runs, part, x0=None, max_nfev=max_nfev, grid=grid,
+                              fixed={i: float(full0[i]) for i in unid})
+                re.nfev += out.nfev
+                return re
+        return out
+
+
+def _grid_start(fun, base: np.ndarray, grid: int) -> tuple[np.ndarray, int]:
+    """Coarse multi-start: the neutral point ``base`` and a grid along each parameter; for
+    2-parameter effects the second coordinate refined around the best first one.  Returns the
+    best start and the number of residual evaluations."""
+    k = base.size
+    nfev = 0
+    starts = [base]
+    levels = np.linspace(0.0, 1.0, grid)
+    for j in range(k):
+        for lv in levels:
+            s_ = base.copy()
+            s_[j] = lv
+            starts.append(s_)
+    best, best_c = None, math.inf
+    for s_ in starts:
+        c = float(np.sum(fun(s_) ** 2))
+        nfev += 1
+        if c < best_c:
+            best, best_c = s_, c
+    x0 = best
+    if k == 2:
+        for lv in levels:
+            s_ = x0.copy()
+            s_[1] = lv
+            c = float(np.sum(fun(s_) ** 2))
+            nfev += 1
+            if c < best_c:
+                best, best_c = s_, c
+        x0 = best
+    return x0, nfev
+
+
+def _solve(fun, x0: np.ndarray, grid: int, max_nfev: int):
+    """The bounded fit from ``x0``: (x, residual, Jacobian or None, ok, message, evaluations)."""
+    k = x0.size
+    nfev = 0
+    try:
+        if k == 1:
+            # one parameter: bounded Brent search around the best grid point.  Robust to
+            # the cost being piecewise constant at the plant's step (delays), unlike a
+            # finite-difference gradient.
+            half = 1.0 / max(grid - 1, 1)
+            lo, hi = max(0.0, x0[0] - half), min(1.0, x0[0] + half)
+            cost = lambda v: float(np.sum(fun(np.array([v])) ** 2))  # noqa: E731
+            sol = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
+                                  options={"xatol": 2e-4, "maxiter": max_nfev})
+            x = np.array([sol.x if sol.fun <= cost(x0[0]) else x0[0]])
+            nfev += int(sol.nfev) + 1
+            r = fun(x)
+            # Jacobian for the uncertainty, with a step well above the plant's time step
+            hstep = 1e-2 if x[0] + 1e-2 <= 1 else -1e-2
+            J = ((fun(x + hstep) - r) / hstep).reshape(-1, 1)
+            nfev += 1
+            ok, msg = True, "bounded scalar search"
+        else:
+            res = least_squares(fun, x0, bounds=(np.zeros(k), np.ones(k)), method="trf",
+                                diff_step=1e-2, max_nfev=max_nfev, x_scale=1.0)
+            x = res.x
+            r = res.fun
+            nfev += res.nfev
+            J = res.jac
+            ok, msg = bool(res.status >= 0), str(res.message)
+    except Exception as exc:  # a simulation blew up: keep the best start, mark it
+        x, r, J, ok, msg = x0, fun(x0), None, False, f"{type(exc).__name__}: {exc}"
+    return x, r, J, ok, msg, nfev
+
+
+def _param_std(J, r: np.ndarray, params: Sequence[Param], free: Sequence[int]) -> list[float]:
+    """1-sigma uncertainty of each parameter (nan: pinned; inf: not estimated), from the
+    parameter covariance inflated for correlated residuals."""
+    k = len(free)
+    std = [math.nan] * len(params)
+    for i in free:
+        std[i] = math.inf
+    if J is not None and r.size > k:
+        n_eff = effective_n(r)
+        s2 = float(np.sum(r ** 2)) / max(r.size - k, 1)
+        try:
+            cov = np.linalg.pinv(J.T @ J) * s2 * (r.size / max(n_eff, 1.0))
+            for jj, i in enumerate(free):
+                std[i] = float(np.sqrt(max(cov[jj, jj], 0.0))) * (params[i].hi - params[i].lo)
+        except np.linalg.LinAlgError:
+            pass
+    return std

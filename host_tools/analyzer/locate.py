@@ -1,0 +1,241 @@
+"""Stage 3 of the analysis: noise floors from the data, the windows where each nominal replay's
+residual stands out of them, and whether the recordings disagree with the nominal model at all."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from host_tools.analyzer import signals as sg
+from host_tools.analyzer.fit.problem import Problem
+from host_tools.analyzer.prepare.run import PreparedRun
+from host_tools.analyzer.replay.channels import CHANNELS, CUMULATIVE, FIT_CHANNELS
+from host_tools.analyzer.replay.closedloop import CLOSED_LOOP_CHANNELS
+from host_tools.analyzer.signals import round_sig
+
+
+# Decision thresholds (normalized residual = residual / noise floor over the fit channels).
+STRONG_WINDOW = 3.0      # a window whose RMS is this many floors is a mismatch on its own
+
+# ... on a recording of STRONG_REF_S in all (four 3 s runs).  A longer recording offers more
+# windows, and the largest of N noise-like excursions grows like sqrt(2 ln N): the threshold is
+# raised by that law, so that the chance of a false alarm per analysis stays what it is on
+# STRONG_REF_S (12 s: 3.0 floors; 120 s: 3.7; 600 s: 4.1).
+STRONG_REF_S = 12.0
+
+
+def strong_threshold(total_s: float) -> float:
+    return math.sqrt(STRONG_WINDOW ** 2 + 2 * math.log(max(1.0, total_s / STRONG_REF_S)))
+
+
+MISMATCH_RMS = 1.25      # otherwise the overall normalized RMS must exceed this
+
+
+def _current_lsb_a() -> float:
+    """One ADC count of the motor-current telemetry (protocol.json's scale of current_r)."""
+    from host_tools import protocol
+    for m in protocol.definition().by_name.values():
+        for f in m.fields:
+            if f.name == "current_r" and f.scale:
+                return float(f.scale)
+    return 0.0
+
+
+def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, object]]
+                 ) -> dict[str, float]:
+    """Per-channel noise floor, pooled over runs, estimated from the data:
+    encoder quantization for wheel speeds and counts, the high-frequency part of the
+    residual for everything (ground-truth camera noise shows up there), and for cumulative
+    channels (counts, odometry) a 1 % tolerance of their range, since tiny speed differences
+    integrate."""
+    meta = preps[0].run.meta
+    ppr = int(meta["encoder_ppr"])
+    r = float(meta["robot"]["r"])
+    b = float(meta["robot"]["b"])
+    k = 2 * math.pi / ppr
+    dts = np.concatenate([np.diff(p.run.telemetry["t_s"]) for p in preps])
+    dt = float(np.median(dts))
+    floors: dict[str, float] = {}
+    names = set().union(*[set(c) for c in nominal])
+    for c in names:
+        res = [ch[c].resid for ch in nominal if c in ch]
+        hf = float(np.sqrt(np.mean([sg.hf_noise_std(x) ** 2 for x in res])))
+        if c.startswith("omega"):
+            base = sg.quantization_std(k / dt)
+        elif c.startswith("enc"):
+            base = sg.quantization_std(1.0)
+        elif c.startswith("current"):
+            base = max(sg.quantization_std(_current_lsb_a()), 1e-6)
+        elif c in ("x_odo_m", "y_odo_m"):
+            base = r * k
+        elif c == "phi_odo_rad":
+            base = r * k / (2 * b)
+        elif c in ("x_m", "y_m"):
+            base = 2e-4
+        elif c == "phi_rad":
+            base = 2e-3
+        else:
+            base = 1e-6
+        f = max(base, hf)
+        if c in CUMULATIVE:
+            # within a replay window (a long run is compared window by window)
+            span = max(max(ch[c].spans()) for ch in nominal if c in ch)
+            f = max(f, 0.01 * span)
+        floors[c] = f
+    return floors
+
+
+def closed_loop_floors(chans_per_run: Sequence[Mapping[str, object]]) -> dict[str, float]:
+    """Noise floor of the closed-loop channels (recorded minus replayed controller output),
+    from the data: the white part of the nominal residual (MAD of second differences), which
+    holds the torque jumps that single encoder-count differences between the real wheel and the
+    plant cause through the speed loop; at least the telemetry's resolution (0.1 mN m for the
+    torque command, 2^-15 for the duty) as a uniform quantization std."""
+    base = {"tau_cmd_r": 1e-4 / math.sqrt(12), "tau_cmd_l": 1e-4 / math.sqrt(12),
+            "pwm_r": 2.0 ** -15 / math.sqrt(12), "pwm_l": 2.0 ** -15 / math.sqrt(12)}
+    floors = {}
+    for c in CLOSED_LOOP_CHANNELS:
+        res = [ch[c].resid for ch in chans_per_run if ch and c in ch]
+        if not res:
+            continue
+        hf = float(np.sqrt(np.mean([sg.hf_noise_std(x) ** 2 for x in res])))
+        floors[c] = max(base[c], hf)
+    return floors
+
+
+def _window_entries(preps, chans_per_run, floors, channel_names, replay_name,
+                    regime_cands_per_run, tau_max) -> tuple[list[dict], dict]:
+    """Significant windows of every channel, with the regime that best explains them.
+    Returns the report entries and {(run, channel): windows}."""
+    entries: list[dict] = []
+    wins: dict = {}
+    for c in channel_names:
+        masks, preds_runs, per_run = [], [], []
+        for i, (prep, chans) in enumerate(zip(preps, chans_per_run)):
+            ch = chans.get(c)
+            if ch is None:
+                continue
+            w, m = sg.significant_windows(ch.t, ch.deflated(floors[c]), floors[c])
+            wins[(i, c)] = w
+            per_run.append((i, ch, w))
+            masks.append(m)
+            st = regime_cands_per_run[i]
+            preds_runs.append({k: np.interp(ch.t, st["t"], v) for k, v in st.items()})
+        if not masks or not any(m.any() for m in masks):
+            continue
+        pooled = {k: np.concatenate([p[k] for p in preds_runs]) for k in preds_runs[0]}
+        regime = sg.best_regime(np.concatenate(masks), sg.regime_candidates(pooled, tau_max))
+        for i, ch, w in per_run:
+            for win in w:
+                entries.append({"run": preps[i].name, "channel": c,
+                                "t_start_s": round(win.t_start_s, 4),
+                                "t_end_s": round(win.t_end_s, 4), "rms": round_sig(win.rms),
+                                "noise_floor": round_sig(floors[c]),
+                                "regime": regime.description if regime else "unknown",
+                                "regime_f1": round(regime.score, 3) if regime else 0.0,
+                                "replay": replay_name})
+    return entries, wins
+
+
+@dataclass
+class Located:
+    """Noise floors and significant windows of the nominal replays."""
+    floors: dict            # duty replay's channels
+    floors_t: dict          # torque replay's channels
+    cl_floors: dict         # closed-loop channels
+    entries: list[dict]     # the report's mismatch entries (duty replay)
+    entries_t: list[dict]   # ... of the torque replay
+    cl_entries: list[dict]  # ... of the closed-loop replay
+    windows: dict           # (run index, channel) -> [Window], duty replay
+    cl_windows: dict        # ... closed-loop replay
+
+
+def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict],
+                    nominal_t: Sequence[dict], cl_nominal: Sequence[dict], log: Callable[[str], None]) -> Located:
+    """Noise floors from the data (``noise_floors``, ``closed_loop_floors``) and the windows
+    where each replay's residual stands out of them, each with the regime of the run's state
+    (speed, torque against its limit, ...) that best explains where they are.  A residual only
+    means something in units of its channel's noise, so every later decision is in noise
+    floors."""
+    floors = noise_floors(preps, nominal)
+    floors_t = noise_floors(preps, nominal_t)
+    log("noise floors: " + ", ".join(f"{c}={v:.3g}" for c, v in sorted(floors.items())))
+    from host_tools import _native
+    plant = _native.Plant.from_meta(preps[0].run.meta)
+    tau_max = float(min(plant.tau_max()))
+    states = [state_table(p) for p in preps]
+    chan_names = [c for c in CHANNELS if any(c in ch for ch in nominal)]
+    entries, wins = _window_entries(preps, nominal, floors, chan_names, "duty", states, tau_max)
+    entries_t, _ = _window_entries(preps, nominal_t, floors_t, chan_names, "torque", states,
+                                   tau_max)
+    cl_floors = closed_loop_floors(cl_nominal)
+    cl_entries: list[dict] = []
+    cl_wins: dict = {}
+    if any(cl_nominal):
+        cl_entries, cl_wins = _window_entries(preps, cl_nominal, cl_floors,
+                                              [c for c in CLOSED_LOOP_CHANNELS if c in cl_floors],
+                                              "closed-loop", states, tau_max)
+    return Located(floors, floors_t, cl_floors, entries, entries_t, cl_entries, wins, cl_wins)
+
+
+@dataclass
+class Detection:
+    """The fit problem and whether the recordings disagree with the nominal model."""
+    problem: Problem
+    rss0: float             # nominal residual sum of squares (fit channels, in noise floors)
+    nrms0: float            # ... as a normalized RMS
+    strong_k: float         # noise floors that make one window a mismatch on its own
+    mismatch_seen: bool
+
+
+def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict], loc: Located,
+                    vocab: dict, dt_s: float, notes: list[str], log: Callable[[str], None]) -> Detection:
+    """Build the fit problem (the fit channels, and on long runs the windows the fits see) and
+    decide whether there is a mismatch at all: a strong window in a fit channel (``strong_k``
+    floors, raised with the recording's length so the false-alarm rate per analysis stays
+    what it is on 12 s), or significant windows with an overall normalized RMS above
+    ``MISMATCH_RMS``.  The torque replay does not decide; it adds a note on where the mismatch
+    sits (between duty and torque, or not)."""
+    floors = loc.floors
+    fit_chans = [c for c in FIT_CHANNELS if c in floors]
+    sig_fit = [e for e in loc.entries if e["channel"] in fit_chans]
+    problem = Problem(preps, floors, vocab, dt_s=dt_s, fit_channels=fit_chans)
+    fitw = problem.select_windows(nominal)
+    if fitw is not None:
+        log("fitting on " + ", ".join(f"{preps[i].name}: {len(w)}/{len(preps[i].windows)}"
+                                      for i, w in fitw.items()) + " windows")
+    r0 = problem.residual({}, list(range(len(preps))), full=True)
+    rss0 = float(np.sum(r0 ** 2))
+    nrms0 = math.sqrt(rss0 / max(r0.size, 1))
+    total_s = sum(float(p.run.telemetry["t_s"][-1] - p.run.telemetry["t_s"][0]) for p in preps)
+    strong_k = strong_threshold(total_s)
+    strong0 = [e for e in sig_fit if e["rms"] >= strong_k * e["noise_floor"]]
+    mismatch_seen = bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
+    sig_t = [e for e in loc.entries_t if e["channel"] in fit_chans]
+    if mismatch_seen and not sig_t:
+        notes.append("the torque-driven replay agrees with the recording while the duty-driven "
+                     "one does not: the mismatch sits between duty and torque (motor, driver)")
+    elif sig_t:
+        notes.append("the torque-driven replay also disagrees with the recording; it is open "
+                     "loop without back-EMF damping, so its errors integrate and it is reported "
+                     "separately (torque_replay_mismatch), not used to locate or decide")
+    log(f"nominal replay: {len(loc.entries)} significant window(s) "
+        f"({len(sig_fit)} in fit channels {', '.join(fit_chans)})")
+    return Detection(problem, rss0, nrms0, strong_k, mismatch_seen)
+
+
+def state_table(prep: PreparedRun) -> dict[str, np.ndarray]:
+    """Operating state at the telemetry frames (from the recording), for regime search."""
+    tel = prep.run.telemetry
+    t = tel["t_s"]
+    k = 2 * np.pi / prep.ppr
+    w_r = np.gradient(tel["enc_r"] * k, t)
+    w_l = np.gradient(tel["enc_l"] * k, t)
+    w_r, w_l = sg.smooth(w_r, 3), sg.smooth(w_l, 3)
+    return {"t": t, "w_r": w_r, "w_l": w_l,
+            "a_r": sg.smooth(np.gradient(w_r, t), 3), "a_l": sg.smooth(np.gradient(w_l, t), 3),
+            "tau_r": tel["tau_cmd_r"], "tau_l": tel["tau_cmd_l"],
+            "u_r": tel["pwm_r"], "u_l": tel["pwm_l"],
+            "yaw": float(prep.robot["r"]) * (w_r - w_l) / (2 * float(prep.robot["b"]))}

@@ -1,0 +1,191 @@
+"""Where a replay window starts: slip episodes, the camera-corrected pose at a window's start,
+and the pose shift that only follows from the replayed wheels turning otherwise than the
+recorded counts."""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Mapping
+
+import numpy as np
+
+from host_tools.analyzer.prepare.odometry import encoder_odometry, wrap_angle, odometry_times
+from host_tools.analyzer.prepare.run import BURN_IN_S, GAP_S, PreparedRun
+
+if TYPE_CHECKING:
+    from host_tools.analyzer.replay.openloop import WindowSims
+
+
+def note_slip_episodes(prep: "PreparedRun", sims: "WindowSims") -> int:
+    """Record the slip episodes of a nominal replay ``sims`` (``slip_episodes``, board
+    times): across a slip the recorder's odometry stops following the body, so a window's
+    camera anchor is fitted within the slip-free span around it.  Returns their number."""
+    episodes = []
+    for _, sim in sims:
+        slip = (np.asarray(sim.get("slip_r", 0)) > 0) | (np.asarray(sim.get("slip_l", 0)) > 0)
+        if not np.any(slip):
+            continue
+        g = sim["t_s"]
+        starts = np.flatnonzero(~slip[:-1] & slip[1:]) + 1
+        if slip[0]:
+            starts = np.concatenate([[0], starts])
+        ends = np.flatnonzero(slip[:-1] & ~slip[1:])
+        for a in starts:
+            later = ends[ends >= a]
+            episodes.append((float(g[a]), float(g[later[0] + 1]) if later.size else float(g[-1])))
+    prep.slip_episodes = sorted(episodes)
+    return len(episodes)
+
+
+def _line_at(t: np.ndarray, v: np.ndarray, at: float) -> float:
+    """Value at ``at`` of a straight line fitted to (t, v)."""
+    tt = t - at
+    if tt.size < 2 or np.ptp(tt) <= 0:
+        return float(np.mean(v))
+    A = np.column_stack([np.ones_like(tt), tt])
+    return float(np.linalg.lstsq(A, v, rcond=None)[0][0])
+
+
+ANCHOR_HALF_S = 1.5
+MIN_SPREAD_M = 0.1
+
+
+def _gt_anchor(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
+               ) -> dict[str, float] | None:
+    """The true pose at board time ``at``, for re-anchoring a replay window: the recorder's
+    odometry there, corrected by the camera-minus-odometry offset fitted as a straight line over
+    ``half`` seconds either side.  Odometry is precise over a short time but drifts; the camera
+    does not drift but is noisy sample by sample; their offset changes slowly, so a fit over
+    many camera samples removes most of the camera's noise (a single camera heading, 0.01 rad,
+    would turn a 2 m window by 2 cm).  None without camera samples there."""
+    gt = prep.run.groundtruth
+    if gt is None:
+        return None
+    tel = prep.run.telemetry
+    t = tel["t_s"]
+    tg = gt["t_s"]
+    # within the slip-free span around ``at`` (across a slip the odometry stops following the body)
+    lo, hi = at - half, at + half
+    for a, b in prep.slip_episodes:
+        if b <= at:
+            lo = max(lo, b)
+        elif a >= at:
+            hi = min(hi, a)
+    m = (tg >= lo) & (tg <= hi) & (tg >= t[0]) & (tg <= t[-1])
+    if m.sum() < 3:
+        return None
+    tm = tg[m]
+    po = np.unwrap(tel["phi_odo_rad"])
+    # the recorded pose at the time it was computed (a tick or the frame)
+    to, keep = np.unique(odometry_times(prep), return_index=True)
+    xo_, yo_, po_ = tel["x_odo_m"][keep], tel["y_odo_m"][keep], po[keep]
+    odo = {"x_m": np.interp(tm, to, xo_), "y_m": np.interp(tm, to, yo_),
+           "phi_rad": np.interp(tm, to, po_)}
+    here = {"x_m": float(np.interp(at, to, xo_)), "y_m": float(np.interp(at, to, yo_)),
+            "phi_rad": float(np.interp(at, to, po_))}
+    # camera = R(delta) odometry + c over the span.  delta from the positions (2-D Procrustes)
+    # when the robot travels far enough for the direction of travel to pin it down better than
+    # the camera's headings do (1 mm over a 0.3 m spread: ~0.5 mrad), else from the headings
+    # (a straight line in time); c a straight line in time
+    gx, gy = gt["x_m"][m], gt["y_m"][m]
+    ph = gt.get("phi_rad")
+    ok = np.isfinite(ph[m]) if ph is not None else np.zeros(tm.size, bool)
+    ox, oy = odo["x_m"] - odo["x_m"].mean(), odo["y_m"] - odo["y_m"].mean()
+    spread = float(np.sqrt(np.mean(ox ** 2 + oy ** 2)))
+    if spread >= MIN_SPREAD_M or ok.sum() < 3:
+        qx, qy = gx - gx.mean(), gy - gy.mean()
+        delta_at = float(np.arctan2(np.sum(ox * qy - oy * qx), np.sum(ox * qx + oy * qy)))
+        delta = np.full(tm.size, delta_at)
+    else:
+        d = ph[m][ok] - odo["phi_rad"][ok]
+        d0 = float(np.median(wrap_angle(d)))
+        dl = d0 + wrap_angle(d - d0)
+        A = np.column_stack([np.ones(ok.sum()), tm[ok] - at])
+        coef = np.linalg.lstsq(A, dl, rcond=None)[0] if np.ptp(tm[ok]) > 0 else [np.mean(dl), 0]
+        delta = coef[0] + coef[1] * (tm - at)
+        delta_at = float(coef[0])
+    cx = gx - (np.cos(delta) * odo["x_m"] - np.sin(delta) * odo["y_m"])
+    cy = gy - (np.sin(delta) * odo["x_m"] + np.cos(delta) * odo["y_m"])
+    ca, sa = math.cos(delta_at), math.sin(delta_at)
+    out = {"x_m": ca * here["x_m"] - sa * here["y_m"] + _line_at(tm, cx, at),
+           "y_m": sa * here["x_m"] + ca * here["y_m"] + _line_at(tm, cy, at)}
+    out["phi_rad"] = here["phi_rad"] + delta_at
+    return out
+
+
+def window_start(prep: PreparedRun, w: int) -> tuple[float, tuple, tuple | None]:
+    """(start time, start pose, start velocity or None) of replay window ``w``: the run's
+    start pose at rest for the first window; otherwise BURN_IN_S before the window (not before
+    a gap), moving as the recording says: wheel speeds from the counts around that frame,
+    the body rolling with them, pose from the camera (else the recorded odometry)."""
+    tel = prep.run.telemetry
+    t = tel["t_s"]
+    i_a, _ = prep.windows[w]
+    if w == 0 or i_a == 0:
+        return float(prep.t_grid[0]), prep.start_pose, None
+    first = i_a
+    while first > 0 and t[first] - t[first - 1] <= GAP_S and t[i_a] - t[first - 1] <= BURN_IN_S:
+        first -= 1
+    k = 2 * np.pi / prep.ppr
+    j0, j1 = max(first - 2, 0), min(first + 2, t.size - 1)
+    if first > 0 and t[first] - t[first - 1] > GAP_S:
+        j0 = first  # the frame before is across a gap
+    if j1 > j0:
+        w_r = float((tel["enc_r"][j1] - tel["enc_r"][j0]) * k / (t[j1] - t[j0]))
+        w_l = float((tel["enc_l"][j1] - tel["enc_l"][j0]) * k / (t[j1] - t[j0]))
+    else:
+        w_r = w_l = 0.0
+    r, b = float(prep.robot["r"]), float(prep.robot["b"])
+    vel = (r * (w_r + w_l) / 2, 0.0, r * (w_r - w_l) / (2 * b), w_r, w_l)
+    pose = (float(tel["x_odo_m"][first]), float(tel["y_odo_m"][first]),
+            float(tel["phi_odo_rad"][first]))
+    an = _gt_anchor(prep, float(t[first]))
+    if an is not None:
+        pose = (an["x_m"], an["y_m"], an.get("phi_rad", pose[2]))
+    return float(t[first]), pose, vel
+
+
+def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.ndarray,
+                        th_r: np.ndarray, th_l: np.ndarray, i_a: int, i_b: int,
+                        tg: np.ndarray) -> dict[str, np.ndarray]:
+    """The part of the replayed pose that only follows from the replay's wheels turning
+    otherwise than the recorded counts say, at the camera times ``tg``; zero unless the run's
+    inputs are partly unrecorded (``count_anchored_pose``).
+
+    When some inner ticks' commands were never recorded (a loop faster than the telemetry),
+    the replayed wheels drift from the real ones by what the filled-in commands miss, and the
+    open-loop pose inherits that drift: millimetres within seconds, above the camera's noise,
+    on a null.  The wheels' own motion is tested by the wheel-speed, count and current
+    channels; the camera channels are then compared against the replay's pose moved by the
+    odometry difference (lib/control's odometry, the nominal geometry) between the replayed
+    and the recorded wheel angles, over the frame intervals in which the replay's wheels roll
+    (a slipping wheel's extra turning does not move the body).  What remains in the camera
+    channels is what the counts cannot show: the geometry (wheel radius, track width) and
+    slip."""
+    zero = np.zeros(tg.size)
+    if not prep.count_anchored_pose or t.size < 2:
+        return {"x_m": zero, "y_m": zero, "phi_rad": zero}
+    tel = prep.run.telemetry
+    k = 2 * np.pi / prep.ppr
+    r, b = float(prep.robot["r"]), float(prep.robot["b"])
+    g = np.asarray(sim["t_s"], float)
+    pose0 = tuple(float(np.interp(t[0], g, np.asarray(sim[c], float)))
+                  for c in ("x_m", "y_m", "phi_rad"))
+    q_sim = [np.floor((th - th[0]) / k + 1e-9) for th in (th_r, th_l)]
+    q_rec = [np.asarray(tel[f"enc_{s}"][i_a:i_b], float) - float(tel[f"enc_{s}"][i_a])
+             for s in ("r", "l")]
+    # a replayed wheel that slips turns without moving the body: the replay's extra turning
+    # over a frame interval in which it slips is not carried into the pose
+    slip = ((np.asarray(sim.get("slip_r", np.zeros(g.size))) > 0) |
+            (np.asarray(sim.get("slip_l", np.zeros(g.size))) > 0))
+    if slip.size == g.size and slip.any():
+        cs = np.concatenate([[0], np.cumsum(slip)])
+        idx = np.searchsorted(g, t, side="right")
+        slipped = (cs[idx[1:]] - cs[idx[:-1]]) > 0
+        for j in (0, 1):
+            inc = np.diff(q_sim[j] - q_rec[j])
+            inc[slipped] = 0.0
+            q_sim[j] = q_rec[j] + np.concatenate([[0.0], np.cumsum(inc)])
+    xs, ys, ps = encoder_odometry(q_sim[0], q_sim[1], t, r, b, prep.ppr, pose0)
+    xr, yr, pr = encoder_odometry(q_rec[0], q_rec[1], t, r, b, prep.ppr, pose0)
+    return {"x_m": np.interp(tg, t, xs - xr), "y_m": np.interp(tg, t, ys - yr),
+            "phi_rad": np.interp(tg, t, ps - pr)}

@@ -1,0 +1,308 @@
+"""Recording against simulation on common channels, each a pair (recorded, simulated) on the
+recording's own time base."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from host_tools.analyzer.prepare.odometry import encoder_odometry, wrap_angle
+from host_tools.analyzer.prepare.run import PreparedRun
+from host_tools.analyzer.replay.anchors import _count_anchor_shift, _gt_anchor
+from host_tools.analyzer.replay.openloop import WindowSims
+
+# Channels compared (name -> kind).  "fit" channels enter the output-error fit.
+CHANNELS = ("omega_r", "omega_l", "enc_r", "enc_l", "x_odo_m", "y_odo_m", "phi_odo_rad",
+            "x_m", "y_m", "phi_rad", "current_r_a", "current_l_a")
+FIT_CHANNELS = ("omega_r", "omega_l", "x_m", "y_m", "phi_rad", "current_r_a", "current_l_a")
+# Channels the recorder derives from others (odometry from the encoder counts): reported, never
+# evidence about physics on their own; a disagreement there while the counts agree is a finding
+# about the recorder (its odometry schedule, integration rule or geometry).
+DERIVED = ("x_odo_m", "y_odo_m", "phi_odo_rad")
+CUMULATIVE = ("enc_r", "enc_l", "x_odo_m", "y_odo_m", "phi_odo_rad")
+
+
+def _theta_at(sim: Mapping[str, np.ndarray], side: str, times: np.ndarray) -> np.ndarray:
+    """Wheel angle between the simulation's rows: cubic Hermite on the angle and its rate
+    (the rows are up to a telemetry period apart; linear interpolation would be off by a
+    good part of a count while the wheel accelerates)."""
+    g = np.asarray(sim["t_s"], float)
+    th = np.asarray(sim[f"theta_{side}_rad"], float)
+    w = np.asarray(sim.get(f"dtheta_{side}_rad_s", np.gradient(th, g)), float)
+    times = np.clip(np.asarray(times, float), g[0], g[-1])
+    i = np.clip(np.searchsorted(g, times, side="right") - 1, 0, g.size - 2)
+    h = g[i + 1] - g[i]
+    s = np.where(h > 0, (times - g[i]) / np.where(h > 0, h, 1.0), 0.0)
+    h00, h10 = 2 * s ** 3 - 3 * s ** 2 + 1, s ** 3 - 2 * s ** 2 + s
+    h01, h11 = -2 * s ** 3 + 3 * s ** 2, s ** 3 - s ** 2
+    return h00 * th[i] + h10 * h * w[i] + h01 * th[i + 1] + h11 * h * w[i + 1]
+
+
+def _replay_odometry(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.ndarray,
+                     th0_r: float, th0_l: float, pose0) -> tuple[np.ndarray, ...]:
+    """The odometry a telemetry frame reports: the firmware integrates it at its inner-loop
+    ticks from the counts of that tick, and a frame carries the pose of the latest tick at or
+    before it (the counts in the same frame are read at the frame's own time).  With the tick
+    phase reconstructed (:func:`prepare`), the simulated counts are taken at the ticks and the
+    pose is reported like that; without it, at the frame times."""
+    k = 2 * np.pi / prep.ppr
+    r, b = float(prep.robot["r"]), float(prep.robot["b"])
+    phase = prep.tick_phase
+    period = float(prep.inner_period or 0.0)
+    if phase is None or period <= 0 or prep.odo_schedule == "frames":
+        q_r = np.floor((_theta_at(sim, "r", t) - th0_r) / k)
+        q_l = np.floor((_theta_at(sim, "l", t) - th0_l) / k)
+        return encoder_odometry(q_r, q_l, t, r, b, prep.ppr, pose0)
+    # ticks from the last one at or before the first frame to the last frame
+    n0 = math.floor((t[0] - phase) / period + 1e-9)
+    n1 = math.floor((t[-1] - phase) / period + 1e-9)
+    ticks = phase + period * np.arange(n0, n1 + 1)
+    q_r = np.floor((_theta_at(sim, "r", ticks) - th0_r) / k + 1e-9)
+    q_l = np.floor((_theta_at(sim, "l", ticks) - th0_l) / k + 1e-9)
+    xo, yo, po = encoder_odometry(q_r, q_l, ticks, r, b, prep.ppr, pose0)
+    idx = np.clip(np.floor((t - phase) / period + 1e-9).astype(int) - n0, 0, ticks.size - 1)
+    return xo[idx], yo[idx], po[idx]
+
+
+CURRENT_SETTLE_S = 1e-3
+
+
+def _last_change(t_in: np.ndarray, values: tuple, t: np.ndarray) -> np.ndarray:
+    """Time of the latest change of any of ``values`` (held from ``t_in``) at or before ``t``."""
+    ch = np.zeros(t_in.size, bool)
+    ch[0] = True
+    for v in values:
+        ch[1:] |= np.diff(np.asarray(v, float)) != 0
+    tc = t_in[ch]
+    i = np.searchsorted(tc, t, side="right") - 1
+    return np.where(i >= 0, tc[np.maximum(i, 0)], -np.inf)
+
+
+def _tick_before(t_steps: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Latest of ``t_steps`` at or before each ``t`` (-inf before the first)."""
+    i = np.searchsorted(t_steps, t, side="right") - 1
+    return np.where(i >= 0, t_steps[np.maximum(i, 0)], -np.inf)
+
+
+@dataclass
+class Channel:
+    name: str
+    t: np.ndarray
+    rec: np.ndarray
+    sim: np.ndarray
+    unit: str
+    seg: np.ndarray | None = None   # replay window of each sample (None: one window)
+    unc: np.ndarray | None = None   # the replay's own uncertainty per sample (input_uncertainty)
+
+    @property
+    def resid(self) -> np.ndarray:
+        d = self.rec - self.sim
+        return wrap_angle(d) if self.name in ("phi_rad", "phi_odo_rad") else d
+
+    def deflated(self, floor: float) -> np.ndarray:
+        """The residual in units of the noise floor widened by the replay's uncertainty:
+        ``resid * floor / sqrt(floor^2 + unc^2)`` (the residual itself when ``unc`` is None),
+        so that anything that compares it with ``floor`` compares the residual with the two
+        added in quadrature."""
+        r = self.resid
+        if self.unc is None or floor <= 0:
+            return r
+        return r * (floor / np.sqrt(floor ** 2 + self.unc ** 2))
+
+    def spans(self) -> list[float]:
+        """Range of the recorded values within each replay window."""
+        if self.seg is None or self.rec.size == 0:
+            return [float(np.ptp(self.rec))] if self.rec.size else [0.0]
+        return [float(np.ptp(self.rec[self.seg == s])) for s in np.unique(self.seg)]
+
+
+def channels(prep: PreparedRun, sim, mode: str = "duty") -> dict[str, Channel]:
+    """Recording against simulation on common channels.  ``sim`` is one simulation of the whole
+    run (:meth:`OpenLoopReplay.simulate`) or the windows of :meth:`~OpenLoopReplay.simulate_windows`;
+    windows are compared each from its own start and concatenated."""
+    n = prep.run.telemetry["t_s"].size
+    if not isinstance(sim, WindowSims):
+        return _with_uncertainty(prep, _channels_window(prep, sim, 0, n, None))
+    parts = [_channels_window(prep, s, *prep.windows[w], w) for w, s in sim]
+    out: dict[str, Channel] = {}
+    for name in CHANNELS:
+        got = [c[name] for c in parts if name in c]
+        if not got:
+            continue
+        out[name] = Channel(name, np.concatenate([c.t for c in got]),
+                            np.concatenate([c.rec for c in got]),
+                            np.concatenate([c.sim for c in got]), got[0].unit,
+                            np.concatenate([c.seg for c in got]))
+    return _with_uncertainty(prep, out)
+
+
+def _with_uncertainty(prep: PreparedRun, chans: dict[str, Channel]) -> dict[str, Channel]:
+    """Attach the run's replay uncertainty (``replay_unc``: channel -> (t, unc), from
+    :func:`input_uncertainty`) to its channels, at their sample times."""
+    unc = prep.replay_unc
+    if unc:
+        for name, ch in chans.items():
+            if name in unc and ch.t.size:
+                ch.unc = np.interp(ch.t, *unc[name])
+    return chans
+
+
+@dataclass
+class _Window:
+    """The frames [i_a, i_b) of a run and the simulation ``sim`` they are compared with."""
+
+    prep: PreparedRun
+    sim: Mapping[str, np.ndarray]
+    i_a: int
+    i_b: int
+    w: int | None
+
+    def __post_init__(self) -> None:
+        self.tel = self.prep.run.telemetry
+        self.t_all = self.tel["t_s"]
+        self.t = self.t_all[self.i_a:self.i_b]
+        self.g = np.asarray(self.sim["t_s"], float)
+        self.k = 2 * np.pi / self.prep.ppr
+        self.th_r, self.th_l = self.at("theta_r_rad", self.t), self.at("theta_l_rad", self.t)
+
+    def at(self, name: str, times: np.ndarray) -> np.ndarray:
+        return np.interp(times, self.g, np.asarray(self.sim[name], float))
+
+    def seg(self, size: int) -> np.ndarray | None:
+        return None if self.w is None else np.full(size, self.w, dtype=np.int32)
+
+
+def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int, i_b: int,
+                     w: int | None) -> dict[str, Channel]:
+    """Channels of the frames [i_a, i_b) against ``sim``.  A window that does not start the run
+    is compared as increments from its first frame (counts, odometry, camera pose)."""
+    win = _Window(prep, sim, i_a, i_b, w)
+    out: dict[str, Channel] = {}
+    out.update(_wheel_channels(win))
+    out.update(_odometry_channels(win))
+    out.update(_current_channels(win))
+    out.update(_camera_channels(win))
+    return out
+
+
+def _wheel_channels(win: _Window) -> dict[str, Channel]:
+    """Wheel speeds (count differences over each telemetry period that the simulation covers)
+    and counts."""
+    tel, t_all, t, k, at, seg = win.tel, win.t_all, win.t, win.k, win.at, win.seg
+    out: dict[str, Channel] = {}
+    lo = max(win.i_a, 1)
+    while lo < win.i_b and t_all[lo - 1] < win.g[0] - 1e-9:
+        lo += 1
+    kk = np.arange(lo, win.i_b)
+    dt = t_all[kk] - t_all[kk - 1]
+    for side in ("r", "l"):
+        enc = tel[f"enc_{side}"]
+        th = at(f"theta_{side}_rad", t_all[kk])
+        th_prev = at(f"theta_{side}_rad", t_all[kk - 1])
+        out[f"omega_{side}"] = Channel(f"omega_{side}", t_all[kk], (enc[kk] - enc[kk - 1]) * k / dt,
+                                       (th - th_prev) / dt, "rad/s", seg(kk.size))
+    for side, th in (("r", win.th_r), ("l", win.th_l)):
+        enc = tel[f"enc_{side}"][win.i_a:win.i_b]
+        out[f"enc_{side}"] = Channel(f"enc_{side}", t, enc - enc[0], (th - th[0]) / k, "counts",
+                                     seg(t.size))
+    return out
+
+
+def _odometry_channels(win: _Window) -> dict[str, Channel]:
+    """Odometry of the simulated encoders (quantized like the real ones), from the recorded pose
+    at the window's first frame."""
+    tel, t, seg, i_a, i_b = win.tel, win.t, win.seg, win.i_a, win.i_b
+    pose0 = (tel["x_odo_m"][i_a], tel["y_odo_m"][i_a], tel["phi_odo_rad"][i_a])
+    xo, yo, po = _replay_odometry(win.prep, win.sim, t, win.th_r[0], win.th_l[0], pose0)
+    return {"x_odo_m": Channel("x_odo_m", t, tel["x_odo_m"][i_a:i_b], xo, "m", seg(t.size)),
+            "y_odo_m": Channel("y_odo_m", t, tel["y_odo_m"][i_a:i_b], yo, "m", seg(t.size)),
+            "phi_odo_rad": Channel("phi_odo_rad", t, tel["phi_odo_rad"][i_a:i_b], po, "rad",
+                                   seg(t.size))}
+
+
+def _current_channels(win: _Window) -> dict[str, Channel]:
+    """Motor current (the shield reports its magnitude) at the samples taken after it settled.
+
+    The recorded torque command is what the controller wanted; an open-loop replay only knows
+    the torque the plant delivered, so tau_cmd is compared by the closed-loop replay only."""
+    prep, tel, t, w = win.prep, win.tel, win.t, win.w
+    out: dict[str, Channel] = {}
+    if "i_r_a" not in win.sim:
+        return out
+    for side in ("r", "l"):
+        col = f"current_{side}_a"
+        cur = tel.get(col)
+        # a constant column (e.g. all zero) is a sensor that is not there
+        if cur is not None and cur.dtype.kind == "f" and np.ptp(cur) > 0:
+            # the current follows the duty within the armature's electrical time, and where
+            # in that transient the ADC sampled is not known: samples within CURRENT_SETTLE_S
+            # of a change of the duty are left out
+            t_steps = prep.t_steps
+            dt_in = (t - _last_change(prep.t_in, prep.duty, t) if t_steps is None
+                     else t - _tick_before(np.asarray(t_steps, float), t))
+            keep = dt_in >= CURRENT_SETTLE_S
+            unc = float(prep.phase_uncertainty_s or 0.0)
+            if unc > 0:
+                # where the ticks are known only to within unc, a sample that close to a
+                # tick may sit on either side of it: left out as well
+                steps = prep.t_in if t_steps is None else np.asarray(t_steps, float)
+                j = np.searchsorted(steps, t, side="left")
+                nxt = np.where(j < steps.size, steps[np.minimum(j, steps.size - 1)], np.inf)
+                keep &= (dt_in >= CURRENT_SETTLE_S + unc) & (nxt - t > unc)
+            if keep.sum() < max(3, keep.size // 4):
+                continue   # the frames coincide with the loop's ticks: no settled sample
+            out[col] = Channel(col, t[keep], np.asarray(tel[col][win.i_a:win.i_b], float)[keep],
+                               np.abs(win.at(f"i_{side}_a", t[keep])), "A",
+                               None if w is None else win.seg(int(keep.sum())))
+    return out
+
+
+def _camera_channels(win: _Window) -> dict[str, Channel]:
+    """The camera's pose against the replay's; a window that does not start the run is
+    re-anchored at its first frame (:func:`_gt_anchor`)."""
+    prep, t_all, t, g, at, seg = win.prep, win.t_all, win.t, win.g, win.at, win.seg
+    i_a, i_b = win.i_a, win.i_b
+    anchored = i_a > 0
+    out: dict[str, Channel] = {}
+    gt = prep.run.groundtruth
+    if gt is None:
+        return out
+    tg_all = gt["t_s"]
+    t_hi = t_all[i_b] if i_b < t_all.size else t_all[-1] + 1e-9
+    inside = (tg_all >= max(g[0], t[0])) & (tg_all < t_hi) & (tg_all <= g[-1])
+    tg = tg_all[inside]
+    if tg.size < 3:
+        return out
+    an = _gt_anchor(prep, float(t[0])) if anchored else None
+    shift = _count_anchor_shift(prep, win.sim, t, win.th_r, win.th_l, i_a, i_b, tg)
+    pos = {c: at(c, tg) - shift[c] for c in ("x_m", "y_m")}
+    if anchored:
+        # re-anchored in pose, not only in position: the replay's increments are
+        # turned by the heading it is off the anchor at the window's first frame (its
+        # early start's transient, a few mrad, would otherwise grow into a cross-track
+        # drift of millimetres per metre)
+        p0 = {c: float(at(c, t[:1])[0]) for c in ("x_m", "y_m")}
+        ref = {c: an[c] if an is not None else float(gt[c][inside][0])
+               for c in ("x_m", "y_m")}
+        rot = 0.0
+        if an is not None and an.get("phi_rad") is not None:
+            rot = float(wrap_angle(np.array([an["phi_rad"] - float(at("phi_rad", t[:1])[0])]))[0])
+        dx, dy = pos["x_m"] - p0["x_m"], pos["y_m"] - p0["y_m"]
+        cr, sr = math.cos(rot), math.sin(rot)
+        pos = {"x_m": cr * dx - sr * dy + ref["x_m"], "y_m": sr * dx + cr * dy + ref["y_m"]}
+    for c in ("x_m", "y_m"):
+        out[c] = Channel(c, tg, gt[c][inside], pos[c], "m", seg(tg.size))
+    ph = gt["phi_rad"][inside]
+    ok = np.isfinite(ph)
+    if ok.sum() >= 3:
+        # compared modulo 2 pi (Channel.resid wraps)
+        sv = at("phi_rad", tg[ok]) - shift["phi_rad"][ok]
+        if anchored:
+            ref = (an or {}).get("phi_rad")
+            if ref is None:
+                ref = float(ph[ok][0])
+            sv = sv - float(at("phi_rad", t[:1])[0]) + ref
+        out["phi_rad"] = Channel("phi_rad", tg[ok], ph[ok], sv, "rad", seg(int(ok.sum())))
+    return out

@@ -1,0 +1,199 @@
+"""Commands no telemetry frame reported (a loop faster than the telemetry, lost frames): their
+fill refined with the controller's pattern, and the replay's uncertainty from them."""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Mapping
+
+import numpy as np
+
+from host_tools.analyzer.prepare.run import PreparedRun
+from host_tools.analyzer.replay.channels import channels
+from host_tools.analyzer.signals import robust_std
+
+if TYPE_CHECKING:
+    from host_tools.analyzer.replay.openloop import OpenLoopReplay
+
+
+UNSEEN_PATTERN_HALF = 4   # unseen ticks on either side averaged into one tick's pattern (within 8 ticks)
+UNSEEN_BRACKET_SIGMA = 3.0  # an unseen tick's command: within its bracket +- this many sigma
+TICK_SHIFT_GAIN = 0.5        # _replay_tick_shift: a shift must cut the disagreement by this
+
+
+def _replay_tick_shift(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray], k: np.ndarray,
+                       seen: np.ndarray) -> int:
+    """The closed-loop replay's tick that matches each recorded tick is ``k`` plus this
+    shift (-1, 0 or 1): the one under which the replay's duties bend where the reported ones
+    do (least squares of their departures from the line through the neighbouring reported
+    ticks).  A recording's tick phase a millisecond off its true value can put the replay's
+    staircase and steps a whole tick early or late."""
+    n = np.asarray(cl_sim["t_s"]).size
+    # the reported ticks that every trial shift keeps inside the replay
+    i = np.flatnonzero(seen & (k >= 1) & (k < n - 1))
+    if i.size < 5:
+        return 0
+    x = k[i].astype(float)
+
+    def bend(v: np.ndarray) -> np.ndarray:
+        w = (x[1:-1] - x[:-2]) / np.maximum(x[2:] - x[:-2], 1e-9)
+        return v[1:-1] - (v[:-2] + (v[2:] - v[:-2]) * w)
+    best, best_s, err0 = np.inf, 0, np.inf
+    for s in (0, -1, 1):
+        ks = k[i] + s
+        err = 0.0
+        for col, rec in (("pwm_r", prep.duty[0]), ("pwm_l", prep.duty[1])):
+            if col in cl_sim:
+                d = bend(np.asarray(rec, float)[i]) - bend(np.asarray(cl_sim[col], float)[ks])
+                err += float(np.sum(d ** 2))
+        if s == 0:
+            err0 = err
+        if err < best:
+            best, best_s = err, s
+    # a shift must at least halve the disagreement: a slipping run's duties bend little, and
+    # a near tie is no evidence against the phase
+    return best_s if best < TICK_SHIFT_GAIN * err0 else 0
+
+
+def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray]) -> int:
+    """Refine the commands of the ticks no frame reported (a loop faster than the telemetry,
+    lost frames) with the pattern of the controller that produced them.
+
+    :func:`prepare` fills such a tick on the straight line between the reported ones.  A
+    cascade whose outer loop updates the torque only every other inner tick makes a staircase
+    instead: the duty rises mostly at the outer ticks, so the unreported ticks lie off that line
+    by the same sign for as long as the wheels accelerate (8e-3 of duty on a clamped 72 rad/s^2
+    start with a 10 ms loop seen at 50 Hz); held open loop, that bias drifts a slipping wheel's
+    speed by about one noise floor.  The closed-loop replay of the same controller
+    (``cl_sim``, per tick) has the staircase: its unreported ticks' offset from its own line
+    through the reported ticks, averaged over the UNSEEN_PATTERN_HALF unreported ticks on
+    either side (tick-level differences come from single encoder counts, which no replay
+    reproduces), is added to the fill.  The reported ticks stay as recorded.  Returns the
+    number of ticks changed."""
+    seen = prep.seen_ticks
+    ts = np.asarray(cl_sim.get("t_s", np.zeros(0)), float)
+    if seen is None or ts.size < 3 or bool(np.all(seen)):
+        return 0
+    T = float(ts[1] - ts[0])
+    period = float(prep.inner_period or 0.0)
+    if T <= 0 or abs(T - period) > 1e-6 * max(period, 1e-9):
+        return 0
+    k = np.round((prep.t_in - ts[0]) / T).astype(np.int64)
+    k = k + _replay_tick_shift(prep, cl_sim, k, np.asarray(seen, bool))
+    inside = (k >= 0) & (k < ts.size)
+    k_seen = k[seen & inside]
+    unseen = np.flatnonzero(~seen & inside)
+    if k_seen.size < 2 or unseen.size == 0:
+        return 0
+
+    def pattern(u: np.ndarray) -> tuple[np.ndarray, float]:
+        off = u[k[unseen]] - np.interp(k[unseen], k_seen, u[k_seen])
+        # averaged over the unseen ticks within 2 * UNSEEN_PATTERN_HALF ticks (every other
+        # tick unseen: UNSEEN_PATTERN_HALF on either side), never over other, distant gaps
+        ku = k[unseen]
+        c = np.concatenate([[0.0], np.cumsum(off)])
+        lo = np.searchsorted(ku, ku - 2 * UNSEEN_PATTERN_HALF, side="left")
+        hi = np.searchsorted(ku, ku + 2 * UNSEEN_PATTERN_HALF, side="right")
+        smooth = (c[hi] - c[lo]) / (hi - lo)
+        # a single tick far off the line (a step: the end of a ramp, a clamp taking hold) is
+        # the controller's, not an encoder count's: kept beyond 3 sigma of the tick-level
+        # scatter (soft threshold), the scatter itself averaged away
+        dev = off - smooth
+        sigma = robust_std(dev) if dev.size > 4 else 0.0
+        return smooth + np.sign(dev) * np.maximum(np.abs(dev) - 3.0 * sigma, 0.0), sigma
+
+    i_seen = np.flatnonzero(seen)
+    j_next = np.clip(np.searchsorted(i_seen, unseen), 1, i_seen.size - 1)
+    prev_i, next_i = i_seen[j_next - 1], i_seen[j_next]
+
+    def refined(v: np.ndarray, col: str) -> np.ndarray:
+        out = np.asarray(v, float).copy()
+        if col in cl_sim:
+            off, sigma = pattern(np.asarray(cl_sim[col], float))
+            # the replay's step can fall a tick or two off the recording's (its ramp ends on
+            # its own ticks): an unreported command stays within the reported ones that
+            # bracket it, widened by UNSEEN_BRACKET_SIGMA of the tick-level scatter
+            lo = np.minimum(out[prev_i], out[next_i]) - UNSEEN_BRACKET_SIGMA * sigma
+            hi = np.maximum(out[prev_i], out[next_i]) + UNSEEN_BRACKET_SIGMA * sigma
+            out[unseen] = np.clip(out[unseen] + off, lo, hi)
+        return out
+    prep.duty = (refined(prep.duty[0], "pwm_r"), refined(prep.duty[1], "pwm_l"))
+    if prep.t_in_tau.size == prep.t_in.size and np.array_equal(prep.t_in_tau, prep.t_in):
+        prep.torque = (refined(prep.torque[0], "tau_cmd_r"), refined(prep.torque[1], "tau_cmd_l"))
+    return int(unseen.size)
+
+
+UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from their uncertainty
+
+
+def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
+                      n: int = UNSEEN_ENSEMBLE) -> int:
+    """The replay's uncertainty from the commands no frame reported (a loop faster than the
+    telemetry, lost frames), per channel and sample: the spread of ``n`` replays whose unseen
+    ticks' duties are drawn from what the reported ones allow.
+
+    The fill of an unseen tick (:func:`prepare`, :func:`fill_unseen_from_controller`) assumes
+    that the commands run on a line between the reported ones around the gap.  Where they bend
+    (a step, the end of a ramp, a clamp letting go), the bend may fall anywhere in the gap:
+    the trend of the reported commands before the gap carried forward, or the trend after it
+    carried back, departs from that line by ``dev`` at the unseen tick (half a step for a
+    single unseen tick; growing into a long gap of lost frames), and the unseen command is
+    taken as uniform between the line and that departure, std ``dev / sqrt(3)``, one draw
+    shared by the ticks of a gap.  On a straight stretch ``dev`` vanishes and what remains is
+    the tick-level scatter of the reported commands (robust std of their second differences,
+    / sqrt(1.5): the fill's own error for white scatter), drawn per tick.  The replay turns the
+    draws into the output errors they cause, large
+    where the output is sensitive to the input (a slipping wheel, a step) and small elsewhere.
+    Stored in ``replay_unc`` (channel -> (t, std over the draws)) and attached to the
+    channels by :func:`channels`; decisions compare residuals with the noise floor and this
+    uncertainty in quadrature (:meth:`Channel.deflated`).  Draws are seeded by the run's
+    content, so an analysis is repeatable.  Returns the number of unseen ticks (0: no draw)."""
+    seen = prep.seen_ticks
+    if seen is None:
+        return 0
+    seen = np.asarray(seen, bool)
+    i_seen = np.flatnonzero(seen)
+    unseen = np.flatnonzero(~seen)
+    if unseen.size == 0 or i_seen.size < 3 or n < 2:
+        return 0
+    j = np.searchsorted(i_seen, unseen)
+    a, b = np.clip(j - 1, 0, i_seen.size - 1), np.clip(j, 0, i_seen.size - 1)
+    ts, tk = np.asarray(prep.t_in, float)[i_seen], np.asarray(prep.t_in, float)[unseen]
+    # a gap: consecutive unseen ticks; its ticks share one draw of the bend (a ramp that went
+    # on into the gap, or stopped early, does so for all of them)
+    gap = np.concatenate([[0], np.cumsum(np.diff(unseen) > 1)])
+    white, bend = [], []
+    for u in prep.duty:
+        us = np.asarray(u, float)[i_seen]
+        dd = us[1:-1] - 0.5 * (us[:-2] + us[2:])
+        white.append(robust_std(dd) / math.sqrt(1.5) if dd.size > 4 else 0.0)
+        line = np.interp(tk, ts, us)
+        s_a = np.where(a >= 1, (us[a] - us[a - 1]) / np.maximum(ts[a] - ts[a - 1], 1e-9), 0.0)
+        s_b = np.where(b + 1 < us.size, (us[np.minimum(b + 1, us.size - 1)] - us[b])
+                       / np.maximum(ts[np.minimum(b + 1, us.size - 1)] - ts[b], 1e-9), 0.0)
+        fwd = us[a] + s_a * (tk - ts[a])
+        bwd = us[b] - s_b * (ts[b] - tk)
+        dev = np.minimum(np.maximum(np.abs(fwd - line), np.abs(bwd - line)), 1.0)
+        bend.append(dev / math.sqrt(3.0))
+    seed = int(np.uint32(int(np.sum(np.asarray(prep.run.telemetry["t_s"], float) * 1e3)) & 0xFFFFFFFF))
+    rng = np.random.default_rng([seed, unseen.size])
+    base = tuple(np.asarray(u, float) for u in prep.duty)
+    acc: dict[str, list[np.ndarray]] = {}
+    t_of: dict[str, np.ndarray] = {}
+    try:
+        for _ in range(n):
+            draw = []
+            for u, w, bd in zip(base, white, bend):
+                v = u.copy()
+                z = rng.standard_normal(int(gap[-1]) + 1)
+                v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
+                draw.append(np.clip(v, -1.0, 1.0))
+            prep.duty = tuple(draw)
+            for name, ch in channels(prep, replay.simulate_windows(prep, {}), "duty").items():
+                acc.setdefault(name, []).append(ch.resid)
+                t_of[name] = ch.t
+    finally:
+        prep.duty = base
+    prep.replay_unc = {name: (t_of[name], np.std(np.array(v), axis=0))
+                                 for name, v in acc.items()
+                                 if len({a.size for a in v}) == 1 and t_of[name].size}
+    return int(unseen.size)
