@@ -155,3 +155,21 @@ def test_bad_path_files_are_refused_with_row_and_column(tmp_path, text, where):
                        capture_output=True, text=True, cwd=Path(__file__).resolve().parents[2])
     assert r.returncode == 2 and where in r.stderr
     assert not (tmp_path / "r").exists()  # nothing was made
+
+
+def test_robot_set_model_between_drives_is_reported_back(elf, sim, tmp_path):
+    """Robot.set_model while stopped: SetMu and SetModel acknowledged, the robot's Params (and
+    so meta.json) report the new wheel radius; while driving the firmware answers busy."""
+    model = {"format": "ddmodel/1", "robot": dict(params.ROBOT, r=0.0371, mu_s=0.3, mu_k=0.28)}
+    with Robot(fil=True, out=tmp_path / "sm", elf=elf, sim_args=FAST) as bot:
+        bot.drive(0.1, 0.0)
+        bot.sleep(0.3)
+        with pytest.raises(RobotError, match="busy"):
+            bot.set_model(model)
+        bot.stop()
+        bot.wait_stopped()
+        bot.set_model(model)
+        bot.sleep(0.2)
+    meta = json.loads((tmp_path / "sm" / "meta.json").read_text())
+    assert meta["robot"]["r"] == pytest.approx(0.0371) and meta["robot"]["mu_s"] == pytest.approx(0.3)
+    assert [c["command"] for c in meta["commands"] if c["result"] == "ok"][-2:] == ["SetMu", "SetModel"]
