@@ -25,6 +25,7 @@ COMMANDS = {
     "timing": ("host_tools.timing", "check the firmware's timing budgets"),
     "analyze": ("host_tools.analyzer.cli", "find, name and model sim/real mismatch"),
     "fil": ("host_tools.fil", "firmware in the loop: record a run from firmware.elf in simavr"),
+    "drive": ("host_tools.robot", "drive the robot (keys or a scripted path), recording as it drives"),
     "demo": ("host_tools.demo", "the main job: thesis reproduction and analyzer demo"),
     "export": ("host_tools.interop.mcap_export", "write a run (and its analysis) as an MCAP file "
                "for Foxglove"),

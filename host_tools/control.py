@@ -112,7 +112,12 @@ class ClosedLoop:
     ``ctl_robot``/``ctl_motor``: the controller's nominal parameters (meta.json names);
     ``ctl_params``: ``controller`` (0 improved, 1 thesis) and gains (``k_x`` ... ``k_ia``);
     ``duty_ramp``: the firmware's 1 kHz ramp of a clamped wheel's duty (off: held per tick);
-    ``plant_robot``/``plant_motor`` and ``effects`` ({name: {param: value}}): the plant's."""
+    ``plant_robot``/``plant_motor`` and ``effects`` ({name: {param: value}}): the plant's.
+
+    ``kind="drive"``: drive mode (the Drive command's reference, lib/control drive.h) instead of
+    a profile: ``drive = {"accel": m/s^2, "alpha": rad/s^2, "commands": [{"t_s", "v", "omega"},
+    ...]}``, the targets the firmware latched at outer ticks (board time, m/s, rad/s; what
+    meta.json ``reference`` holds for a drive); accel_m_s2/cruise_m_s/radius_m are unused."""
 
     def __init__(self, kind: str, accel_m_s2: float, cruise_m_s: float, radius_m: float = 1.0, *,
                  fixed_point: bool = True, clamp: bool = True,
@@ -124,7 +129,8 @@ class ClosedLoop:
                  t0_s: float = 0.0, inner_s: float = INNER_S, outer_every: int = 2,
                  ppr: int = ENCODER_PPR, plant_dt_s: float = 5e-4, rows_per_tick: int = 1,
                  actuator: str = "duty", start_pose=(0.0, 0.0, 0.0),
-                 ctl_params: Mapping[str, float] | None = None, duty_ramp: bool = True):
+                 ctl_params: Mapping[str, float] | None = None, duty_ramp: bool = True,
+                 drive: Mapping | None = None):
         if actuator not in ACTUATORS:
             raise ValueError(f"actuator must be 'duty' or 'torque', got {actuator!r}")
         self._lib = _native.library()  # cl_*: host_tools/native/closedloop_capi.h
@@ -168,8 +174,18 @@ class ClosedLoop:
             for p, v in {**vocab[name], **params}.items():
                 self.set(f"{name}.{p}", v)
             self.set(f"{name}.enabled", 1.0)
-        self._check(lib.cl_set_reference(self._h, _kind(kind), float(accel_m_s2),
-                                         float(cruise_m_s), float(radius_m)), "reference")
+        if kind == "drive":
+            if not isinstance(drive, Mapping):
+                raise ValueError("kind 'drive' needs drive={'accel', 'alpha', 'commands'}")
+            cmds = list(drive.get("commands") or [])
+            arr = [np.ascontiguousarray([float(c[k]) for c in cmds], dtype=float)
+                   for k in ("t_s", "v", "omega")]
+            dp = ctypes.POINTER(ctypes.c_double)
+            self._check(lib.cl_set_drive(self._h, float(drive["accel"]), float(drive["alpha"]), len(cmds),
+                                         *(a.ctypes.data_as(dp) for a in arr)), "drive reference")
+        else:
+            self._check(lib.cl_set_reference(self._h, _kind(kind), float(accel_m_s2),
+                                             float(cruise_m_s), float(radius_m)), "reference")
         self.reset(start_pose)
 
     def __del__(self):

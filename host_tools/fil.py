@@ -167,15 +167,19 @@ def sim_args(keys: dict[str, float] | None = None, **opts: Any) -> list[str]:
 def record(out: str | Path, elf: str | Path, experiment: dict | None = None, clamp: bool | None = None,
            mu: tuple[float, float] | None = None, args: list[str] | None = None,
            record_s: float | None = None, timeout_s: float = 60.0,
-           controller: str | None = None, on_row=None) -> tuple[int, L.Logger, dict]:
+           controller: str | None = None, model: dict | None = None,
+           on_row=None) -> tuple[int, L.Logger, dict]:
     """Runs the simulator and records through its pty with the logger (``controller``:
     the velocity loop the logger sets with SetController before the Start, None: the
-    firmware's default; ``on_row``: called with each telemetry row, e.g. the live view's
-    publish). Returns (logger exit code, logger, fil.json)."""
+    firmware's default; ``model``: SetModel values, host_tools.model.firmware_model;
+    ``on_row``: called with each telemetry row, e.g. the live view's publish). Returns
+    (logger exit code, logger, fil.json)."""
     out = Path(out)
     if controller is not None and controller not in P.definition().enums["controller"]:
         raise FilError(f"controller '{controller}' is not one of "
                        f"{', '.join(sorted(P.definition().enums['controller']))}")
+    from host_tools.logger.runfolder import clear_failed
+    clear_failed(str(out))  # a retry replaces a failed recording
     for f in ("telemetry.csv", "groundtruth.csv"):
         if (out / f).exists():
             raise FilError(f"{out / f} already exists; refusing to overwrite a recorded run")
@@ -192,7 +196,7 @@ def record(out: str | Path, elf: str | Path, experiment: dict | None = None, cla
         return serial.serial_for_url(sim.pty, baudrate=d.baud, timeout=0.05, write_timeout=0.5)
 
     lg = FilLogger(str(out), open_port, sim.pty, d.baud, experiment=experiment, clamp=clamp, mu=mu,
-                   record_s=record_s, controller=controller, status=False, d=d, on_row=on_row,
+                   record_s=record_s, controller=controller, status=False, d=d, model=model, on_row=on_row,
                    fil_meta={"command": sim.cmd[1:], "elf": str(elf)})
     try:
         code = lg.run()
@@ -308,7 +312,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the cascade's velocity loop, sent as SetController before the Start "
                    "(default: the firmware's, improved)")
     r.add_argument("--model", metavar="MODEL_JSON", help="an analyzer model.json (ddmodel/1): its parameters "
-                   "and effects go to the simulated plant, its mu_s/mu_k to the firmware (SetMu)")
+                   "and effects go to the simulated plant, its mu_s/mu_k (SetMu) and wheel radius, half track, "
+                   "back-EMF ratio and voltage drop (SetModel) to the firmware")
     r.add_argument("--record-s", type=float, help="free recording length, s (with --experiment "
                    "none; default: the experiment's length + 5 s)")
     from host_tools.interop import live
@@ -349,16 +354,18 @@ def main(a: argparse.Namespace) -> int:
             if (a.mu_s is None) != (a.mu_k is None):
                 raise P.ProtocolError("--mu-s and --mu-k go together")
             mu = (a.mu_s, a.mu_k) if a.mu_s is not None else None
+            fw_model = None
             if a.model:
                 from host_tools import model as M
                 if mu is not None:
                     raise P.ProtocolError("--model and --mu-s/--mu-k exclude each other")
                 m = M.load_model(a.model)
-                mu = M.firmware_mu(m, a.model)
+                mu, fw_model = M.firmware_commands(m, a.model)
                 opts = sim_args(M.plant_keys(m)) + opts
             clamp = None if a.clamp is None else a.clamp == "on"
             code, lg, s = record(a.out, elf, exp, clamp, mu, opts, record_s=a.record_s,
-                                 controller=a.controller, on_row=pub.publish if pub else None)
+                                 controller=a.controller, model=fw_model,
+                                 on_row=pub.publish if pub else None)
             print(f"{a.out}: {lg.stats['telemetry_rows']} telemetry rows, {s['groundtruth']['rows']} ground-truth "
                   f"rows; {s['sim_s']:.2f} simulated s at {s['sim_s_per_wall_s']:.2f} simulated s per wall s; "
                   f"logger: {lg.end_reason}")

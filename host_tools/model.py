@@ -4,8 +4,9 @@ for the simulators and the firmware.
 - the plant (`_native.Plant`) and the firmware-in-the-loop simulator take it as lib/slipmodel
   keys: `robot.*`, `motor.*`, `<effect>.<param>` and `<effect>.enabled` (`plant_keys`);
 - the firmware takes the friction coefficients, from which it computes τmax (II.51) itself,
-  through the SetMu command (`firmware_mu`; `python -m host_tools log --model` and
-  `python -m host_tools fil record --model` send it).
+  through the SetMu command (`firmware_mu`), and the wheel radius, half track, back-EMF ratio
+  and voltage drop through SetModel (`firmware_model`); `python -m host_tools log --model`,
+  `fil record --model`, `drive --model` and `Robot(model=...)` send both.
 """
 from __future__ import annotations
 
@@ -14,6 +15,8 @@ import math
 import os
 from pathlib import Path
 from typing import Any
+
+from host_tools import params as param_table
 
 FORMAT = "ddmodel/1"
 
@@ -106,3 +109,47 @@ def firmware_mu(model: dict[str, Any], path: str | Path = "model") -> tuple[floa
     if "mu_s" not in robot or "mu_k" not in robot:
         raise ModelError(f"{path}: robot.mu_s and robot.mu_k are needed for the firmware")
     return float(robot["mu_s"]), float(robot["mu_k"])
+
+
+def firmware_model(model: dict[str, Any], path: str | Path = "model") -> dict[str, float]:
+    """The SetModel values of a model: wheel radius ``r`` and half track ``b`` (the model's
+    robot, in which the analyzer folds wheel_radius and track_width; params/params.json's where
+    the model has none), and the motor's back-EMF
+    ratio and voltage drop relative to the datasheet motor the firmware holds (params/params.json).
+
+    The model's motor is the one the recording's torque->duty map assumed (meta.json ``motor``:
+    the datasheet motor with the fit the firmware had then, slip::motor_as_driven), and its
+    effects motor_back_emf / driver_voltage_drop act on top of it.  With S the supply, stall
+    torque st and no-load speed nl, the motor a map assumes is st (S - D)/S u - k st w/nl; so the
+    total relative to the datasheet (st0, nl0) is D = S - st_m (S - D_m)/st0 and
+    k = k_m (st_m/nl_m) (nl0/st0) (the inverse of motor_as_driven, composed)."""
+    robot, motor, eff = model.get("robot", {}), model.get("motor", {}), model.get("effects", {})
+    robot = {**param_table.ROBOT, **robot}  # a key the model leaves out: the nominal value
+    sheet = param_table.MOTOR
+    supply = float(motor.get("supply_v", sheet["supply_v"]))
+    if abs(supply - sheet["supply_v"]) > 1e-9 * sheet["supply_v"]:
+        raise ModelError(f"{path}: motor.supply_v = {supply} differs from the firmware's "
+                         f"{sheet['supply_v']} V (params/params.json); SetModel cannot change it")
+    st_m = float(motor.get("stall_nm", sheet["stall_nm"]))
+    nl_m = float(motor.get("no_load_rad_s", sheet["no_load_rad_s"]))
+    k_m = float(eff.get("motor_back_emf", {}).get("ke_ratio", 1.0))
+    d_m = float(eff.get("driver_voltage_drop", {}).get("volts", 0.0))
+    drop = supply - st_m * (supply - d_m) / sheet["stall_nm"]
+    ke = k_m * (st_m / nl_m) * (sheet["no_load_rad_s"] / sheet["stall_nm"])
+    return {"r": float(robot["r"]), "b": float(robot["b"]),
+            "ke_ratio": round(ke, 4), "drop_v": round(0.0 if abs(drop) < 1e-9 else drop, 3)}
+
+
+def firmware_commands(model: dict[str, Any], path: str | Path = "model") -> tuple[tuple[float, float], dict]:
+    """(SetMu (mu_s, mu_k), SetModel values) of a model, checked against the protocol's ranges
+    (ModelError naming the file and the field)."""
+    from host_tools import protocol as P
+    mu = firmware_mu(model, path)
+    values = firmware_model(model, path)
+    d = P.definition()
+    try:
+        d.raw_values("SetMu", {"mu_s": mu[0], "mu_k": mu[1]})
+        d.raw_values("SetModel", values)
+    except P.ProtocolError as exc:
+        raise ModelError(f"{path}: cannot be sent to the firmware: {exc}") from None
+    return mu, values

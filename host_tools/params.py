@@ -128,3 +128,24 @@ ENCODER_PPR: int = int(TABLE.encoder.value)  # parsed as an integer (_param)
 RANGES: dict[tuple[str, str], tuple[float, float]] = {
     (p.group, p.name): (p.min, p.max) for p in TABLE.params if p.run_format}
 ENCODER_PPR_RANGE: tuple[int, int] = (int(TABLE.encoder.min), int(TABLE.encoder.max))
+
+
+def resolve_param_ranges(protocol_spec: dict) -> dict:
+    """protocol.json fields with ``"param": "group.name"`` take that parameter's range from this
+    table as their ``min``/``max`` (in place; returns the spec).  protocol/generate.py and
+    host_tools.protocol both call this, so the firmware's validator and the host check the
+    same range, written once, here."""
+    for msg in protocol_spec.get("messages", []):
+        for f in msg.get("fields", []):
+            key = f.get("param")
+            if key is None:
+                continue
+            group, _, name = str(key).partition(".")
+            if (group, name) not in RANGES:
+                raise TableError(f"protocol field {msg.get('name')}.{f.get('name')}: "
+                                 f"param {key!r} is not in {TABLE_PATH.name}")
+            if "min" in f or "max" in f:
+                raise TableError(f"protocol field {msg.get('name')}.{f.get('name')}: "
+                                 "give either param or min/max, not both")
+            f["min"], f["max"] = RANGES[(group, name)]
+    return protocol_spec

@@ -167,6 +167,10 @@ class Definition:
             raise ProtocolError(f"{self.path}: malformed protocol definition: {type(exc).__name__} {exc}") from None
 
     def _build(self, spec: dict) -> None:
+        try:
+            params.resolve_param_ranges(spec)  # "param" fields: ranges from params/params.json
+        except params.TableError as exc:
+            raise ValueError(str(exc)) from None
         self.spec = spec
         self.version: int = spec["version"]
         self.baud: int = spec["link"]["baud"]

@@ -46,6 +46,10 @@ def camel(name: str) -> str:
 def load(path: Path = DEFINITION) -> dict:
     with open(path, encoding="utf-8") as f:
         defn = json.load(f)
+    # fields with "param": their range is params/params.json's (the one table of the parameters)
+    sys.path.insert(0, str(ROOT))
+    from host_tools import params as param_table  # stdlib only
+    param_table.resolve_param_ranges(defn)
     check(defn)
     return defn
 
@@ -171,6 +175,11 @@ def render_header(defn: dict) -> str:
     w(f"static const float kCurrentSenseVoltsPerAmp = {c_float(cs['volts_per_amp'])};")
     w(f"static const uint8_t kCurrentSenseAdcBits = {cs['adc_bits']};")
     w(f"static const float kCurrentSenseAdcVrefV = {c_float(cs['adc_vref_v'])};")
+    drv = defn["drive"]
+    w("// ---- drive mode defaults at boot (SetDriveLimits changes them) ----")
+    w(f"static const float kDriveAccelDefault = {c_float(drv['accel'])};  // m/s^2")
+    w(f"static const float kDriveAlphaDefault = {c_float(drv['alpha'])};  // rad/s^2")
+    w(f"static const uint32_t kDriveCmdTimeoutDefaultUs = {int(round(drv['cmd_timeout'] * 1e6))}UL;")
     w("")
     w("// ---- task table: periods and cycle budgets ----")
     tasks = tim["tasks"]

@@ -5,10 +5,12 @@
 
 #include <control/cascade.h>
 #include <control/cascade_q.h>
+#include <control/drive.h>
 #include <control/odometry.h>
 #include <control/reference.h>
 #include <protocol/frame.h>
 #include <protocol/messages.h>
+#include <slipmodel/motor.h>
 #include <slipmodel/params.h>
 
 #include "board.h"
@@ -64,13 +66,20 @@ static_assert(static_cast<uint8_t>(ctl::Variant::kImproved) == proto::kControlle
 // ---- configuration (changed only by commands, while idle) ----
 slip::RobotParams g_robot;
 const slip::MotorParams kMotor = slip::datasheet_motor();
+slip::MotorImperfections g_motor_fit;    // back-EMF ratio and voltage drop (SetModel)
+slip::MotorParams g_motor = kMotor;      // the motor the torque->duty map assumes: kMotor with g_motor_fit
 bool g_clamp_on = true;
 bool g_params_default = true;
 ctl::Variant g_variant = ctl::Variant::kImproved;  // velocity loop (SetController)
+// drive mode (Drive, SetDriveLimits): limits, timeout, the reference's constants for the outer period
+uint32_t g_drive_timeout_us = proto::kDriveCmdTimeoutDefaultUs;
+ctl::DriveConfigQ g_drive_cfg{ctl::DriveLimits{proto::kDriveAccelDefault, proto::kDriveAlphaDefault},
+                              proto::kOuterPeriodUs};
 
-ctl::ControlConfig make_cfg() {
-    return ctl::make_control_config(g_robot, kMotor, ctl::gains_for(g_variant), g_clamp_on, g_variant);
+ctl::ControlConfig make_cfg(const slip::RobotParams& robot, const slip::MotorParams& motor) {
+    return ctl::make_control_config(robot, motor, ctl::gains_for(g_variant), g_clamp_on, g_variant);
 }
+ctl::ControlConfig make_cfg() { return make_cfg(g_robot, g_motor); }
 
 // ---- state ----
 ctl::ControllerQ* g_ctrl;          // points into g_ctrl_storage (no heap)
@@ -80,6 +89,13 @@ alignas(ctl::OdometryQ) uint8_t g_idle_odo_storage[sizeof(ctl::OdometryQ)];
 ctl::ReferenceSpecQ g_ref{ctl::ReferenceSpec{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f}};
 
 bool g_running;
+bool g_drive_mode;                 // the run (or the pending start) is drive mode, not a Start profile
+ctl::DriveReferenceQ g_drive;      // drive mode's reference source
+ctl::DriveLatch g_latch;           // the last Drive and when it came
+int16_t g_v_cmd_mm_s;              // the target the last outer step used (telemetry v_cmd)
+int16_t g_w_cmd_mrad_s;
+ctl::RefSampleQ g_last_ref;        // the reference of the last outer step (telemetry v_ref)
+uint32_t g_ref_t0_us;              // board time of the run's first tick (telemetry ref_t0_us)
 bool g_start_pending;              // Start accepted: the next inner tick on time starts the experiment
 bool g_start_deferred;             // ...and one late tick has been passed over
 uint8_t g_failsafe = proto::kFailsafeNone;
@@ -149,9 +165,10 @@ void send_params() {
     p.I_wy = static_cast<float>(g_robot.I_wy);
     p.r = static_cast<float>(g_robot.r);
     p.m_w = static_cast<float>(g_robot.m_w);
-    p.supply_v = static_cast<float>(kMotor.supply_v);
-    p.no_load_rad_s = static_cast<float>(kMotor.no_load_rad_s);
-    p.stall_nm = static_cast<float>(kMotor.stall_nm);
+    // the motor the torque->duty map assumes (the datasheet's with the SetModel fit)
+    p.supply_v = static_cast<float>(g_motor.supply_v);
+    p.no_load_rad_s = static_cast<float>(g_motor.no_load_rad_s);
+    p.stall_nm = static_cast<float>(g_motor.stall_nm);
     p.encoder_ppr = ENC_COUNTS_PER_REV;
     p.inner_period_us = proto::kInnerPeriodUs;
     p.outer_period_us = proto::kOuterPeriodUs;
@@ -161,6 +178,8 @@ void send_params() {
     p.controller = g_variant == ctl::Variant::kThesis ? proto::kControllerThesis
                                                       : proto::kControllerImproved;
     p.firmware_id = FIRMWARE_ID;
+    p.ke_ratio = static_cast<float>(g_motor_fit.ke_ratio);
+    p.drop_v = static_cast<float>(g_motor_fit.drop_v);
     send_msg(p);
 }
 
@@ -176,6 +195,7 @@ void stop_motors(uint8_t why) {
         g_idle_odo->reset(g_enc.count_r, g_enc.count_l, g_ctrl->odometry().pose());
     }
     g_running = false;
+    g_drive_mode = false;
     g_start_pending = false;
     g_failsafe = why;
 }
@@ -211,9 +231,82 @@ uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
     // period after the reset
     g_ref = q;
     g_exp_duration_ms = s.duration;
+    g_drive_mode = false;
     g_start_pending = true;
     g_start_deferred = false;
     return proto::kResultOk;
+}
+
+// Drive: the target of drive mode; while idle it also starts drive mode at the next inner tick
+// (like a Start, from the origin). busy while a Start profile runs or waits for its tick.
+uint8_t cmd_drive(const uint8_t* pl, uint8_t len, uint32_t rx_us) {
+    proto::Drive d = proto::Drive();
+    d.decode(pl, len);  // length and range checked by validate_command
+    if (busy() && !g_drive_mode) return proto::kResultBusy;
+    g_latch.received(d.linear, d.angular, rx_us);
+    if (busy()) return proto::kResultOk;  // drive mode runs (or starts at the next tick)
+    if (g_rebuild_pending) {
+        g_rebuild_pending = false;
+        rebuild_controller();
+    }
+    g_drive.reset();
+    g_drive_mode = true;
+    g_start_pending = true;
+    g_start_deferred = false;
+    return proto::kResultOk;
+}
+
+// SetModel: the fitted geometry and motor. Checked in full before anything changes: the
+// ranges (validate_command), then that the controller's fixed-point configuration holds them.
+uint8_t cmd_set_model(const uint8_t* pl, uint8_t len, uint8_t* detail) {
+    proto::SetModel m = proto::SetModel();
+    m.decode(pl, len);  // length and range checked by validate_command
+    if (busy()) return proto::kResultBusy;
+    slip::RobotParams robot = g_robot;
+    robot.r = m.get_r();
+    robot.b = m.get_b();
+    slip::MotorImperfections fit;
+    fit.ke_ratio = m.get_ke_ratio();
+    fit.drop_v = m.get_drop_v();
+    const slip::MotorParams motor = slip::motor_as_driven(kMotor, fit);
+    if (!ctl::ControlConfigQ(make_cfg(robot, motor), proto::kInnerPeriodUs).ok) {
+        *detail = 0;
+        return proto::kResultOutOfRange;
+    }
+    g_robot = robot;
+    g_motor_fit = fit;
+    g_motor = motor;
+    g_params_default = false;
+    g_rebuild_pending = true;
+    return proto::kResultOk;
+}
+
+uint8_t cmd_set_drive_limits(const uint8_t* pl, uint8_t len, uint8_t* detail) {
+    proto::SetDriveLimits m = proto::SetDriveLimits();
+    m.decode(pl, len);  // length and range checked by validate_command
+    if (busy()) return proto::kResultBusy;
+    const ctl::DriveLimits lim{m.get_accel(), m.get_alpha()};
+    const ctl::DriveConfigQ c(lim, proto::kOuterPeriodUs);
+    if (!c.ok) {
+        *detail = 0;
+        return proto::kResultOutOfRange;
+    }
+    g_drive_cfg = c;
+    g_drive_timeout_us = static_cast<uint32_t>(m.cmd_timeout) * 1000UL;  // raw ms
+    return proto::kResultOk;
+}
+
+// The reference of an outer step: drive mode's from the latched Drive target (0 after the
+// command timeout), else the Start profile's at the run's time.
+ctl::RefSampleQ next_reference(uint32_t t_ms) {
+    if (!g_drive_mode) {
+        g_v_cmd_mm_s = g_w_cmd_mrad_s = 0;
+        return ctl::reference_at_q(g_ref, t_ms);
+    }
+    const uint32_t now = time_us();
+    g_v_cmd_mm_s = g_latch.v_mm_s(now, g_drive_timeout_us);
+    g_w_cmd_mrad_s = g_latch.omega_mrad_s(now, g_drive_timeout_us);
+    return g_drive.step(g_drive_cfg, ctl::drive_v_q12(g_v_cmd_mm_s), ctl::drive_omega_q11(g_w_cmd_mrad_s));
 }
 
 // At the inner tick after an accepted Start (instead of that tick's idle odometry): the
@@ -225,8 +318,9 @@ uint8_t cmd_start(const uint8_t* pl, uint8_t len, uint8_t* detail) {
 // and the duration count from this tick; the outer task restarts in phase with it (next at
 // t = 50 ms, then every 50 ms), the schedule lib/closedloop runs.
 void start_experiment() {
-    const ctl::InnerOutQ& o = g_ctrl->start(g_enc.count_r, g_enc.count_l, ctl::PoseQ{0, 0, 0},
-                                            ctl::reference_at_q(g_ref, 0));
+    g_last_ref = next_reference(0);
+    g_ref_t0_us = g_last_inner_us;
+    const ctl::InnerOutQ& o = g_ctrl->start(g_enc.count_r, g_enc.count_l, ctl::PoseQ{0, 0, 0}, g_last_ref);
     motor_set_ramp_q15(o.pwm_r_q15, o.slope_r_q15, o.pwm_l_q15, o.slope_l_q15,
                        static_cast<uint8_t>(proto::kInnerPeriodUs / 1000u - 1u));
     sched_restart_after_current(proto::kTaskOuter);
@@ -244,7 +338,7 @@ void start_experiment() {
 // host-to-robot type with its exact length), the only frames that count as the host being
 // alive for the host-timeout failsafe: a stray device or a looping host sending valid frames
 // of unknown types, or of a wrong length, must not keep the robot driving.
-bool handle_frame(const proto::Frame& f) {
+bool handle_frame(const proto::Frame& f, uint32_t rx_us) {
     uint8_t detail = 255;
     uint8_t res = proto::validate_command(f.type, f.payload, f.len, &detail);
     const bool known = res != proto::kResultUnknownType && res != proto::kResultBadLength;
@@ -252,6 +346,15 @@ bool handle_frame(const proto::Frame& f) {
         switch (f.type) {
             case proto::kMsgStart:
                 res = cmd_start(f.payload, f.len, &detail);
+                break;
+            case proto::kMsgDrive:
+                res = cmd_drive(f.payload, f.len, rx_us);
+                break;
+            case proto::kMsgSetModel:
+                res = cmd_set_model(f.payload, f.len, &detail);
+                break;
+            case proto::kMsgSetDriveLimits:
+                res = cmd_set_drive_limits(f.payload, f.len, &detail);
                 break;
             case proto::kMsgStop:
                 if (busy() || !motor_braking()) stop_motors(proto::kFailsafeStoppedByHost);
@@ -321,13 +424,13 @@ void inner_task() {
     // the duty at the start of the tick, then its ramp every ms until the next tick
     motor_set_ramp_q15(o.pwm_r_q15, o.slope_r_q15, o.pwm_l_q15, o.slope_l_q15,
                        static_cast<uint8_t>(proto::kInnerPeriodUs / 1000u - 1u));
-    if (sched_ms() - g_exp_start_ms >= g_exp_duration_ms) stop_motors(proto::kFailsafeFinished);
+    if (!g_drive_mode && sched_ms() - g_exp_start_ms >= g_exp_duration_ms) stop_motors(proto::kFailsafeFinished);
 }
 
 void outer_task() {
     if (!g_running) return;
-    ctl::RefSampleQ ref = ctl::reference_at_q(g_ref, sched_ms() - g_exp_start_ms);
-    g_ctrl->outer_step(ref);
+    g_last_ref = next_reference(sched_ms() - g_exp_start_ms);
+    g_ctrl->outer_step(g_last_ref);
 }
 
 int16_t sat16(int32_t v) {
@@ -378,7 +481,12 @@ void telemetry_task() {
             int32_t m = in.tau_max_r_q16 < in.tau_max_l_q16 ? in.tau_max_r_q16 : in.tau_max_l_q16;
             t.tau_max = q_to_raw16<10000, 16>(m);
         }
+        t.v_ref = q_to_raw16<1000, 12>(g_last_ref.v_q12);
+        t.omega_ref = q_to_raw16<1000, 11>(g_last_ref.omega_q11);
+        t.v_cmd = g_v_cmd_mm_s;
+        t.omega_cmd = g_w_cmd_mrad_s;
     }
+    t.ref_t0_us = g_ref_t0_us;
     t.pwm_r = q_to_raw16<10000, 15>(motor_duty_q15(kRight));
     t.pwm_l = q_to_raw16<10000, 15>(motor_duty_q15(kLeft));
     const ctl::PoseQ& p = odo.pose();
@@ -423,6 +531,7 @@ void telemetry_task() {
     if (!motor_braking()) status |= proto::kStatusMotorsEnabled;
     if (g_params_default) status |= proto::kStatusParamsDefault;
     if (g_variant == ctl::Variant::kThesis) status |= proto::kStatusThesisController;
+    if (g_running && g_drive_mode) status |= proto::kStatusDriveMode;
     t.status = status;
     t.failsafe = g_failsafe;
     t.reset_cause = boot_reset_cause();
@@ -454,7 +563,7 @@ void app_poll() {
         proto::Decoder::Status s = g_rx.feed(b);
         if (s == proto::Decoder::kFrame) {
             uint32_t rx_us = time_us();
-            if (handle_frame(g_rx.frame())) g_last_host_us = rx_us;
+            if (handle_frame(g_rx.frame(), rx_us)) g_last_host_us = rx_us;
         } else if (s == proto::Decoder::kError && g_rx.error_has_header()) {
             uint8_t res = g_rx.error() == proto::Decoder::kErrVersion ? proto::kResultBadVersion
                                                                       : proto::kResultBadCrc;

@@ -12,6 +12,7 @@
 
 #include <control/cascade.h>
 #include <control/cascade_q.h>
+#include <control/drive.h>
 #include <control/reference.h>
 
 #include "sequence.h"
@@ -86,6 +87,9 @@ ctl::ControllerQ qc(cfg_q);        // the firmware's sequence: reset, then dt = 
 ctl::ControllerQ qc_const(cfg_q);  // same sequence with a constant dt (cached reciprocal)
 ctl::ControllerQ qc_div(cfg_q);    // same counts, dt jumping on every call (every call divides)
 ctl::ControllerQ qc8(cfg_q);       // same counts, the outer task on the figure eight
+ctl::ControllerQ qcd(cfg_q);       // same counts, the outer task in drive mode
+ctl::DriveReferenceQ drive_task, drive_alone;
+const ctl::DriveConfigQ kDriveCfg(ctl::DriveLimits{1.0f, 4.0f}, 50000UL);
 ctl::ControllerQ qc_start(cfg_q);  // the start tick (reset, outer step at t = 0, first command)
 
 }  // namespace
@@ -125,7 +129,8 @@ int main() {
     overhead = s.lo;
   }
 
-  Stat in_q, in_q_const, in_q_free, out_q, ref_q, task8_q, in_f, out_f, ref_f, start_q;
+  Stat in_q, in_q_const, in_q_free, out_q, ref_q, task8_q, in_f, out_f, ref_f, start_q, drive_q, taskd_q;
+  drive_q.reset(); taskd_q.reset();
   in_q.reset(); in_q_const.reset(); in_q_free.reset(); out_q.reset(); ref_q.reset(); task8_q.reset(); in_f.reset();
   out_f.reset(); ref_f.reset(); start_q.reset();
   const ctl::RefSampleQ r0 = ctl::reference_at_q(spec_q, opaque(0UL));
@@ -167,6 +172,15 @@ int main() {
     // (two queued arcs), timed together.
     qc8.inner_step(enc_r, enc_l, dt_us);
     if (bench::outer_due(i)) TIME_IT(task8_q, qc8.outer_step(ctl::reference_at_q(spec8_q, t_ms)));
+    // Drive mode's outer task: the Drive target (mm/s, mrad/s, changing every tick so that the
+    // reference ramps and turns) converted, the reference stepped, the outer step.
+    qcd.inner_step(enc_r, enc_l, dt_us);
+    if (bench::outer_due(i)) {
+      const int16_t v_mm = opaque(static_cast<int16_t>((i * 37) % 1400 - 300));
+      const int16_t w_mrad = opaque(static_cast<int16_t>((i * 53) % 6000 - 3000));
+      TIME_IT(drive_q, sink = drive_alone.step(kDriveCfg, ctl::drive_v_q12(v_mm), ctl::drive_omega_q11(w_mrad)).x_q20);
+      TIME_IT(taskd_q, qcd.outer_step(drive_task.step(kDriveCfg, ctl::drive_v_q12(v_mm), ctl::drive_omega_q11(w_mrad))));
+    }
 #endif
   }
   sink = qc.inner().pwm_r_q15 + static_cast<int32_t>(fc.inner().pwm_r * 1000.0f);
@@ -234,6 +248,8 @@ int main() {
   row("fixed reference_at_q", ref_q);
   row("fixed reference_at_q, figure eight", ref8_q);
   row("fixed outer task, figure eight", task8_q);
+  row("fixed drive reference step (Drive target in)", drive_q);
+  row("fixed outer task, drive mode", taskd_q);
   row("fixed start (reset, outer, first command)", start_q);
   printf("fixed outer_step max + figure-eight sample max: %u\n", out_q.hi + ref8_q.hi);
   row("float inner_step (25 ms)", in_f);

@@ -122,7 +122,7 @@ inline uint32_t checksum_long() {
   X(traction.n_wheel0_q16) X(traction.n_wheels_q16) X(traction.n_c_q16)                         \
   X(traction.lat_gain_q24) X(traction.k_tau_q24) X(k_x_q8) X(k_y_q8) X(k_phi_q8) X(k_l_q8)      \
   X(k_a_q12) X(k_il_q8) X(k_ia_q12) X(m_ff_q12) X(I_ff_q17) X(m_t_q8) X(mtd_q16) X(mtd_q18)   \
-  X(inv_b_q8) X(half_r_q16) X(inv_stall_q13) X(inv_no_load_q20) X(v_max_q12) X(omega_max_q11)   \
+  X(inv_b_q8) X(half_r_q16) X(inv_stall_q13) X(inv_no_load_q19) X(v_max_q12) X(omega_max_q11)   \
   X(integ_max_v_q16) X(integ_max_w_q16) X(tau_big_q16) X(g_l_q15) X(g_a_q18) X(g_c_q23)          \
   X(g_cv_q20) X(g_ffv_q18) X(g_ffw_q21) X(g_il_q15) X(g_ia_q18) X(g_il_us_q34) X(g_ia_us_q37)       \
   X(jmax_v_q24) X(jmax_w_q24)     \

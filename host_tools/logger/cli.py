@@ -33,8 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--controller", choices=sorted(d.enums["controller"]),
                    help="send SetController before starting: the cascade's velocity loop "
                    "(the firmware's default: improved); meta.json controller_variant says which ran")
-    p.add_argument("--model", metavar="MODEL_JSON", help="send SetMu with the mu_s/mu_k of an analyzer "
-                   "model.json (ddmodel/1): the firmware's tau_max follows (instead of --mu-s/--mu-k)")
+    p.add_argument("--model", metavar="MODEL_JSON", help="send an analyzer model.json (ddmodel/1) to the "
+                   "firmware: SetMu (mu_s/mu_k: its tau_max follows; instead of --mu-s/--mu-k) and SetModel "
+                   "(wheel radius, half track, back-EMF ratio, voltage drop)")
     p.add_argument("--description", help="meta.json 'experiment' text (default: from the command)")
     p.add_argument("--record-s", type=float, help="stop after this many seconds (default: until the "
                    "experiment ends, or Ctrl-C)")
@@ -78,6 +79,7 @@ def main(args: argparse.Namespace) -> int:
                           "accel_time": args.accel_time, "duration": args.duration, "radius": args.radius}
             d.raw_values("Start", experiment)
         mu = None
+        model = None
         if (args.mu_s is None) != (args.mu_k is None):
             raise P.ProtocolError("--mu-s and --mu-k go together")
         if args.mu_s is not None:
@@ -86,10 +88,10 @@ def main(args: argparse.Namespace) -> int:
             if mu is not None:
                 raise P.ProtocolError("--model and --mu-s/--mu-k exclude each other")
             from host_tools import model as M
-            mu = M.firmware_mu(M.load_model(args.model), args.model)
+            mu, model = M.firmware_commands(M.load_model(args.model), args.model)
         if mu is not None:
             d.raw_values("SetMu", {"mu_s": mu[0], "mu_k": mu[1]})
-    except (P.ProtocolError, ValueError, OverflowError) as exc:
+    except (P.ProtocolError, ValueError, OverflowError) as exc:  # ModelError is a ValueError
         say(f"error: {exc}")
         return 2
     record_s = args.record_s
@@ -107,7 +109,7 @@ def main(args: argparse.Namespace) -> int:
         return 2
     lg = Logger(args.out, open_port, args.port, args.baud, experiment=experiment,
                 clamp=None if args.clamp is None else args.clamp == "on", mu=mu, record_s=record_s,
-                controller=getattr(args, "controller", None),
+                controller=getattr(args, "controller", None), model=model,
                 reconnect_timeout_s=args.reconnect_timeout, params_timeout_s=args.params_timeout,
                 status=not args.quiet, description=args.description, d=d,
                 on_row=pub.publish if pub else None)

@@ -329,6 +329,7 @@ class FramesMixin:
             return
         row = self.cols.row(raws, t_s, f.seq, host_t)
         self.writer.write_row(row)
+        self.reftrack.row(row)  # the reference the firmware tracks (meta.json "reference")
         self.stats["telemetry_rows"] += 1
         if getattr(self, "on_row", None) is not None:
             self.on_row(row)

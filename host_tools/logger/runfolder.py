@@ -19,6 +19,33 @@ from host_tools.logger.frames import shortest_f32
 RESERVE_BYTES = 256 * 1024  # kept free in the run folder for the final meta.json and events
 RESERVE_NAME = ".logger-reserve"
 RUN_FILES = ("meta.json", "telemetry.csv", "raw.bin", "events.jsonl")
+# A recording that failed before its experiment or drive ran: meta.json says "failed" (the
+# reason) and this file is in the folder; a retry with the same --out replaces the folder's files.
+FAILED_NAME = "FAILED"
+# the firmware in the loop's files (host_tools.fil), replaced with a failed recording's
+SIM_FILES = ("groundtruth.csv", "plant.csv", "encoder_samples.csv", "fil.json", "fil.log")
+
+
+def failed_reason(out: str) -> str | None:
+    """The reason a run folder is marked failed (its FAILED file and meta.json "failed"), else
+    None."""
+    try:
+        with open(os.path.join(out, "meta.json")) as fh:
+            reason = json.load(fh).get("failed")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return str(reason) if reason and os.path.exists(os.path.join(out, FAILED_NAME)) else None
+
+
+def clear_failed(out: str) -> None:
+    """Remove a failed recording's files (only when the folder is marked failed)."""
+    if failed_reason(out) is None:
+        return
+    for f in RUN_FILES[1:] + SIM_FILES + (FAILED_NAME, "meta.json"):  # meta.json last: the mark
+        try:
+            os.remove(os.path.join(out, f))
+        except FileNotFoundError:
+            pass
 
 
 def describe_experiment(cmd: dict) -> str:
@@ -40,6 +67,12 @@ class RunFolderMixin:
         shown = runfmt.display(self.out)
         if os.path.exists(self.out) and not os.path.isdir(self.out):
             raise LoggerError(f"--out {shown} exists and is not a folder", 2)
+        self._created_out = not os.path.exists(self.out)
+        try:
+            clear_failed(self.out)  # a retry replaces a failed recording
+        except OSError as exc:
+            raise LoggerError(f"--out {shown}: cannot replace the failed recording there: "
+                              f"{exc.strerror or exc}", 2) from None
         for f in RUN_FILES:  # meta.json alone is a run someone made (or is making)
             if os.path.lexists(os.path.join(self.out, f)):
                 raise LoggerError(f"{runfmt.display(os.path.join(self.out, f))} already exists; "
@@ -54,6 +87,26 @@ class RunFolderMixin:
         except OSError as exc:
             self._free_reserve()
             raise LoggerError(f"--out {shown} cannot be written: {exc.strerror or exc}", 2) from None
+
+    def _remove_if_created(self) -> None:
+        """Nothing recorded (the port never opened): remove the folder if this session made it."""
+        self._free_reserve()
+        if getattr(self, "_created_out", False):
+            try:
+                os.rmdir(self.out)
+            except OSError:
+                pass
+
+    def mark_failed(self, reason: str) -> None:
+        """The experiment or drive never ran: meta.json "failed" and the FAILED file say so, and
+        a retry with the same --out replaces the folder's files."""
+        self.failed = reason
+        try:
+            with open(os.path.join(self.out, FAILED_NAME), "w") as fh:
+                fh.write(f"this recording failed and holds no experiment: {reason}\n"
+                         "a recording with the same --out replaces it\n")
+        except OSError:
+            pass
 
     def _free_reserve(self) -> None:
         try:
@@ -81,6 +134,8 @@ class RunFolderMixin:
             # reports the duty of the frame's moment (docs/firmware.md)
             "duty_ramp": True,
         }
+        if getattr(self, "failed", None):
+            meta["failed"] = self.failed
         mu_ok = self.mu is not None and self._acked("SetMu")
         clamp_ok = self.clamp is not None and self._acked("SetClamp")
         if mu_ok:
@@ -103,6 +158,11 @@ class RunFolderMixin:
         variant = self._variant_reported(fresh)
         if variant is not None:
             meta["controller_variant"] = variant
+        if p is not None:  # the torque->duty map's fit (SetModel); meta "motor" already includes it
+            meta["motor_model"] = {"ke_ratio": shortest_f32(p["ke_ratio"]), "drop_v": shortest_f32(p["drop_v"])}
+        ref = self.reftrack.reference(self.experiment, meta["robot"]["r"], self._drive_limits_in_force())
+        if ref is not None:
+            meta["reference"] = ref
         meta["commands"] = self.commands
         self.stats["frames"] = self.dec.frames
         meta["logger"] = dict(
@@ -124,6 +184,13 @@ class RunFolderMixin:
             names = {v: k for k, v in self.d.enums["controller"].items()}
             return names.get(int(p["controller"]), f"unknown (code {int(p['controller'])})")
         return self.controller if ctl_ok else None
+
+    def _drive_limits_in_force(self) -> dict:
+        """The drive limits: the acknowledged SetDriveLimits, else the firmware's boot defaults
+        (protocol.json drive)."""
+        if self.drive_limits is not None and self._acked("SetDriveLimits"):
+            return dict(self.drive_limits)
+        return {k: self.d.spec["drive"][k] for k in ("accel", "alpha", "cmd_timeout")}
 
     def _acked(self, name: str) -> bool:
         return any(c["command"] == name and c["result"] == "ok" for c in self.commands)

@@ -20,6 +20,7 @@ from host_tools._stdio import say
 from host_tools.logger.errors import LoggerError, Stopped
 from host_tools.logger.frames import FramesMixin
 from host_tools.logger.link import LinkMixin
+from host_tools.logger.reference import ReferenceTracker
 from host_tools.logger.runfolder import RunFolderMixin
 
 ACK_TIMEOUT_S = 0.4
@@ -38,6 +39,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
                  controller: str | None = None, reconnect_timeout_s: float = 30.0, params_timeout_s: float = 1.0,
                  status: bool = True, description: str | None = None,
                  d: P.Definition | None = None, clock: Callable[[], float] = time.monotonic,
+                 model: dict | None = None, drive_limits: dict | None = None,
                  on_row: Callable[[dict], None] | None = None):
         self.d = d or P.definition()
         self.out = out_dir
@@ -51,6 +53,12 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
             raise LoggerError(f"controller '{controller}' is not one of "
                               f"{', '.join(sorted(self.d.enums['controller']))}", 2)
         self.controller = controller
+        # SetModel values (host_tools.model.firmware_model) and SetDriveLimits values: sent with
+        # the configuration; the drive limits in force go into meta.json's drive reference
+        self.model = model
+        self.drive_limits = drive_limits
+        self.reftrack = ReferenceTracker(self.d)
+        self.drives = False  # a drive session (host_tools.robot) is an experiment too
         self.record_s = record_s
         self.reconnect_timeout_s = reconnect_timeout_s
         self.params_timeout_s = params_timeout_s
@@ -84,6 +92,10 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         try:
             try:
                 self._connect(first=True)
+            except LoggerError:
+                self._remove_if_created()  # one clear message, nothing left behind
+                raise
+            try:
                 self._open_files()
             except LoggerError:
                 self._free_reserve()
@@ -122,6 +134,11 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
                     self.end_reason = self.end_reason or "interrupted (Ctrl-C)"
                 if self.end_reason == "" and self._stop:
                     self.end_reason = "stopped"
+                # failed before the experiment ran (nothing of it recorded): marked so; a free
+                # recording's data is never marked (a retry would replace it)
+                if (code != 0 and self._write_error is None and self._run_frames == 0
+                        and (self.experiment is not None or self.drives or self.stats["telemetry_rows"] == 0)):
+                    self.mark_failed(self.end_reason or f"exit code {code}")
                 if self.close() and code == 0:
                     code = 1
         finally:
@@ -130,28 +147,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         return code
 
     def _session(self) -> None:
-        self.event("start", port=self.port_name, baud=self.baud)
-        self.write_meta()
-        self.send("RequestParams")
-        if not self.pump(lambda: self.params is not None, self.params_timeout_s):
-            if self._stop:
-                raise Stopped()
-            self.event("no_params", waited_s=self.params_timeout_s)
-        if self.clamp is not None:
-            self.command("SetClamp", {"on": int(self.clamp)})
-        if self.mu is not None:
-            self.command("SetMu", {"mu_s": self.mu[0], "mu_k": self.mu[1]})
-        if self.controller is not None:
-            self.command("SetController", {"variant": self.controller})
-        if self.clamp is not None or self.mu is not None or self.controller is not None:
-            # meta.json records what the robot reports it now uses, not what we asked for
-            self._config_sent = True
-            n = self._params_before_config = self._params_count
-            self.send("RequestParams")
-            if not self.pump(lambda: self._params_count > n, self.params_timeout_s):
-                if self._stop:
-                    raise Stopped()
-                self.event("no_params_after_config", waited_s=self.params_timeout_s)
+        self._configure()
         if self.experiment is not None:
             self._heartbeat = True  # from the Start on, so the failsafe never fires early
             self.command("Start", self.experiment)
@@ -165,14 +161,44 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
             self.pump()
 
     def _send_stop(self) -> None:
-        """Stop the robot's experiment when the recording ends before it did."""
-        if self.experiment is None:
+        """Stop the robot's experiment or drive when the recording ends before it did."""
+        if self.experiment is None and not self.drives:
             return
         self._heartbeat = False
         try:
             self.send("Stop")
         except BaseException:  # a further signal or a dead port: the failsafe stops the robot
             pass
+
+    def _configure(self) -> None:
+        """Ask for the robot's parameters, send the configuration commands, ask again."""
+        self.event("start", port=self.port_name, baud=self.baud)
+        self.write_meta()
+        self.send("RequestParams")
+        if not self.pump(lambda: self.params is not None, self.params_timeout_s):
+            if self._stop:
+                raise Stopped()
+            self.event("no_params", waited_s=self.params_timeout_s)
+        if self.clamp is not None:
+            self.command("SetClamp", {"on": int(self.clamp)})
+        if self.mu is not None:
+            self.command("SetMu", {"mu_s": self.mu[0], "mu_k": self.mu[1]})
+        if self.model is not None:
+            self.command("SetModel", self.model)
+        if self.drive_limits is not None:
+            self.command("SetDriveLimits", self.drive_limits)
+        if self.controller is not None:
+            self.command("SetController", {"variant": self.controller})
+        if (self.clamp is not None or self.mu is not None or self.controller is not None
+                or self.model is not None):
+            # meta.json records what the robot reports it now uses, not what we asked for
+            self._config_sent = True
+            n = self._params_before_config = self._params_count
+            self.send("RequestParams")
+            if not self.pump(lambda: self._params_count > n, self.params_timeout_s):
+                if self._stop:
+                    raise Stopped()
+                self.event("no_params_after_config", waited_s=self.params_timeout_s)
 
     def command(self, name: str, values: dict | None = None) -> None:
         """Send a command and wait for its Ack (retrying); LoggerError if rejected/unanswered."""

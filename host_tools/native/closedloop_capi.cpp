@@ -19,6 +19,8 @@
 #include <stdio.h>
 #include <string.h>
 
+#include <vector>
+
 #include <closedloop/driver.h>
 #include <slipmodel/keys.h>
 
@@ -46,6 +48,7 @@ const int kRowColCount = 1 + kPlantColCount;
 struct Handle {
   cl::DriverConfig cfg;
   cl::Driver* drv;
+  std::vector<cl::DriveCommand> drive_cmds;  // cfg.drive_cmds points here
   char err[256];
   Handle() : cfg(), drv(new cl::Driver(cfg)) { err[0] = '\0'; }
   ~Handle() { delete drv; }
@@ -232,6 +235,7 @@ int cl_set_reference(void* p, int kind, double accel_m_s2, double cruise_m_s, do
     return CL_ERR_KEY;
   }
   cl::DriverConfig next = h->cfg;
+  next.drive = false;
   next.ref = ctl::ReferenceSpec{static_cast<ctl::PathKind>(kind), static_cast<float>(accel_m_s2),
                                 static_cast<float>(cruise_m_s), static_cast<float>(radius_m)};
   if (!isfinite(accel_m_s2) || !isfinite(cruise_m_s) || !isfinite(radius_m) || !next.ref.valid()) {
@@ -239,6 +243,40 @@ int cl_set_reference(void* p, int kind, double accel_m_s2, double cruise_m_s, do
     return CL_ERR_VALUE;
   }
   return h->rebuild(next);
+}
+
+/// Drive mode instead of a profile (cl_set_reference switches back): acceleration limits and
+/// n commands (board time s, v m/s, omega rad/s; sorted by time; v and omega are whole mm/s and
+/// mrad/s as the Drive message carries them, within its ranges).
+int cl_set_drive(void* p, double accel_m_s2, double alpha_rad_s2, int n, const double* t_s,
+                 const double* v_m_s, const double* omega_rad_s) {
+  if (!p || n < 0 || (n > 0 && (!t_s || !v_m_s || !omega_rad_s))) return CL_ERR_ARG;
+  Handle* h = H(p);
+  std::vector<cl::DriveCommand> cmds(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i) {
+    const double v = v_m_s[i] * 1e3, w = omega_rad_s[i] * 1e3;
+    if (!isfinite(t_s[i]) || !isfinite(v) || !isfinite(w) || fabs(v) > 4000.0 || fabs(w) > 15000.0) {
+      snprintf(h->err, sizeof h->err, "drive command %d: time, v or omega not finite or out of range", i);
+      return CL_ERR_VALUE;
+    }
+    cmds[static_cast<size_t>(i)] = cl::DriveCommand{t_s[i], static_cast<int16_t>(lround(v)),
+                                                    static_cast<int16_t>(lround(w))};
+  }
+  if (!isfinite(accel_m_s2) || !isfinite(alpha_rad_s2)) {
+    snprintf(h->err, sizeof h->err, "drive limits not finite");
+    return CL_ERR_VALUE;
+  }
+  std::vector<cl::DriveCommand> old;
+  old.swap(h->drive_cmds);
+  h->drive_cmds.swap(cmds);
+  cl::DriverConfig next = h->cfg;
+  next.drive = true;
+  next.drive_limits = ctl::DriveLimits{static_cast<float>(accel_m_s2), static_cast<float>(alpha_rad_s2)};
+  next.drive_cmds = h->drive_cmds.empty() ? nullptr : h->drive_cmds.data();
+  next.n_drive = n;
+  const int rc = h->rebuild(next);
+  if (rc != CL_OK) h->drive_cmds.swap(old);  // the driver still uses the old list
+  return rc;
 }
 
 /// Plant at rest at (x, y, phi) at time loop.t0_s, encoders 0, controller reset; tick 0 next.

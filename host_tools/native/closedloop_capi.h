@@ -20,6 +20,8 @@ int cl_row_col_count(void);
 const char* cl_row_col_name(int i);
 int cl_set(void* p, const char* key, double value);
 int cl_set_reference(void* p, int kind, double accel_m_s2, double cruise_m_s, double radius_m);
+int cl_set_drive(void* p, double accel_m_s2, double alpha_rad_s2, int n, const double* t_s,
+                 const double* v_m_s, const double* omega_rad_s);
 int cl_reset(void* p, double x_m, double y_m, double phi_rad);
 int cl_run(void* p, int n, double* ticks, int tick_cols, double* rows, int row_cols);
 int cl_state(void* p, double* out, int n);

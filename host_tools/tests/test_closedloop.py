@@ -82,3 +82,37 @@ def test_bad_settings_are_refused():
         ClosedLoop("line", 1.0, 0.5, effects={"gremlins": {}})
     with pytest.raises(ValueError, match="fixed-point"):
         ClosedLoop("line", 1.0, 0.5, ctl_robot={"r": 0.5})  # in range, beyond Q44 odometry
+
+
+def test_drive_mode_tracks_the_velocity_commands_as_the_firmware_latches_them():
+    """kind 'drive': the targets apply from the outer tick of their board time, ramp within the
+    limits (lib/control drive.h) and the cascade tracks them: 0.3 m/s from t0 to t0 + 2 s is
+    0.6 m (symmetric ramps), then a quarter turn on the spot (1 rad/s for pi/2 s)."""
+    t0 = 0.5
+    cmds = [{"t_s": t0, "v": 0.3, "omega": 0.0}, {"t_s": t0 + 2.0, "v": 0.0, "omega": 0.0},
+            {"t_s": t0 + 3.0, "v": 0.0, "omega": 1.0}, {"t_s": t0 + 3.0 + np.pi / 2, "v": 0.0, "omega": 0.0}]
+    # the firmware latches at outer ticks: a command between two ticks applies from the next one
+    cmds[3]["t_s"] = t0 + 0.05 * np.ceil((cmds[3]["t_s"] - t0) / 0.05)
+    for fixed in (True, False):
+        loop = ClosedLoop("drive", 0.0, 0.0, 0.0, fixed_point=fixed, t0_s=t0,
+                          drive={"accel": 1.0, "alpha": 4.0, "commands": cmds})
+        out = loop.run(int(7.0 / 0.025))
+        k2 = int(round(3.3 / 0.025))  # 2.8 s after t0: at rest after the first leg
+        assert out["x_m"][k2] == pytest.approx(0.6, abs=0.01)
+        assert abs(out["y_m"][k2]) < 2e-3
+        turned = out["phi_rad"][-1]
+        moved = np.hypot(out["x_m"][-1] - out["x_m"][k2], out["y_m"][-1] - out["y_m"][k2])
+        assert turned == pytest.approx(0.05 * np.ceil(np.pi / 2 / 0.05), abs=0.03)
+        assert moved < 0.01
+        assert abs(out["v_m_s"][-1]) < 1e-3 and abs(out["omega_rad_s"][-1]) < 0.03  # settling
+
+
+def test_drive_mode_refuses_bad_commands():
+    with pytest.raises(ValueError, match="not sorted"):
+        ClosedLoop("drive", 0, 0, 0, drive={"accel": 1.0, "alpha": 4.0, "commands": [
+            {"t_s": 1.0, "v": 0.1, "omega": 0.0}, {"t_s": 0.5, "v": 0.0, "omega": 0.0}]})
+    with pytest.raises(ValueError, match="out of range"):
+        ClosedLoop("drive", 0, 0, 0, drive={"accel": 1.0, "alpha": 4.0, "commands": [
+            {"t_s": 0.0, "v": 9.0, "omega": 0.0}]})
+    with pytest.raises(ValueError, match="drive limits"):
+        ClosedLoop("drive", 0, 0, 0, drive={"accel": 0.0, "alpha": 4.0, "commands": []})

@@ -8,6 +8,7 @@ import pytest
 
 from host_tools import _native
 from host_tools import model as M
+from host_tools import params
 
 
 def _write(tmp_path, model):
@@ -86,3 +87,25 @@ def test_fil_run_with_the_model(tmp_path):
     fil_json = json.loads((out / "fil.json").read_text())
     text = json.dumps(fil_json)
     assert "motor_back_emf" in text and math.isfinite(meta["robot"]["mu_s"])
+
+
+def test_firmware_model_composes_the_motor_fit_with_the_datasheet():
+    """SetModel's back-EMF ratio and voltage drop are relative to the datasheet motor: a model
+    whose motor is already a fit (the map's motor of a run after SetModel, meta.json "motor")
+    composes with its effects; the torque of the composed fit equals the model's own."""
+    sheet = params.MOTOR
+    S, st0, nl0 = sheet["supply_v"], sheet["stall_nm"], sheet["no_load_rad_s"]
+    st_m, nl_m, k_m, d_m = 0.70, 33.0, 1.1, 0.8
+    m = {"format": M.FORMAT, "robot": dict(params.ROBOT), "motor": {"supply_v": S, "stall_nm": st_m,
+         "no_load_rad_s": nl_m}, "effects": {"motor_back_emf": {"ke_ratio": k_m},
+                                            "driver_voltage_drop": {"volts": d_m}}}
+    v = M.firmware_model(m)
+    for u, w in ((0.5, 10.0), (-0.3, -20.0), (0.9, 30.0)):
+        model_tau = st_m * (u * (S - d_m) / S - k_m * w / nl_m)
+        fit_tau = st0 * (u * (S - v["drop_v"]) / S - v["ke_ratio"] * w / nl0)
+        assert fit_tau == pytest.approx(model_tau, abs=2e-4)
+    # the datasheet motor and no effects: neutral; the analyzer's folded radius and half track
+    m = {"format": M.FORMAT, "robot": dict(params.ROBOT, r=0.0372, b=0.107), "motor": dict(sheet)}
+    assert M.firmware_model(m) == {"r": 0.0372, "b": 0.107, "ke_ratio": 1.0, "drop_v": 0.0}
+    with pytest.raises(M.ModelError, match="supply_v"):
+        M.firmware_model({"motor": {"supply_v": S + 1}})

@@ -100,11 +100,13 @@ def test_embedded_golden_vectors():
     v.update(t_us=4294967000, enc_r=-123456, enc_l=2147483647, omega_r=3665, omega_l=-1250,
              tau_cmd_r=950, tau_cmd_l=-7700, pwm_r=10000, pwm_l=-2500, x_odo=1234567, y_odo=-500000,
              phi_odo=6500000, inner_last=771, inner_max=65535, inner_overruns=3, illegal_l=7, status=3,
-             failsafe=1, reset_cause=8, current_r=1023, stack_hwm=812, boot_count=513)
+             failsafe=1, reset_cause=8, current_r=1023, stack_hwm=812, boot_count=513,
+             v_ref=300, omega_ref=-1250, v_cmd=300, omega_cmd=-1250, ref_t0_us=123456789)
     assert _golden(text, "Telemetry seq=65535") == d.encode_raw("Telemetry", 65535, [v[n] for n in names])
     p = dict(d.robot_defaults["robot"], **d.robot_defaults["motor"])
     p.update(encoder_ppr=d.robot_defaults["encoder_ppr"], inner_period_us=25000, outer_period_us=50000, telemetry_period_us=20000,
-             baud=115200, clamp_on=1, controller=d.enums["controller"]["thesis"], firmware_id=0x12345678)
+             baud=115200, clamp_on=1, controller=d.enums["controller"]["thesis"], firmware_id=0x12345678,
+             ke_ratio=1.0, drop_v=0.0)
     assert _golden(text, "Params seq=7") == d.encode_raw("Params", 7, [p[f.name] for f in d.by_name["Params"].fields])
 
 

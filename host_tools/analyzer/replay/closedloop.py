@@ -12,7 +12,7 @@ from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import Channel
 
 
-REF_KINDS = ("line", "arc", "figure_eight")
+REF_KINDS = ("line", "arc", "figure_eight", "drive")
 # meta.json "controller" values that mean lib/control's cascade (absent: assumed)
 REPLAYABLE_CONTROLLERS = ("improved", "cascade")
 # meta.json "controller_variant": the cascade's velocity loop (absent: the firmware's default,
@@ -28,7 +28,9 @@ def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np
     Returns (setup, problems, assumptions).  ``setup`` is None when a problem makes the replay
     impossible.  Needed: ``meta["reference"]`` = ``{"kind": line|arc|figure_eight, "accel":
     m/s^2, "cruise": m/s, "radius": m (arc, figure eight)}`` (the free-text ``experiment`` is
-    not parsed: that would be guessing), ``torque_clamp``, ``periods_s.inner``/``outer``.
+    not parsed: that would be guessing), or for a drive ``{"kind": "drive", "accel", "alpha",
+    "commands": [{"t_s", "v", "omega"}, ...]}`` (the Drive targets as the firmware latched them,
+    host_tools/logger/reference.py), ``torque_clamp``, ``periods_s.inner``/``outer``.
     ``reference.t0_s`` is the board time of the controller's first tick (reference time 0);
     when absent it is taken as 0 (the board clock starts with the experiment, as the truth
     simulator writes) and that assumption is checked against the recording: every change of
@@ -58,7 +60,19 @@ def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np
     if kind not in REF_KINDS:
         return None, [f"meta.json reference.kind {kind!r} is not one of {list(REF_KINDS)}"], []
     vals = {}
-    need = ["accel", "cruise"] + (["radius"] if kind != "line" else [])
+    need = (["accel", "alpha"] if kind == "drive" else
+            ["accel", "cruise"] + (["radius"] if kind != "line" else []))
+    drive = None
+    if kind == "drive":  # the Drive targets as the firmware latched them (host_tools/logger/reference.py)
+        cmds = ref.get("commands")
+        if (not isinstance(cmds, list) or not all(
+                isinstance(c, Mapping) and all(isinstance(c.get(k), (int, float)) and not isinstance(c.get(k), bool)
+                                               and math.isfinite(c[k]) for k in ("t_s", "v", "omega"))
+                for c in cmds)):
+            problems.append("meta.json reference.commands must be a list of {t_s, v, omega} numbers")
+        else:
+            drive = {"accel": ref.get("accel"), "alpha": ref.get("alpha"),
+                     "commands": [{k: float(c[k]) for k in ("t_s", "v", "omega")} for c in cmds]}
     for k in need:
         v = ref.get(k)
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
@@ -88,8 +102,15 @@ def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np
             return None, problems, assumptions
     t0 = float(t0)
     if t0 > float(t[0]) + inner:
-        problems.append(f"reference.t0_s = {t0} s is after the first telemetry frame's tick")
-        return None, problems, assumptions
+        # a recording that starts before the run (the logger's, idle until Start or Drive): the
+        # frames before t0 must command nothing; they are not replayed
+        before = np.asarray(t) < t0 - 1e-9
+        if np.any(np.asarray(tau_r)[before] != 0) or np.any(np.asarray(tau_l)[before] != 0):
+            problems.append(f"reference.t0_s = {t0} s is after the first telemetry frame's tick "
+                            "and the frames before it command torque")
+            return None, problems, assumptions
+        assumptions.append(f"the recording starts {t0 - float(t[0]):.3g} s before the run's first tick "
+                           "(reference.t0_s); the idle frames before it are not replayed")
     # the recorded torque command must change only in intervals that contain a tick
     ch = np.flatnonzero((np.diff(tau_r) != 0) | (np.diff(tau_l) != 0)) + 1
     ch = ch[t[ch - 1] >= t0]
@@ -101,8 +122,8 @@ def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np
                             f"between ticks of a {inner * 1e3:g} ms schedule starting at "
                             f"t0 = {t0:g} s: the tick times are not known")
             return None, problems, assumptions
-    return ({"kind": kind, "accel": vals["accel"], "cruise": vals["cruise"],
-             "radius": vals.get("radius", 1.0), "clamp": bool(meta["torque_clamp"]),
+    return ({"kind": kind, "accel": vals["accel"], "cruise": vals.get("cruise", 0.0),
+             "radius": vals.get("radius", 1.0), "clamp": bool(meta["torque_clamp"]), "drive": drive,
              "t0_s": t0, "inner_s": inner, "outer_every": int(ratio),
              "controller": VELOCITY_LOOPS[variant]}, [], assumptions)
 
@@ -177,7 +198,8 @@ class ClosedLoopReplay:
                           ppr=prep.ppr, plant_dt_s=self.dt_s, start_pose=prep.start_pose,
                           ctl_params={"controller": setup["controller"]},
                           # the firmware's 1 kHz duty ramp, where the recorder says it ramps
-                          duty_ramp=bool(prep.run.meta.get("duty_ramp", False)))
+                          duty_ramp=bool(prep.run.meta.get("duty_ramp", False)),
+                          drive=setup.get("drive"))
         return loop.run(n)
 
 

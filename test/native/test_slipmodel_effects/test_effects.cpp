@@ -140,6 +140,33 @@ static void test_driver_voltage_drop(void) {
   EXPECT_NEAR(0.01, 0.3 * table::no_load_rad_s * (table::supply_v - 2.0) / table::supply_v, steady_wheel_speed(kDriverVoltageDrop, 2.0, 0.3));
 }
 
+// The datasheet-form motor of a fitted back-EMF ratio and voltage drop: its duty for a torque
+// gives exactly that torque on the imperfect motor (the firmware's map after SetModel).
+static void test_motor_as_driven_inverts_the_imperfect_motor(void) {
+  const MotorParams m = datasheet_motor();
+  MotorImperfections x;
+  x.ke_ratio = 1.15;
+  x.drop_v = 1.4;
+  const MotorParams e = motor_as_driven(m, x);
+  int checked = 0;
+  for (double tau = -0.3; tau <= 0.3; tau += 0.05) {
+    for (double w = -20.0; w <= 20.0; w += 5.0) {
+      const double u = motor_duty_for_torque(e, tau, w);
+      if (fabs(u) >= 1.0) continue;
+      EXPECT_NEAR(1e-12, tau, motor_torque_nm(m, u, w, x));
+      ++checked;
+    }
+  }
+  TEST_ASSERT_TRUE(checked > 50);
+  // the datasheet map is off by the same amount the effects make (so the test can fail)
+  EXPECT_NEAR(1e-12, m.supply_v, e.supply_v);
+  TEST_ASSERT_TRUE(fabs(motor_torque_nm(m, motor_duty_for_torque(m, 0.2, 15.0), 15.0, x) - 0.2) > 0.02);
+  // neutral imperfections: the datasheet motor; unusable ones (k <= 0, D >= S): unchanged
+  EXPECT_NEAR(0.0, m.no_load_rad_s, motor_as_driven(m, MotorImperfections()).no_load_rad_s);
+  x.drop_v = m.supply_v;
+  EXPECT_NEAR(0.0, m.stall_nm, motor_as_driven(m, x).stall_nm);
+}
+
 static void test_deadband(void) {
   Plant pl;
   pl.set_effect(kDeadband, true, 1.0);
@@ -338,6 +365,7 @@ int main(void) {
   RUN_TEST(test_track_width);
   RUN_TEST(test_motor_back_emf);
   RUN_TEST(test_driver_voltage_drop);
+  RUN_TEST(test_motor_as_driven_inverts_the_imperfect_motor);
   RUN_TEST(test_deadband);
   RUN_TEST(test_actuation_delay);
   RUN_TEST(test_actuation_delay_survives_clock_realignment);

@@ -36,6 +36,10 @@ void copy_dynamic(const slip::PlantState& from, slip::PlantState* to) {
   to->L_l_n = from.L_l_n;
 }
 
+uint32_t outer_us(const cl::DriverConfig& c) {
+  return static_cast<uint32_t>(llround(c.inner_s * c.outer_every * 1e6));
+}
+
 }  // namespace
 
 const char* DriverConfig::check() const {
@@ -45,7 +49,16 @@ const char* DriverConfig::check() const {
   if (!(plant_dt_s > 0.0 && plant_dt_s <= 1.0)) return "plant step must be in (0, 1] s";
   if (rows_per_tick < 1 || rows_per_tick > 1000) return "rows per tick must be in [1, 1000]";
   if (!isfinite(t0_s) || fabs(t0_s) > 1e9) return "t0 must be finite (|t0| <= 1e9 s)";
-  if (!ref.valid()) return "invalid reference (accel in (0,20], cruise in [0,4], |R| in [0.05,100])";
+  if (!drive && !ref.valid()) return "invalid reference (accel in (0,20], cruise in [0,4], |R| in [0.05,100])";
+  if (drive) {
+    if (!ctl::DriveConfigQ(drive_limits, outer_us(*this)).ok)
+      return "invalid drive limits (accel in (0,20] m/s^2, alpha in (0,60] rad/s^2, outer period <= 62 ms)";
+    if (n_drive < 0 || (n_drive > 0 && drive_cmds == nullptr)) return "drive commands missing";
+    for (int i = 0; i < n_drive; ++i) {
+      if (!isfinite(drive_cmds[i].t_s)) return "drive command time not finite";
+      if (i > 0 && drive_cmds[i].t_s < drive_cmds[i - 1].t_s) return "drive commands not sorted by time";
+    }
+  }
   if (fixed_point && !ctl::ControlConfigQ(ctl).ok) return "configuration does not fit the fixed-point formats";
   return "";
 }
@@ -55,6 +68,9 @@ Driver::Driver(const DriverConfig& cfg, const slip::RobotParams& plant_robot,
     : cfg_(cfg),
       cfg_q_(cfg.ctl),
       ref_q_(cfg.ref),
+      drive_q_(cfg.drive_limits, outer_us(cfg)),
+      drf_(cfg.drive_limits, static_cast<float>(cfg.inner_s * cfg.outer_every)),
+      drive_i_(0),
       fc_(cfg.ctl),
       qc_(cfg_q_),
       plant_(plant_robot, plant_motor),
@@ -71,7 +87,31 @@ void Driver::reset(double x_m, double y_m, double phi_rad) {
                         static_cast<int32_t>(llround(y_m * 1048576.0)), to_b32(phi_rad)};
   fc_.reset(0, 0, start_f_);
   qc_.reset(0, 0, start_q_);
+  drq_.reset();
+  drf_.reset();
+  drive_i_ = 0;
   k_ = 0;
+}
+
+void Driver::drive_target(int64_t k, int16_t* v, int16_t* w) {
+  const double t = cfg_.t0_s + cfg_.inner_s * static_cast<double>(k);
+  while (drive_i_ < cfg_.n_drive && cfg_.drive_cmds[drive_i_].t_s <= t + 1e-7) ++drive_i_;
+  *v = drive_i_ > 0 ? cfg_.drive_cmds[drive_i_ - 1].v_mm_s : 0;
+  *w = drive_i_ > 0 ? cfg_.drive_cmds[drive_i_ - 1].omega_mrad_s : 0;
+}
+
+ctl::RefSampleQ Driver::ref_q(int64_t k) {
+  if (!cfg_.drive) return ctl::reference_at_q(ref_q_, ref_ms(static_cast<double>(k) * cfg_.inner_s));
+  int16_t v, w;
+  drive_target(k, &v, &w);
+  return drq_.step(drive_q_, ctl::drive_v_q12(v), ctl::drive_omega_q11(w));
+}
+
+ctl::RefSample Driver::ref_f(int64_t k) {
+  if (!cfg_.drive) return ctl::reference_at(cfg_.ref, static_cast<float>(static_cast<double>(k) * cfg_.inner_s));
+  int16_t v, w;
+  drive_target(k, &v, &w);
+  return drf_.step(v * 1e-3f, w * 1e-3f);
 }
 
 void Driver::read_ctl(CtlRow* o) const {
@@ -110,17 +150,17 @@ const TickOut& Driver::step(slip::PlantState* rows) {
   // The row is read after the inner step, before the outer step (as ctl_inner reports it).
   // Tick 0 starts the experiment: reset, outer step with the reference at 0, first command.
   if (k == 0) {
-    if (cfg_.fixed_point) qc_.start(o.enc_r, o.enc_l, start_q_, ctl::reference_at_q(ref_q_, 0));
-    else fc_.start(o.enc_r, o.enc_l, start_f_, ctl::reference_at(cfg_.ref, 0.0f));
+    if (cfg_.fixed_point) qc_.start(o.enc_r, o.enc_l, start_q_, ref_q(0));
+    else fc_.start(o.enc_r, o.enc_l, start_f_, ref_f(0));
     read_ctl(&o.ctl);
   } else if (cfg_.fixed_point) {
     qc_.inner_step(o.enc_r, o.enc_l, static_cast<uint32_t>(llround(T * 1e6)));
     read_ctl(&o.ctl);
-    if (outer) qc_.outer_step(ctl::reference_at_q(ref_q_, ref_ms(static_cast<double>(k) * T)));
+    if (outer) qc_.outer_step(ref_q(k));
   } else {
     fc_.inner_step(o.enc_r, o.enc_l, static_cast<float>(T));
     read_ctl(&o.ctl);
-    if (outer) fc_.outer_step(ctl::reference_at(cfg_.ref, static_cast<float>(static_cast<double>(k) * T)));
+    if (outer) fc_.outer_step(ref_f(k));
   }
   const bool torque = cfg_.actuator == Actuator::kTorque;
   const double in_r = torque ? o.ctl.tau_cmd_r : o.ctl.pwm_r;

@@ -21,12 +21,20 @@
 
 #include <control/cascade.h>
 #include <control/cascade_q.h>
+#include <control/drive.h>
 #include <control/reference.h>
 #include <slipmodel/plant.h>
 
 namespace cl {
 
 enum class Actuator { kDuty = 0, kTorque = 1 };
+
+/// A drive-mode target as the firmware latched it: from board time t_s on (an outer tick), the
+/// Drive values v (mm/s) and omega (mrad/s), as the message carries them.
+struct DriveCommand {
+  double t_s;
+  int16_t v_mm_s, omega_mrad_s;
+};
 
 struct DriverConfig {
   bool fixed_point = true;
@@ -35,6 +43,13 @@ struct DriverConfig {
   ctl::ControlConfig ctl = ctl::make_control_config(slip::RobotParams(), slip::MotorParams(),
                                                     ctl::default_gains(), true);
   ctl::ReferenceSpec ref{ctl::PathKind::kLine, 1.0f, 0.0f, 0.0f};
+  /// Drive mode instead of `ref` (lib/control drive.h): at each outer tick the target is the
+  /// last of the n_drive commands (sorted by time, caller-owned) at or before the tick's board
+  /// time (0 before the first), stepped with drive_limits as the firmware's outer task does.
+  bool drive = false;
+  ctl::DriveLimits drive_limits{1.0f, 4.0f};
+  const DriveCommand* drive_cmds = nullptr;
+  int n_drive = 0;
   double t0_s = 0.0;        ///< board (plant) time of tick 0, where the reference time is 0
   double inner_s = 0.025;   ///< inner period
   int outer_every = 2;      ///< outer step every N inner ticks (tick 0 included)
@@ -98,10 +113,18 @@ class Driver {
 
  private:
   void read_ctl(CtlRow* o) const;
+  /// The reference of the outer step of tick k (Start profile or drive mode).
+  ctl::RefSampleQ ref_q(int64_t k);
+  ctl::RefSample ref_f(int64_t k);
+  void drive_target(int64_t k, int16_t* v_mm_s, int16_t* w_mrad_s);
 
   DriverConfig cfg_;
   ctl::ControlConfigQ cfg_q_;
   ctl::ReferenceSpecQ ref_q_;
+  ctl::DriveConfigQ drive_q_;
+  ctl::DriveReferenceQ drq_;
+  ctl::DriveReference drf_;
+  int drive_i_;  // commands before drive_i_ have started
   ctl::Controller fc_;
   ctl::ControllerQ qc_;
   slip::Plant plant_;

@@ -136,7 +136,7 @@ __attribute__((noinline)) void ControllerQ::duty_clamped() {
   if (out_.clamped_r) {
     const int8_t sg = out_.tau_r_q16 > 0 ? 1 : -1;
     const int16_t b = was_r_ == sg ? u_lim_r_q15_ : u_lim0_r_q15_;
-    out_.pwm_r_q15 = duty_q15((sg > 0 ? b : -b) + fx::mul16<13>(odo_.omega_r_q8(), cfg_.inv_no_load_q20), &out_.sat_r);
+    out_.pwm_r_q15 = duty_q15((sg > 0 ? b : -b) + fx::mul16<12>(odo_.omega_r_q8(), cfg_.inv_no_load_q19), &out_.sat_r);
     out_.slope_r_q15 = sg > 0 ? slope_lim_r_q15_ : static_cast<int16_t>(-slope_lim_r_q15_);
     was_r_ = sg;
   } else {
@@ -146,7 +146,7 @@ __attribute__((noinline)) void ControllerQ::duty_clamped() {
   if (out_.clamped_l) {
     const int8_t sg = out_.tau_l_q16 > 0 ? 1 : -1;
     const int16_t b = was_l_ == sg ? u_lim_l_q15_ : u_lim0_l_q15_;
-    out_.pwm_l_q15 = duty_q15((sg > 0 ? b : -b) + fx::mul16<13>(odo_.omega_l_q8(), cfg_.inv_no_load_q20), &out_.sat_l);
+    out_.pwm_l_q15 = duty_q15((sg > 0 ? b : -b) + fx::mul16<12>(odo_.omega_l_q8(), cfg_.inv_no_load_q19), &out_.sat_l);
     out_.slope_l_q15 = sg > 0 ? slope_lim_l_q15_ : static_cast<int16_t>(-slope_lim_l_q15_);
     was_l_ = sg;
   } else {
@@ -196,8 +196,8 @@ CTL_INLINE void ControllerQ::command(uint32_t dt_us) {
   // never rounded above it.
   const int16_t tr_q12 = q16_to_q12_toward_zero(out_.tau_r_q16);
   const int16_t tl_q12 = q16_to_q12_toward_zero(out_.tau_l_q16);
-  const int32_t u_r = fx::mul16<10>(tr_q12, cfg_.inv_stall_q13) + fx::mul16<13>(odo_.omega_r_q8(), cfg_.inv_no_load_q20);
-  const int32_t u_l = fx::mul16<10>(tl_q12, cfg_.inv_stall_q13) + fx::mul16<13>(odo_.omega_l_q8(), cfg_.inv_no_load_q20);
+  const int32_t u_r = fx::mul16<10>(tr_q12, cfg_.inv_stall_q13) + fx::mul16<12>(odo_.omega_r_q8(), cfg_.inv_no_load_q19);
+  const int32_t u_l = fx::mul16<10>(tl_q12, cfg_.inv_stall_q13) + fx::mul16<12>(odo_.omega_l_q8(), cfg_.inv_no_load_q19);
   out_.pwm_r_q15 = duty_q15(u_r, &out_.sat_r);
   out_.pwm_l_q15 = duty_q15(u_l, &out_.sat_l);
 

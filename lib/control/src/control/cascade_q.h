@@ -43,7 +43,7 @@ struct ControlConfigQ {
   int16_t inv_b_q8;                  // 1/b, 1/m
   int16_t half_r_q16;                // r/2, m
   int16_t inv_stall_q13;             // 1/stall, 1/(N m) (stall > 0.25 N m)
-  int16_t inv_no_load_q20;           // 1/no_load, s/rad
+  int16_t inv_no_load_q19;           // 1/no_load, s/rad (no_load > 16 rad/s: a fitted back-EMF ratio up to 2)
   int16_t v_max_q12, omega_max_q11;
   int32_t integ_max_v_q16, integ_max_w_q16;
   int32_t tau_big_q16;               // sanity limit when the clamp is off (10 stall)
@@ -84,7 +84,7 @@ struct ControlConfigQ {
         mtd_q18(q16c(c.robot.m_t() * c.robot.d, 18)),
         inv_b_q8(q16c(1.0 / c.robot.b, 8)), half_r_q16(q16c(c.robot.r / 2.0, 16)),
         inv_stall_q13(q16c(1.0 / c.motor.stall_nm, 13)),
-        inv_no_load_q20(q16c(1.0 / c.motor.no_load_rad_s, 20)),
+        inv_no_load_q19(q16c(1.0 / c.motor.no_load_rad_s, 19)),
         v_max_q12(q16c(c.v_max_m_s, 12)), omega_max_q11(q16c(c.omega_max_rad_s, 11)),
         integ_max_v_q16(fx::q_const(c.integ_max_n, 16)), integ_max_w_q16(fx::q_const(c.integ_max_nm, 16)),
         tau_big_q16(fx::q_const(10.0 * c.motor.stall_nm, 16)),
@@ -109,7 +109,7 @@ struct ControlConfigQ {
            fits16(c.gains.k_l, 8) && fits16(c.gains.k_a, 12) && fits16(c.gains.k_il, 8) &&
            fits16(c.gains.k_ia, 12) && fits16(c.m_ff_kg, 12) && fits16(c.I_ff_kgm2, 17) &&
            fits16(c.robot.m_t() * c.robot.d, 18) && fits16(1.0 / c.robot.b, 8) &&
-           fits16(1.0 / c.motor.stall_nm, 13) && c.motor.stall_nm * 10.0 < 7.99 && fits16(1.0 / c.motor.no_load_rad_s, 20) &&
+           fits16(1.0 / c.motor.stall_nm, 13) && c.motor.stall_nm * 10.0 < 7.99 && fits16(1.0 / c.motor.no_load_rad_s, 19) &&
            fits16(c.v_max_m_s, 12) && fits16(c.omega_max_rad_s, 11) && c.gains.k_x >= 0 &&
            c.gains.k_y >= 0 && c.gains.k_phi >= 0 && c.gains.k_l >= 0 && c.gains.k_a >= 0 &&
            c.gains.k_il >= 0 && c.gains.k_ia >= 0 &&

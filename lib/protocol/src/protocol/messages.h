@@ -9,7 +9,7 @@
 
 namespace proto {
 
-static const uint8_t kVersion = 3;
+static const uint8_t kVersion = 4;
 static const uint8_t kMaxPayload = 96;
 static const uint32_t kBaud = 115200UL;  // 8N1
 static const uint32_t kFcpuHz = 16000000UL;
@@ -17,6 +17,10 @@ static const uint32_t kFcpuHz = 16000000UL;
 static const float kCurrentSenseVoltsPerAmp = 1.65f;
 static const uint8_t kCurrentSenseAdcBits = 10;
 static const float kCurrentSenseAdcVrefV = 5.0f;
+// ---- drive mode defaults at boot (SetDriveLimits changes them) ----
+static const float kDriveAccelDefault = 1.0f;  // m/s^2
+static const float kDriveAlphaDefault = 4.0f;  // rad/s^2
+static const uint32_t kDriveCmdTimeoutDefaultUs = 500000UL;
 
 // ---- task table: periods and cycle budgets ----
 enum TaskId : uint8_t {
@@ -89,6 +93,7 @@ static const uint8_t kStatusFailsafe = 1u << 2;
 static const uint8_t kStatusMotorsEnabled = 1u << 3;
 static const uint8_t kStatusParamsDefault = 1u << 4;
 static const uint8_t kStatusThesisController = 1u << 5;
+static const uint8_t kStatusDriveMode = 1u << 6;
 // MCUSR at boot (telemetry.reset_cause)
 static const uint8_t kResetCausePowerOn = 1u << 0;
 static const uint8_t kResetCauseExternal = 1u << 1;
@@ -107,12 +112,15 @@ enum MsgType : uint8_t {
     kMsgSetMu = 19,  // host_to_robot
     kMsgRequestParams = 20,  // host_to_robot
     kMsgHeartbeat = 21,  // host_to_robot
+    kMsgDrive = 23,  // host_to_robot
+    kMsgSetDriveLimits = 24,  // host_to_robot
+    kMsgSetModel = 25,  // host_to_robot
     kMsgSetController = 22,  // host_to_robot
 };
 
-// Telemetry (robot_to_host, type 1, 83 payload bytes): sent every telemetry period (20 ms) while powered
+// Telemetry (robot_to_host, type 1, 95 payload bytes): sent every telemetry period (20 ms) while powered
 struct Telemetry {
-    enum : uint8_t { kType = 1, kSize = 83 };
+    enum : uint8_t { kType = 1, kSize = 95 };
     uint32_t t_us;  // raw x 1e-06 = s; board time, wraps after 4295 s (the logger unwraps)
     int32_t enc_r;  // counts; cumulative right encoder count, positive = forward
     int32_t enc_l;  // counts
@@ -150,6 +158,11 @@ struct Telemetry {
     uint16_t current_l;  // raw x 0.0029593 = A; raw 10-bit ADC of A1
     uint16_t stack_hwm;  // bytes; largest stack use seen since reset (painted stack)
     uint16_t boot_count;  // count; boots of the board, kept in EEPROM and incremented once per boot (wraps): a change means the board reset, whatever its clock and seq say
+    int16_t v_ref;  // raw x 0.001 = m/s; reference speed v_r the kinematic loop tracks (last outer step; 0 while idle)
+    int16_t omega_ref;  // raw x 0.001 = rad/s; reference turn rate omega_r (last outer step; 0 while idle)
+    int16_t v_cmd;  // raw x 0.001 = m/s; drive mode: the Drive target the last outer step used (0 after the command timeout), as received; 0 otherwise
+    int16_t omega_cmd;  // raw x 0.001 = rad/s; drive mode: the Drive turn-rate target the last outer step used, as received
+    uint32_t ref_t0_us;  // raw x 1e-06 = s; board time of the first tick of the current (or last) experiment or drive: the reference's time 0; 0 before the first
     float get_t_us() const { return static_cast<float>(t_us) * 1e-06f; }
     // Saturates; false when v was NaN (raw 0) or out of the raw range.
     bool set_t_us(float v) { return sat_u32(v, 1000000.0f, &t_us); }
@@ -207,6 +220,21 @@ struct Telemetry {
     float get_current_l() const { return static_cast<float>(current_l) * 0.0029593f; }
     // Saturates; false when v was NaN (raw 0) or out of the raw range.
     bool set_current_l(float v) { return sat_u16(v, 337.91775081945053f, &current_l); }
+    float get_v_ref() const { return static_cast<float>(v_ref) * 0.001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_v_ref(float v) { return sat_i16(v, 1000.0f, &v_ref); }
+    float get_omega_ref() const { return static_cast<float>(omega_ref) * 0.001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_omega_ref(float v) { return sat_i16(v, 1000.0f, &omega_ref); }
+    float get_v_cmd() const { return static_cast<float>(v_cmd) * 0.001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_v_cmd(float v) { return sat_i16(v, 1000.0f, &v_cmd); }
+    float get_omega_cmd() const { return static_cast<float>(omega_cmd) * 0.001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_omega_cmd(float v) { return sat_i16(v, 1000.0f, &omega_cmd); }
+    float get_ref_t0_us() const { return static_cast<float>(ref_t0_us) * 1e-06f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_ref_t0_us(float v) { return sat_u32(v, 1000000.0f, &ref_t0_us); }
     void encode(uint8_t* p) const {
         put_u32(p + 0, t_us);
         put_i32(p + 4, enc_r);
@@ -245,6 +273,11 @@ struct Telemetry {
         put_u16(p + 77, current_l);
         put_u16(p + 79, stack_hwm);
         put_u16(p + 81, boot_count);
+        put_i16(p + 83, v_ref);
+        put_i16(p + 85, omega_ref);
+        put_i16(p + 87, v_cmd);
+        put_i16(p + 89, omega_cmd);
+        put_u32(p + 91, ref_t0_us);
     }
     // false (and nothing read) when len is not kSize
     bool decode(const uint8_t* p, uint8_t len) {
@@ -286,13 +319,18 @@ struct Telemetry {
         current_l = get_u16(p + 77);
         stack_hwm = get_u16(p + 79);
         boot_count = get_u16(p + 81);
+        v_ref = get_i16(p + 83);
+        omega_ref = get_i16(p + 85);
+        v_cmd = get_i16(p + 87);
+        omega_cmd = get_i16(p + 89);
+        ref_t0_us = get_u32(p + 91);
         return true;
     }
 };
 
-// Params (robot_to_host, type 2, 88 payload bytes): the parameters the firmware uses; sent once after reset and on RequestParams
+// Params (robot_to_host, type 2, 96 payload bytes): the parameters the firmware uses; sent once after reset and on RequestParams
 struct Params {
-    enum : uint8_t { kType = 2, kSize = 88 };
+    enum : uint8_t { kType = 2, kSize = 96 };
     float mu_s;  // 1
     float mu_k;  // 1
     float b;  // m; half the wheel separation
@@ -317,6 +355,8 @@ struct Params {
     uint8_t clamp_on;  // 1
     uint8_t controller;  // enum Controller; velocity loop in use (SetController)
     uint32_t firmware_id;  // 1; build identifier (e.g. first 8 hex digits of the git commit)
+    float ke_ratio;  // 1; back-EMF constant / datasheet one the torque->duty map uses (SetModel; 1 = datasheet)
+    float drop_v;  // V; H-bridge and battery voltage drop the torque->duty map uses (SetModel; 0 = datasheet)
     void encode(uint8_t* p) const {
         put_f32(p + 0, mu_s);
         put_f32(p + 4, mu_k);
@@ -342,6 +382,8 @@ struct Params {
         put_u8(p + 82, clamp_on);
         put_u8(p + 83, controller);
         put_u32(p + 84, firmware_id);
+        put_f32(p + 88, ke_ratio);
+        put_f32(p + 92, drop_v);
     }
     // false (and nothing read) when len is not kSize
     bool decode(const uint8_t* p, uint8_t len) {
@@ -370,6 +412,8 @@ struct Params {
         clamp_on = get_u8(p + 82);
         controller = get_u8(p + 83);
         firmware_id = get_u32(p + 84);
+        ke_ratio = get_f32(p + 88);
+        drop_v = get_f32(p + 92);
         return true;
     }
 };
@@ -558,6 +602,117 @@ struct Heartbeat {
     }
 };
 
+// Drive (host_to_robot, type 23, 4 payload bytes): velocity command (ROS cmd_vel / diff_drive_controller convention: v forward, omega counter-clockwise). While idle it starts drive mode (at the next inner tick, from the origin like Start); in drive mode it sets the target the reference ramps to within the SetDriveLimits accelerations; after cmd_timeout without a Drive the target is 0 (the robot ramps to rest and holds). Stop ends drive mode; the host-timeout failsafe brakes as in an experiment. busy while a Start experiment runs
+struct Drive {
+    enum : uint8_t { kType = 23, kSize = 4 };
+    int16_t linear;  // raw x 0.001 = m/s; valid [-4.0, 4.0]; v: linear velocity of the axle centre (cmd_vel linear.x)
+    int16_t angular;  // raw x 0.001 = rad/s; valid [-15.0, 15.0]; omega: angular velocity, + = left (CCW) (cmd_vel angular.z)
+    float get_linear() const { return static_cast<float>(linear) * 0.001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_linear(float v) { return sat_i16(v, 1000.0f, &linear); }
+    float get_angular() const { return static_cast<float>(angular) * 0.001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_angular(float v) { return sat_i16(v, 1000.0f, &angular); }
+    void encode(uint8_t* p) const {
+        put_i16(p + 0, linear);
+        put_i16(p + 2, angular);
+    }
+    // false (and nothing read) when len is not kSize
+    bool decode(const uint8_t* p, uint8_t len) {
+        if (len != kSize) return false;
+        linear = get_i16(p + 0);
+        angular = get_i16(p + 2);
+        return true;
+    }
+    Result validate(uint8_t* detail) const {
+        *detail = 255;
+        if (linear < -4000 || linear > 4000) { *detail = 0; return kResultOutOfRange; }
+        if (angular < -15000 || angular > 15000) { *detail = 1; return kResultOutOfRange; }
+        return kResultOk;
+    }
+};
+
+// SetDriveLimits (host_to_robot, type 24, 6 payload bytes): the drive mode's acceleration limits and command timeout (defaults: section drive); busy while running
+struct SetDriveLimits {
+    enum : uint8_t { kType = 24, kSize = 6 };
+    uint16_t accel;  // raw x 0.001 = m/s^2; valid [0.01, 20.0]; |dv_r/dt| limit
+    uint16_t alpha;  // raw x 0.001 = rad/s^2; valid [0.01, 60.0]; |domega_r/dt| limit
+    uint16_t cmd_timeout;  // raw x 0.001 = s; valid [0.05, 10.0]; after this long without a Drive the target is 0 (diff_drive_controller's cmd_vel_timeout)
+    float get_accel() const { return static_cast<float>(accel) * 0.001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_accel(float v) { return sat_u16(v, 1000.0f, &accel); }
+    float get_alpha() const { return static_cast<float>(alpha) * 0.001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_alpha(float v) { return sat_u16(v, 1000.0f, &alpha); }
+    float get_cmd_timeout() const { return static_cast<float>(cmd_timeout) * 0.001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_cmd_timeout(float v) { return sat_u16(v, 1000.0f, &cmd_timeout); }
+    void encode(uint8_t* p) const {
+        put_u16(p + 0, accel);
+        put_u16(p + 2, alpha);
+        put_u16(p + 4, cmd_timeout);
+    }
+    // false (and nothing read) when len is not kSize
+    bool decode(const uint8_t* p, uint8_t len) {
+        if (len != kSize) return false;
+        accel = get_u16(p + 0);
+        alpha = get_u16(p + 2);
+        cmd_timeout = get_u16(p + 4);
+        return true;
+    }
+    Result validate(uint8_t* detail) const {
+        *detail = 255;
+        if (accel < 10 || accel > 20000) { *detail = 0; return kResultOutOfRange; }
+        if (alpha < 10 || alpha > 60000) { *detail = 1; return kResultOutOfRange; }
+        if (cmd_timeout < 50 || cmd_timeout > 10000) { *detail = 2; return kResultOutOfRange; }
+        return kResultOk;
+    }
+};
+
+// SetModel (host_to_robot, type 25, 12 payload bytes): the fitted model (an analyzer model.json): wheel radius and half track for the odometry and the controller, the motor's back-EMF ratio and voltage drop for the torque->duty map (mu: SetMu); ranges of r and b from params/params.json; out_of_range also when the controller's fixed-point configuration cannot hold them (detail 0); busy while running
+struct SetModel {
+    enum : uint8_t { kType = 25, kSize = 12 };
+    uint32_t r;  // raw x 1e-06 = m; valid [0.001, 1.0]; wheel radius
+    uint32_t b;  // raw x 1e-06 = m; valid [0.001, 2.0]; half the wheel separation
+    uint16_t ke_ratio;  // raw x 0.0001 = 1; valid [0.5, 2.0]; back-EMF constant / datasheet one (effect motor_back_emf)
+    uint16_t drop_v;  // raw x 0.001 = V; valid [0.0, 6.0]; voltage lost in the H-bridge and battery (effect driver_voltage_drop); below half the supply
+    float get_r() const { return static_cast<float>(r) * 1e-06f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_r(float v) { return sat_u32(v, 1000000.0f, &r); }
+    float get_b() const { return static_cast<float>(b) * 1e-06f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_b(float v) { return sat_u32(v, 1000000.0f, &b); }
+    float get_ke_ratio() const { return static_cast<float>(ke_ratio) * 0.0001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_ke_ratio(float v) { return sat_u16(v, 10000.0f, &ke_ratio); }
+    float get_drop_v() const { return static_cast<float>(drop_v) * 0.001f; }
+    // Saturates; false when v was NaN (raw 0) or out of the raw range.
+    bool set_drop_v(float v) { return sat_u16(v, 1000.0f, &drop_v); }
+    void encode(uint8_t* p) const {
+        put_u32(p + 0, r);
+        put_u32(p + 4, b);
+        put_u16(p + 8, ke_ratio);
+        put_u16(p + 10, drop_v);
+    }
+    // false (and nothing read) when len is not kSize
+    bool decode(const uint8_t* p, uint8_t len) {
+        if (len != kSize) return false;
+        r = get_u32(p + 0);
+        b = get_u32(p + 4);
+        ke_ratio = get_u16(p + 8);
+        drop_v = get_u16(p + 10);
+        return true;
+    }
+    Result validate(uint8_t* detail) const {
+        *detail = 255;
+        if (r < 1000 || r > 1000000) { *detail = 0; return kResultOutOfRange; }
+        if (b < 1000 || b > 2000000) { *detail = 1; return kResultOutOfRange; }
+        if (ke_ratio < 5000 || ke_ratio > 20000) { *detail = 2; return kResultOutOfRange; }
+        if (drop_v > 6000) { *detail = 3; return kResultOutOfRange; }
+        return kResultOk;
+    }
+};
+
 // SetController (host_to_robot, type 22, 1 payload bytes): velocity loop of the cascade (default improved); busy while running
 struct SetController {
     enum : uint8_t { kType = 22, kSize = 1 };
@@ -581,8 +736,8 @@ struct SetController {
 // Payload size of a message type, or -1 for an unknown type.
 inline int16_t payload_size(uint8_t type) {
     switch (type) {
-        case kMsgTelemetry: return 83;
-        case kMsgParams: return 88;
+        case kMsgTelemetry: return 95;
+        case kMsgParams: return 96;
         case kMsgAck: return 5;
         case kMsgStart: return 9;
         case kMsgStop: return 0;
@@ -590,6 +745,9 @@ inline int16_t payload_size(uint8_t type) {
         case kMsgSetMu: return 4;
         case kMsgRequestParams: return 0;
         case kMsgHeartbeat: return 0;
+        case kMsgDrive: return 4;
+        case kMsgSetDriveLimits: return 6;
+        case kMsgSetModel: return 12;
         case kMsgSetController: return 1;
         default: return -1;
     }
@@ -627,6 +785,21 @@ inline Result validate_command(uint8_t type, const uint8_t* payload, uint8_t len
         }
         case kMsgHeartbeat: {
             Heartbeat msg;
+            if (!msg.decode(payload, len)) return kResultBadLength;
+            return msg.validate(detail);
+        }
+        case kMsgDrive: {
+            Drive msg;
+            if (!msg.decode(payload, len)) return kResultBadLength;
+            return msg.validate(detail);
+        }
+        case kMsgSetDriveLimits: {
+            SetDriveLimits msg;
+            if (!msg.decode(payload, len)) return kResultBadLength;
+            return msg.validate(detail);
+        }
+        case kMsgSetModel: {
+            SetModel msg;
             if (!msg.decode(payload, len)) return kResultBadLength;
             return msg.validate(detail);
         }

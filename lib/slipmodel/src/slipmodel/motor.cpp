@@ -29,6 +29,15 @@ double motor_duty_for_torque(const MotorParams& m, double tau_nm, double dtheta_
   return clamp(tau_nm / m.stall_nm + dtheta_rad_s / m.no_load_rad_s, -1.0, 1.0);
 }
 
+MotorParams motor_as_driven(const MotorParams& m, const MotorImperfections& x) {
+  if (!(x.ke_ratio > 0.0) || !(x.drop_v < m.supply_v) || !(m.supply_v > 0.0)) return m;
+  MotorParams o = m;
+  const double f = (m.supply_v - x.drop_v) / m.supply_v;
+  o.stall_nm = m.stall_nm * f;
+  o.no_load_rad_s = m.no_load_rad_s * f / x.ke_ratio;
+  return o;
+}
+
 double motor_current_a(const MotorParams& m, double tau_nm) {
   if (!(m.stall_nm > 0.0)) return 0.0;
   return tau_nm * m.stall_a / m.stall_nm;

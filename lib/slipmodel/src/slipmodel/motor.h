@@ -38,6 +38,14 @@ double motor_torque_nm(const MotorParams& m, double u, double dtheta_rad_s,
 /// Exact inverse wherever the result is inside (-1, 1) and |tau_nm| <= stall_nm.
 double motor_duty_for_torque(const MotorParams& m, double tau_nm, double dtheta_rad_s);
 
+/// The motor an imperfect one amounts to in the datasheet model (deadband left out): with
+/// S = supply_v, D = drop_v, k = ke_ratio the torque is stall (S - D)/S u - k stall dtheta/no_load,
+/// the datasheet form with stall' = stall (S - D)/S and no_load' = no_load (S - D)/(S k)
+/// (supply_v and stall_a unchanged). So motor_duty_for_torque with it inverts
+/// motor_torque_nm(m, u, dtheta, x) inside the clamps: the firmware's torque->duty map with a
+/// fitted back-EMF ratio and voltage drop (SetModel). Needs k > 0 and D < S (else m unchanged).
+MotorParams motor_as_driven(const MotorParams& m, const MotorImperfections& x);
+
 /// Motor current (A) that delivers the wheel torque tau_nm: a DC motor's torque is k_t i, and the
 /// datasheet's stall point gives k_t = stall_nm / stall_a (per wheel, gearbox included). Signed;
 /// the Motor Shield R3's sense output reports its magnitude. Friction on the axle acts after the

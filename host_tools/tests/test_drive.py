@@ -1,0 +1,175 @@
+"""Driving the robot with velocity commands (protocol Drive, SetDriveLimits, SetModel), the host
+API (host_tools.robot) and the model round trip, in the firmware in the loop.
+
+The simulator runs at twice real time (--realtime 2) where a test drives: scripts are timed
+by the board clock, the host's heartbeats keep up.  The model round trip: test_drive_roundtrip.py.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from host_tools import fil
+from host_tools import params
+from host_tools import protocol as P
+from host_tools.robot import Robot, RobotError, read_path
+
+from test_fil import HostScript, csv, elf, sim  # noqa: E402,F401  (the FIL tests' host, CSV reader, fixtures)
+
+D = P.definition()
+RUNNING = 1 << D.flags["status"]["running"]
+DRIVE = 1 << D.flags["status"]["drive_mode"]
+FAST = ["--realtime", "2"]
+
+
+def test_drive_ramps_times_out_and_the_failsafe_still_brakes(elf, sim, tmp_path):
+    """Drive starts drive mode; the reference ramps at the accel limit to the target and
+    telemetry reports both; a Start or a SetModel while driving is busy; after cmd_timeout
+    without a Drive the target is 0 (the robot ramps to rest and stays in drive mode, heartbeats
+    keep it alive); when the host falls silent the host-timeout failsafe brakes."""
+    steps = [
+        (0.10, D.encode("SetDriveLimits", 1, {"accel": 0.5, "alpha": 4.0, "cmd_timeout": 0.6})),
+        (0.20, D.encode("Drive", 2, {"linear": 0.2, "angular": 0.0})),
+        (0.30, D.encode("Start", 3, {"profile": "straight", "wheel_accel": 20.0, "accel_time": 0.5,
+                                     "duration": 1.0, "radius": 0.0})
+         + D.encode("SetModel", 4, {"r": 0.036, "b": 0.1, "ke_ratio": 1.0, "drop_v": 0.0})),
+    ] + [(0.40 + 0.1 * i, D.encode("Heartbeat", 5 + i)) for i in range(30)]
+    # from board time 2.3 s no host byte reaches the robot (the simulator cuts the link)
+    host = HostScript(elf, tmp_path / "timeout", ["--t-end", "4.0", "--host-silent-at", "2.3"])
+
+    def step(now, t):
+        while steps and now >= steps[0][0]:
+            host.port.write(steps.pop(0)[1])
+        return None if now < 3.5 else False
+
+    host.run(step)
+    acks = {q: D.result_names.get(r) for q, _, r in host.acks}
+    assert acks[1] == "ok" and acks[2] == "ok"
+    assert acks[3] == "busy" and acks[4] == "busy"
+    run = [x for x in host.telem if int(x["status"]) & RUNNING]
+    assert run and all(int(x["status"]) & DRIVE for x in run)
+    v_ref = np.array([x["v_ref"] for x in run])
+    v_cmd = np.array([x["v_cmd"] for x in run])
+    t = np.array([x["t_us"] for x in run])
+    t_start = t[0]  # within one telemetry period after the start tick, which follows the Drive
+    # the ramp at 0.5 m/s^2 (the reference steps every 50 ms: at most one step ahead of the line)
+    assert np.all(v_ref <= 0.5 * (t - t_start + 0.02) + 0.025 + 0.002)
+    assert v_ref.max() == pytest.approx(0.2, abs=0.002)
+    assert t[np.argmax(v_ref >= 0.199)] - t_start == pytest.approx(0.4, abs=0.08)
+    # the timeout: the target is the Drive's until 0.6 s after it, then 0 (from the next outer tick)
+    assert np.all(v_cmd[t < t_start + 0.6 - 0.08] == pytest.approx(0.2))
+    assert np.all(v_cmd[t > t_start + 0.6 + 0.05 + 0.02] == 0.0)
+    assert v_ref[-1] == 0.0 and t[-1] > 2.0  # ramped to rest, still in drive mode (heartbeats)
+    # the host silent from 2.3 s: the failsafe brakes within 0.5 s (the first frame that reports
+    # it follows within a telemetry period)
+    fs = [x for x in host.telem if x["failsafe"] == D.enums["failsafe"]["host_timeout"]]
+    assert fs and 2.3 + 0.3 <= fs[0]["t_us"] <= 2.3 + 0.5 + 0.021
+    assert not int(fs[0]["status"]) & RUNNING
+
+
+def test_set_model_is_validated_and_reported_back(elf, sim, tmp_path):
+    """SetModel: out of the params.json range -> out_of_range (detail = the field); a radius
+    the fixed-point controller cannot hold -> out_of_range (detail 0); a good one is reported in
+    Params (r, b, ke_ratio, drop_v, the torque->duty map's motor) and changes nothing else."""
+    typ = D.by_name["SetModel"].type
+    lo_r = params.RANGES[("robot", "r")][0]
+    steps = [
+        (0.10, D.frame(typ, 10, D.by_name["SetModel"].struct.pack(int(lo_r * 1e6) - 1, int(params.ROBOT["b"] * 1e6), 10000, 0))),
+        (0.15, D.encode("SetModel", 11, {"r": 0.9, "b": params.ROBOT["b"], "ke_ratio": 1.0, "drop_v": 0.0})),
+        (0.20, D.encode("SetModel", 12, {"r": 0.03723, "b": 0.107, "ke_ratio": 1.2, "drop_v": 1.5})
+         + D.encode("RequestParams", 13)),
+    ]
+    host = HostScript(elf, tmp_path / "setmodel", ["--t-end", "0.8"])
+
+    def step(now, t):
+        while steps and now >= steps[0][0]:
+            host.port.write(steps.pop(0)[1])
+        return None if now < 0.6 else False
+
+    host.run(step)
+    acks = {q: (D.result_names.get(r), typ_) for q, typ_, r in host.acks}
+    assert acks[10] == ("out_of_range", typ)
+    assert acks[11] == ("out_of_range", typ)
+    assert acks[12] == ("ok", typ)
+    p = host.params[-1]
+    sheet = params.MOTOR
+    assert p["r"] == pytest.approx(0.03723, rel=1e-6) and p["b"] == pytest.approx(0.107, rel=1e-6)
+    assert p["ke_ratio"] == pytest.approx(1.2, rel=1e-6) and p["drop_v"] == pytest.approx(1.5, rel=1e-6)
+    f = (sheet["supply_v"] - 1.5) / sheet["supply_v"]
+    assert p["stall_nm"] == pytest.approx(sheet["stall_nm"] * f, rel=1e-5)
+    assert p["no_load_rad_s"] == pytest.approx(sheet["no_load_rad_s"] * f / 1.2, rel=1e-5)
+    assert p["mu_s"] == pytest.approx(params.ROBOT["mu_s"], rel=1e-6)  # unchanged
+
+
+def test_log_writes_the_start_profile_as_reference(elf, sim, tmp_path):
+    """fil record (the logger) writes meta.json reference: the Start profile as the firmware
+    builds it (accel = r wheel_accel, cruise = accel accel_time) and t0_s, the board time of the
+    run's first tick, which the analyzer's closed-loop replay needs."""
+    exp = {"profile": "arc", "wheel_accel": 30.0, "accel_time": 0.5, "duration": 1.0, "radius": 0.5}
+    code, lg, _ = fil.record(tmp_path / "arc", elf, exp, clamp=True, args=FAST)
+    assert code == 0, lg.end_reason
+    meta = json.loads((tmp_path / "arc" / "meta.json").read_text())
+    ref = meta["reference"]
+    r = meta["robot"]["r"]
+    assert ref["kind"] == "arc" and ref["radius"] == 0.5
+    assert ref["accel"] == pytest.approx(r * 30.0) and ref["cruise"] == pytest.approx(r * 15.0)
+    tel = csv(tmp_path / "arc" / "telemetry.csv")
+    first = np.flatnonzero(tel["status"].astype(int) & RUNNING)[0]
+    # the first running frame comes within one telemetry period after the start tick
+    assert 0.0 <= tel["t_s"][first] - ref["t0_s"] <= 0.021
+
+
+def test_bad_port_is_one_clear_message(tmp_path):
+    with pytest.raises(RobotError) as e:
+        Robot("/dev/ddrobot-no-such-port", out=tmp_path / "r")
+    assert e.value.code == 2 and "cannot open port /dev/ddrobot-no-such-port" in str(e.value)
+    r = subprocess.run([sys.executable, "-m", "host_tools", "drive", "--port", "/dev/ddrobot-no-such-port",
+                        "--out", str(tmp_path / "r2"), "--path", str(_path_file(tmp_path))],
+                       capture_output=True, text=True, cwd=Path(__file__).resolve().parents[2])
+    assert r.returncode == 2
+    assert r.stderr.count("error:") == 1 and "cannot open port" in r.stderr
+
+
+def _path_file(tmp_path: Path, text: str = "t,v,w\n0,0.1,0\n1,0,0\n") -> Path:
+    p = tmp_path / "path.csv"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("text, where", [
+    ("t,v,w\n0,0.1,0\n1,abc,0\n", "row 3, column 2"),
+    ("0,0.1,0\n1,9.0,0\n", "row 2, column 2"),      # beyond Drive's range
+    ("0,0.1,0\n-1,0,0\n", "row 2, column 1"),       # time going back
+    ("0,0.1\n", "row 1: expected 3 columns"),
+])
+def test_bad_path_files_are_refused_with_row_and_column(tmp_path, text, where):
+    with pytest.raises(ValueError, match=where):
+        read_path(str(_path_file(tmp_path, text)))
+    r = subprocess.run([sys.executable, "-m", "host_tools", "drive", "--port", "loop://",
+                        "--out", str(tmp_path / "r"), "--path", str(_path_file(tmp_path, text))],
+                       capture_output=True, text=True, cwd=Path(__file__).resolve().parents[2])
+    assert r.returncode == 2 and where in r.stderr
+    assert not (tmp_path / "r").exists()  # nothing was made
+
+
+def test_robot_set_model_between_drives_is_reported_back(elf, sim, tmp_path):
+    """Robot.set_model while stopped: SetMu and SetModel acknowledged, the robot's Params (and
+    so meta.json) report the new wheel radius; while driving the firmware answers busy."""
+    model = {"format": "ddmodel/1", "robot": dict(params.ROBOT, r=0.0371, mu_s=0.3, mu_k=0.28)}
+    with Robot(fil=True, out=tmp_path / "sm", elf=elf, sim_args=FAST) as bot:
+        bot.drive(0.1, 0.0)
+        bot.sleep(0.3)
+        with pytest.raises(RobotError, match="busy"):
+            bot.set_model(model)
+        bot.stop()
+        bot.wait_stopped()
+        bot.set_model(model)
+        bot.sleep(0.2)
+    meta = json.loads((tmp_path / "sm" / "meta.json").read_text())
+    assert meta["robot"]["r"] == pytest.approx(0.0371) and meta["robot"]["mu_s"] == pytest.approx(0.3)
+    assert [c["command"] for c in meta["commands"] if c["result"] == "ok"][-2:] == ["SetMu", "SetModel"]
