@@ -140,7 +140,8 @@ def firmware_model(model: dict[str, Any], path: str | Path = "model") -> dict[st
             "ke_ratio": round(ke, 4), "drop_v": round(0.0 if abs(drop) < 1e-9 else drop, 3)}
 
 
-def firmware_commands(model: dict[str, Any], path: str | Path = "model") -> tuple[tuple[float, float], dict]:
+def firmware_commands(model: dict[str, Any], path: str | Path = "model"
+                      ) -> tuple[tuple[float, float], dict[str, float]]:
     """(SetMu (mu_s, mu_k), SetModel values) of a model, checked against the protocol's ranges
     (ModelError naming the file and the field)."""
     from host_tools import protocol as P

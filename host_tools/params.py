@@ -130,7 +130,7 @@ RANGES: dict[tuple[str, str], tuple[float, float]] = {
 ENCODER_PPR_RANGE: tuple[int, int] = (int(TABLE.encoder.min), int(TABLE.encoder.max))
 
 
-def resolve_param_ranges(protocol_spec: dict) -> dict:
+def resolve_param_ranges(protocol_spec: dict[str, Any]) -> dict[str, Any]:
     """protocol.json fields with ``"param": "group.name"`` take that parameter's range from this
     table as their ``min``/``max`` (in place; returns the spec).  protocol/generate.py and
     host_tools.protocol both call this, so the firmware's validator and the host check the

@@ -19,7 +19,7 @@ from host_tools import params
 from host_tools import protocol as P
 from host_tools.robot import Robot, RobotError, read_path
 
-from test_fil import HostScript, csv, elf, sim  # noqa: E402,F401  (the FIL tests' host, CSV reader, fixtures)
+from test_fil import HostScript, csv  # noqa: E402  (the FIL tests' host, CSV reader)
 
 D = P.definition()
 RUNNING = 1 << D.flags["status"]["running"]

@@ -20,7 +20,7 @@ from host_tools import params
 from host_tools.robot import Robot
 
 from test_drive import FAST  # noqa: E402
-from test_fil import csv, elf, sim  # noqa: E402,F401  (fixtures: the firmware, the simulator)
+from test_fil import csv  # noqa: E402
 
 R_TRUE = round(params.ROBOT["r"] * 1.02, 6)  # the injected wheel: 2 % larger
 

@@ -28,19 +28,6 @@ RUNNING = 1 << D.flags["status"]["running"]
 FAILSAFE = D.enums["failsafe"]
 
 
-@pytest.fixture(scope="module")
-def elf():
-    try:
-        return fil.build_firmware()
-    except fil.FilError as exc:
-        pytest.skip(f"firmware cannot be built here, so there is nothing to run in the loop: {exc}")
-
-
-@pytest.fixture(scope="module")
-def sim():
-    return fil.build_sim()  # failure to build the simulator is a test failure, not a skip
-
-
 def straight(accel: float, duration: float) -> dict:
     return {"profile": "straight", "wheel_accel": accel, "accel_time": 0.5, "duration": duration, "radius": 0.0}
 

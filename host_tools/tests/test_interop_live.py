@@ -18,7 +18,6 @@ from host_tools import runfmt
 from host_tools.__main__ import main as cli
 from host_tools.interop import live
 from host_tools.logger import TelemetryColumns
-from test_fil import elf  # noqa: F401  (the firmware fixture: skips where it cannot be built)
 
 # offered as a client of both protocol generations does; foxglove-sdk's server
 # (0.30.3) accepts only foxglove.sdk.v1 (and .v1.1), the successor of foxglove.websocket.v1
@@ -112,7 +111,7 @@ def test_a_taken_port_is_bad_input(tmp_path, capsys):
         live.parse_address("localhost:http")
 
 
-def test_fil_recording_is_served_live(elf, tmp_path):  # noqa: F811  (the fixture imported above)
+def test_fil_recording_is_served_live(elf, tmp_path):
     fil.build_sim()
     cols = TelemetryColumns(P.definition()).columns
     pub = live.LivePublisher(port=0, columns=cols)
@@ -140,7 +139,7 @@ def test_fil_recording_is_served_live(elf, tmp_path):  # noqa: F811  (the fixtur
     assert len(got["/odometry/tf"]) == 40
 
 
-def test_fil_record_command_serves_live(elf, tmp_path, capsys):  # noqa: F811  (the fixture)
+def test_fil_record_command_serves_live(elf, tmp_path, capsys):
     out = tmp_path / "cli_live"
     rc = cli(["-v", "fil", "record", "--out", str(out), "--elf", str(elf), "--duration", "0.5",
               "--live", "0"])
