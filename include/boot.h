@@ -27,8 +27,9 @@ void wdt_start();
 void wdt_kick();
 
 // Largest stack depth seen so far, in bytes (scans downward from the previous low-water
-// mark; cost proportional to the growth since the last call).
-uint16_t stack_high_water();
+// mark; cost proportional to the growth since the last call, at most max_bytes bytes of it per
+// call: 0 = no limit, and a bounded call that stops early goes on from there the next time).
+uint16_t stack_high_water(uint16_t max_bytes = 0);
 // Bytes between the end of static data and the top of RAM (stack + free).
 uint16_t stack_region_bytes();
 

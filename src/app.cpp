@@ -127,7 +127,30 @@ T* place(uint8_t* storage, const T& v) {
 // 256-byte receive ring holds the 191 bytes that arrive at 115200 baud in 16.6 ms.
 bool g_rebuild_pending;
 
+// Telemetry's wheel speed references, 100 (v +- b w) / r in 0.01 rad/s, from the kinematic
+// loop's v_d (Q12) and omega_d (Q11) in fixed point: k * 2^-shift stands for the factor
+// (100 / r, 100 b / r) times 2^-12 or 2^-11, k the largest that fits 16 bits, so that
+// |q| * k < 2^31 for every int16 q and no float runs in the telemetry task.
+struct RefScale {
+    int32_t k;
+    uint8_t shift;
+};
+RefScale g_wref_v, g_wref_w;
+
+RefScale ref_scale(float factor, uint8_t q_bits) {
+    int8_t s = 8;
+    while (s > -12 && factor * static_cast<float>(1UL << 12) / static_cast<float>(1UL << (12 - s)) > 65535.0f)
+        --s;
+    float k = factor * static_cast<float>(1UL << 12) / static_cast<float>(1UL << (12 - s));
+    return RefScale{static_cast<int32_t>(k + 0.5f), static_cast<uint8_t>(q_bits + s)};
+}
+
+int32_t scaled(int16_t q, const RefScale& r) { return (static_cast<int32_t>(q) * r.k) >> r.shift; }
+
 void rebuild_controller() {
+    float inv_r = 1.0f / static_cast<float>(g_robot.r);
+    g_wref_v = ref_scale(100.0f * inv_r, 12);
+    g_wref_w = ref_scale(100.0f * static_cast<float>(g_robot.b) * inv_r, 11);
     // the inner period: the controller's wheel rate for it is precomputed (no division on the
     // first step of an experiment)
     ctl::ControlConfigQ q(make_cfg(), proto::kInnerPeriodUs);
@@ -456,6 +479,12 @@ int32_t q20_to_um(int32_t v_q20) {
     return hi * 15625 + ((lo * 15625) >> 14);
 }
 
+// The stack scan goes on at most this far per frame (about 10 cycles a byte): a stack that grew
+// by hundreds of bytes since the last frame (a float rebuild of the configuration) is followed
+// over a few frames instead of costing one frame thousands of cycles. Any 8-byte window without
+// a used byte ends a scan, so each call either ends or moves the mark down by at least 56 bytes.
+const uint16_t kStackScanBytesPerFrame = 64;
+
 void telemetry_task() {
     EncSnapshot e = enc_snapshot();
     uint32_t t_us = time_us();  // right after the snapshot: the frame's time is the counts' time
@@ -471,10 +500,9 @@ void telemetry_task() {
     t.omega_l = q_to_raw16<100, 8>(odo.omega_l_q8());
     if (g_running) {
         // wheel speed references from the kinematic loop's (v_d, omega_d): (v +- b w) / r
-        float v = kin.v_d_q12 / 4096.0f, w = kin.omega_d_q11 / 2048.0f;
-        float b = static_cast<float>(g_robot.b), inv_r = 1.0f / static_cast<float>(g_robot.r);
-        t.set_omega_ref_r((v + b * w) * inv_r);
-        t.set_omega_ref_l((v - b * w) * inv_r);
+        int32_t tv = scaled(kin.v_d_q12, g_wref_v), tw = scaled(kin.omega_d_q11, g_wref_w);
+        t.omega_ref_r = sat16(tv + tw);
+        t.omega_ref_l = sat16(tv - tw);
         t.tau_cmd_r = q_to_raw16<10000, 16>(in.tau_r_q16);
         t.tau_cmd_l = q_to_raw16<10000, 16>(in.tau_l_q16);
         if (g_clamp_on) {
@@ -539,7 +567,7 @@ void telemetry_task() {
     // telemetry period old would lag the duty the inner task changed since
     t.current_r = motor_sense_raw(kRight);
     t.current_l = motor_sense_raw(kLeft);
-    t.stack_hwm = stack_high_water();
+    t.stack_hwm = stack_high_water(kStackScanBytesPerFrame);
     t.boot_count = boot_count();
     send_msg(t);
 }

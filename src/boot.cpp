@@ -55,11 +55,12 @@ uint16_t boot_count() { return g_boot_count; }
 void wdt_start() { wdt_enable(WDTO_250MS); }
 void wdt_kick() { wdt_reset(); }
 
-uint16_t stack_high_water() {
+uint16_t stack_high_water(uint16_t max_bytes) {
     uint8_t* low = g_stack_low;
     uint8_t* p = low;
     uint8_t run = 0;
-    while (p > &__heap_start && run < kStopRun) {
+    uint16_t n = 0;
+    while (p > &__heap_start && run < kStopRun && (max_bytes == 0 || n++ < max_bytes)) {
         --p;
         if (*p != kPaint) {
             low = p;
