@@ -187,5 +187,9 @@ def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.
             q_sim[j] = q_rec[j] + np.concatenate([[0.0], np.cumsum(inc)])
     xs, ys, ps = encoder_odometry(q_sim[0], q_sim[1], t, r, b, prep.ppr, pose0)
     xr, yr, pr = encoder_odometry(q_rec[0], q_rec[1], t, r, b, prep.ppr, pose0)
+    # lib/control's odometry wraps its heading to [-pi, pi); the two wrap at different frames
+    # when they differ near +-pi, so the difference is taken of the unwrapped headings (both
+    # start at pose0) before it is interpolated to the camera times
+    dphi = np.unwrap(np.asarray(ps, float)) - np.unwrap(np.asarray(pr, float))
     return {"x_m": np.interp(tg, t, xs - xr), "y_m": np.interp(tg, t, ys - yr),
-            "phi_rad": np.interp(tg, t, ps - pr)}
+            "phi_rad": np.interp(tg, t, dphi)}
