@@ -140,6 +140,28 @@ SEPARATORS: dict[frozenset, str] = {
 }
 
 
+# Effects that are plain values of the nominal robot's parameters: effect -> {effect parameter:
+# meta.json robot key}.  The plant applies them as such; the analyzer folds them into the robot
+# parameters (model.json) and uses them wherever it needs the candidate's geometry outside the
+# plant (the count-anchored camera channels).
+PARAMETER_EFFECTS: dict[str, dict[str, str]] = {
+    "friction_coefficient": {"mu_s": "mu_s", "mu_k": "mu_k"},
+    "wheel_radius": {"r_eff": "r"},
+    "track_width": {"b_eff": "b"},
+}
+
+
+def folded_robot(robot: Mapping[str, float],
+                 effects: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
+    """The robot parameters ``robot`` with the parameter effects of ``effects`` folded in."""
+    out = dict(robot)
+    for name, params in effects.items():
+        for p, key in PARAMETER_EFFECTS.get(name, {}).items():
+            if p in params:
+                out[key] = float(params[p])
+    return out
+
+
 def vocabulary_params(effect: str, fitted: Mapping[str, float]) -> dict[str, float]:
     """The vocabulary parameters of ``effect`` from its fitted coordinates."""
     spec = SPECS.get(effect)

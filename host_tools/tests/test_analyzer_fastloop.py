@@ -276,3 +276,31 @@ def test_anchored_heading_has_no_wrap_spikes_across_pi(tmp_path):
     tg = run.groundtruth["t_s"][run.groundtruth["t_s"] < t[-1]]
     shift = AN._count_anchor_shift(prep, sim, t, th[0], th[1], 0, t.size, tg)
     assert np.abs(np.diff(shift["phi_rad"])).max() < 0.05
+
+
+def test_count_anchor_moves_the_pose_on_the_candidate_geometry(arc_run):
+    """The replay's extra wheel turning moves the body by the replayed plant's radius and track
+    width: with a candidate r_eff / b_eff the anchor shift is that of the candidate's geometry
+    (it had used meta.json's nominal r and b, which left a right radius fit off by the
+    nominal-to-fitted ratio of the shift)."""
+    prep = PI.prepare_timed(arc_run)
+    sims = OL.OpenLoopReplay("duty").simulate_windows(prep, {})
+    _, sim = next(iter(sims))
+    t = arc_run.telemetry["t_s"]
+    th_r = np.interp(t, sim["t_s"], sim["theta_r_rad"]) * 1.05   # a replay that over-turns
+    th_l = np.interp(t, sim["t_s"], sim["theta_l_rad"]) * 1.05
+    tg = arc_run.groundtruth["t_s"][arc_run.groundtruth["t_s"] < t[-1]]
+    r, b = params.ROBOT["r"], params.ROBOT["b"]
+    nom = AN._count_anchor_shift(prep, sim, t, th_r, th_l, 0, t.size, tg)
+    big_r = AN._count_anchor_shift(prep, sim, t, th_r, th_l, 0, t.size, tg,
+                                   {"wheel_radius": {"r_eff": 1.03 * r}})
+    assert _rms(nom["x_m"]) > 5e-3
+    # the heading follows r/b exactly; the positions move with it
+    assert np.allclose(big_r["phi_rad"], 1.03 * nom["phi_rad"], rtol=1e-3, atol=1e-9)
+    assert _rms(big_r["x_m"] - nom["x_m"]) > 0.02 * _rms(nom["x_m"])
+    wide = AN._count_anchor_shift(prep, sim, t, th_r, th_l, 0, t.size, tg,
+                                  {"track_width": {"b_eff": 1.1 * b}})
+    assert np.allclose(wide["phi_rad"], nom["phi_rad"] / 1.1, rtol=1e-3, atol=1e-9)
+    # the windows' replay carries the effects it ran with to the channels
+    eff = {"wheel_radius": {"r_eff": 1.03 * r}}
+    assert OL.OpenLoopReplay("duty").simulate_windows(prep, eff).effects == eff
