@@ -23,6 +23,13 @@ class ParamSpec:
     # sets, function of the effect's fitted coordinates).  Used to fit inside the physically
     # possible region, e.g. mu_k as a fraction of mu_s so that mu_k <= mu_s always.
     sets: tuple[str, Callable[[Mapping[str, float]], float]] | None = None
+    # A coordinate whose identification is judged with another quantity held at its fitted
+    # value: (held vocabulary parameter, coordinate that keeps it, its value as a function of
+    # this coordinate's value and the held one, this coordinate's possible range given the held
+    # one).  mu_s with mu_k held: wheels that slip all run pin mu_k and say nothing about mu_s,
+    # while in the (mu_s, mu_k/mu_s) coordinates both move mu_k and look identified.
+    given: tuple[str, str, Callable[[float, float], float],
+                 Callable[[float, Mapping], tuple[float, float]]] | None = None
 
 
 @dataclass(frozen=True)
@@ -52,7 +59,9 @@ P = ParamSpec
 SPECS: dict[str, EffectSpec] = {s.name: s for s in [
     # mu_k is fitted as a fraction of mu_s in [0.5, 1]: kinetic friction never exceeds static
     EffectSpec("friction_coefficient", (
-        P("mu_s", _robot("mu_s"), _c(0.03), _c(1.2), _robot("mu_s", 0.05)),
+        P("mu_s", _robot("mu_s"), _c(0.03), _c(1.2), _robot("mu_s", 0.05),
+          given=("mu_k", "mu_k_over_mu_s", lambda mu_s, mu_k: mu_k / mu_s,
+                 lambda mu_k, meta: (mu_k, min(mu_k / 0.5, 1.2)))),
         P("mu_k_over_mu_s", lambda m: float(m["robot"]["mu_k"]) / float(m["robot"]["mu_s"]),
           _c(0.5), _c(1.0), _c(0.05),
           sets=("mu_k", lambda d: d["mu_k_over_mu_s"] * d["mu_s"]))),
