@@ -5,6 +5,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from host_tools.analyzer.effects import plant_setup
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay import anchors
 
@@ -47,9 +48,10 @@ class OpenLoopReplay:
 
     def _ready(self, prep: PreparedRun, effects: Mapping[str, Mapping[str, float]]):
         """(plant with ``effects`` switched on, the replayed inputs, their times)."""
-        plant = self._plant(prep.robot, prep.motor)
+        robot, plant_effects = plant_setup(prep.robot, effects)
+        plant = self._plant(robot, prep.motor)
         plant.clear_effects()
-        for name, params in effects.items():
+        for name, params in plant_effects.items():
             plant.set_effect(name, **{k: float(v) for k, v in params.items()})
         if self.mode == "duty":
             return plant, prep.duty, prep.t_in

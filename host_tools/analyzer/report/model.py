@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import Mapping, Sequence
 
-from host_tools.analyzer.effects import folded_robot
+from host_tools.analyzer.effects import folded_robot, plant_setup
 
 
 MODEL_FORMAT = "ddmodel/1"
@@ -15,8 +15,9 @@ def updated_model(meta: Mapping, effects: Mapping[str, Mapping[str, float]],
     from host_tools import _native
     robot = dict(meta["robot"])
     motor = dict(meta["motor"])
-    plant = _native.Plant.from_meta(meta)
-    for name, params in effects.items():
+    plant_robot, plant_effects = plant_setup(robot, effects)
+    plant = _native.Plant.from_meta({**meta, "robot": plant_robot})
+    for name, params in plant_effects.items():
         plant.set_effect(name, **params)
     # fold the effects that are plain parameter changes into the parameters themselves
     robot = folded_robot(robot, effects)
