@@ -18,7 +18,7 @@ def test_mu_s_unidentified_when_the_wheels_slip_all_run(tmp_path):
     """Without the torque clamp, hard starts on a slippery floor: the wheels slip from the
     first moments to the end, which pins mu_k and says nothing about mu_s.  In the fit's
     coordinates (mu_s, mu_k/mu_s) both move mu_k, so mu_s had looked identified (std 0.0012)
-    and was kept at the nominal 0.241 without a word; it is now reported as unidentified,
+    and was kept at its nominal value without a word; it is now reported as unidentified,
     with mu_k fitted and the verdict explained."""
     runs = [truth.simulate_run(tmp_path / f"run{i}", {"kind": "line", "accel": a, "cruise": v},
                                SLIPPING, clamp=False, duration_s=1.5, seed=40 + i)
