@@ -21,6 +21,10 @@ import tempfile
 # Bounds of the options (every option is bounded: a value outside gives exit 2).
 DT_MIN_S, DT_MAX_S = 1e-4, 1e-2   # plant step; 5e-4 is the default, 1e-4 costs 5x as long
 JOBS_MAX = 64
+# The replay's grid has one point per inner tick over the run: a run longer than this many
+# ticks is refused (5e6: 35 h at 25 ms, 1.4 h at 1 ms; the grid's arrays alone take about
+# 40 MB each) instead of asking for hundreds of GiB (a last-row t_s of 1e9).
+MAX_INNER_TICKS = 5_000_000
 EFFECTS_MAX = 64
 
 EPILOG = """\
@@ -69,30 +73,63 @@ def _bad(msg: str) -> int:
     return 2
 
 
-def check_out_dir(out: str) -> str | None:
-    """Create ``out`` (if missing) and check that a file can be written there; return what
-    is wrong, or None."""
+def check_out_dir(out: str) -> tuple[str | None, str | None]:
+    """Create ``out`` (if missing) and in it the fresh staging folder of this analysis's outputs
+    (report/outputs.py: created exclusively, so also the check that ``out`` can be written);
+    (staging folder, None) or (None, what is wrong)."""
+    from host_tools.analyzer.report import outputs
     from host_tools.runfmt import display
 
     shown = display(out)
     if os.path.exists(out) and not os.path.isdir(out):
-        return f"--out {shown} exists and is not a folder"
+        return None, f"--out {shown} exists and is not a folder"
     try:
-        os.makedirs(out, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".write-check-", dir=out)
-        os.close(fd)
-        os.remove(probe)
+        return outputs.create_staging(out), None
     except OSError as exc:
-        return f"--out {shown} cannot be created or written: {exc.strerror or exc}"
-    return None
+        return None, f"--out {shown} cannot be created or written: {exc.strerror or exc}"
+
+
+def check_analyzable(runs: list, dt_s: float) -> None:
+    """What the analyzer needs beyond the run format (RunFormatError naming file, row, column):
+    an inner loop no faster than the plant step (the replay applies one command per inner
+    tick; a loop of 1e-5 s, the format's minimum, would take the replay hours for nothing it
+    can resolve) and a run of at most :data:`MAX_INNER_TICKS` inner ticks."""
+    import numpy as np
+
+    from host_tools.runfmt import RunFormatError
+
+    for r in runs:
+        meta_file = os.path.join(r.path, "meta.json")
+        tel_file = os.path.join(r.path, "telemetry.csv")
+        inner = float(r.meta["periods_s"]["inner"])
+        if inner < dt_s:
+            raise RunFormatError(
+                f"periods_s.inner = {inner:g} s is shorter than the plant step (--dt "
+                f"{dt_s:g} s): the replay applies one command per inner tick, so the analyzer "
+                "needs periods_s.inner >= --dt", file=meta_file, column="periods_s.inner")
+        t = np.asarray(r.telemetry["t_s"], float)
+        span = float(t[-1] - t[0]) if t.size else 0.0
+        if not (np.isfinite(span) and span / inner <= MAX_INNER_TICKS):
+            steps = np.diff(t)
+            j = int(np.nanargmax(steps)) + 1 if steps.size else 0
+            raise RunFormatError(
+                f"the run spans {span:g} s (the largest step, {float(steps[j - 1]):g} s, ends "
+                f"here): at periods_s.inner = {inner:g} s that is more than the analyzer's "
+                f"{MAX_INNER_TICKS:.0e} inner ticks ({MAX_INNER_TICKS * inner / 3600:.3g} h); "
+                "is a time stamp wrong?", file=tel_file, row=j + 1, column="t_s")
 
 
 class _Interrupted(Exception):
     pass
 
 
+_STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
 def _stop_on_signals() -> dict:
-    """SIGINT, SIGTERM and SIGHUP end the analysis with exit 1 and a message.  The worker
+    """SIGINT, SIGTERM and SIGHUP end the analysis with exit 1 and a message.  The first one
+    raises :class:`_Interrupted`; the ones after it are ignored, so that a second SIGTERM (or a
+    volley of Ctrl-Cs) cannot interrupt the clean-up and end in a traceback.  The worker
     processes it forks end silently on them (the default action), as the pool expects."""
     main_pid = os.getpid()
 
@@ -101,9 +138,13 @@ def _stop_on_signals() -> dict:
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
+        for name in _STOP_SIGNALS:
+            sig = getattr(signal, name, None)
+            if sig is not None:
+                signal.signal(sig, signal.SIG_IGN)
         raise _Interrupted(signal.Signals(signum).name)
     old = {}
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+    for name in _STOP_SIGNALS:
         sig = getattr(signal, name, None)
         if sig is not None:
             old[sig] = signal.signal(sig, handler)
@@ -112,18 +153,27 @@ def _stop_on_signals() -> dict:
 
 def main(args: argparse.Namespace) -> int:
     old = _stop_on_signals()
+    state: dict = {"staging": None, "committed": False}
     try:
-        return _main(args)
+        return _main(args, state)
     except _Interrupted as exc:
-        print(f"error: interrupted by {exc}; no outputs written (report.json, report.md and "
-              "model.json are written whole or not at all)", file=sys.stderr)
+        if state["committed"]:
+            print(f"error: interrupted by {exc} after the outputs were written (complete)",
+                  file=sys.stderr)
+        else:
+            print(f"error: interrupted by {exc}; no outputs written (the previous outputs in "
+                  "--out, if any, are left as they were: the outputs are replaced as one set "
+                  "or not at all)", file=sys.stderr)
         return 1
     finally:
+        if state["staging"] is not None and not state["committed"]:
+            from host_tools.analyzer.report import outputs
+            outputs.remove_staging(state["staging"])
         for sig, h in old.items():
             signal.signal(sig, h)
 
 
-def _main(args: argparse.Namespace) -> int:
+def _main(args: argparse.Namespace, state: dict) -> int:
     from host_tools import runfmt
     from host_tools.runfmt import RunFormatError
 
@@ -138,12 +188,14 @@ def _main(args: argparse.Namespace) -> int:
                     not all(e.isascii() and e.replace("_", "").isalnum() for e in effects)):
         return _bad(f"--effects must be up to {EFFECTS_MAX} vocabulary names "
                     "(letters, digits, '_') separated by commas")
-    problem = check_out_dir(args.out)
+    staging, problem = check_out_dir(args.out)
     if problem:
         return _bad(problem)
+    state["staging"] = staging
     try:
         runs = [runfmt.load_run(p, min_rows=runfmt.ANALYZER_MIN_ROWS) for p in args.runs]
         runfmt.check_compatible(runs)
+        check_analyzable(runs, args.dt)
     except RunFormatError as exc:
         return _bad(str(exc))
     runfmt.label_runs(runs)
@@ -163,10 +215,12 @@ def _main(args: argparse.Namespace) -> int:
         return 1
     an.notes.extend(notes)
     try:
-        write_outputs(an, args.out, plots=not args.no_plots)
+        write_outputs(an, args.out, plots=not args.no_plots, staging=staging,
+                      on_commit=lambda: state.update(committed=True))
     except OSError as exc:
         print(f"error: cannot write the outputs into {runfmt.display(args.out)}: "
-              f"{exc.strerror or exc}", file=sys.stderr)
+              f"{exc.strerror or exc}; the previous outputs there, if any, are left as they "
+              "were", file=sys.stderr)
         return 1
     print(f"verdict: {an.verdict}; report: {runfmt.display(os.path.join(args.out, 'report.json'))}")
     return 0

@@ -42,7 +42,27 @@ def _eval_task(args):
     return cand, time.time() - t0
 
 
+def _stop_workers(ex) -> None:
+    """End the pool's worker processes at once (an interrupted analysis must not wait for
+    their fits).  ProcessPoolExecutor has no public way to do so before Python 3.14
+    (``terminate_workers``): its process table is used when that method is missing."""
+    stop = getattr(ex, "terminate_workers", None)
+    if stop is not None:
+        stop()
+        return
+    for p in list((getattr(ex, "_processes", None) or {}).values()):
+        try:
+            p.terminate()
+        except (OSError, ValueError, AttributeError):
+            pass
+
+
 def run_tasks(problem: Problem, tasks: list, jobs: int, label: str) -> list[Candidate]:
+    """Fit ``tasks`` (candidate effects) with ``jobs`` worker processes; the candidates in the
+    order of ``tasks``.  A worker that dies (the out-of-memory killer's SIGKILL, a SIGTERM sent
+    to it alone) breaks the pool: every fit of a task the pool had not returned is then done
+    here, in this process, one after the other, and the analysis goes on (a message on stderr
+    says so) instead of waiting for ever for the dead worker's result."""
     out: list[Candidate] = []
     if jobs <= 1 or len(tasks) <= 1:
         _init_worker(problem)
@@ -51,11 +71,44 @@ def run_tasks(problem: Problem, tasks: list, jobs: int, label: str) -> list[Cand
             out.append(cand)
             log_stderr(f"{label} {i}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
         return out
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
     ctx = mp.get_context("fork")
-    with ctx.Pool(jobs, initializer=_init_worker, initargs=(problem,)) as pool:
-        for i, (cand, dt) in enumerate(pool.imap_unordered(_eval_task, tasks), 1):
-            out.append(cand)
-            log_stderr(f"{label} {i}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
-    order = {tuple(t[0]): i for i, t in enumerate(tasks)}
-    out.sort(key=lambda c: order[tuple(c.effects)])
-    return out
+    ex = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_init_worker,
+                             initargs=(problem,))
+    done: dict[int, Candidate] = {}
+    broken = None
+    try:
+        futures = {ex.submit(_eval_task, t): k for k, t in enumerate(tasks)}
+        pending = set(futures)
+        while pending and broken is None:
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for f in finished:
+                try:
+                    cand, dt = f.result()
+                except BrokenProcessPool as exc:
+                    broken = exc
+                    continue
+                done[futures[f]] = cand
+                log_stderr(f"{label} {len(done)}/{len(tasks)}: {cand.name} fitted in "
+                           f"{dt:.1f} s")
+    except BaseException:
+        _stop_workers(ex)
+        ex.shutdown(wait=False, cancel_futures=True)
+        raise
+    if broken is not None:
+        _stop_workers(ex)
+        ex.shutdown(wait=False, cancel_futures=True)
+        left = [k for k in range(len(tasks)) if k not in done]
+        log_stderr(f"a fitting worker process died ({broken}); fitting the {len(left)} "
+                   f"{label}(s) it left here, in this process, one after the other")
+        _init_worker(problem)
+        for k in left:
+            cand, dt = _eval_task(tasks[k])
+            done[k] = cand
+            log_stderr(f"{label} {len(done)}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s "
+                       "(in-process, after the worker died)")
+    else:
+        ex.shutdown(wait=True)
+    return [done[k] for k in range(len(tasks))]
