@@ -3,7 +3,8 @@
 Replays each run through the nominal plant (lib/slipmodel via its C ABI), locates where the
 recordings disagree with it, fits every effect of the vocabulary across all runs, selects
 what the data support, and writes OUT_DIR/report.json (mismatch-report/1), report.md,
-PNG plots and model.json (the updated model parameters, ddmodel/1).
+report.html, series/<run>.csv, PNG plots and model.json (the updated model parameters,
+ddmodel/1), as one set: all or nothing per invocation.
 
 Exit codes: 0 done, 2 bad input (the message says what is wrong and where: file, row,
 column), 1 the native plant library could not be built or loaded, or writing the outputs
@@ -30,9 +31,12 @@ EFFECTS_MAX = 64
 EPILOG = """\
 outputs (in OUT_DIR):
   report.json   verdict, located mismatch windows, selected effects, every candidate, errors
-  report.md     the human report (tables of errors before/after, plots)
-  *.png         recording, nominal and updated simulation, windows of mismatch shaded
+  report.md     the human report: a ten-second summary, then the details (errors, plots)
+  report.html   interactive, self-contained (plotly): every run and channel, x-y paths
+  series/<run>.csv  per sample: recording, nominal/updated replay, residuals, noise band
+  *.png         the largest mismatches first (every run represented), an x-y path per run
   model.json    updated model parameters (format ddmodel/1, see docs/analyzer.md)
+the set is replaced all or nothing (staged in OUT_DIR/.analyze-staging-*, then renamed).
 
 progress goes to stderr.  exit status: 0 done, 2 bad input (file, row, column), 1 native
 plant unavailable or the outputs could not be written.
@@ -47,8 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="run folders (ddrun/1: meta.json, telemetry.csv, [groundtruth.csv]); "
                              "several runs must come from one robot (same parameters)")
     parser.add_argument("--out", required=True, metavar="OUT_DIR",
-                        help="folder for report.json, report.md, plots and model.json "
-                             "(created if missing)")
+                        help="folder for report.json, report.md, report.html, series/, plots "
+                             "and model.json (created if missing)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="processes fitting candidates in parallel, 1..%d (default "
                              "%%(default)s)" % JOBS_MAX)
@@ -57,7 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dt", type=float, default=5e-4, metavar="SECONDS",
                         help="plant integration step, %g..%g s (default %%(default)s)"
                              % (DT_MIN_S, DT_MAX_S))
-    parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots "
+                        "(report.html and the series are still written)")
 
 
 def _native_build_error() -> type:

@@ -84,7 +84,7 @@ def channel_figure(s: Series) -> dict:
               "xaxis": {"title": {"text": "t [s]"}, "anchor": "y2"},
               "yaxis": {"domain": [0.42, 1.0], "title": {"text": html.escape(s.unit)}},
               "yaxis2": {"domain": [0.0, 0.36], "title": {"text": "residual"}},
-              "shapes": shapes, "legend": {"font": {"size": 10}}}
+              "shapes": shapes, "legend": {"font": {"size": 10}, "traceorder": "normal"}}
     return {"data": tr, "layout": layout}
 
 
@@ -125,6 +125,10 @@ def _md_to_html(lines: list[str]) -> str:
         e = html.escape(ln)
         e = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", e)
         e = re.sub(r"`(.+?)`", r"<code>\1</code>", e)
+        e = re.sub(r"\[(.+?)\]\((.+?)\)", r'<a href="\2">\1</a>', e)
+        if ln.startswith("  - "):      # a nested bullet: an item of the last item's list
+            out.append(f"<ul><li>{e[4:]}</li></ul>")
+            continue
         if ln.startswith("- "):
             if not in_list:
                 out.append("<ul>")

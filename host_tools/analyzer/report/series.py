@@ -116,7 +116,8 @@ def file_name(an: Analysis, i: int) -> str:
 
 
 def _g(v: float) -> str:
-    return "" if not np.isfinite(v) else repr(float(v))
+    """10 significant digits (a tenth of the smallest noise floor seen is 1e-5 of a value)."""
+    return "" if not np.isfinite(v) else f"{float(v):.10g}"
 
 
 def to_csv(series: list[Series]) -> str:
