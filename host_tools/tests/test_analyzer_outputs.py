@@ -458,3 +458,19 @@ def test_inputs_that_ended_in_a_traceback_are_bad_input(tmp_path, capsys, monkey
     assert "Traceback" not in err
     for piece in expect:
         assert piece in err, (piece, err)
+
+
+def test_a_folder_where_an_output_goes_fails_before_anything_is_replaced(analysed, tmp_path):
+    from host_tools.analyzer.report import writers
+    d, runs, _, an = analysed
+    out = tmp_path / "out"
+    writers.write_outputs(an, str(out), plots=False)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    (out / "report.json").unlink()
+    (out / "report.json").mkdir()           # renamed last: the others would have gone first
+    (out / "report.json" / "keep").write_text("x")
+    with pytest.raises(IsADirectoryError):
+        writers.write_outputs(_other_analysis(an), str(out), plots=False)
+    after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == {**{p: b for p, b in before.items() if p.name != "report.json"},
+                     out / "report.json" / "keep": b"x"}

@@ -99,6 +99,11 @@ def commit(staging: str, out_dir: str, names: list[str], on_commit=None) -> None
     fd = os.open(out_dir, os.O_RDONLY | os.O_DIRECTORY)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
+        for n in names:     # checked before anything changes: a rename could not replace it
+            dest = os.path.join(out_dir, n)
+            if os.path.isdir(dest) and not os.path.islink(dest):
+                raise IsADirectoryError(errno.EISDIR, "a folder stands where an output goes",
+                                        dest)
         with _signals_held():
             new = set(names)
             for old in _previous_outputs(out_dir):
