@@ -193,7 +193,9 @@ def _load_in_chromium(page: Path, tmp_path: Path) -> tuple[str, str]:
                           "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
                           "--enable-logging=stderr", "--v=0", "--virtual-time-budget=20000",
                           "--dump-dom", page.as_uri()],
-                         capture_output=True, text=True, timeout=300)
+                         capture_output=True, text=True, timeout=300,
+                         start_new_session=True)   # its own process group: nothing it signals
+                                                   # on the way out reaches pytest
     return res.stdout, res.stderr
 
 
