@@ -96,7 +96,10 @@ def plant_keys(model: dict[str, Any]) -> dict[str, float]:
     for group in ("robot", "motor"):
         for key, value in model.get(group, {}).items():
             keys[f"{group}.{key}"] = float(value)
+    from host_tools.analyzer.effects import ADDED_PARAMETER_EFFECTS
     for effect, params in model.get("effects", {}).items():
+        if effect in ADDED_PARAMETER_EFFECTS:
+            continue   # a change of the robot's parameters, already folded into "robot"
         keys[f"{effect}.enabled"] = 1.0
         for key, value in params.items():
             keys[f"{effect}.{key}"] = float(value)

@@ -255,10 +255,11 @@ RECORDER_DEFAULTS = {
     "heading_gt": "unwrapped",   # groundtruth phi_rad: unwrapped | wrapped
     "current": True,            # log current_r_a, current_l_a like the Motor Shield R3
     "adc_noise_lsb": 1.0,       # current ADC noise (standard deviation, LSB)
+    "pwm": "commanded",         # pwm_r/l: commanded (at the tick) | in_force (after actuation_delay)
 }
 _RECORDER_CHOICES = {"controller": ("cascade", "pi"), "odometry": ("firmware", "ticks", "frames"),
                      "integration": ("arc", "midpoint"), "heading_tel": ("unwrapped", "wrapped"),
-                     "heading_gt": ("unwrapped", "wrapped")}
+                     "heading_gt": ("unwrapped", "wrapped"), "pwm": ("commanded", "in_force")}
 _RECORDER_RANGES = {"inner_s": (0.001, 0.5), "tel_s": (0.002, 0.5), "tel_jitter_s": (0.0, 0.5), "tel_drop": (0.0, 0.5),
                     "cam_hz": (1.0, 1000.0), "cam_noise_m": (0.0, 1.0),
                     "cam_noise_rad": (0.0, 1.0), "cam_dropout": (0.0, 0.9),
@@ -426,6 +427,7 @@ def configure(reference: Mapping, effects: Mapping | None, clamp: bool, duration
     sim.set("rec.midpoint", 1.0 if rec["integration"] == "midpoint" else 0.0)
     sim.set("sim.tel_period", rec["tel_s"])
     sim.set("rec.tel_jitter", rec["tel_jitter_s"])
+    sim.set("rec.pwm_in_force", 1.0 if rec["pwm"] == "in_force" else 0.0)
     sim.set("rec.seed", float(rng_rec.integers(0, 2 ** 32)))
     # the board's telemetry phase against its tick, and the camera's own clock
     sim.set("sim.tel_phase", float(rng.choice([0.002, 0.004, 0.006, 0.008, 0.012])) % rec["tel_s"])

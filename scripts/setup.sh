@@ -175,4 +175,12 @@ if ! stamp_ok tools "$tools_hash" || [[ $tools_missing == 1 ]]; then
     stamp_set tools "$tools_hash"
 fi
 
+# Headless Chromium for the test that loads the analyzer's report.html (only when absent;
+# without it that one test is skipped with its reason, nothing else needs it)
+if ! command -v chromium >/dev/null && ! command -v chromium-browser >/dev/null; then
+    say "installing chromium (Debian) for the report.html test"
+    apt-get install -y -qq --no-install-recommends chromium >/dev/null 2>&1 \
+        || say "chromium could not be installed (not root, or no package source): the report.html browser test will be skipped"
+fi
+
 say "ready (PLATFORMIO_CORE_DIR=$PLATFORMIO_CORE_DIR)"

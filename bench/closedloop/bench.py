@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Benchmark: the closed loop (lib/control against the lib/slipmodel plant) run by
-lib/closedloop's driver through the C ABI, against the re-simulation from rest that it replaced
-(host_tools.control.resimulate_from_rest, O(ticks^2)).  Prints figures; asserts nothing.
+lib/closedloop's driver through the C ABI, against the reference it must match: the plant
+re-simulated from rest at every tick (host_tools.control.resimulate_from_rest, O(ticks^2)).
+Prints figures; asserts nothing.
 
     python3 bench/closedloop/bench.py [--minutes 10] [--short 3] [--no-replay]
 

@@ -23,6 +23,13 @@ class ParamSpec:
     # sets, function of the effect's fitted coordinates).  Used to fit inside the physically
     # possible region, e.g. mu_k as a fraction of mu_s so that mu_k <= mu_s always.
     sets: tuple[str, Callable[[Mapping[str, float]], float]] | None = None
+    # A coordinate whose identification is judged with another quantity held at its fitted
+    # value: (held vocabulary parameter, coordinate that keeps it, its value as a function of
+    # this coordinate's value and the held one, this coordinate's possible range given the held
+    # one).  mu_s with mu_k held: wheels that slip all run pin mu_k and say nothing about mu_s,
+    # while in the (mu_s, mu_k/mu_s) coordinates both move mu_k and look identified.
+    given: tuple[str, str, Callable[[float, float], float],
+                 Callable[[float, Mapping], tuple[float, float]]] | None = None
 
 
 @dataclass(frozen=True)
@@ -52,7 +59,9 @@ P = ParamSpec
 SPECS: dict[str, EffectSpec] = {s.name: s for s in [
     # mu_k is fitted as a fraction of mu_s in [0.5, 1]: kinetic friction never exceeds static
     EffectSpec("friction_coefficient", (
-        P("mu_s", _robot("mu_s"), _c(0.03), _c(1.2), _robot("mu_s", 0.05)),
+        P("mu_s", _robot("mu_s"), _c(0.03), _c(1.2), _robot("mu_s", 0.05),
+          given=("mu_k", "mu_k_over_mu_s", lambda mu_s, mu_k: mu_k / mu_s,
+                 lambda mu_k, meta: (mu_k, min(mu_k / 0.5, 1.2)))),
         P("mu_k_over_mu_s", lambda m: float(m["robot"]["mu_k"]) / float(m["robot"]["mu_s"]),
           _c(0.5), _c(1.0), _c(0.05),
           sets=("mu_k", lambda d: d["mu_k_over_mu_s"] * d["mu_s"]))),
@@ -104,6 +113,10 @@ SPECS: dict[str, EffectSpec] = {s.name: s for s in [
     EffectSpec("floor_slope", (
         P("rad", _c(0.0), _c(-0.2), _c(0.2), _c(0.004), "rad"),),
         "constant along-track gravity force"),
+    # up to the platform's own mass again; worth reporting from 2 % of it
+    EffectSpec("payload", (
+        P("mass_kg", _c(0.0), _c(0.0), _robot("m_r"), _robot("m_r", 0.02), "kg"),),
+        "extra mass on the chassis: slower accelerations, more normal force and tau_max"),
 ]}
 
 # The measurement that tells two confusable effects apart.
@@ -140,6 +153,63 @@ SEPARATORS: dict[frozenset, str] = {
 }
 
 
+# Effects that are plain values of the nominal robot's parameters: effect -> {effect parameter:
+# meta.json robot key}.  The plant applies them as such; the analyzer folds them into the robot
+# parameters (model.json) and uses them wherever it needs the candidate's geometry outside the
+# plant (the count-anchored camera channels).
+PARAMETER_EFFECTS: dict[str, dict[str, str]] = {
+    "friction_coefficient": {"mu_s": "mu_s", "mu_k": "mu_k"},
+    "wheel_radius": {"r_eff": "r"},
+    "track_width": {"b_eff": "b"},
+}
+
+
+# Effects that lib/slipmodel's plant does not have because they are changes of the nominal
+# plant's parameters: effect -> {effect parameter: (meta.json robot key it adds to, neutral)}.
+# payload: extra mass at the platform's centre of mass c (m_r + mass_kg, I_rz unchanged), the
+# convention of the truth and MuJoCo engines; the plant derives inertia, normal forces and
+# tau_max from m_r.
+ADDED_PARAMETER_EFFECTS: dict[str, dict[str, tuple[str, float]]] = {
+    "payload": {"mass_kg": ("m_r", 0.0)},
+}
+
+
+def parameter_effect_vocabulary() -> dict[str, dict[str, float]]:
+    """{effect: {parameter: neutral}} of :data:`ADDED_PARAMETER_EFFECTS` (the analyzer's
+    vocabulary beyond the plant's own effects)."""
+    return {n: {p: v[1] for p, v in ps.items()} for n, ps in ADDED_PARAMETER_EFFECTS.items()}
+
+
+def folded_robot(robot: Mapping[str, float],
+                 effects: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
+    """The robot parameters ``robot`` with the parameter effects of ``effects`` folded in (the
+    plain values replace, the added ones add)."""
+    out = dict(robot)
+    for name, params in effects.items():
+        for p, key in PARAMETER_EFFECTS.get(name, {}).items():
+            if p in params:
+                out[key] = float(params[p])
+        for p, (key, _) in ADDED_PARAMETER_EFFECTS.get(name, {}).items():
+            if p in params:
+                out[key] = float(robot[key]) + float(params[p])
+    return out
+
+
+def plant_setup(robot: Mapping[str, float], effects: Mapping[str, Mapping[str, float]]
+                ) -> tuple[dict[str, float], dict[str, dict[str, float]]]:
+    """(robot parameters, plant effects) of the nominal plant with ``effects``: the effects the
+    plant does not have (:data:`ADDED_PARAMETER_EFFECTS`) as changed parameters, the others as
+    its effects."""
+    added = {n: p for n, p in effects.items() if n in ADDED_PARAMETER_EFFECTS}
+    rest = {n: dict(p) for n, p in effects.items() if n not in ADDED_PARAMETER_EFFECTS}
+    r = dict(robot)
+    for name, params in added.items():
+        for p, (key, _) in ADDED_PARAMETER_EFFECTS[name].items():
+            if p in params:
+                r[key] = float(robot[key]) + float(params[p])
+    return r, rest
+
+
 def vocabulary_params(effect: str, fitted: Mapping[str, float]) -> dict[str, float]:
     """The vocabulary parameters of ``effect`` from its fitted coordinates."""
     spec = SPECS.get(effect)
@@ -163,7 +233,7 @@ def physically_possible(effect: str, params: Mapping[str, float]) -> list[str]:
         why.append(f"mu_k {params['mu_k']:.4g} > mu_s {params['mu_s']:.4g}")
     for k, v in params.items():
         if k in ("mu_s", "mu_k", "mu_k0", "mu", "c", "torque", "delay_s", "tau_s", "h", "r_eff",
-                 "b_eff", "volts", "ke_ratio", "ratio", "v_s") and v < 0:
+                 "b_eff", "volts", "ke_ratio", "ratio", "v_s", "mass_kg") and v < 0:
             why.append(f"{k} = {v:.4g} < 0")
     return why
 

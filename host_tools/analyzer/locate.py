@@ -43,10 +43,32 @@ def _current_lsb_a() -> float:
     return 0.0
 
 
+def current_count_a(preps: Sequence[PreparedRun]) -> float:
+    """One count of the motor-current sense, in A: the run's meta.json when it describes its
+    current sense (``current_sense``: ``adc_vref_v / 2^adc_bits / volts_per_amp``), else the
+    quantization step of the recorded current columns (:func:`signals.quantization_step`);
+    the largest over the runs, 0 when neither says."""
+    counts = []
+    for p in preps:
+        cs = p.run.meta.get("current_sense") if isinstance(p.run.meta, Mapping) else None
+        try:
+            counts.append(float(cs["adc_vref_v"]) / 2 ** int(cs["adc_bits"])
+                          / float(cs["volts_per_amp"]))
+            continue
+        except (TypeError, KeyError, ValueError, ZeroDivisionError):
+            pass
+        for side in ("r", "l"):
+            col = p.run.telemetry.get(f"current_{side}_a")
+            if col is not None and np.ptp(col) > 0:
+                counts.append(sg.quantization_step(col))
+    return max(counts, default=0.0)
+
+
 def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, object]]
                  ) -> dict[str, float]:
     """Per-channel noise floor, pooled over runs, estimated from the data:
-    encoder quantization for wheel speeds and counts, the high-frequency part of the
+    encoder quantization for wheel speeds and counts, at least one ADC count for the motor
+    current (:func:`current_count_a`), the high-frequency part of the
     residual for everything (ground-truth camera noise shows up there), and for cumulative
     channels (counts, odometry) a 1 % tolerance of their range, since tiny speed differences
     integrate."""
@@ -59,6 +81,7 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, ob
     dt = float(np.median(dts))
     floors: dict[str, float] = {}
     names = set().union(*[set(c) for c in nominal])
+    count_a = current_count_a(preps) if any(c.startswith("current") for c in names) else 0.0
     for c in names:
         res = [ch[c].resid for ch in nominal if c in ch]
         hf = float(np.sqrt(np.mean([sg.hf_noise_std(x) ** 2 for x in res])))
@@ -79,6 +102,11 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, ob
         else:
             base = 1e-6
         f = max(base, hf)
+        if c.startswith("current"):
+            # never below one ADC count: a magnitude-only sense reads long runs of exact zeros
+            # at rest, where the MAD of second differences is nil, and had put the floor at
+            # 0.6 of a count, so that a reading two counts off stood out
+            f = max(f, count_a)
         if c in CUMULATIVE:
             # within a replay window (a long run is compared window by window)
             span = max(max(ch[c].spans()) for ch in nominal if c in ch)

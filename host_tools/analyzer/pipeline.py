@@ -89,7 +89,8 @@ def _vocabulary(effects: Sequence[str] | None) -> tuple[dict, dict]:
     narrows which candidates are fitted, and an unknown name is an input error, not an empty
     fit."""
     from host_tools import _native
-    vocab = _native.effect_vocabulary()
+    from host_tools.analyzer.effects import parameter_effect_vocabulary
+    vocab = {**_native.effect_vocabulary(), **parameter_effect_vocabulary()}
     if not effects:
         return vocab, vocab
     unknown = [e for e in effects if e not in vocab]

@@ -37,6 +37,28 @@ def quantization_std(step: float) -> float:
     return float(step) / np.sqrt(6.0)
 
 
+def quantization_step(x: np.ndarray, rel_tol: float = 0.1) -> float:
+    """The quantization step of a recorded column: its smallest non-zero difference between
+    samples, when the other differences are whole multiples of it (within ``rel_tol`` of a
+    step, for the rounding of a CSV file); 0 for a column that is not quantized so."""
+    x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size < 2:
+        return 0.0
+    d = np.abs(np.diff(x))
+    scale = float(np.max(np.abs(x))) if x.size else 0.0
+    d = d[d > 1e-9 * max(scale, 1e-300)]
+    if d.size == 0:
+        return 0.0
+    step = float(np.min(d))
+    m = d / step
+    if np.median(np.abs(m - np.round(m))) > rel_tol:
+        return 0.0
+    # the mean of the differences that round to one step (less sensitive to the file's rounding)
+    one = d[np.round(m) == 1]
+    return float(np.mean(one)) if one.size else step
+
+
 def smooth(x: np.ndarray, n: int) -> np.ndarray:
     """Centred moving average over n samples (n odd), edges shrunk."""
     x = np.asarray(x, dtype=float)

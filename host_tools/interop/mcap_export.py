@@ -8,9 +8,9 @@ with ``--report`` the analyzer's findings for this run from report.json: ``/anal
 ``/analysis/mismatch`` (one message per window), ``/analysis/mismatch_active`` (per frame, 1
 inside a window) and ``/analysis/localization``.  All on the run's board time.
 
-The analyzer does not write its per-sample nominal and updated simulations or residuals to
-OUT_DIR (only PNG plots of them), so they cannot be exported from a report folder; the
-windows, their RMS and noise floor, the verdict and the fitted parameters are.
+With ``--report``, the analyzer's per-sample series of this run (OUT_DIR/series/<run>.csv) too:
+one topic per channel, ``/analysis/series/<channel>`` (recording, nominal and updated replay,
+residuals, noise band, replay window, in a mismatch window), on the same timeline.
 
 Exit codes: 0 done, 2 bad input (a run or report that cannot be read, with the file and place;
 --out not writable), 1 the MCAP could not be written.
@@ -66,6 +66,7 @@ def _report_for_run(report_dir: str, run: runfmt.Run) -> dict:
     label = fake[idx[0]].label
     rep = dict(rep)
     rep["label"] = label
+    rep["run_index"] = idx[0]
     for key, need in (("mismatch", ("channel", "t_start_s", "t_end_s")),
                       ("localization", ("t_start_s", "t_end_s"))):
         entries = rep.get(key) or []
@@ -113,7 +114,7 @@ class _Out:
             sid = self.w.register_schema(name=name, encoding=enc, data=data)
             self.channels[topic] = self.w.register_channel(
                 topic=topic, message_encoding=M.message_encoding(enc), schema_id=sid,
-                metadata={"description": M.TOPICS[topic].what})
+                metadata={"description": M.topic_info(topic).what})
             self.counts[topic] = 0
         return self.channels[topic]
 
@@ -186,6 +187,62 @@ def _report_events(rep: dict, t: np.ndarray) -> list[Event]:
     return ev
 
 
+SERIES_NUMBERS = ("recording", "nominal", "updated", "residual_nominal", "residual_updated",
+                  "noise_floor", "replay_uncertainty", "band")
+SERIES_FIELDS = {"replay": "string", **{k: "number" for k in SERIES_NUMBERS},
+                 "replay_window": "integer", "in_mismatch_window": "integer"}
+
+
+def _series_file(report_dir: str, rep: dict) -> str | None:
+    """This run's series/<run>.csv (report.json 'series', in the order of 'runs'), or None when
+    the report has none (an analyzer that wrote no series)."""
+    files = rep.get("series")
+    if not isinstance(files, list) or len(files) != len(rep.get("runs") or []):
+        return None
+    name = files[rep["run_index"]]
+    parts = name.split("/") if isinstance(name, str) else []
+    if len(parts) != 2 or parts[0] != "series" or parts[1] in ("", ".", ".."):
+        raise ExportError(f"{runfmt.display(os.path.join(report_dir, 'report.json'))}: "
+                          f"series[{rep['run_index']}] is not series/<name>")
+    return os.path.join(report_dir, *parts)
+
+
+def _series_events(path: str) -> list[Event]:
+    """One message per row of a series CSV, on topic /analysis/series/<channel>."""
+    import csv
+    shown = runfmt.display(path)
+    text = _cli.read_text(path, ExportError)
+    rows = csv.reader(text.splitlines())
+    header = next(rows, None)
+    need = ("channel", "t_s", *SERIES_FIELDS)
+    if header is None or any(k not in header for k in need):
+        miss = [k for k in need if header is None or k not in header]
+        raise ExportError(f"{shown}: line 1: column {miss[0]} missing")
+    col = {k: header.index(k) for k in need}
+    ev: list[Event] = []
+    for row_no, cells in enumerate(rows, 1):
+        if len(cells) != len(header):
+            raise ExportError(f"{shown}: row {row_no} (line {row_no + 1}): {len(cells)} cells, "
+                              f"the header has {len(header)}")
+        try:
+            t = float(cells[col["t_s"]])
+            msg = {"replay": cells[col["replay"]]}
+            for k in SERIES_NUMBERS:
+                v = cells[col[k]]
+                msg[k] = float(v) if v != "" else None
+            for k in ("replay_window", "in_mismatch_window"):
+                msg[k] = int(cells[col[k]])
+        except ValueError as exc:
+            raise ExportError(f"{shown}: row {row_no} (line {row_no + 1}): not a number: "
+                              f"{exc}") from None
+        if not (_finite(t) and t >= 0) or not cells[col["channel"]]:
+            raise ExportError(f"{shown}: row {row_no} (line {row_no + 1}), column t_s/channel: "
+                              "a time of 0 s or later and a channel name are needed")
+        ev.append((t, 9, M.SERIES_PREFIX + cells[col["channel"]], M.json_message(msg),
+                   SERIES_FIELDS))
+    return ev
+
+
 def export(run_dir: str, out: str, report_dir: str | None = None) -> dict[str, int]:
     """Write ``out`` (MCAP) from the run folder ``run_dir`` and, optionally, the analyzer's
     ``report_dir``.  Returns the message count per topic.  ExportError / RunFormatError on bad
@@ -198,6 +255,9 @@ def export(run_dir: str, out: str, report_dir: str | None = None) -> dict[str, i
         raise ExportError(f"{runfmt.display(run.path)}: times before 0 s cannot be MCAP log "
                           "times")
     events = _run_events(run) + (_report_events(rep, t) if rep is not None else [])
+    series = _series_file(report_dir, rep) if rep is not None else None
+    if series is not None:
+        events += _series_events(series)
     events.sort(key=lambda e: (e[0], e[1]))
     tmp = out + ".part"
     try:
@@ -211,9 +271,9 @@ def export(run_dir: str, out: str, report_dir: str | None = None) -> dict[str, i
         if os.path.exists(tmp):
             os.remove(tmp)
         raise
-    if rep is not None:
-        log.info("the analyzer writes no per-sample nominal/updated simulations or residuals; "
-                 "exported its windows, verdict and fitted parameters")
+    if rep is not None and series is None:
+        log.info("the report lists no per-sample series for this run (an analyzer before "
+                 "series/<run>.csv): exported its windows, verdict and fitted parameters only")
     return dict(o.counts)
 
 

@@ -47,6 +47,24 @@ TOPICS = {t.name: t for t in (
           "span of this run (report.json 'localization'), at its start"),
 )}
 
+# The analyzer's per-sample series (series/<run>.csv of a report folder): one topic per channel,
+# SERIES_PREFIX + the channel's name (e.g. /analysis/series/omega_r), so not in TOPICS.
+SERIES_PREFIX = "/analysis/series/"
+SERIES = Topic(SERIES_PREFIX + "<channel>", "ddrobot.SeriesSample", "per sample of one channel "
+               "(the report's series/<run>.csv): recording, nominal and updated replay, their "
+               "residuals, the noise band, the replay window and whether the sample is in a "
+               "mismatch window")
+
+
+def topic_info(name: str) -> Topic:
+    """The :class:`Topic` of a topic name (a series topic's is :data:`SERIES`)."""
+    if name in TOPICS:
+        return TOPICS[name]
+    if name.startswith(SERIES_PREFIX) and len(name) > len(SERIES_PREFIX):
+        return SERIES
+    raise KeyError(name)
+
+
 LIVE_TOPICS = ("/telemetry", "/odometry/pose", "/odometry/tf")
 
 
@@ -98,7 +116,7 @@ def json_schema(name: str, fields: Mapping[str, str]) -> tuple[str, str, bytes]:
 
 def schema_for(topic: str, fields: Mapping[str, str] | None = None) -> tuple[str, str, bytes]:
     """(name, encoding, data) of a topic's schema; JSON topics need their ``fields``."""
-    name = TOPICS[topic].schema
+    name = topic_info(topic).schema
     if name.startswith("foxglove."):
         return well_known_schema(name)
     return json_schema(name, fields or {})

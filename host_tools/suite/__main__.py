@@ -1,7 +1,7 @@
-"""``python -m host_tools.suite {list,generate,conceal,bench,score} [--set tuning|heldback]`` —
-the concealed-effect suite. The tuning set (default) is where analyzer rules may be settled;
-the held-back set (other seeds, effect sizes and recorders, long runs) is only scored and its
-figures are the ones that count (docs/suite.md)."""
+"""``python -m host_tools.suite {list,generate,conceal,bench,score} [--set NAME]`` — the
+concealed-effect suite. The tuning set (default) and the MuJoCo tuning group are where analyzer
+rules may be settled; the held-back sets (other seeds, effect sizes and recorders, long runs)
+are only scored and their figures are the ones that count (docs/suite.md, docs/validation.md)."""
 from __future__ import annotations
 
 import argparse

@@ -108,7 +108,7 @@ _POSITIVE = {("friction_coefficient", "mu_s"), ("friction_coefficient", "mu_k"),
 _NON_NEGATIVE = {("driver_voltage_drop", "volts"), ("actuation_delay", "delay_s"),
                  ("motor_lag", "tau_s"), ("axle_viscous", "c"), ("axle_coulomb", "torque"),
                  ("caster_drag", "mu"), ("load_transfer", "h"), ("stribeck", "mu_k0"),
-                 ("deadband", "volts")}
+                 ("deadband", "volts"), ("payload", "mass_kg")}
 
 
 def _fits(report: dict) -> list[tuple[str, str, dict]]:

@@ -5,11 +5,12 @@ A case is a hidden truth (effects switched on in the truth simulator) plus the e
 (:meth:`Case.label`) is what the scorer knows and the analyzer never sees: it is written under
 ``labels/``, apart from ``runs/``.
 
-Two sets (docs/suite.md, "Tuning set and held-back set"):
+The sets (:data:`SETS`; their composition in docs/suite.md, the protocol and each held-back
+set's record in docs/validation.md), among them:
 - ``tuning`` (:func:`all_cases`): 44 cases recorded by this project's firmware pipeline at their
   own seeds; analyzer rules may be settled on them;
-- ``heldback`` (:func:`heldback_cases`): other seeds, other effect sizes and other recorders
-  (the truth simulator's recorder variants), long runs; only scored.
+- ``heldback`` (:func:`heldback_cases`) to ``heldback6``: other seeds, other effect sizes and
+  other recorders (the truth simulator's recorder variants), long runs; only scored.
 
 Concealment kinds:
 - ``compensation``: the closed loop hides the effect in tracking; it shows only in the duty or
@@ -684,7 +685,7 @@ SETS = ("tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5"
 
 def get(names: list[str] | None = None, fast: bool = False, which: str = "tuning",
         long: bool = True) -> list[Case]:
-    """Cases of a set (``tuning`` or ``heldback``); ``fast``: its CI subset; ``long=False``:
+    """Cases of a set (one of :data:`SETS`); ``fast``: its CI subset; ``long=False``:
     without the 10-minute cases; ``names``: those cases of the set."""
     if which not in SETS:
         raise ValueError(f"set must be one of {', '.join(SETS)}, got '{which}'")

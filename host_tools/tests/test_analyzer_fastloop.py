@@ -248,3 +248,59 @@ def test_closed_loop_replay_matched_a_tick_early_or_late(tmp_path):
         for c in ("pwm_r", "pwm_l"):
             moved[c] = np.roll(np.asarray(cl[c], float), lag)
         assert UN._replay_tick_shift(prep, moved, k, seen) == lag
+
+
+def test_anchored_heading_has_no_wrap_spikes_across_pi(tmp_path):
+    """A run that turns past +-pi: lib/control's odometry of the replayed and of the recorded
+    counts wraps its heading at different frames, and a difference of wrapped headings
+    interpolated to the camera times had put 1-3 rad spikes into phi_rad (a wheel that the
+    replay turns otherwise than the recording, here axle viscous friction the nominal replay
+    lacks)."""
+    arc = {"kind": "arc", "accel": 1.0, "cruise": 0.5, "radius": 0.4}   # about 5.9 rad in 5 s
+    run = load_run(truth.simulate_run(
+        tmp_path / "r", arc, {"axle_viscous": {"c": 1.5e-3}}, clamp=True, duration_s=5.0,
+        seed=31, recorder=dict(LOOP10, heading_gt="wrapped", heading_tel="wrapped")))
+    prep = PI.prepare_timed(run)
+    assert prep.count_anchored_pose and len(prep.windows) == 1
+    UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
+    sims = OL.OpenLoopReplay("duty").simulate_windows(prep, {})
+    _, sim = next(iter(sims))
+    assert np.ptp(sim["phi_rad"]) > 1.5 * np.pi
+    ch = CH.channels(prep, sims, "duty")
+    # the camera's 0.01 rad noise and the small heading effect of the missing friction
+    assert np.abs(ch["phi_rad"].resid).max() < 0.1
+    # the shift itself: a replay that over-turns both wheels by 1 % moves the heading smoothly
+    # (the camera samples are 33 ms apart), never by a jump towards 2 pi
+    t = run.telemetry["t_s"]
+    th = [np.interp(t, sim["t_s"], sim[f"theta_{s}_rad"]) * 1.01 for s in ("r", "l")]
+    tg = run.groundtruth["t_s"][run.groundtruth["t_s"] < t[-1]]
+    shift = AN._count_anchor_shift(prep, sim, t, th[0], th[1], 0, t.size, tg)
+    assert np.abs(np.diff(shift["phi_rad"])).max() < 0.05
+
+
+def test_count_anchor_moves_the_pose_on_the_candidate_geometry(arc_run):
+    """The replay's extra wheel turning moves the body by the replayed plant's radius and track
+    width: with a candidate r_eff / b_eff the anchor shift is that of the candidate's geometry
+    (it had used meta.json's nominal r and b, which left a right radius fit off by the
+    nominal-to-fitted ratio of the shift)."""
+    prep = PI.prepare_timed(arc_run)
+    sims = OL.OpenLoopReplay("duty").simulate_windows(prep, {})
+    _, sim = next(iter(sims))
+    t = arc_run.telemetry["t_s"]
+    th_r = np.interp(t, sim["t_s"], sim["theta_r_rad"]) * 1.05   # a replay that over-turns
+    th_l = np.interp(t, sim["t_s"], sim["theta_l_rad"]) * 1.05
+    tg = arc_run.groundtruth["t_s"][arc_run.groundtruth["t_s"] < t[-1]]
+    r, b = params.ROBOT["r"], params.ROBOT["b"]
+    nom = AN._count_anchor_shift(prep, sim, t, th_r, th_l, 0, t.size, tg)
+    big_r = AN._count_anchor_shift(prep, sim, t, th_r, th_l, 0, t.size, tg,
+                                   {"wheel_radius": {"r_eff": 1.03 * r}})
+    assert _rms(nom["x_m"]) > 5e-3
+    # the heading follows r/b exactly; the positions move with it
+    assert np.allclose(big_r["phi_rad"], 1.03 * nom["phi_rad"], rtol=1e-3, atol=1e-9)
+    assert _rms(big_r["x_m"] - nom["x_m"]) > 0.02 * _rms(nom["x_m"])
+    wide = AN._count_anchor_shift(prep, sim, t, th_r, th_l, 0, t.size, tg,
+                                  {"track_width": {"b_eff": 1.1 * b}})
+    assert np.allclose(wide["phi_rad"], nom["phi_rad"] / 1.1, rtol=1e-3, atol=1e-9)
+    # the windows' replay carries the effects it ran with to the channels
+    eff = {"wheel_radius": {"r_eff": 1.03 * r}}
+    assert OL.OpenLoopReplay("duty").simulate_windows(prep, eff).effects == eff

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _native_skip import needs_native
 
 from host_tools import params
 from host_tools.analyzer import signals as sg
@@ -121,3 +122,44 @@ def test_significant_windows_of_a_channel_with_too_few_samples():
     for n in range(0, 5):
         w, m = sg.significant_windows(np.arange(n) * 0.02, np.full(n, 10.0), 0.1)
         assert w == [] and m.shape == (n,) and not m.any()
+
+
+def test_quantization_step_of_an_adc_column():
+    """The step of a magnitude-only current sense: long runs of exact zeros at rest, a few
+    counts while driving, written with the file's rounding."""
+    lsb = 5.0 / 1024 / 1.65
+    rng = np.random.default_rng(4)
+    raw = np.concatenate([np.zeros(300), np.round(40 + 3 * rng.normal(size=500)), np.zeros(200)])
+    col = np.round(raw * lsb, 7)
+    assert sg.quantization_step(col) == pytest.approx(lsb, rel=1e-3)
+    assert sg.quantization_step(rng.normal(size=500)) == 0.0    # not quantized
+    assert sg.quantization_step(np.zeros(50)) == 0.0
+
+
+@needs_native(truth=True)
+def test_current_floor_is_at_least_one_adc_count(tmp_path):
+    """A run that rests a good part of the time, with a noiseless ADC: the current residual's
+    MAD of second differences is well below a count (it had made a floor of 0.4 count), and a
+    reading two counts off at rest would stand out of it.  The count comes from meta.json's
+    current sense, or from the column's quantization step when the meta does not say."""
+    from host_tools import truth
+    from host_tools.analyzer import locate
+    from host_tools.analyzer.prepare import inputs as PI
+    from host_tools.analyzer.replay import channels as CH, openloop as OL
+    from host_tools.runfmt import load_run
+    ref = {"kind": "segments", "accel": 0.5, "alpha": 2.0,
+           "segments": [{"duration_s": 1.0}, {"duration_s": 1.5, "v": 0.3}, {"duration_s": 2.0}]}
+    run = load_run(truth.simulate_run(tmp_path / "r", ref, None, clamp=True, duration_s=4.5,
+                                      seed=3, recorder={"adc_noise_lsb": 0.0}))
+    cs = truth.CURRENT_SENSE
+    count = cs["adc_vref_v"] / 2 ** cs["adc_bits"] / cs["volts_per_amp"]
+    assert np.mean(run.telemetry["current_r_a"] == 0) > 0.2
+    prep = PI.prepare_timed(run)
+    ch = CH.channels(prep, OL.OpenLoopReplay("duty").simulate_windows(prep, {}), "duty")
+    assert sg.hf_noise_std(ch["current_r_a"].resid) < 0.7 * count
+    for meta_says in (True, False):
+        if not meta_says:
+            del run.meta["current_sense"]
+        floors = locate.noise_floors([prep], [ch])
+        assert floors["current_r_a"] >= count * (1 - 1e-3), meta_says
+        assert floors["current_l_a"] >= count * (1 - 1e-3), meta_says

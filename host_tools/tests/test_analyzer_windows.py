@@ -111,8 +111,8 @@ def test_a_window_is_re_anchored_in_heading_too(tmp_path, monkeypatch):
     base = CH.channels(prep, rp.simulate_windows(prep, {}))
     start = AN.window_start
 
-    def off_by_10_mrad(p, w):
-        t0, pose, vel = start(p, w)
+    def off_by_10_mrad(p, w, *effects):
+        t0, pose, vel = start(p, w, *effects)
         return t0, (pose[0], pose[1], pose[2] + (0.01 if w else 0.0)), vel
     monkeypatch.setattr(AN, "window_start", off_by_10_mrad)
     turned = CH.channels(prep, rp.simulate_windows(prep, {}))

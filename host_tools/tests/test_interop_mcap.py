@@ -78,6 +78,9 @@ def test_export_with_report(analysed, tmp_path):
             "/analysis/mismatch_active": ("ddrobot.MismatchActive", "json", n)}
     if spans:
         want["/analysis/localization"] = ("ddrobot.MismatchSpan", "json", len(spans))
+    series = _series_rows(rep_dir, rep, 0)
+    for c, rows in series.items():
+        want[f"/analysis/series/{c}"] = ("ddrobot.SeriesSample", "json", len(rows))
     assert {t: (s.name, e, c) for t, (s, e, c) in info.items()} == want
     for t, (s, e, _) in info.items():
         assert s.encoding == ("protobuf" if e == "protobuf" else "jsonschema")
@@ -115,6 +118,46 @@ def test_export_with_report(analysed, tmp_path):
         assert a[w0["channel"]] == int(inside)
     assert any(a[w0["channel"]] for a in act) and not all(a[w0["channel"]] for a in act)
     assert all(a["any"] == max(v for k, v in a.items() if k != "any") for a in act)
+
+
+def _series_rows(rep_dir, rep, k):
+    """series/<run>.csv of the report's k-th run, by channel."""
+    import csv
+    with open(rep_dir / rep["series"][k], newline="") as fh:
+        out: dict[str, list] = {}
+        for r in csv.DictReader(fh):
+            out.setdefault(r["channel"], []).append(r)
+    return out
+
+
+def _num(v: str):
+    return None if v == "" else float(v)
+
+
+def test_export_carries_the_analyzers_series_on_the_runs_timeline(analysed, tmp_path):
+    """The nominal and updated simulations, the residuals and the noise band of every channel
+    (the report's series/<run>.csv) as /analysis/series/<channel>, at the samples' times."""
+    d, run_dir, rep_dir = analysed
+    out = tmp_path / "run.mcap"
+    assert cli(["export", str(run_dir), "--report", str(rep_dir), "--out", str(out)]) == 0
+    rep = json.loads((rep_dir / "report.json").read_text())
+    info, raw, msgs = _read(out)
+    series = _series_rows(rep_dir, rep, 0)
+    assert {"omega_r", "x_m", "current_l_a", "tau_cmd_r"} <= set(series)
+    for c, rows in series.items():
+        topic = f"/analysis/series/{c}"
+        assert [m.log_time for m in raw[topic]] == [round(float(r["t_s"]) * 1e9) for r in rows]
+        for k in ("recording", "nominal", "updated", "residual_nominal", "residual_updated",
+                  "band", "noise_floor"):
+            assert [m[k] for m in msgs[topic]] == [_num(r[k]) for r in rows], (c, k)
+        assert [m["in_mismatch_window"] for m in msgs[topic]] == \
+            [int(r["in_mismatch_window"]) for r in rows]
+    om = msgs["/analysis/series/omega_r"]
+    assert all(m["updated"] is not None for m in om)      # back-EMF selected: an update
+    assert any(m["in_mismatch_window"] for m in om)
+    # the other run's series are not in this run's file
+    other = _series_rows(rep_dir, rep, 1)
+    assert [m["recording"] for m in om] != [_num(r["recording"]) for r in other["omega_r"]]
 
 
 def test_export_without_report_or_groundtruth(analysed, tmp_path):

@@ -476,3 +476,22 @@ def test_reversal_reference():
     w = [s["omega"] for s in segs if s["v"] == 0 and s["omega"]]
     assert w and min(w) < 0 < max(w)  # spins both ways
     assert truth.reversal_reference(60.0, seed=3) == ref != truth.reversal_reference(60.0, seed=4)
+
+
+def test_pwm_in_force_reports_the_delayed_duty(tmp_path):
+    """Recorder option pwm=in_force: the pwm columns report the duty in force, the commanded
+    one actuation_delay earlier (the plant and the torque command are the same run's).  With
+    frames every 5 ms, finer than the 25 ms ticks, every tick's duty is seen."""
+    ref = {"kind": "figure_eight", "accel": 0.6, "cruise": 0.5, "radius": 0.5}
+    fx = {"actuation_delay": {"delay_s": 0.03}}
+    runs = {pwm: runfmt.load_run(truth.simulate_run(
+        tmp_path / pwm, ref, fx, clamp=True, duration_s=2.0, seed=5,
+        recorder={"pwm": pwm, "tel_s": 0.005, "current": False})).telemetry
+        for pwm in ("commanded", "in_force")}
+    cmd, force = runs["commanded"], runs["in_force"]
+    assert np.array_equal(cmd["t_s"], force["t_s"])
+    assert np.array_equal(cmd["tau_cmd_r"], force["tau_cmd_r"])
+    lag = 6   # 30 ms in 5 ms frames
+    assert np.array_equal(force["pwm_r"][lag:], cmd["pwm_r"][:-lag])
+    assert np.array_equal(force["pwm_l"][lag:], cmd["pwm_l"][:-lag])
+    assert not np.array_equal(force["pwm_r"], cmd["pwm_r"])

@@ -56,6 +56,7 @@ const KeyDef kKeys[] = {
     {"rec.midpoint", 0, 0, 1},               // own odometry: 0 exact arc, 1 midpoint rule
     {"rec.tel_jitter", 0.0, 0, 0.5},         // telemetry frame time jitter, uniform +-, s
     {"rec.seed", 0, 0, 4294967295.0},        // seed of the jitter
+    {"rec.pwm_in_force", 0, 0, 1},           // pwm_*: 0 the duty commanded at the tick; 1 the duty in force (after actuation_delay)
     {"pi.kp", 0.04, 0, 10},                  // N m per rad/s
     {"pi.ki", 0.3, 0, 100},                  // N m per rad
     {"pi.j_ff", 0.0023, 0, 1},               // acceleration feed-forward, kg m^2 (per wheel)
@@ -623,9 +624,15 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
         own_odo.update(counts(th_r), counts(th_l));
         io.x = own_odo.x; io.y = own_odo.y; io.phi = own_odo.phi;
       }
+      double rep_r = io.pwm_r, rep_l = io.pwm_l;  // the duty reported
+      if (H("rec.pwm_in_force") != 0.0) {        // the duty in force: the delayed command
+        rep_r = rep_l = 0.0;
+        for (long i = hist_n - 1; i >= 0 && i >= hist_n - kHist; --i)
+          if (hist_t[i % kHist] <= t - delay + 1e-12) { rep_r = hist_r[i % kHist]; rep_l = hist_l[i % kHist]; break; }
+      }
       double* row = tel + static_cast<long>(nt) * kTelColCount;
       const double vals[] = {t, double(counts(th_r)), double(counts(th_l)), io.omega_r, io.omega_l, io.tau_r, io.tau_l,
-                             io.pwm_r, io.pwm_l, io.x, io.y, io.phi, xo, yo, phi, q[3], q[4],
+                             rep_r, rep_l, io.x, io.y, io.phi, xo, yo, phi, q[3], q[4],
                              stuck_r ? 0.0 : 1.0, stuck_l ? 0.0 : 1.0, last_tau_r, last_tau_l, N_r, N_l, N_c,
                              v_batt, double(io.clamped), cur_r, cur_l};
       memcpy(row, vals, sizeof vals);

@@ -18,6 +18,7 @@ class Param:
     lo: float
     hi: float
     floor: float
+    given: tuple | None = None   # ParamSpec.given
 
     def to_x(self, v: float) -> float:
         return (v - self.lo) / (self.hi - self.lo)
@@ -35,7 +36,7 @@ def params_for(names: Sequence[str], meta: Mapping, vocab: Mapping[str, Mapping[
             if n in vocab and (ps.sets[0] if ps.sets else ps.name) not in vocab[n]:
                 continue
             out.append(Param(n, ps.name, ps.neutral(meta), ps.lo(meta), ps.hi(meta),
-                             ps.floor(meta)))
+                             ps.floor(meta), ps.given))
     return out
 
 

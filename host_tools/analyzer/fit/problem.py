@@ -204,12 +204,67 @@ class Problem:
         out.unidentified = [f"{params[i].effect}.{params[i].name}" for i in fixed]
         if not fixed and k >= 2 and ok:
             unid = [i for i in free if not (std[i] <= UNIDENTIFIED * (params[i].hi - params[i].lo))]
+            pins = {i: float(full0[i]) for i in unid}
+            if len(unid) < k:
+                for i, pin in _unidentified_given(params, free, xfull, values, r, expand, fun,
+                                                  self.meta).items():
+                    if i not in pins:
+                        unid.append(i)
+                        pins[i] = pin
             if unid and len(unid) < k:
                 re = self.fit(names, runs, part, x0=None, max_nfev=max_nfev, grid=grid,
-                              fixed={i: float(full0[i]) for i in unid})
+                              fixed=pins)
                 re.nfev += out.nfev
                 return re
         return out
+
+
+def _unidentified_given(params: Sequence, free: Sequence[int], x: np.ndarray,
+                        values: Sequence[float], r: np.ndarray, expand, fun, meta: Mapping
+                        ) -> dict[int, float]:
+    """Coordinates with a ``given`` spec (effects.ParamSpec.given) that the data do not
+    identify with the held quantity at its fitted value: their 1-sigma uncertainty along the
+    line that keeps it (from the residual's change over a tenth of the possible range, with the
+    same autocorrelation inflation as :func:`_param_std`) above UNIDENTIFIED of their possible
+    range there.  Returns index -> the coordinate to pin it at: its neutral value, or the
+    nearest possible value given the held one."""
+    out: dict[int, float] = {}
+    names = [(p.effect, p.name) for p in params]
+    for i in free:
+        g = params[i].given
+        if g is None:
+            continue
+        held, keeper, keeper_value, possible = g
+        try:
+            j = names.index((params[i].effect, keeper))
+        except ValueError:
+            continue
+        if j not in free:
+            continue
+        v_i, v_j = float(values[i]), float(values[j])
+        held_v = v_i * v_j if keeper == f"{held}_over_{params[i].name}" else None
+        if held_v is None:
+            continue
+        lo, hi = possible(held_v, meta)
+        width = hi - lo
+        if not width > 0:
+            continue
+        h = 0.1 * width
+        v2 = v_i + h if v_i + h <= hi else v_i - h
+        x2 = x.copy()
+        x2[i] = params[i].to_x(v2)
+        x2[j] = params[j].to_x(keeper_value(v2, held_v))
+        if not (0 <= x2[j] <= 1):
+            continue
+        d = (fun(x2[list(free)]) - r) / (v2 - v_i)
+        dd = float(d @ d)
+        s2 = float(np.sum(r ** 2)) / max(r.size - len(free), 1)
+        infl = r.size / max(effective_n(r), 1.0)
+        std = math.sqrt(s2 * infl / dd) if dd > 0 else math.inf
+        if std > UNIDENTIFIED * width:
+            pin = min(max(params[i].neutral, lo), hi)
+            out[i] = float(np.clip(params[i].to_x(pin), 0, 1))
+    return out
 
 
 def _grid_start(fun, base: np.ndarray, grid: int) -> tuple[np.ndarray, int]:

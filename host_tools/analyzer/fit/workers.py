@@ -4,20 +4,15 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import sys
 import time
 
-from host_tools._stdio import say
 from host_tools.analyzer.fit.judge import Candidate, evaluate_candidate
 from host_tools.analyzer.fit.problem import Problem
 
 
-class WorkerDied(RuntimeError):
-    """A fitting worker process ended without a result (SIGKILL from the out-of-memory
-    killer, a signal to that one process): the analysis cannot be completed."""
-
-
 def log_stderr(msg: str) -> None:
-    say(f"[analyze {time.strftime('%H:%M:%S')}] {msg}")  # a closed pipe never ends the analysis
+    print(f"[analyze {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
 _PROBLEM: Problem | None = None
@@ -47,7 +42,27 @@ def _eval_task(args):
     return cand, time.time() - t0
 
 
+def _stop_workers(ex) -> None:
+    """End the pool's worker processes at once (an interrupted analysis must not wait for
+    their fits).  ProcessPoolExecutor has no public way to do so before Python 3.14
+    (``terminate_workers``): its process table is used when that method is missing."""
+    stop = getattr(ex, "terminate_workers", None)
+    if stop is not None:
+        stop()
+        return
+    for p in list((getattr(ex, "_processes", None) or {}).values()):
+        try:
+            p.terminate()
+        except (OSError, ValueError, AttributeError):
+            pass
+
+
 def run_tasks(problem: Problem, tasks: list, jobs: int, label: str) -> list[Candidate]:
+    """Fit ``tasks`` (candidate effects) with ``jobs`` worker processes; the candidates in the
+    order of ``tasks``.  A worker that dies (the out-of-memory killer's SIGKILL, a SIGTERM sent
+    to it alone) breaks the pool: every fit of a task the pool had not returned is then done
+    here, in this process, one after the other, and the analysis goes on (a message on stderr
+    says so) instead of waiting for ever for the dead worker's result."""
     out: list[Candidate] = []
     if jobs <= 1 or len(tasks) <= 1:
         _init_worker(problem)
@@ -56,35 +71,44 @@ def run_tasks(problem: Problem, tasks: list, jobs: int, label: str) -> list[Cand
             out.append(cand)
             log_stderr(f"{label} {i}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
         return out
-    # concurrent.futures notices a worker that died without a result (BrokenProcessPool);
-    # multiprocessing.Pool would wait for its result for ever
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
 
-    ex = ProcessPoolExecutor(jobs, mp_context=mp.get_context("fork"), initializer=_init_worker,
+    ctx = mp.get_context("fork")
+    ex = ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_init_worker,
                              initargs=(problem,))
+    done: dict[int, Candidate] = {}
+    broken = None
     try:
-        pending = {ex.submit(_eval_task, t) for t in tasks}
-        while pending:
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
+        futures = {ex.submit(_eval_task, t): k for k, t in enumerate(tasks)}
+        pending = set(futures)
+        while pending and broken is None:
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for f in finished:
                 try:
-                    cand, dt = fut.result()
-                except BrokenProcessPool:
-                    raise WorkerDied("a fitting worker process ended without its result (killed: "
-                                     "by the out-of-memory killer or a signal to that process); "
-                                     "nothing was written. Run again, with fewer --jobs if memory "
-                                     "is short") from None
-                out.append(cand)
-                log_stderr(f"{label} {len(out)}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
-    finally:
-        procs = list(getattr(ex, "_processes", {}).values())  # end the workers at once, as
-        ex.shutdown(wait=False, cancel_futures=True)          # Pool.terminate() did
-        for proc in procs:
-            if proc.is_alive():
-                proc.terminate()
-        for proc in procs:
-            proc.join(5)
-    order = {tuple(t[0]): i for i, t in enumerate(tasks)}
-    out.sort(key=lambda c: order[tuple(c.effects)])
-    return out
+                    cand, dt = f.result()
+                except BrokenProcessPool as exc:
+                    broken = exc
+                    continue
+                done[futures[f]] = cand
+                log_stderr(f"{label} {len(done)}/{len(tasks)}: {cand.name} fitted in "
+                           f"{dt:.1f} s")
+    except BaseException:
+        _stop_workers(ex)
+        ex.shutdown(wait=False, cancel_futures=True)
+        raise
+    if broken is not None:
+        _stop_workers(ex)
+        ex.shutdown(wait=False, cancel_futures=True)
+        left = [k for k in range(len(tasks)) if k not in done]
+        log_stderr(f"a fitting worker process died ({broken}); fitting the {len(left)} "
+                   f"{label}(s) it left here, in this process, one after the other")
+        _init_worker(problem)
+        for k in left:
+            cand, dt = _eval_task(tasks[k])
+            done[k] = cand
+            log_stderr(f"{label} {len(done)}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s "
+                       "(in-process, after the worker died)")
+    else:
+        ex.shutdown(wait=True)
+    return [done[k] for k in range(len(tasks))]

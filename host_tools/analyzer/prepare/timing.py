@@ -214,6 +214,8 @@ def board_rate_phase(tel: Mapping[str, np.ndarray], period: float, ppr: int,
         step = period / 10
     start, width = arc if arc is not None else (0.0, period - step)
     phases = start + np.arange(0.0, width + 0.5 * step, step)
+    if phases.size == 0:    # a period shorter than the phase step: nothing to choose
+        return None
 
     # counts interpolated across a gap in the telemetry (lost frames) are no measurement
     dt_med = float(np.median(np.diff(t)))

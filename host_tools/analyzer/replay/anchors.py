@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
+from host_tools.analyzer.effects import folded_robot
 from host_tools.analyzer.prepare.odometry import encoder_odometry, wrap_angle, odometry_times
 from host_tools.analyzer.prepare.run import BURN_IN_S, GAP_S, PreparedRun
 
@@ -112,11 +113,14 @@ def _gt_anchor(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
     return out
 
 
-def window_start(prep: PreparedRun, w: int) -> tuple[float, tuple, tuple | None]:
+def window_start(prep: PreparedRun, w: int,
+                 effects: Mapping[str, Mapping[str, float]] | None = None
+                 ) -> tuple[float, tuple, tuple | None]:
     """(start time, start pose, start velocity or None) of replay window ``w``: the run's
     start pose at rest for the first window; otherwise BURN_IN_S before the window (not before
     a gap), moving as the recording says: wheel speeds from the counts around that frame,
-    the body rolling with them, pose from the camera (else the recorded odometry)."""
+    the body rolling with them on the geometry of the plant with ``effects``, pose from the
+    camera (else the recorded odometry)."""
     tel = prep.run.telemetry
     t = tel["t_s"]
     i_a, _ = prep.windows[w]
@@ -134,7 +138,8 @@ def window_start(prep: PreparedRun, w: int) -> tuple[float, tuple, tuple | None]
         w_l = float((tel["enc_l"][j1] - tel["enc_l"][j0]) * k / (t[j1] - t[j0]))
     else:
         w_r = w_l = 0.0
-    r, b = float(prep.robot["r"]), float(prep.robot["b"])
+    geo = folded_robot(prep.robot, effects or {})
+    r, b = float(geo["r"]), float(geo["b"])
     vel = (r * (w_r + w_l) / 2, 0.0, r * (w_r - w_l) / (2 * b), w_r, w_l)
     pose = (float(tel["x_odo_m"][first]), float(tel["y_odo_m"][first]),
             float(tel["phi_odo_rad"][first]))
@@ -146,7 +151,8 @@ def window_start(prep: PreparedRun, w: int) -> tuple[float, tuple, tuple | None]
 
 def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.ndarray,
                         th_r: np.ndarray, th_l: np.ndarray, i_a: int, i_b: int,
-                        tg: np.ndarray) -> dict[str, np.ndarray]:
+                        tg: np.ndarray, effects: Mapping[str, Mapping[str, float]] | None = None
+                        ) -> dict[str, np.ndarray]:
     """The part of the replayed pose that only follows from the replay's wheels turning
     otherwise than the recorded counts say, at the camera times ``tg``; zero unless the run's
     inputs are partly unrecorded (``count_anchored_pose``).
@@ -156,8 +162,9 @@ def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.
     open-loop pose inherits that drift: millimetres within seconds, above the camera's noise,
     on a null.  The wheels' own motion is tested by the wheel-speed, count and current
     channels; the camera channels are then compared against the replay's pose moved by the
-    odometry difference (lib/control's odometry, the nominal geometry) between the replayed
-    and the recorded wheel angles, over the frame intervals in which the replay's wheels roll
+    odometry difference (lib/control's odometry, on the geometry of the replayed plant: the
+    nominal one folded with the candidate ``effects``) between the replayed and the recorded
+    wheel angles, over the frame intervals in which the replay's wheels roll
     (a slipping wheel's extra turning does not move the body).  What remains in the camera
     channels is what the counts cannot show: the geometry (wheel radius, track width) and
     slip."""
@@ -166,7 +173,11 @@ def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.
         return {"x_m": zero, "y_m": zero, "phi_rad": zero}
     tel = prep.run.telemetry
     k = 2 * np.pi / prep.ppr
-    r, b = float(prep.robot["r"]), float(prep.robot["b"])
+    # the body moves by the replayed plant's wheel radius and track width per wheel angle: a
+    # candidate's fitted r_eff / b_eff, not the nominal ones (with those, a right radius fit
+    # had left the updated camera channels off by the nominal-to-fitted ratio)
+    geo = folded_robot(prep.robot, effects or {})
+    r, b = float(geo["r"]), float(geo["b"])
     g = np.asarray(sim["t_s"], float)
     pose0 = tuple(float(np.interp(t[0], g, np.asarray(sim[c], float)))
                   for c in ("x_m", "y_m", "phi_rad"))
@@ -187,5 +198,9 @@ def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.
             q_sim[j] = q_rec[j] + np.concatenate([[0.0], np.cumsum(inc)])
     xs, ys, ps = encoder_odometry(q_sim[0], q_sim[1], t, r, b, prep.ppr, pose0)
     xr, yr, pr = encoder_odometry(q_rec[0], q_rec[1], t, r, b, prep.ppr, pose0)
+    # lib/control's odometry wraps its heading to [-pi, pi); the two wrap at different frames
+    # when they differ near +-pi, so the difference is taken of the unwrapped headings (both
+    # start at pose0) before it is interpolated to the camera times
+    dphi = np.unwrap(np.asarray(ps, float)) - np.unwrap(np.asarray(pr, float))
     return {"x_m": np.interp(tg, t, xs - xr), "y_m": np.interp(tg, t, ys - yr),
-            "phi_rad": np.interp(tg, t, ps - pr)}
+            "phi_rad": np.interp(tg, t, dphi)}

@@ -125,7 +125,7 @@ def channels(prep: PreparedRun, sim, mode: str = "duty") -> dict[str, Channel]:
     n = prep.run.telemetry["t_s"].size
     if not isinstance(sim, WindowSims):
         return _with_uncertainty(prep, _channels_window(prep, sim, 0, n, None))
-    parts = [_channels_window(prep, s, *prep.windows[w], w) for w, s in sim]
+    parts = [_channels_window(prep, s, *prep.windows[w], w, sim.effects) for w, s in sim]
     out: dict[str, Channel] = {}
     for name in CHANNELS:
         got = [c[name] for c in parts if name in c]
@@ -158,6 +158,7 @@ class _Window:
     i_a: int
     i_b: int
     w: int | None
+    effects: Mapping[str, Mapping[str, float]] | None = None   # those the plant ran with
 
     def __post_init__(self) -> None:
         self.tel = self.prep.run.telemetry
@@ -175,10 +176,12 @@ class _Window:
 
 
 def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int, i_b: int,
-                     w: int | None) -> dict[str, Channel]:
-    """Channels of the frames [i_a, i_b) against ``sim``.  A window that does not start the run
-    is compared as increments from its first frame (counts, odometry, camera pose)."""
-    win = _Window(prep, sim, i_a, i_b, w)
+                     w: int | None, effects: Mapping[str, Mapping[str, float]] | None = None
+                     ) -> dict[str, Channel]:
+    """Channels of the frames [i_a, i_b) against ``sim`` (simulated with ``effects``).  A window
+    that does not start the run is compared as increments from its first frame (counts,
+    odometry, camera pose)."""
+    win = _Window(prep, sim, i_a, i_b, w, effects)
     out: dict[str, Channel] = {}
     out.update(_wheel_channels(win))
     out.update(_odometry_channels(win))
@@ -276,7 +279,7 @@ def _camera_channels(win: _Window) -> dict[str, Channel]:
     if tg.size < 3:
         return out
     an = _gt_anchor(prep, float(t[0])) if anchored else None
-    shift = _count_anchor_shift(prep, win.sim, t, win.th_r, win.th_l, i_a, i_b, tg)
+    shift = _count_anchor_shift(prep, win.sim, t, win.th_r, win.th_l, i_a, i_b, tg, win.effects)
     pos = {c: at(c, tg) - shift[c] for c in ("x_m", "y_m")}
     if anchored:
         # re-anchored in pose, not only in position: the replay's increments are

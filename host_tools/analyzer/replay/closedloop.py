@@ -8,6 +8,7 @@ import numpy as np
 
 from host_tools import params as param_table
 from host_tools import protocol as P
+from host_tools.analyzer.effects import plant_setup
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import Channel
 
@@ -191,10 +192,11 @@ class ClosedLoopReplay:
         T, t0 = setup["inner_s"], setup["t0_s"]
         t_end = float(prep.run.telemetry["t_s"][-1])
         n = int(math.floor((t_end - t0) / T + 1e-9)) + 1
+        plant_robot, plant_effects = plant_setup(prep.robot, effects)
         loop = ClosedLoop(setup["kind"], setup["accel"], setup["cruise"], setup["radius"],
                           fixed_point=True, clamp=setup["clamp"], ctl_robot=ctl["robot"],
-                          ctl_motor=ctl["motor"], plant_robot=prep.robot, plant_motor=prep.motor,
-                          effects=effects, t0_s=t0, inner_s=T, outer_every=setup["outer_every"],
+                          ctl_motor=ctl["motor"], plant_robot=plant_robot, plant_motor=prep.motor,
+                          effects=plant_effects, t0_s=t0, inner_s=T, outer_every=setup["outer_every"],
                           ppr=prep.ppr, plant_dt_s=self.dt_s, start_pose=prep.start_pose,
                           ctl_params={"controller": setup["controller"]},
                           # the firmware's 1 kHz duty ramp, where the recorder says it ramps

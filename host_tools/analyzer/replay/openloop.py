@@ -5,6 +5,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from host_tools.analyzer.effects import plant_setup
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay import anchors
 
@@ -47,9 +48,10 @@ class OpenLoopReplay:
 
     def _ready(self, prep: PreparedRun, effects: Mapping[str, Mapping[str, float]]):
         """(plant with ``effects`` switched on, the replayed inputs, their times)."""
-        plant = self._plant(prep.robot, prep.motor)
+        robot, plant_effects = plant_setup(prep.robot, effects)
+        plant = self._plant(robot, prep.motor)
         plant.clear_effects()
-        for name, params in effects.items():
+        for name, params in plant_effects.items():
             plant.set_effect(name, **{k: float(v) for k, v in params.items()})
         if self.mode == "duty":
             return plant, prep.duty, prep.t_in
@@ -77,11 +79,11 @@ class OpenLoopReplay:
         the replay grid, started as :func:`window_start` says.  A one-window run gives the same
         simulation as :meth:`simulate`."""
         if len(prep.windows) <= 1 and (which is None or list(which) == [0]):
-            return WindowSims([(0, self.simulate(prep, effects))])
+            return WindowSims([(0, self.simulate(prep, effects))], effects)
         plant, src, t_in = self._ready(prep, effects)
         out = []
         for w in (range(len(prep.windows)) if which is None else which):
-            t0, pose, vel = anchors.window_start(prep, w)
+            t0, pose, vel = anchors.window_start(prep, w, effects)
             t_end = prep.window_times(w)[1]
             grid = prep.t_grid[(prep.t_grid >= t0 - 1e-12) & (prep.t_grid <= t_end + 1e-12)]
             if grid.size < 2:
@@ -93,8 +95,13 @@ class OpenLoopReplay:
             res = {k: np.asarray(v, float) for k, v in o.items() if k in _NEEDED}
             res["t_s"] = grid.copy()
             out.append((w, res))
-        return WindowSims(out)
+        return WindowSims(out, effects)
 
 
 class WindowSims(list):
-    """[(window index, plant outputs)] of a windowed replay."""
+    """[(window index, plant outputs)] of a windowed replay, with the ``effects`` the plant
+    ran with (the candidate's geometry, which the count-anchored camera channels need)."""
+
+    def __init__(self, items=(), effects: Mapping[str, Mapping[str, float]] | None = None):
+        super().__init__(items)
+        self.effects = dict(effects or {})

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from typing import Mapping, Sequence
 
+from host_tools.analyzer.effects import folded_robot, plant_setup
+
 
 MODEL_FORMAT = "ddmodel/1"
 
@@ -13,17 +15,12 @@ def updated_model(meta: Mapping, effects: Mapping[str, Mapping[str, float]],
     from host_tools import _native
     robot = dict(meta["robot"])
     motor = dict(meta["motor"])
-    plant = _native.Plant.from_meta(meta)
-    for name, params in effects.items():
+    plant_robot, plant_effects = plant_setup(robot, effects)
+    plant = _native.Plant.from_meta({**meta, "robot": plant_robot})
+    for name, params in plant_effects.items():
         plant.set_effect(name, **params)
     # fold the effects that are plain parameter changes into the parameters themselves
-    if "friction_coefficient" in effects:
-        robot["mu_s"] = effects["friction_coefficient"].get("mu_s", robot["mu_s"])
-        robot["mu_k"] = effects["friction_coefficient"].get("mu_k", robot["mu_k"])
-    if "wheel_radius" in effects:
-        robot["r"] = effects["wheel_radius"]["r_eff"]
-    if "track_width" in effects:
-        robot["b"] = effects["track_width"]["b_eff"]
+    robot = folded_robot(robot, effects)
     tr, tl = plant.tau_max()
     return {"format": MODEL_FORMAT, "robot": robot, "motor": motor,
             "encoder_ppr": int(meta["encoder_ppr"]),

@@ -9,9 +9,14 @@ from typing import Any
 
 import numpy as np
 
+from host_tools.analyzer.report import outputs
 from host_tools.analyzer.report.sections import REPORT_FORMAT, Analysis
+from host_tools.analyzer.report.series import BAND_K
 from host_tools.analyzer.signals import round_sig
 from host_tools.runfmt import display
+
+# PNG plots of run x channel series at most (report.html shows every one)
+MAX_PLOTS = 16
 
 
 def _finite(obj: Any) -> Any:
@@ -70,60 +75,178 @@ def report_dict(an: Analysis) -> dict:
     })
 
 
-def _plots(an: Analysis, out_dir: str, max_plots: int = 16) -> list[str]:
+def plot_choice(runs: list[tuple[int, list]], max_plots: int = MAX_PLOTS) -> list:
+    """The (run, channel) series that get a PNG, in this order: each run's largest mismatch
+    first (every run represented), then the largest mismatches of all runs.  A series' size is
+    its largest RMS over a mismatch window in noise floors, then its overall RMS in noise floors
+    (a run without windows shows the channel closest to leaving its noise)."""
+    def size(s) -> tuple[float, float]:
+        f = s.floor if s.floor > 0 else 1.0
+        return (s.worst_floors(), float(np.sqrt(np.mean(s.resid_nominal ** 2))) / f
+                if s.t.size else 0.0)
+    ranked = [sorted(series, key=size, reverse=True) for _, series in runs]
+    chosen = [r[0] for r in ranked if r][:max_plots]
+    rest = sorted((s for r in ranked for s in r[1:]), key=size, reverse=True)
+    return chosen + rest[:max(0, max_plots - len(chosen))]
+
+
+def _png_name(s) -> str:
+    return f"{s.run}_{s.channel}.png".replace(os.sep, "_")
+
+
+def _plots(an: Analysis, staging: str, runs: list[tuple[int, list]]) -> list[str]:
+    """PNG plots (see :func:`plot_choice`) and one x–y path per run."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     files = []
-    chans = sorted({(i, c) for (i, c), w in an.windows.items() if w})
-    if an.verdict == "no_mismatch" or not chans:
-        chans = [(i, c) for i in range(len(an.preps)) for c in ("omega_r",)
-                 if c in an.nominal[i]]
-    for i, c in chans[:max_plots]:
-        closed = c not in an.nominal[i]
-        if closed:  # a closed-loop channel (recorded vs replayed controller output)
-            ch = an.cl_nominal[i].get(c) if i < len(an.cl_nominal) else None
-            if ch is None:
-                continue
-            upd = an.cl_updated[i].get(c) if (i < len(an.cl_updated) and
-                                               an.closed_loop.get("updated_effects")) else None
-        else:
-            ch = an.nominal[i][c]
-            upd = an.updated[i][c] if (an.updated is not None and c in an.updated[i]) else None
-        kind = "closed loop" if closed else "simulation"
+    for s in plot_choice(runs):
+        kind = "closed loop" if s.replay == "closed_loop" else "simulation"
         fig, ax = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True,
                                gridspec_kw={"height_ratios": [2, 1]})
-        ax[0].plot(ch.t, ch.rec, "k.", ms=3, label="recording")
-        ax[0].plot(ch.t, ch.sim, "-", color="tab:red", lw=1.2, label=f"nominal {kind}")
-        ax[1].plot(ch.t, ch.resid, "-", color="tab:red", lw=1, label="nominal residual")
-        if upd is not None:
-            u = upd
-            ax[0].plot(u.t, u.sim, "-", color="tab:blue", lw=1.2, label=f"updated {kind}")
-            ax[1].plot(u.t, u.resid, "-", color="tab:blue", lw=1, label="updated residual")
-        f = an.floors.get(c, an.closed_loop.get("noise_floor", {}).get(c) or 0)
-        for a in (ax[1],):
-            a.axhspan(-3 * f, 3 * f, color="0.85", label="±3 noise floors")
-        for w in an.windows.get((i, c), []):
-            for a in ax:
-                a.axvspan(w.t_start_s, w.t_end_s, color="orange", alpha=0.25)
-        ax[0].set_ylabel(f"{c} [{ch.unit}]")
+        ax[0].plot(s.t, s.rec, "k.", ms=3, label="recording")
+        ax[0].plot(s.t, s.nominal, "-", color="tab:red", lw=1.2, label=f"nominal {kind}")
+        ax[1].fill_between(s.t, -s.band, s.band, color="0.85", lw=0,
+                           label=f"noise band (±{BAND_K:g} floors)")
+        ax[1].plot(s.t, s.resid_nominal, "-", color="tab:red", lw=1, label="nominal residual")
+        if s.updated is not None:
+            ax[0].plot(s.t, s.updated, "-", color="tab:blue", lw=1.2, label=f"updated {kind}")
+            ax[1].plot(s.t, s.resid_updated, "-", color="tab:blue", lw=1,
+                       label="updated residual")
+        out = s.outside_band()
+        if out.any():   # shaded only where the nominal residual leaves its band
+            ax[1].fill_between(s.t, -s.band, s.band, where=out, color="tab:orange", alpha=0.5,
+                               lw=0, label="outside the band")
+        for k, (a, b) in enumerate(s.windows):
+            for x in ax:
+                x.axvline(a, color="tab:orange", ls="--", lw=0.9,
+                          label="mismatch window edges" if (k == 0 and x is ax[0]) else None)
+                x.axvline(b, color="tab:orange", ls="--", lw=0.9)
+        for k, e in enumerate(s.anchor_edges):
+            for x in ax:
+                x.axvline(e, color="0.5", ls=":", lw=0.9,
+                          label="re-anchored (new replay window)" if (k == 0 and x is ax[0])
+                          else None)
+        ax[0].set_ylabel(f"{s.channel} [{s.unit}]")
         ax[1].set_ylabel("residual")
         ax[1].set_xlabel("t [s]")
-        ax[0].set_title(f"{an.preps[i].name}: {c} (windows of significant mismatch shaded)")
-        ax[0].legend(fontsize=8)
-        ax[1].legend(fontsize=7, loc="best")
+        ax[0].set_title(f"{s.run}: {s.channel} ({len(s.windows)} mismatch windows, largest "
+                        f"{s.worst_floors():.3g} noise floors)", fontsize=10)
+        ax[0].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+        ax[1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
         fig.tight_layout()
-        name = f"{an.preps[i].name}_{c}.png".replace(os.sep, "_")
-        fig.savefig(os.path.join(out_dir, name), dpi=90)
+        name = _png_name(s)
+        fig.savefig(os.path.join(staging, name), dpi=90)
+        plt.close(fig)
+        files.append(name)
+    for i, series in runs:
+        by = {s.channel: s for s in series}
+        for xc, yc, what in (("x_m", "y_m", "ground truth"), ("x_odo_m", "y_odo_m", "odometry")):
+            if xc in by and yc in by and by[xc].t.size == by[yc].t.size:
+                break
+        else:
+            continue
+        x, y = by[xc], by[yc]
+        fig, ax = plt.subplots(figsize=(6, 5.5))
+        ax.plot(x.rec, y.rec, "k.", ms=2, label=f"recording ({what})")
+        ax.plot(x.nominal, y.nominal, "-", color="tab:red", lw=1.2, label="nominal simulation")
+        if x.updated is not None and y.updated is not None:
+            ax.plot(x.updated, y.updated, "-", color="tab:blue", lw=1.2,
+                    label="updated simulation")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_title(f"{x.run}: x–y path", fontsize=10)
+        ax.legend(fontsize=7, loc="best")
+        fig.tight_layout()
+        name = f"{x.run}_path.png".replace(os.sep, "_")
+        fig.savefig(os.path.join(staging, name), dpi=90)
         plt.close(fig)
         files.append(name)
     return files
 
 
+VERDICT_MEANS = {
+    "no_mismatch": "the recordings agree with the nominal model within their noise: nothing "
+                   "needs to be added to the model.",
+    "explained": "the recordings disagree with the nominal model beyond their noise, and the "
+                 "effects below bring the disagreement back within the noise, also on data "
+                 "they were not fitted to.",
+    "unexplained": "the recordings disagree with the nominal model beyond their noise, and no "
+                   "effect of the vocabulary (alone or in pairs) accounts for it; where it is "
+                   "is listed below.",
+}
+
+
+def _chosen_std(an: Analysis) -> dict[tuple[str, str], float]:
+    """1-sigma uncertainty of each selected parameter (the fit's ``param_std``), by (effect,
+    parameter), from the candidate whose effects are the selected ones."""
+    want = {s["effect"] for s in an.selected}
+    for c in an.candidates:
+        if set(c.effects) == want:
+            return {(e, k): sd for (e, k), sd in zip(c.fit.coords, c.fit.std)}
+    return {}
+
+
+def _pm(v: float, sd: float | None) -> str:
+    from host_tools import humanize
+    if sd is None or not math.isfinite(sd):
+        return humanize.number(v)
+    return f"{humanize.number(v)} ± {humanize.number(sd, 2)}"
+
+
+def summary_lines(an: Analysis) -> list[str]:
+    """report.md's opening, read in ten seconds: the verdict and what it means, the selected
+    effects with value ± uncertainty, the ties and the measurement that would separate them."""
+    from host_tools import humanize
+    ft = an.fit_table or {}
+    L = ["# Mismatch report", "", "## Summary", "",
+         f"**Verdict: {an.verdict.replace('_', ' ')}** — {VERDICT_MEANS.get(an.verdict, '')}"]
+    b, a = ft.get("normalized_rms_before"), ft.get("normalized_rms_after")
+    if b is not None:
+        L.append("")
+        L.append(f"Disagreement in noise floors (normalized RMS over the fit channels, noise = 1): "
+                 f"nominal model {humanize.number(b, 3)}"
+                 + (f", updated model {humanize.number(a, 3)}." if an.selected and a is not None
+                    else "."))
+    L.append("")
+    std = _chosen_std(an)
+    if an.selected:
+        L.append("Selected effects (value ± one standard deviation of the fit):")
+        L.append("")
+        for s in an.selected:
+            ps = ", ".join(f"{k} = {_pm(v, std.get((s['effect'], k)))}"
+                           for k, v in s["params"].items())
+            extra = [f"{k} = {humanize.number(v, 2)}" for (e, k), v in std.items()
+                     if e == s["effect"] and k not in s["params"]]
+            if extra:
+                ps += f" (uncertainty of {', '.join(extra)})"
+            if s.get("unidentified"):
+                ps += (f"; {', '.join(s['unidentified'])} not identified by these data, kept "
+                       "nominal")
+            L.append(f"- **{s['effect']}**: {ps or 'no parameter'}")
+            for q in s.get("equivalent") or []:
+                sep = (s.get("separating_measurement") or {}).get(q) or "not known"
+                L.append(f"  - ties with **{q}** on these data (as good by BIC and on held-out "
+                         f"data); the measurement that would separate them: {sep}")
+            if not s.get("equivalent"):
+                L.append("  - no other effect explains these data as well")
+        L.append("")
+    elif an.verdict != "no_mismatch":
+        L += ["No effect is selected.", ""]
+    n_w = len(an.mismatch)
+    if n_w:
+        L.append(f"Mismatch windows: {n_w} (table under Details).")
+        L.append("")
+    L += ["Runs: " + ", ".join(f"`{r.name}`" for r in an.runs), "",
+          "Interactive plots of every run and channel: [report.html](report.html); every sample: "
+          "`series/<run>.csv`.", ""]
+    return L
+
+
 def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
-    L = ["# Mismatch report", "", f"**Verdict: `{an.verdict}`**", "",
-         "Runs: " + ", ".join(f"`{r.name}`" for r in an.runs), ""]
+    L = summary_lines(an) + ["# Details", ""]
     if an.selected:
         L += ["## Selected effects", "", "| effect | parameters | cannot be told apart from | "
               "measurement that would separate them |", "|---|---|---|---|"]
@@ -212,73 +335,46 @@ def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
     return "\n".join(L)
 
 
-OUTPUTS_MANIFEST = ".analyze.outputs"  # the files of the set last written into --out
-LOCK_NAME = ".analyze.lock"
+def _outputs(an: Analysis, staging: str, plots: bool) -> dict:
+    """Write every output file into ``staging``; report.json's content (its ``outputs``: the
+    files' names relative to OUT_DIR)."""
+    from host_tools.analyzer.report import html as report_html
+    from host_tools.analyzer.report import series as sr
 
-
-def _commit(staging: str, out_dir: str, names: list[str], on_committed=None) -> None:
-    """Move the set staged in ``staging`` into ``out_dir`` as one: under an exclusive lock
-    (a second analysis into the same folder waits: never report.json of one and report.md of
-    the other), with SIGINT/SIGTERM/SIGHUP held back until every file is in place (a signal
-    then ends the command after it), each file renamed over the previous one (nothing is
-    written through a link or a stale .tmp left in --out), plots of the previous set that
-    this set does not have removed."""
-    import fcntl
-    import signal
-
-    sigs = {getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)}
-    fd = os.open(os.path.join(out_dir, LOCK_NAME), os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
-        try:
-            man = os.path.join(out_dir, OUTPUTS_MANIFEST)
-            try:
-                with open(man, "rb") as fh:
-                    previous = json.loads(fh.read(1 << 20) or b"[]")
-            except (OSError, ValueError):
-                previous = []
-            for name in names:
-                os.replace(os.path.join(staging, name), os.path.join(out_dir, name))
-            for name in previous if isinstance(previous, list) else []:
-                if (isinstance(name, str) and name not in names and name.endswith(".png")
-                        and os.sep not in name and not name.startswith(".")):
-                    try:
-                        os.remove(os.path.join(out_dir, name))
-                    except OSError:
-                        pass
-            os.replace(os.path.join(staging, OUTPUTS_MANIFEST), man)
-            if on_committed is not None:
-                on_committed()
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
-    finally:
-        os.close(fd)
-
-
-def write_outputs(an: Analysis, out_dir: str, plots: bool = True, on_committed=None) -> dict:
-    """report.json, model.json, report.md and the plots, all or nothing: written into a fresh
-    folder inside ``out_dir`` (created exclusively), then moved into place together
-    (:func:`_commit`).  A failure or a signal before that leaves the previous set whole."""
-    import shutil
-    import tempfile
-
-    os.makedirs(out_dir, exist_ok=True)
+    runs = list(sr.all_series(an))
+    names = []
+    for i, ser in runs:
+        n = sr.file_name(an, i)
+        if n in names:
+            n = n[:-4] + f"-{i}.csv"
+        outputs.write_text(staging, n, sr.to_csv(ser))
+        names.append(n)
+    files = _plots(an, staging, runs) if plots else []
+    names += files
+    outputs.write_text(staging, "report.html",
+                       report_html.report_html(an, summary_lines(an), runs))
+    names.append("report.html")
     rep = report_dict(an)
-    staging = tempfile.mkdtemp(prefix=".analyze-stage-", dir=out_dir)
+    rep["series"] = [n for n in names if n.startswith("series/")]
+    rep["outputs"] = ["report.json", "report.md", "model.json"] + names
+    outputs.write_text(staging, "report.md", _md(an, rep, files))
+    outputs.write_text(staging, "model.json", json.dumps(_finite(an.model), indent=2) + "\n")
+    outputs.write_text(staging, "report.json", json.dumps(rep, indent=2) + "\n")
+    return rep
+
+
+def write_outputs(an: Analysis, out_dir: str, plots: bool = True,
+                  staging: str | None = None, on_commit=None) -> dict:
+    """Write the output set into ``out_dir``, all or nothing (report/outputs.py): staged in
+    ``staging`` (a fresh folder of :func:`outputs.create_staging`; made here when None), then
+    committed.  Returns report.json's content.  On any failure the staging folder is removed
+    and ``out_dir`` keeps its previous set."""
+    if staging is None:
+        staging = outputs.create_staging(out_dir)
     try:
-        texts = {"report.json": json.dumps(rep, indent=2) + "\n",
-                 "model.json": json.dumps(_finite(an.model), indent=2) + "\n"}
-        files = _plots(an, staging) if plots else []
-        texts["report.md"] = _md(an, rep, files)
-        for name, text in texts.items():
-            with open(os.path.join(staging, name), "w", encoding="utf-8",
-                      errors="backslashreplace") as fh:
-                fh.write(text)
-        names = files + ["model.json", "report.json", "report.md"]
-        with open(os.path.join(staging, OUTPUTS_MANIFEST), "w") as fh:
-            fh.write(json.dumps(names))
-        _commit(staging, out_dir, names, on_committed)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        rep = _outputs(an, staging, plots)
+        outputs.commit(staging, out_dir, rep["outputs"], on_commit)
+    except BaseException:
+        outputs.remove_staging(staging)
+        raise
     return rep

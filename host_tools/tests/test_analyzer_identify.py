@@ -1,0 +1,35 @@
+"""Which fitted parameters the data identify, on truth-simulator runs (docs/analyzer.md,
+"Identifiability")."""
+from __future__ import annotations
+
+import json
+
+from _native_skip import needs_native
+
+pytestmark = needs_native(truth=True)
+
+from host_tools import truth  # noqa: E402
+from host_tools.__main__ import main as cli  # noqa: E402
+
+SLIPPING = {"friction_coefficient": {"mu_s": 0.17, "mu_k": 0.16}}
+
+
+def test_mu_s_unidentified_when_the_wheels_slip_all_run(tmp_path):
+    """Without the torque clamp, hard starts on a slippery floor: the wheels slip from the
+    first moments to the end, which pins mu_k and says nothing about mu_s.  In the fit's
+    coordinates (mu_s, mu_k/mu_s) both move mu_k, so mu_s had looked identified (std 0.0012)
+    and was kept at its nominal value without a word; it is now reported as unidentified,
+    with mu_k fitted and the verdict explained."""
+    runs = [truth.simulate_run(tmp_path / f"run{i}", {"kind": "line", "accel": a, "cruise": v},
+                               SLIPPING, clamp=False, duration_s=1.5, seed=40 + i)
+            for i, (a, v) in enumerate([(3.0, 1.0), (2.5, 0.9)])]
+    out = tmp_path / "out"
+    assert cli(["analyze", *runs, "--out", str(out), "--jobs", "1", "--no-plots",
+                "--effects", "friction_coefficient"]) == 0
+    rep = json.load(open(out / "report.json"))
+    assert rep["verdict"] == "explained"
+    sel = {s["effect"]: s for s in rep["selected"]}
+    fc = sel["friction_coefficient"]
+    assert abs(fc["params"]["mu_k"] - 0.16) < 0.16 * 0.02
+    assert "mu_s" in fc["unidentified"]
+    assert fc["params"]["mu_s"] >= fc["params"]["mu_k"]
