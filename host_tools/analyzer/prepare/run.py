@@ -44,6 +44,7 @@ class PreparedRun:
     # uncertainty from unreported commands (channel -> (t, std); replay.unseen)
     slip_episodes: list = field(default_factory=list)
     replay_unc: dict | None = None
+    tolerance_bias: dict | None = None  # channel -> whole-run bias the model's tolerance allows
 
     @property
     def name(self) -> str:
