@@ -99,3 +99,80 @@ def test_tolerance_draws_stay_within_the_tables_tolerance():
     assert all(d["mu_k"] <= d["mu_s"] for d in draws)
     assert not any(k in d for d in draws for k in P.MOTOR)
     assert "g" in draws[0] and "supply_v" not in draws[0]
+
+
+def _heldout(rng, n=3000, gain=0.956):
+    """Held-out residuals (floors): before = a model error (1.5 floors) + noise; after = that
+    error reduced so that the pooled RMS falls by 1 - gain, the same noise."""
+    noise = rng.standard_normal(n)
+    err = 1.5 * np.sin(np.linspace(0, 60, n))
+    before = err + noise
+    target = gain * np.sqrt(np.mean(before ** 2))
+    # scale the model error down until the after-RMS reaches the target
+    for k in np.linspace(1.0, 0.0, 2001):
+        after = k * err + noise
+        if np.sqrt(np.mean(after ** 2)) <= target:
+            break
+    return before, after
+
+
+def test_paired_test_adopts_a_small_but_consistent_held_out_gain():
+    """The issue's track width: held-out error down 4.4 % over thousands of samples, each sample
+    better; the fixed 5 % rule refused it, the paired test takes it.  Noise alone does not pass."""
+    from host_tools.analyzer.fit.judge import paired_better
+    rng = np.random.default_rng(6)
+    before, after = _heldout(rng)
+    ok, z = paired_better(before, after)
+    assert ok and z > 2.33
+    # the same noise re-drawn: no evidence of improvement in 95 of 100 tries at least
+    wins = sum(paired_better(rng.standard_normal(3000), rng.standard_normal(3000))[0]
+               for _ in range(100))
+    assert wins <= 5
+
+
+def test_judge_uses_the_paired_test():
+    from host_tools.analyzer.fit.judge import Candidate, judge
+    from host_tools.analyzer.fit.params import FitResult
+    from host_tools.runfmt import validate_meta
+    rng = np.random.default_rng(7)
+    before, after = _heldout(rng)
+
+    class _P:
+        meta = validate_meta({})
+        vocab = {"motor_back_emf": {"ke_ratio": 1.0}}
+        floors = {"omega_r": 0.1}
+    fit = FitResult(["motor_back_emf"], {"motor_back_emf": {"ke_ratio": 1.2}}, [1.2],
+                    np.array([0.5]), 10.0, 1000, [0.01], 10)
+    hb, ha = float(np.sqrt(np.mean(before ** 2))), float(np.sqrt(np.mean(after ** 2)))
+    assert ha > 0.95 * hb                         # below the old 5 % gain
+    c = Candidate(["motor_back_emf"], fit, -200.0, hb, ha, {"omega_r": 0.5}, {"omega_r": 0.5},
+                  [[1.19], [1.21]], 4.0, heldout_pooled=(before, after))
+    judge(_P(), c)
+    assert c.checks["heldout"] and c.heldout_z > 2.33, c.reasons
+    c2 = Candidate(["motor_back_emf"], fit, -200.0, hb, hb, {"omega_r": 0.5}, {"omega_r": 0.5},
+                   [[1.19], [1.21]], 4.0, heldout_pooled=(before, before + 0.01 * rng.standard_normal(before.size)))
+    judge(_P(), c2)
+    assert not c2.checks["heldout"] and not c2.accepted
+
+
+def test_a_pair_partner_whose_parameter_is_insignificant_is_dropped():
+    """Gain asymmetry fitted at 1.10 ± 0.002 with a 6 ms delay ± 4 ms: the delay is within
+    2.33 sigma of zero, so the pair is refused and the asymmetry stands alone."""
+    from host_tools.analyzer.fit.judge import Candidate
+    from host_tools.analyzer.fit.params import FitResult
+    from host_tools.analyzer.select import _insignificant_partners
+    from host_tools.runfmt import validate_meta
+
+    class _P:
+        meta = validate_meta({})
+        vocab = {"motor_gain_asymmetry": {"ratio": 1.0}, "actuation_delay": {"delay_s": 0.0}}
+        floors = {}
+
+    def pair(delay_std):
+        fit = FitResult(["motor_gain_asymmetry", "actuation_delay"],
+                        {"motor_gain_asymmetry": {"ratio": 1.1},
+                         "actuation_delay": {"delay_s": 0.006}}, [1.1, 0.006],
+                        np.array([0.5, 0.1]), 10.0, 1000, [0.002, delay_std], 10)
+        return Candidate(fit.effects, fit, -300.0, 2.0, 1.0, {}, {}, [[1.1, 0.006]], 3.0)
+    assert [e for e, _ in _insignificant_partners(pair(0.004), _P())] == ["actuation_delay"]
+    assert _insignificant_partners(pair(0.001), _P()) == []
