@@ -176,3 +176,41 @@ def test_a_pair_partner_whose_parameter_is_insignificant_is_dropped():
         return Candidate(fit.effects, fit, -300.0, 2.0, 1.0, {}, {}, [[1.1, 0.006]], 3.0)
     assert [e for e, _ in _insignificant_partners(pair(0.004), _P())] == ["actuation_delay"]
     assert _insignificant_partners(pair(0.001), _P()) == []
+
+
+def _detect(paths, with_tolerance: bool, monkeypatch):
+    from host_tools.analyzer import pipeline as P
+    from host_tools.analyzer.locate import detect_mismatch, locate_mismatch
+    quiet = lambda m: None  # noqa: E731
+    with monkeypatch.context() as mp:
+        if not with_tolerance:
+            mp.setattr(P, "tolerance_uncertainty", lambda *a, **k: 0)
+        runs = P._load_runs(paths, quiet)
+        vocab, _ = P._vocabulary(None)
+        notes: list[str] = []
+        duty, torque = P.OpenLoopReplay("duty"), P.OpenLoopReplay("torque")
+        preps = P._prepare(runs, quiet)
+        cl = P._replay_closed_loop(preps, 5e-4, notes, quiet)
+        nom, nomt = P._replay_nominal(preps, duty, torque)
+        loc = locate_mismatch(preps, nom, nomt, cl.nominal, quiet)
+        return detect_mismatch(preps, nom, loc, vocab, 5e-4, notes, quiet).mismatch_seen
+
+
+def test_a_robot_within_its_tolerance_is_a_null_and_one_beyond_it_is_not(tmp_path, monkeypatch):
+    """A track width 2 mm wider than Table II.2's (within its ±2.5 mm): arcs drift the camera
+    pose tens of floors from the nominal replay, a mismatch without the tolerance ensemble and
+    a null with it; 8 mm wider (three tolerances) still shows."""
+    from host_tools import _native
+    from host_tools.analyzer import synth
+
+    def case(db):
+        def factory(meta):
+            pl = _native.Plant.from_meta(meta)
+            pl.set("robot.b", meta["robot"]["b"] + db)
+            return pl
+        return synth.make_case(tmp_path / f"b{db}", None, profiles=("turn", "turn", "ramp"),
+                               seed=3, duration_s=3.0, plant_factory=factory)
+    inside = case(0.002)
+    assert _detect(inside, False, monkeypatch)
+    assert not _detect(inside, True, monkeypatch)
+    assert _detect(case(0.008), True, monkeypatch)

@@ -144,8 +144,8 @@ BIC_MARGIN = -10.0
 # Adoption asks the held-out data whether the update predicts them better: a paired test of the
 # held-out errors, sample by sample over the fit channels in noise floors (mean of
 # after^2 - before^2 below zero by more than HELDOUT_Z standard errors, one-sided 1 %, the sample
-# count corrected for autocorrelation), the same test and false-alarm rate as the per-channel
-# veto.  A pair must beat each of its singles by the same test on the same held-out samples.
+# count corrected for the autocorrelation of the residual left after the update), the rate of
+# the per-channel veto.  A pair must beat each of its singles by the same test on the same held-out samples.
 
 
 def paired_better(before: np.ndarray, after: np.ndarray, z: float = HELDOUT_Z
@@ -160,7 +160,10 @@ def paired_better(before: np.ndarray, after: np.ndarray, z: float = HELDOUT_Z
     mean = float(np.mean(d))
     if sd == 0:
         return mean < 0, (math.inf if mean < 0 else 0.0)
-    zstat = -mean / (sd / math.sqrt(effective_n(d)))
+    # the samples count as independent as the residual left after the update (its noise and
+    # what the update does not explain): the structure of ``before``, the very mismatch the
+    # update removes, would otherwise count as correlation and hide a large gain
+    zstat = -mean / (sd / math.sqrt(effective_n(a)))
     return bool(zstat > z), zstat
 
 
