@@ -271,8 +271,9 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict], loc: 
     decide whether there is a mismatch at all: a strong window in a fit channel (``strong_k``
     floors, raised with the recording's length so the false-alarm rate per analysis stays
     what it is on 12 s), significant windows with an overall normalized RMS above
-    ``MISMATCH_RMS``, or a consistent bias over many samples (``bias_test``).  The torque replay does not decide; it adds a note on where the mismatch
-    sits (between duty and torque, or not)."""
+    ``MISMATCH_RMS``, or a consistent bias over many samples (``bias_test``).  The torque
+    replay does not decide; it adds a note on where the mismatch sits (between duty and
+    torque, or not)."""
     floors = loc.floors
     fit_chans = [c for c in FIT_CHANNELS if c in floors]
     sig_fit = [e for e in loc.entries if e["channel"] in fit_chans]

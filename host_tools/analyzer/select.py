@@ -157,7 +157,8 @@ def _insignificant_partners(pair: Candidate, problem: Problem) -> list[tuple[str
     params = params_for(pair.effects, problem.meta, problem.vocab)
     best: dict[str, float] = {}
     for j, p in enumerate(params):
-        if p.floor <= 0 or j >= len(pair.fit.std) or f"{p.effect}.{p.name}" in pair.fit.unidentified:
+        if (p.floor <= 0 or j >= len(pair.fit.std)
+                or f"{p.effect}.{p.name}" in pair.fit.unidentified):
             continue
         sd = pair.fit.std[j]
         dev = abs(pair.fit.values[j] - p.neutral)

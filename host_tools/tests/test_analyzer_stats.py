@@ -150,7 +150,8 @@ def test_judge_uses_the_paired_test():
     judge(_P(), c)
     assert c.checks["heldout"] and c.heldout_z > 2.33, c.reasons
     c2 = Candidate(["motor_back_emf"], fit, -200.0, hb, hb, {"omega_r": 0.5}, {"omega_r": 0.5},
-                   [[1.19], [1.21]], 4.0, heldout_pooled=(before, before + 0.01 * rng.standard_normal(before.size)))
+                   [[1.19], [1.21]], 4.0,
+                   heldout_pooled=(before, before + 0.01 * rng.standard_normal(before.size)))
     judge(_P(), c2)
     assert not c2.checks["heldout"] and not c2.accepted
 

@@ -145,7 +145,8 @@ BIC_MARGIN = -10.0
 # held-out errors, sample by sample over the fit channels in noise floors (mean of
 # after^2 - before^2 below zero by more than HELDOUT_Z standard errors, one-sided 1 %, the sample
 # count corrected for the autocorrelation of the residual left after the update), the rate of
-# the per-channel veto.  A pair must beat each of its singles by the same test on the same held-out samples.
+# the per-channel veto.  A pair must beat each of its singles by the same test on the same
+# held-out samples.
 
 
 def paired_better(before: np.ndarray, after: np.ndarray, z: float = HELDOUT_Z
