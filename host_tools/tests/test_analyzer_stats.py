@@ -215,3 +215,31 @@ def test_a_robot_within_its_tolerance_is_a_null_and_one_beyond_it_is_not(tmp_pat
     assert _detect(inside, False, monkeypatch)
     assert not _detect(inside, True, monkeypatch)
     assert _detect(case(0.008), True, monkeypatch)
+
+
+def test_the_camera_anchor_is_computed_once_per_window_and_slip_state(tmp_path):
+    """The fits evaluate every window's camera anchor at every step; it reads only the
+    recording and the slip episodes, so it is memoized per run: the same values, computed
+    once, recomputed when the slip episodes change."""
+    from host_tools.analyzer import pipeline as P
+    from host_tools.analyzer import synth
+    from host_tools.analyzer.replay import anchors
+    paths = synth.make_case(tmp_path / "c", None, profiles=("turn",), seed=1, duration_s=2.0)
+    prep = P._prepare(P._load_runs(paths, lambda m: None), lambda m: None)[0]
+    calls = []
+    real = anchors._gt_anchor_of
+
+    def counted(*a, **k):
+        calls.append(a[1])
+        return real(*a, **k)
+    anchors._gt_anchor_of = counted
+    try:
+        first = anchors._gt_anchor(prep, 1.0)
+        again = anchors._gt_anchor(prep, 1.0)
+        assert first is again and calls == [1.0]
+        assert first == real(prep, 1.0)
+        prep.slip_episodes = [(0.2, 0.4)]
+        anchors._gt_anchor(prep, 1.0)
+        assert calls == [1.0, 1.0]
+    finally:
+        anchors._gt_anchor_of = real
