@@ -9,6 +9,7 @@ ranges from here.
     ROBOT, MOTOR      defaults of meta.json's "robot" and "motor" (the run format's keys)
     ENCODER_PPR       encoder counts per wheel turn
     RANGES            {(group, name): (min, max)} of every value meta.json holds
+    TOLERANCES        {(group, name): tol}: the true value lies within value +- tol
 """
 from __future__ import annotations
 
@@ -40,6 +41,8 @@ class Param:
     ref: str            # where the value comes from (thesis section, table)
     doc: str
     run_format: bool    # part of meta.json and the protocol's Params message
+    tol: float = 0.0    # the true value lies within value +- tol (same unit)
+    tol_ref: str = ""   # where that tolerance comes from
 
 
 @dataclass(frozen=True)
@@ -60,7 +63,7 @@ def _param(group: str, spec: Any, integer: bool = False) -> Param:
     where = f"{group}.{spec.get('name', '?') if isinstance(spec, dict) else '?'}"
     if not isinstance(spec, dict):
         raise TableError(f"{where}: must be an object")
-    for key in ("name", "value", "unit", "min", "max", "ref", "doc"):
+    for key in ("name", "value", "unit", "min", "max", "ref", "doc", "tol", "tol_ref"):
         if key not in spec:
             raise TableError(f"{where}: '{key}' missing")
     if not _NAME.match(str(spec["name"])):
@@ -74,12 +77,20 @@ def _param(group: str, spec: Any, integer: bool = False) -> Param:
     value, lo, hi = nums
     if not lo <= value <= hi:
         raise TableError(f"{where}: value {value} outside its range [{lo}, {hi}]")
+    tol = spec["tol"]
+    if not (isinstance(tol, (int, float)) and not isinstance(tol, bool) and math.isfinite(tol)
+            and tol >= 0):
+        raise TableError(f"{where}: tol must be a finite number >= 0")
+    if not (lo <= value - tol and value + tol <= hi):
+        raise TableError(f"{where}: value +- tol leaves the range [{lo}, {hi}]")
+    if not str(spec["tol_ref"]).strip():
+        raise TableError(f"{where}: tol_ref must say where the tolerance comes from")
     run_format = spec.get("run_format", True)
     if not isinstance(run_format, bool):
         raise TableError(f"{where}: run_format must be true or false")
     conv = int if integer else float
     return Param(group, spec["name"], conv(value), str(spec["unit"]), conv(lo), conv(hi),
-                 str(spec["ref"]), str(spec["doc"]), run_format)
+                 str(spec["ref"]), str(spec["doc"]), run_format, float(tol), str(spec["tol_ref"]))
 
 
 def parse(spec: Any) -> Table:
@@ -128,6 +139,7 @@ ENCODER_PPR: int = int(TABLE.encoder.value)  # parsed as an integer (_param)
 RANGES: dict[tuple[str, str], tuple[float, float]] = {
     (p.group, p.name): (p.min, p.max) for p in TABLE.params if p.run_format}
 ENCODER_PPR_RANGE: tuple[int, int] = (int(TABLE.encoder.min), int(TABLE.encoder.max))
+TOLERANCES: dict[tuple[str, str], float] = {(p.group, p.name): p.tol for p in TABLE.params}
 
 
 def resolve_param_ranges(protocol_spec: dict[str, Any]) -> dict[str, Any]:

@@ -7,7 +7,8 @@
 Outputs:
     lib/slipmodel/src/slipmodel/params_table.h -- constexpr defaults (slip::table::*), X-macros
                                                   with ranges and units, the encoder's counts
-    params/params.md                            -- every parameter with unit, range, reference
+    params/params.md                            -- every parameter with unit, range, reference,
+                                                  tolerance and its source
 
 The table is read by host_tools/params.py (the one reader; the host tools use it at run time).
 """
@@ -71,12 +72,12 @@ def render_header(t: P.Table) -> str:
 
 def render_table_md(t: P.Table) -> str:
     L = [f"<!-- {BANNER} -->", "", "# Robot parameters", "", t.doc, "",
-         "| group | name | value | unit | range | source | meaning |",
-         "|---|---|---|---|---|---|---|"]
+         "| group | name | value | unit | range | source | tolerance (±) | its source | meaning |",
+         "|---|---|---|---|---|---|---|---|---|"]
     for p in t.params + (t.encoder,):
         flag = "" if p.run_format else " (host model only)"
         L.append(f"| {p.group} | `{p.name}` | {p.value:g} | {p.unit} | [{p.min:g}, {p.max:g}] | "
-                 f"{p.ref} | {p.doc}{flag} |")
+                 f"{p.ref} | {p.tol:g} | {p.tol_ref} | {p.doc}{flag} |")
     return "\n".join(L) + "\n"
 
 

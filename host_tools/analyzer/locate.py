@@ -32,6 +32,80 @@ def strong_threshold(total_s: float) -> float:
 
 MISMATCH_RMS = 1.25      # otherwise the overall normalized RMS must exceed this
 
+# A consistent bias: many samples that agree, each below STRONG_WINDOW.  The residual of each
+# fit channel (in noise floors, deflated by the replay's uncertainty) is cut into blocks of
+# BIAS_BLOCK_S within its replay windows; the block means are the effective samples (noise and
+# the replay's own short-lived errors decorrelate within a block, so the autocorrelation of the
+# samples inside a block does not count them many times) and a t-test over them, pooled over the
+# runs, asks whether their mean differs from zero.  The threshold comes from the false-alarm
+# rate BIAS_ALPHA per analysis, two-sided, shared by the fit channels (Bonferroni).  A bias below
+# BIAS_MIN_FLOORS counts for nothing however many samples agree: it is the smallest output
+# change an update may make to be adopted (``judge``'s min_output), so a smaller one could never
+# be named.
+BIAS_BLOCK_S = 1.0
+BIAS_ALPHA = 0.01
+BIAS_MIN_FLOORS = 0.5
+
+
+def _block_means(ch, floor: float, block_s: float = BIAS_BLOCK_S) -> list[float]:
+    """Means of the channel's residual (in floors) over blocks of ``block_s`` within each
+    replay window; a block with fewer than 3 samples is left out."""
+    z = ch.resid / floor
+    t = np.asarray(ch.t, float)
+    seg = ch.seg if ch.seg is not None else np.zeros(t.size, int)
+    ok = np.isfinite(z)
+    out: list[float] = []
+    for s in np.unique(seg):
+        m = (seg == s) & ok
+        if m.sum() < 3:
+            continue
+        ts, zs = t[m], z[m]
+        k = np.floor((ts - ts[0]) / block_s).astype(int)
+        # a short last block joins the one before it
+        if k.size and k[-1] > 0 and ts[-1] - (ts[0] + k[-1] * block_s) < 0.5 * block_s:
+            k[k == k[-1]] = k[-1] - 1
+        for b in np.unique(k):
+            zb = zs[k == b]
+            if zb.size >= 3:
+                out.append(float(np.mean(zb)))
+    return out
+
+
+def bias_test(nominal: Sequence[Mapping[str, object]], floors: Mapping[str, float],
+              channels_: Sequence[str], alpha: float = BIAS_ALPHA,
+              min_floors: float = BIAS_MIN_FLOORS,
+              allowed: Sequence[Mapping[str, float] | None] | None = None) -> dict[str, dict]:
+    """Per fit channel: the mean residual over all runs (in noise floors), the number of
+    blocks (effective samples), the t statistic of the block means, the threshold for the
+    false-alarm rate ``alpha`` per analysis (two-sided, Bonferroni over ``channels_``) and
+    whether the bias is significant and at least ``min_floors``.  ``allowed`` (per run,
+    channel -> std of the whole-run bias the model's tolerance allows, ``tolerance_bias``)
+    joins the standard error: the tolerance is one set of parameters for all runs, so its
+    error does not average out over blocks; it is taken as fully shared by the runs."""
+    from scipy import stats
+    out: dict[str, dict] = {}
+    m = max(len(channels_), 1)
+    for c in channels_:
+        f = floors.get(c, 0.0)
+        if not f > 0:
+            continue
+        per_run = [(_block_means(chans[c], f), (allowed[i] or {}).get(c, 0.0) if allowed else 0.0)
+                   for i, chans in enumerate(nominal) if c in chans]
+        means = [v for bm, _ in per_run for v in bm]
+        n = len(means)
+        if n < 3:
+            continue
+        sys_ = sum(len(bm) * a for bm, a in per_run) / n / f
+        mu = float(np.mean(means))
+        sd = float(np.std(means, ddof=1))
+        se = math.sqrt(sd ** 2 / n + sys_ ** 2)
+        tstat = mu / se if se > 0 else (math.inf if mu != 0 else 0.0)
+        thr = float(stats.t.ppf(1 - alpha / (2 * m), n - 1))
+        out[c] = {"bias_floors": mu, "blocks": n, "t": tstat, "t_threshold": thr,
+                  "tolerance_floors": sys_,
+                  "significant": bool(abs(tstat) > thr and abs(mu) >= min_floors)}
+    return out
+
 
 def _current_lsb_a() -> float:
     """One ADC count of the motor-current telemetry (protocol.json's scale of current_r)."""
@@ -216,6 +290,7 @@ class Detection:
     nrms0: float            # ... as a normalized RMS
     strong_k: float         # noise floors that make one window a mismatch on its own
     mismatch_seen: bool
+    bias: dict | None = None  # channel -> bias_test's figures
 
 
 def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict], loc: Located,
@@ -223,9 +298,10 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict], loc: 
     """Build the fit problem (the fit channels, and on long runs the windows the fits see) and
     decide whether there is a mismatch at all: a strong window in a fit channel (``strong_k``
     floors, raised with the recording's length so the false-alarm rate per analysis stays
-    what it is on 12 s), or significant windows with an overall normalized RMS above
-    ``MISMATCH_RMS``.  The torque replay does not decide; it adds a note on where the mismatch
-    sits (between duty and torque, or not)."""
+    what it is on 12 s), significant windows with an overall normalized RMS above
+    ``MISMATCH_RMS``, or a consistent bias over many samples (``bias_test``).  The torque
+    replay does not decide; it adds a note on where the mismatch sits (between duty and
+    torque, or not)."""
     floors = loc.floors
     fit_chans = [c for c in FIT_CHANNELS if c in floors]
     sig_fit = [e for e in loc.entries if e["channel"] in fit_chans]
@@ -240,7 +316,19 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict], loc: 
     total_s = sum(float(p.run.telemetry["t_s"][-1] - p.run.telemetry["t_s"][0]) for p in preps)
     strong_k = strong_threshold(total_s)
     strong0 = [e for e in sig_fit if e["rms"] >= strong_k * e["noise_floor"]]
-    mismatch_seen = bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
+    bias = bias_test(nominal, floors, fit_chans,
+                     allowed=[p.tolerance_bias for p in preps])
+    biased = [c for c, v in bias.items() if v["significant"]]
+    if biased:
+        log("consistent bias: " + ", ".join(
+            f"{c} {bias[c]['bias_floors']:+.2f} floors (t {bias[c]['t']:.1f} > "
+            f"{bias[c]['t_threshold']:.1f}, {bias[c]['blocks']} blocks)" for c in biased))
+        notes.append("a consistent bias over many samples, each below the strong-window "
+                     "threshold: " + ", ".join(f"{c} {bias[c]['bias_floors']:+.2f} noise floors "
+                                               f"over {bias[c]['blocks']} blocks of "
+                                               f"{BIAS_BLOCK_S:g} s" for c in biased))
+    mismatch_seen = (bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
+                     or bool(biased))
     sig_t = [e for e in loc.entries_t if e["channel"] in fit_chans]
     if mismatch_seen and not sig_t:
         notes.append("the torque-driven replay agrees with the recording while the duty-driven "
@@ -251,7 +339,7 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict], loc: 
                      "separately (torque_replay_mismatch), not used to locate or decide")
     log(f"nominal replay: {len(loc.entries)} significant window(s) "
         f"({len(sig_fit)} in fit channels {', '.join(fit_chans)})")
-    return Detection(problem, rss0, nrms0, strong_k, mismatch_seen)
+    return Detection(problem, rss0, nrms0, strong_k, mismatch_seen, bias)
 
 
 def state_table(prep: PreparedRun) -> dict[str, np.ndarray]:

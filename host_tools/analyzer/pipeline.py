@@ -19,6 +19,7 @@ from host_tools.analyzer.replay.anchors import note_slip_episodes
 from host_tools.analyzer.replay.channels import channels
 from host_tools.analyzer.replay.closedloop import ClosedLoopReplay, closed_loop_channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
+from host_tools.analyzer.replay.tolerance import tolerance_uncertainty
 from host_tools.analyzer.replay.unseen import fill_unseen_from_controller, input_uncertainty
 from host_tools.analyzer.report.model import updated_model
 from host_tools.analyzer.report.sections import (Analysis, closed_loop_report, error_tables,
@@ -165,11 +166,14 @@ def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: 
     recorded duty (what locates the mismatch and decides) and by the recorded torque command
     (reported apart: it separates motor and driver from the rest).  On a run of several
     windows the duty replay's slip episodes are noted first (``note_slip_episodes``): the
-    window anchors to the camera are fitted within the slip-free spans."""
+    window anchors to the camera are fitted within the slip-free spans.  The replay's own
+    uncertainty (unreported commands, the model's tolerance) is drawn before the channels are
+    compared."""
     for p in preps:
         if len(p.windows) > 1:
             note_slip_episodes(p, duty.simulate_windows(p, {}))
         input_uncertainty(p, duty)
+        tolerance_uncertainty(p, duty)
     nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
     nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
     return nominal, nominal_t

@@ -11,7 +11,8 @@ import numpy as np
 
 from host_tools.analyzer import effects as fx
 from host_tools.analyzer import signals as sg
-from host_tools.analyzer.fit.judge import Candidate, delta_bic, judge
+from host_tools.analyzer.fit.judge import HELDOUT_Z, Candidate, delta_bic, judge, paired_better
+from host_tools.analyzer.fit.params import params_for
 from host_tools.analyzer.fit.problem import Problem, effective_n
 from host_tools.analyzer.fit.workers import run_tasks
 from host_tools.analyzer.locate import STRONG_WINDOW, Detection, state_table
@@ -124,14 +125,46 @@ def _fit_pairs(problem: Problem, cands: list[Candidate], best_single: Candidate 
             alone = single[e]
             better = (pc.fit.rss < alone.fit.rss and
                       _pair_bic(pc, alone, problem) < -10.0 and
-                      pc.heldout_after < 0.95 * alone.heldout_after)
+                      _heldout_beats(pc, alone))
             if not better:
                 pc.checks["adds"] = False
                 pc.reasons.append(f"not clearly better than {e} alone")
         if "adds" not in pc.checks:
             pc.checks["adds"] = True
+        weak = _insignificant_partners(pc, problem)
+        pc.checks["partners_significant"] = not weak
+        for e, zs in weak:
+            pc.reasons.append(f"{e} insignificant in the pair (its parameter {zs:.2f} sigma from "
+                              f"nominal <= {HELDOUT_Z}): dropped")
     pair_cands.sort(key=lambda c: c.delta_bic)
     return pair_cands
+
+
+def _heldout_beats(pair: Candidate, single: Candidate) -> bool:
+    """The pair's held-out errors below the single's, sample by sample (``paired_better``, the
+    same held-out folds); without the samples, the pooled RMS must fall."""
+    if (pair.heldout_pooled is not None and single.heldout_pooled is not None
+            and pair.heldout_pooled[1].size == single.heldout_pooled[1].size):
+        return paired_better(single.heldout_pooled[1], pair.heldout_pooled[1])[0]
+    return pair.heldout_after < single.heldout_after
+
+
+def _insignificant_partners(pair: Candidate, problem: Problem) -> list[tuple[str, float]]:
+    """Effects of a pair none of whose fitted parameters is significantly off nominal (|value -
+    neutral| within HELDOUT_Z of its 1-sigma uncertainty, one-sided 1 %: the rate of the other
+    tests): such a partner only bends the fit, and the pair is refused so its other effect
+    stands alone.  Shape parameters (no floor) and unidentified coordinates do not count."""
+    params = params_for(pair.effects, problem.meta, problem.vocab)
+    best: dict[str, float] = {}
+    for j, p in enumerate(params):
+        if (p.floor <= 0 or j >= len(pair.fit.std)
+                or f"{p.effect}.{p.name}" in pair.fit.unidentified):
+            continue
+        sd = pair.fit.std[j]
+        dev = abs(pair.fit.values[j] - p.neutral)
+        zs = dev / sd if math.isfinite(sd) and sd > 0 else (math.inf if dev > 0 else 0.0)
+        best[p.effect] = max(best.get(p.effect, 0.0), zs)
+    return [(e, zs) for e, zs in best.items() if zs <= HELDOUT_Z]
 
 
 def _pair_bic(pair: Candidate, single: Candidate, problem: Problem) -> float:
@@ -169,7 +202,7 @@ def selected_entries(sel: Selection, rss0: float) -> list[dict]:
 
     def _close(c: Candidate, me: Candidate) -> bool:
         worth = all(c.checks.get(k, True) for k in ("bic", "heldout", "size", "physical",
-                                                    "adds"))
+                                                    "adds", "partners_significant"))
         return ((c.delta_bic - me.delta_bic) < 10.0 and c.fit.rss < rss0 and worth and
                 c.heldout_after <= max(1.25 * me.heldout_after, me.heldout_after + 0.1))
 

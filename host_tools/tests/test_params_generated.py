@@ -66,12 +66,26 @@ def test_a_changed_table_changes_the_header():
     (lambda d: d["groups"]["robot"]["params"][2].__setitem__("name", "2b"), "C identifier"),
     (lambda d: d["encoder"].__setitem__("value", 1856.5), "integers"),
     (lambda d: d["groups"]["robot"]["params"][3].__setitem__("min", float("nan")), "finite"),
+    (lambda d: d["groups"]["robot"]["params"][0].pop("tol"), "'tol' missing"),
+    (lambda d: d["groups"]["robot"]["params"][0].__setitem__("tol", -0.01), "tol must be"),
+    (lambda d: d["groups"]["robot"]["params"][2].__setitem__("tol", 2.0), "leaves the range"),
+    (lambda d: d["groups"]["motor"]["params"][1].__setitem__("tol_ref", " "), "tol_ref"),
 ])
 def test_table_errors_are_refused(mutate, message):
     d = copy.deepcopy(_spec())
     mutate(d)
     with pytest.raises(params.TableError, match=message):
         params.parse(d)
+
+
+def test_every_parameter_has_a_tolerance_and_its_source():
+    """Each nominal value is known to a tolerance, with where it comes from; params.md shows it."""
+    md = (ROOT / "params" / "params.md").read_text(encoding="utf-8")
+    for p in params.TABLE.params + (params.TABLE.encoder,):
+        assert p.tol >= 0 and p.tol_ref.strip(), p.name
+        assert p.tol_ref in md, p.name
+    assert params.TOLERANCES[("robot", "b")] == 0.0025          # 2b = 0.21 m to its last digit
+    assert params.TOLERANCES[("motor", "no_load_rad_s")] == pytest.approx(0.1 * 36.65)
 
 
 # ------------------------------------------------------------------ consumers agree

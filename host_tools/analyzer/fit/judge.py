@@ -38,6 +38,10 @@ class Candidate:
     # per channel: held-out residuals (unit of the channel) before and after, sample by sample
     heldout_pairs: dict = field(default_factory=dict)
     recorder_notes: list[str] = field(default_factory=list)
+    # all fit channels pooled, in noise floors: held-out residuals before and after, sample by
+    # sample (the paired adoption test); None when not kept
+    heldout_pooled: tuple | None = None
+    heldout_z: float = math.nan   # the paired test's z of the held-out improvement
 
     @property
     def accepted(self) -> bool:
@@ -74,6 +78,8 @@ def evaluate_candidate(problem: Problem, names: Sequence[str], base: Mapping | N
     ch_a: dict[str, list[float]] = {}
     pairs: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     fold_values = []
+    pool_b: list[np.ndarray] = []
+    pool_a: list[np.ndarray] = []
     res_b: dict[str, list[np.ndarray]] = {}
     res_a: dict[str, list[np.ndarray]] = {}
     for train, test, ptrain, ptest in folds:
@@ -84,6 +90,9 @@ def evaluate_candidate(problem: Problem, names: Sequence[str], base: Mapping | N
         sq_b += float(np.sum(rb ** 2))
         sq_a += float(np.sum(ra ** 2))
         cnt += rb.size
+        if rb.size == ra.size:
+            pool_b.append(rb)
+            pool_a.append(ra)
         cb = problem.channel_resids(ref_effects, test, ptest)
         ca = problem.channel_resids(f.params, test, ptest)
         for c in cb:
@@ -100,9 +109,11 @@ def evaluate_candidate(problem: Problem, names: Sequence[str], base: Mapping | N
     rfit = problem.residual(full.params, runs)
     size = float(np.sqrt(np.mean((rfit - r_ref) ** 2))) if r_ref.size == rfit.size else 0.0
     rms = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
+    pooled = ((np.concatenate(pool_b), np.concatenate(pool_a))
+              if pool_b and len(pool_b) == len(folds) else None)
     return Candidate(list(names), full, dbic, hb, ha,
                      {c: rms(v) for c, v in ch_b.items()}, {c: rms(v) for c, v in ch_a.items()},
-                     fold_values, size, heldout_pairs=pairs)
+                     fold_values, size, heldout_pairs=pairs, heldout_pooled=pooled)
 
 
 # The per-channel held-out rule (docs/analyzer.md, "The held-out rule"): an update is adopted
@@ -129,6 +140,32 @@ HELDOUT_RULE = (f"a channel that measures physics is worse after the update when
 
 
 BIC_MARGIN = -10.0
+
+# Adoption asks the held-out data whether the update predicts them better: a paired test of the
+# held-out errors, sample by sample over the fit channels in noise floors (mean of
+# after^2 - before^2 below zero by more than HELDOUT_Z standard errors, one-sided 1 %, the sample
+# count corrected for the autocorrelation of the residual left after the update), the rate of
+# the per-channel veto.  A pair must beat each of its singles by the same test on the same
+# held-out samples.
+
+
+def paired_better(before: np.ndarray, after: np.ndarray, z: float = HELDOUT_Z
+                  ) -> tuple[bool, float]:
+    """(better, z statistic): are the held-out residuals ``after`` (in noise floors) smaller
+    than ``before``, sample by sample, beyond what the noise does to them?"""
+    b, a = np.asarray(before, float), np.asarray(after, float)
+    if b.size < 3 or a.size != b.size:
+        return False, 0.0
+    d = a ** 2 - b ** 2
+    sd = float(np.std(d, ddof=1))
+    mean = float(np.mean(d))
+    if sd == 0:
+        return mean < 0, (math.inf if mean < 0 else 0.0)
+    # the samples count as independent as the residual left after the update (its noise and
+    # what the update does not explain): the structure of ``before``, the very mismatch the
+    # update removes, would otherwise count as correlation and hide a large gain
+    zstat = -mean / (sd / math.sqrt(effective_n(a)))
+    return bool(zstat > z), zstat
 
 
 def paired_worse(before: np.ndarray, after: np.ndarray, floor: float,
@@ -175,9 +212,11 @@ def heldout_channel_check(before: Mapping[str, float], after: Mapping[str, float
 
 def judge(problem: Problem, cand: Candidate, ref_effects: Mapping | None = None,
           only: Sequence[str] | None = None, bic_margin: float = BIC_MARGIN,
-          heldout_gain: float = 0.05, stability: float = 0.5, min_output: float = 0.5) -> None:
+          stability: float = 0.5, min_output: float = 0.5) -> None:
     """Fill ``cand.checks`` with the acceptance tests (and why they failed): ``bic``,
-    ``heldout`` (pooled gain), ``heldout_channels`` (no channel worse), ``size``, ``stable``.
+    ``heldout`` (paired test of the pooled held-out errors, ``paired_better``; without the
+    samples, the pooled RMS must fall), ``heldout_channels`` (no channel worse), ``size``,
+    ``stable``.
     ``only`` restricts the size/stability tests to these effects (the added one of a pair)."""
     params = params_for(cand.effects, problem.meta, problem.vocab)
     ref_effects = ref_effects or {}
@@ -186,10 +225,14 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping | None = None,
     if not c["bic"]:
         cand.reasons.append(f"BIC does not improve enough ({cand.delta_bic:.1f} >= {bic_margin})")
     # pooled over the fit channels (normalized): the update must predict held-out data better
-    c["heldout"] = cand.heldout_after < (1 - heldout_gain) * cand.heldout_before
+    if cand.heldout_pooled is not None:
+        c["heldout"], cand.heldout_z = paired_better(*cand.heldout_pooled)
+    else:
+        c["heldout"] = cand.heldout_after < cand.heldout_before
     if not c["heldout"]:
-        cand.reasons.append(f"held-out error does not improve by {heldout_gain:.0%} "
-                            f"({cand.heldout_before:.3g} -> {cand.heldout_after:.3g})")
+        cand.reasons.append(f"held-out error does not improve significantly "
+                            f"({cand.heldout_before:.3g} -> {cand.heldout_after:.3g}, paired "
+                            f"z {cand.heldout_z:.2f} <= {HELDOUT_Z})")
     # channel by channel: no physics channel worse beyond its noise (HELDOUT_RULE)
     cand.heldout_per_channel = heldout_channel_check(cand.heldout_channels_before,
                                                      cand.heldout_channels_after, problem.floors,

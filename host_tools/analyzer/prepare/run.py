@@ -44,6 +44,8 @@ class PreparedRun:
     # uncertainty from unreported commands (channel -> (t, std); replay.unseen)
     slip_episodes: list = field(default_factory=list)
     replay_unc: dict | None = None
+    tolerance_bias: dict | None = None  # channel -> whole-run bias the model's tolerance allows
+    anchor_cache: dict = field(default_factory=dict)  # replay.anchors._gt_anchor's results
 
     @property
     def name(self) -> str:

@@ -52,6 +52,17 @@ MIN_SPREAD_M = 0.1
 
 def _gt_anchor(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
                ) -> dict[str, float] | None:
+    """:func:`_gt_anchor_of` memoized per run: it reads only the recording and the run's slip
+    episodes, and a fit evaluates it for every window at every step (28 % of a 2 x 60 s
+    analysis's time before).  The returned dict is shared: read it, do not change it."""
+    key = (float(at), float(half), tuple(tuple(e) for e in prep.slip_episodes))
+    if key not in prep.anchor_cache:
+        prep.anchor_cache[key] = _gt_anchor_of(prep, at, half)
+    return prep.anchor_cache[key]
+
+
+def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
+                  ) -> dict[str, float] | None:
     """The true pose at board time ``at``, for re-anchoring a replay window: the recorder's
     odometry there, corrected by the camera-minus-odometry offset fitted as a straight line over
     ``half`` seconds either side.  Odometry is precise over a short time but drifts; the camera

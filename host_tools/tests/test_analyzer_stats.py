@@ -1,0 +1,245 @@
+"""The analyzer's statistics: the consistent-bias detection (effective samples), the paired
+adoption test, and the false-alarm rates they are built on."""
+from __future__ import annotations
+
+import numpy as np
+
+from host_tools.analyzer.locate import BIAS_ALPHA, bias_test
+from host_tools.analyzer.replay.channels import Channel
+
+FIT = ("omega_r", "omega_l", "x_m", "y_m", "phi_rad", "current_r_a", "current_l_a")
+
+
+def _runs(rng, bias: dict[str, float], n_runs: int = 3, dur_s: float = 3.0, hz: float = 50.0,
+          floor: float = 1.0):
+    """Per run, channels of white noise (std = floor) plus a constant bias per channel."""
+    out = []
+    for _ in range(n_runs):
+        t = np.arange(0.0, dur_s, 1.0 / hz)
+        chans = {}
+        for c in FIT:
+            rec = floor * rng.standard_normal(t.size) + bias.get(c, 0.0) * floor
+            chans[c] = Channel(c, t, rec, np.zeros(t.size), "u")
+        out.append(chans)
+    return out
+
+
+def test_a_consistent_bias_below_the_strong_window_is_found():
+    """1.3 floors in one wheel's speed over three 3 s runs (the issue's motor-gain asymmetry):
+    no sample is remarkable, no window reaches 3 floors, but the blocks agree."""
+    rng = np.random.default_rng(1)
+    runs = _runs(rng, {"omega_r": 1.3})
+    res = bias_test(runs, {c: 1.0 for c in FIT}, FIT)
+    assert res["omega_r"]["significant"]
+    assert abs(res["omega_r"]["bias_floors"] - 1.3) < 0.2
+    assert not any(res[c]["significant"] for c in FIT if c != "omega_r")
+
+
+def test_white_noise_alarms_at_most_at_the_stated_rate():
+    """Nulls of white noise: the share of analyses with any flagged channel stays near
+    BIAS_ALPHA (Bonferroni makes it at most that)."""
+    rng = np.random.default_rng(2)
+    floors = {c: 1.0 for c in FIT}
+    trials = 300
+    alarms = sum(any(v["significant"] for v in bias_test(_runs(rng, {}), floors, FIT).values())
+                 for _ in range(trials))
+    # at most BIAS_ALPHA; binomial(300, 0.01) exceeds 8 with probability < 0.5 %
+    assert alarms <= 8, alarms
+    assert BIAS_ALPHA == 0.01
+
+
+def test_a_significant_but_tiny_bias_is_not_a_mismatch():
+    """0.3 floors over 2 x 60 s is significant, but below the smallest output change an update
+    may make (0.5 floors), so nothing could be named: no detection."""
+    rng = np.random.default_rng(3)
+    runs = _runs(rng, {"current_r_a": 0.3}, n_runs=2, dur_s=60.0)
+    res = bias_test(runs, {c: 1.0 for c in FIT}, FIT)
+    assert abs(res["current_r_a"]["t"]) > res["current_r_a"]["t_threshold"]
+    assert not res["current_r_a"]["significant"]
+
+
+def test_slow_wander_without_a_consistent_sign_is_not_a_bias():
+    """A residual that wanders by ±1.5 floors over seconds (a replay's model-tolerance drift)
+    with no common sign across blocks: its blocks disagree, so it is not counted as many
+    independent samples of one bias."""
+    rng = np.random.default_rng(4)
+    runs = _runs(rng, {})
+    for k, chans in enumerate(runs):
+        ch = chans["x_m"]
+        ch.rec = ch.rec + 1.5 * np.sin(2 * np.pi * ch.t / 2.0 + k * 2.1)
+    res = bias_test(runs, {c: 1.0 for c in FIT}, FIT)
+    assert not res["x_m"]["significant"]
+
+
+def test_a_bias_within_the_models_tolerance_is_not_a_mismatch():
+    """The same 1.3 floors, where the nominal model's tolerance allows a whole-run bias of one
+    floor in that channel (one set of parameters for all runs: it does not average out)."""
+    rng = np.random.default_rng(1)
+    runs = _runs(rng, {"omega_r": 1.3})
+    floors = {c: 1.0 for c in FIT}
+    assert bias_test(runs, floors, FIT)["omega_r"]["significant"]
+    allowed = [{"omega_r": 1.0}] * len(runs)
+    res = bias_test(runs, floors, FIT, allowed=allowed)
+    assert not res["omega_r"]["significant"]
+    assert res["omega_r"]["tolerance_floors"] == 1.0
+
+
+def test_tolerance_draws_stay_within_the_tables_tolerance():
+    """Robot parameters uniform within value ± tol (params.json), μk ≤ μs; the motor's datasheet
+    constants are not drawn (their deviations are what the motor effects name)."""
+    from host_tools import params as P
+    from host_tools.analyzer.replay.tolerance import tolerance_draws
+    rng = np.random.default_rng(5)
+    draws = tolerance_draws(dict(P.ROBOT), 200, rng)
+    for name in ("b", "mu_s", "m_r", "r"):
+        vals = np.array([d[name] for d in draws])
+        tol = P.TOLERANCES[("robot", name)]
+        assert np.all(np.abs(vals - P.ROBOT[name]) <= tol + 1e-15)
+        assert np.ptp(vals) > tol                  # the draws use the range
+    assert all(d["mu_k"] <= d["mu_s"] for d in draws)
+    assert not any(k in d for d in draws for k in P.MOTOR)
+    assert "g" in draws[0] and "supply_v" not in draws[0]
+
+
+def _heldout(rng, n=3000, gain=0.956):
+    """Held-out residuals (floors): before = a model error (1.5 floors) + noise; after = that
+    error reduced so that the pooled RMS falls by 1 - gain, the same noise."""
+    noise = rng.standard_normal(n)
+    err = 1.5 * np.sin(np.linspace(0, 60, n))
+    before = err + noise
+    target = gain * np.sqrt(np.mean(before ** 2))
+    # scale the model error down until the after-RMS reaches the target
+    for k in np.linspace(1.0, 0.0, 2001):
+        after = k * err + noise
+        if np.sqrt(np.mean(after ** 2)) <= target:
+            break
+    return before, after
+
+
+def test_paired_test_adopts_a_small_but_consistent_held_out_gain():
+    """The issue's track width: held-out error down 4.4 % over thousands of samples, each sample
+    better; the fixed 5 % rule refused it, the paired test takes it.  Noise alone does not pass."""
+    from host_tools.analyzer.fit.judge import paired_better
+    rng = np.random.default_rng(6)
+    before, after = _heldout(rng)
+    ok, z = paired_better(before, after)
+    assert ok and z > 2.33
+    # the same noise re-drawn: no evidence of improvement in 95 of 100 tries at least
+    wins = sum(paired_better(rng.standard_normal(3000), rng.standard_normal(3000))[0]
+               for _ in range(100))
+    assert wins <= 5
+
+
+def test_judge_uses_the_paired_test():
+    from host_tools.analyzer.fit.judge import Candidate, judge
+    from host_tools.analyzer.fit.params import FitResult
+    from host_tools.runfmt import validate_meta
+    rng = np.random.default_rng(7)
+    before, after = _heldout(rng)
+
+    class _P:
+        meta = validate_meta({})
+        vocab = {"motor_back_emf": {"ke_ratio": 1.0}}
+        floors = {"omega_r": 0.1}
+    fit = FitResult(["motor_back_emf"], {"motor_back_emf": {"ke_ratio": 1.2}}, [1.2],
+                    np.array([0.5]), 10.0, 1000, [0.01], 10)
+    hb, ha = float(np.sqrt(np.mean(before ** 2))), float(np.sqrt(np.mean(after ** 2)))
+    assert ha > 0.95 * hb                         # below the old 5 % gain
+    c = Candidate(["motor_back_emf"], fit, -200.0, hb, ha, {"omega_r": 0.5}, {"omega_r": 0.5},
+                  [[1.19], [1.21]], 4.0, heldout_pooled=(before, after))
+    judge(_P(), c)
+    assert c.checks["heldout"] and c.heldout_z > 2.33, c.reasons
+    c2 = Candidate(["motor_back_emf"], fit, -200.0, hb, hb, {"omega_r": 0.5}, {"omega_r": 0.5},
+                   [[1.19], [1.21]], 4.0,
+                   heldout_pooled=(before, before + 0.01 * rng.standard_normal(before.size)))
+    judge(_P(), c2)
+    assert not c2.checks["heldout"] and not c2.accepted
+
+
+def test_a_pair_partner_whose_parameter_is_insignificant_is_dropped():
+    """Gain asymmetry fitted at 1.10 ± 0.002 with a 6 ms delay ± 4 ms: the delay is within
+    2.33 sigma of zero, so the pair is refused and the asymmetry stands alone."""
+    from host_tools.analyzer.fit.judge import Candidate
+    from host_tools.analyzer.fit.params import FitResult
+    from host_tools.analyzer.select import _insignificant_partners
+    from host_tools.runfmt import validate_meta
+
+    class _P:
+        meta = validate_meta({})
+        vocab = {"motor_gain_asymmetry": {"ratio": 1.0}, "actuation_delay": {"delay_s": 0.0}}
+        floors = {}
+
+    def pair(delay_std):
+        fit = FitResult(["motor_gain_asymmetry", "actuation_delay"],
+                        {"motor_gain_asymmetry": {"ratio": 1.1},
+                         "actuation_delay": {"delay_s": 0.006}}, [1.1, 0.006],
+                        np.array([0.5, 0.1]), 10.0, 1000, [0.002, delay_std], 10)
+        return Candidate(fit.effects, fit, -300.0, 2.0, 1.0, {}, {}, [[1.1, 0.006]], 3.0)
+    assert [e for e, _ in _insignificant_partners(pair(0.004), _P())] == ["actuation_delay"]
+    assert _insignificant_partners(pair(0.001), _P()) == []
+
+
+def _detect(paths, with_tolerance: bool, monkeypatch):
+    from host_tools.analyzer import pipeline as P
+    from host_tools.analyzer.locate import detect_mismatch, locate_mismatch
+    quiet = lambda m: None  # noqa: E731
+    with monkeypatch.context() as mp:
+        if not with_tolerance:
+            mp.setattr(P, "tolerance_uncertainty", lambda *a, **k: 0)
+        runs = P._load_runs(paths, quiet)
+        vocab, _ = P._vocabulary(None)
+        notes: list[str] = []
+        duty, torque = P.OpenLoopReplay("duty"), P.OpenLoopReplay("torque")
+        preps = P._prepare(runs, quiet)
+        cl = P._replay_closed_loop(preps, 5e-4, notes, quiet)
+        nom, nomt = P._replay_nominal(preps, duty, torque)
+        loc = locate_mismatch(preps, nom, nomt, cl.nominal, quiet)
+        return detect_mismatch(preps, nom, loc, vocab, 5e-4, notes, quiet).mismatch_seen
+
+
+def test_a_robot_within_its_tolerance_is_a_null_and_one_beyond_it_is_not(tmp_path, monkeypatch):
+    """A track width 2 mm wider than Table II.2's (within its ±2.5 mm): arcs drift the camera
+    pose tens of floors from the nominal replay, a mismatch without the tolerance ensemble and
+    a null with it; 8 mm wider (three tolerances) still shows."""
+    from host_tools import _native
+    from host_tools.analyzer import synth
+
+    def case(db):
+        def factory(meta):
+            pl = _native.Plant.from_meta(meta)
+            pl.set("robot.b", meta["robot"]["b"] + db)
+            return pl
+        return synth.make_case(tmp_path / f"b{db}", None, profiles=("turn", "turn", "ramp"),
+                               seed=3, duration_s=3.0, plant_factory=factory)
+    inside = case(0.002)
+    assert _detect(inside, False, monkeypatch)
+    assert not _detect(inside, True, monkeypatch)
+    assert _detect(case(0.008), True, monkeypatch)
+
+
+def test_the_camera_anchor_is_computed_once_per_window_and_slip_state(tmp_path):
+    """The fits evaluate every window's camera anchor at every step; it reads only the
+    recording and the slip episodes, so it is memoized per run: the same values, computed
+    once, recomputed when the slip episodes change."""
+    from host_tools.analyzer import pipeline as P
+    from host_tools.analyzer import synth
+    from host_tools.analyzer.replay import anchors
+    paths = synth.make_case(tmp_path / "c", None, profiles=("turn",), seed=1, duration_s=2.0)
+    prep = P._prepare(P._load_runs(paths, lambda m: None), lambda m: None)[0]
+    calls = []
+    real = anchors._gt_anchor_of
+
+    def counted(*a, **k):
+        calls.append(a[1])
+        return real(*a, **k)
+    anchors._gt_anchor_of = counted
+    try:
+        first = anchors._gt_anchor(prep, 1.0)
+        again = anchors._gt_anchor(prep, 1.0)
+        assert first is again and calls == [1.0]
+        assert first == real(prep, 1.0)
+        prep.slip_episodes = [(0.2, 0.4)]
+        anchors._gt_anchor(prep, 1.0)
+        assert calls == [1.0, 1.0]
+    finally:
+        anchors._gt_anchor_of = real
