@@ -10,9 +10,9 @@ from host_tools import params as param_table
 from host_tools import protocol as P
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import Channel
+from host_tools.control import REF_KINDS
 
 
-REF_KINDS = ("line", "arc", "figure_eight")
 # meta.json "controller" values that mean lib/control's cascade (absent: assumed)
 REPLAYABLE_CONTROLLERS = ("improved", "cascade")
 # meta.json "controller_variant": the cascade's velocity loop (absent: the firmware's default,
