@@ -23,11 +23,11 @@ from host_tools.runfmt import DEFAULT_META
 
 INNER_S = DEFAULT_META["periods_s"]["inner"]  # the firmware's inner period (protocol task table)
 #: the scheduler tick (protocol.json timing.sched_tick_us): the firmware's duty ramp steps once a tick
-SCHED_TICK_S = protocol.definition().timing["sched_tick_us"] / 1e6
+SCHED_TICK_S: float = protocol.definition().timing["sched_tick_us"] / 1e6
 #: reference kinds, name -> lib/control's code: protocol.json's ``profile`` enum, whose
 #: ``straight`` the run format (meta.json reference.kind) calls ``line``
-REF_KINDS = {("line" if k == "straight" else k): v
-             for k, v in protocol.definition().enums["profile"].items()}
+REF_KINDS: dict[str, int] = {("line" if k == "straight" else k): v
+                             for k, v in protocol.definition().enums["profile"].items()}
 ACTUATORS = {"duty": 0, "torque": 1}
 
 
