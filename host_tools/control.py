@@ -17,12 +17,17 @@ from typing import Mapping
 
 import numpy as np
 
-from host_tools import _native
+from host_tools import _native, protocol
 from host_tools.params import ENCODER_PPR
 from host_tools.runfmt import DEFAULT_META
 
 INNER_S = DEFAULT_META["periods_s"]["inner"]  # the firmware's inner period (protocol task table)
-REF_KINDS = {"line": 0, "arc": 1, "figure_eight": 2}
+#: the scheduler tick (protocol.json timing.sched_tick_us): the firmware's duty ramp steps once a tick
+SCHED_TICK_S: float = protocol.definition().timing["sched_tick_us"] / 1e6
+#: reference kinds, name -> lib/control's code: protocol.json's ``profile`` enum, whose
+#: ``straight`` the run format (meta.json reference.kind) calls ``line``
+REF_KINDS: dict[str, int] = {("line" if k == "straight" else k): v
+                             for k, v in protocol.definition().enums["profile"].items()}
 ACTUATORS = {"duty": 0, "torque": 1}
 
 

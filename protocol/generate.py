@@ -83,6 +83,10 @@ def check(defn: dict) -> None:
             if f.get("unit") == "A" and abs(f.get("scale", 1) / amps - 1) > 1e-4:
                 raise DefinitionError(f"{msg['name']}.{f['name']}: scale {f.get('scale')} is not current_sense's "
                                       f"{amps:.7g} A per count")
+    for t in defn["timing"]["tasks"]:
+        if t["period_us"] % defn["timing"]["sched_tick_us"]:
+            raise DefinitionError(f"task {t['name']}: period_us {t['period_us']} is not a whole number of "
+                                  f"sched_tick_us {defn['timing']['sched_tick_us']}")
     maxp = defn["framing"]["max_payload"]
     if defn["framing"]["header_bytes"] + maxp + defn["framing"]["crc_bytes"] >= 254:
         raise DefinitionError("max body must stay below 254 bytes (one COBS block)")
@@ -170,6 +174,7 @@ def render_header(defn: dict) -> str:
     w(f"static const uint8_t kMaxPayload = {fr['max_payload']};")
     w(f"static const uint32_t kBaud = {link['baud']}UL;  // {link['format']}")
     w(f"static const uint32_t kFcpuHz = {tim['f_cpu_hz']}UL;")
+    w(f"static const uint32_t kSchedTickUs = {tim['sched_tick_us']}UL;  // task periods are whole ticks")
     cs = defn["current_sense"]
     w(f"// current sense: {cs.get('doc', '')}")
     w(f"static const float kCurrentSenseVoltsPerAmp = {c_float(cs['volts_per_amp'])};")

@@ -43,10 +43,10 @@ void telemetry_task();
 // Constant task table (config) -- runtime data lives in sched.cpp. Periods and budgets come
 // from protocol/protocol.json (proto::k*), the one place the host also reads them from.
 const TaskConfig kTasks[] = {
-    {inner_task, static_cast<uint16_t>(proto::kInnerPeriodUs / 1000u), 0, proto::kInnerBudgetCycles},
-    {outer_task, static_cast<uint16_t>(proto::kOuterPeriodUs / 1000u), 0, proto::kOuterBudgetCycles},
+    {inner_task, static_cast<uint16_t>(proto::kInnerPeriodUs / proto::kSchedTickUs), 0, proto::kInnerBudgetCycles},
+    {outer_task, static_cast<uint16_t>(proto::kOuterPeriodUs / proto::kSchedTickUs), 0, proto::kOuterBudgetCycles},
     // phase 2 ms: 2 + 20 k is never a multiple of 25, so telemetry never waits for the loops
-    {telemetry_task, static_cast<uint16_t>(proto::kTelemetryPeriodUs / 1000u), 2,
+    {telemetry_task, static_cast<uint16_t>(proto::kTelemetryPeriodUs / proto::kSchedTickUs), 2,
      proto::kTelemetryBudgetCycles},
 };
 static_assert(sizeof kTasks / sizeof kTasks[0] == proto::kTaskCount, "task table vs protocol");
@@ -55,6 +55,7 @@ static_assert(sizeof kTasks / sizeof kTasks[0] == proto::kTaskCount, "task table
 static_assert(ENC_COUNTS_PER_REV == slip::kEncoderPpr, "the firmware's encoder counts are the model's");
 // The host's timing checks convert cycles to time at protocol.json's clock: it is the board's.
 static_assert(proto::kFcpuHz == F_CPU, "protocol.json timing.f_cpu_hz != the board's F_CPU");
+static_assert(proto::kSchedTickUs * SCHED_TICK_HZ == 1000000UL, "protocol.json timing.sched_tick_us != board.h's tick");
 static_assert(ENC_COUNTS_PER_REV >= 1 && ENC_COUNTS_PER_REV <= 65535, "Params.encoder_ppr is a u16");
 // the protocol's controller codes are lib/control's Variant values (the C ABI's "controller"
 // key, which the analyzer's replay sets from meta.json controller_variant)
@@ -345,7 +346,7 @@ void start_experiment() {
     g_ref_t0_us = g_last_inner_us;
     const ctl::InnerOutQ& o = g_ctrl->start(g_enc.count_r, g_enc.count_l, ctl::PoseQ{0, 0, 0}, g_last_ref);
     motor_set_ramp_q15(o.pwm_r_q15, o.slope_r_q15, o.pwm_l_q15, o.slope_l_q15,
-                       static_cast<uint8_t>(proto::kInnerPeriodUs / 1000u - 1u));
+                       static_cast<uint8_t>(proto::kInnerPeriodUs / proto::kSchedTickUs - 1u));
     sched_restart_after_current(proto::kTaskOuter);
     g_phi_turns = 0;
     g_phi_last_b32 = 0;
@@ -446,7 +447,7 @@ void inner_task() {
     const ctl::InnerOutQ& o = g_ctrl->inner_step(g_enc.count_r, g_enc.count_l, dt_us);
     // the duty at the start of the tick, then its ramp every ms until the next tick
     motor_set_ramp_q15(o.pwm_r_q15, o.slope_r_q15, o.pwm_l_q15, o.slope_l_q15,
-                       static_cast<uint8_t>(proto::kInnerPeriodUs / 1000u - 1u));
+                       static_cast<uint8_t>(proto::kInnerPeriodUs / proto::kSchedTickUs - 1u));
     if (!g_drive_mode && sched_ms() - g_exp_start_ms >= g_exp_duration_ms) stop_motors(proto::kFailsafeFinished);
 }
 

@@ -9,7 +9,7 @@ timeout).  :class:`ReferenceTracker` turns that into
 * a Start profile: ``{"kind": "line"|"arc"|"figure_eight", "accel": m/s^2, "cruise": m/s,
   "radius": m, "t0_s": board time}`` -- the profile the firmware builds from the Start command
   (``accel = r wheel_accel``, ``cruise = r wheel_accel accel_time``, r the wheel radius it
-  reported in Params), the form host_tools/truth.py writes;
+  reported in Params), the form host_tools/truth writes;
 * drive mode: ``{"kind": "drive", "t0_s", "accel", "alpha", "cmd_timeout_s", "outer_s",
   "commands": [{"t_s", "v", "omega"}, ...]}`` -- the targets as the firmware latched them, each
   with the board time of the outer tick that first used it (frames are 20 ms apart and outer

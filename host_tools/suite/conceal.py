@@ -13,6 +13,7 @@ import tempfile
 import numpy as np
 
 from host_tools import runfmt, truth
+from host_tools.control import REF_KINDS
 from host_tools.suite.cases import Case
 
 
@@ -72,7 +73,7 @@ def evidence(case: Case, data_dir: str) -> dict:
             def d(a_t, a, b_t, b):
                 return float(np.max(np.abs(np.interp(t, a_t, a) - np.interp(t, b_t, b))))
             ref, clamp, dur = case.experiments[k]
-            if ref["kind"] not in ("line", "arc", "figure_eight"):
+            if ref["kind"] not in REF_KINDS:
                 pr = _segments_position(runfmt.load_meta(run), tr["t_s"])
                 pn = _segments_position(runfmt.load_meta(run), ntr["t_s"])
             else:

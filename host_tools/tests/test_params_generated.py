@@ -219,12 +219,12 @@ _DISTINCTIVE = ("0.241", "0.239", "0.105", "0.095", "0.055", "9.81", "0.0216", "
                 "0.000584", "0.001168", "0.0365", "0.064", "36.65", "0.77", "1856")
 #: Where such a number is not a copy of the table's value: (path, value) -> why.
 _NOT_COPIES = {
-    ("host_tools/demo.py", "0.095"): "the thesis's stated tau_max (II.6), compared with the model's",
+    ("host_tools/demo/common.py", "0.095"): "the thesis's stated tau_max (II.6), compared with the model's",
     ("bench/logger/avr_codec_cycles.cpp", "36.65"): "arbitrary inputs of the codec cycle benchmark",
     ("bench/logger/avr_codec_cycles.cpp", "0.095"): "arbitrary inputs of the codec cycle benchmark",
     ("bench/logger/avr_codec_cycles.cpp", "0.77"): "arbitrary inputs of the codec cycle benchmark",
     ("host_tools/analyzer/select.py", "0.77"): "analyzer score figures in a comment",
-    ("host_tools/suite/cases.py", "0.055"): "a load_transfer effect size (h), not d",
+    ("host_tools/suite/sets.json", "0.055"): "a load_transfer effect size (h), not d",
 }
 #: The same for the tests, which take the table's values from host_tools.params (Python) and
 #: slip::table / SLIP_*_PARAMS / slip::table_ii2() (C++): (path, value) -> (how many, why).

@@ -90,7 +90,7 @@ def test_fast_subset_meets_thresholds(tmp_path):
 # ------------------------------------------------------------------ the held-back set
 
 def test_heldback_set_differs_from_the_tuning_set():
-    tun, hb = cases.all_cases(), cases.heldback_cases()
+    tun, hb = cases.all_cases(), cases.get(which="heldback")
     assert len(tun) == 44 and all(c.set == "tuning" and not c.recorder for c in tun)
     assert all(c.set == "heldback" for c in hb)
     # other seeds, also than the seed-offset re-runs of the tuning set (+1000, +2000)
@@ -129,7 +129,7 @@ def test_heldback_set_differs_from_the_tuning_set():
 
 
 def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
-    tun, hb, hb2 = cases.all_cases(), cases.heldback_cases(), cases.heldback2_cases()
+    tun, hb, hb2 = cases.all_cases(), cases.get(which="heldback"), cases.get(which="heldback2")
     assert all(c.set == "heldback2" for c in hb2) and len(hb2) == 31
     used = {c.seed + off + k for c in tun for off in (0, 1000, 2000) for k in range(4)}
     used |= {c.seed + k for c in hb for k in range(len(c.experiments))}
@@ -249,3 +249,77 @@ def test_engine_option_records_cases_on_mujoco(tmp_path):
     assert "mujoco" not in meta.lower()
     with pytest.raises(SystemExit):
         main(["generate", "--cases", "null_std", "--engine", "bullet", "--out", str(tmp_path)])
+
+
+# Digest of each set's cases (label, seed, fast: names, effects, experiments, recorder, engine)
+# as :func:`_set_dump` writes them: the sets are frozen, their data (host_tools/suite/sets.json)
+# must generate exactly these cases. Equal to the numbered functions' cases that the data
+# replaced (dumped before and after, compared byte for byte).
+FROZEN_SETS = {
+    "tuning": "3935b43f78eaf0f5398f776365770ec94a309e48a6ff4fcc11fd942c62839c23",
+    "heldback": "916a95317d08a2408d36651612362f1188735ede6251556ed70fb8cd15d70476",
+    "heldback2": "45fd72e9a49a96cfe0e0b31366bc4bbe72e90644d5996248f00733fdd65e9a32",
+    "heldback3": "7bacd01c7717f1f8afe35d2f1bf0f8c93fffebe8075bcc248807dba6477d7bcb",
+    "heldback4": "39161965ffe4bcf234177195bdeeba041f9bd31644a5b8752c3f9be604df29b9",
+    "heldback5": "532d15b0911080364562fc2717417caec12a32ade8bb23ff7c1ea44e6bfa025c",
+    "mujoco": "8a918a5798fe7774d78aff9f5603e9b818879149fb738aef69398daa02b5b72c",
+    "heldback6": "da69f94348397603530cf91320d65af3258d127e82544bb879a684479fca8267",
+}
+
+
+def _set_dump(which: str) -> str:
+    return json.dumps([dict(c.label(), seed=c.seed, fast=c.fast)
+                       for c in cases.get(which=which)], sort_keys=True)
+
+
+@pytest.mark.parametrize("which", sorted(FROZEN_SETS))
+def test_set_data_generates_the_frozen_cases(which):
+    import hashlib
+    assert hashlib.sha256(_set_dump(which).encode()).hexdigest() == FROZEN_SETS[which]
+
+
+def test_every_set_is_data_with_provenance():
+    """Each set has its provenance (commits, date), seeds, engine and recorders; the case
+    digest above changes when any case field does."""
+    assert set(cases.SETS) == set(FROZEN_SETS)
+    for which, d in cases.SET_DATA.items():
+        prov = d["provenance"]
+        assert len(prov["defined_in"]) >= 7 and len(prov["cases_unchanged_since"]) >= 7, which
+        assert set(d["seeds"]) == {"first", "step"} and d["engine"] in ("truth", "mujoco")
+        assert {c.recorder_name for c in cases.get(which=which)} <= set(d["recorders"]) | {"firmware"}
+    case = cases.get(which="heldback2")[3]
+    before = _set_dump("heldback2")
+    case_row = cases.SET_DATA["heldback2"]["cases"][3]
+    case_row["expect"], old = "explained", case_row["expect"]
+    try:
+        assert _set_dump("heldback2") != before
+    finally:
+        case_row["expect"] = old
+    assert case.expect == old
+
+
+def test_set_provenance_commit_generates_the_same_cases():
+    """Each set's ``cases_unchanged_since`` commit: cases.py as committed there builds the same
+    cases (labels before the engine fields existed read as the truth engine). Skipped without
+    the git history (a shallow clone)."""
+    import subprocess
+    import sys
+    import types
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    funcs = {"tuning": "all_cases", "heldback": "heldback_cases", "mujoco": "mujoco_cases"}
+    for which, d in cases.SET_DATA.items():
+        commit = d["provenance"]["cases_unchanged_since"]
+        res = subprocess.run(["git", "show", f"{commit}:host_tools/suite/cases.py"], cwd=root,
+                             capture_output=True, text=True)
+        if res.returncode != 0:
+            pytest.skip(f"no git history for {commit}")
+        mod = types.ModuleType(f"_cases_at_{commit}")
+        sys.modules[mod.__name__] = mod  # dataclasses look their module up
+        try:
+            exec(compile(res.stdout, f"{commit}:cases.py", "exec"), mod.__dict__)
+            old = getattr(mod, funcs.get(which, f"{which}_cases"))()
+        finally:
+            del sys.modules[mod.__name__]
+        dump = [dict({"engine": "truth", "engine_options": {}}, **c.label(), seed=c.seed,
+                     fast=c.fast) for c in old]
+        assert json.dumps(dump, sort_keys=True) == _set_dump(which), (which, commit)

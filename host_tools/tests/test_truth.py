@@ -114,8 +114,8 @@ def test_each_vocabulary_effect_agrees_with_slipmodel(name):
     to well below the effect's own size. The plant is sampled on a binary time grid (k/64 s):
     on decimal grids its actuation-delay history is cleared by sm_simulate's clock re-sync
     (reported to lib/slipmodel's owner)."""
-    from host_tools.suite.cases import _SINGLE
-    params = _SINGLE[name][0]
+    from host_tools.suite.cases import get
+    params = get([f"{name}_strong"])[0].effects[name]
     for u_r, u_l in ((0.6, 0.4), (1.0, 0.9)):
         tel, _ = _open_loop(u_r, u_l, T=1.5, **{})
         s = truth.TruthSim()

@@ -7,6 +7,7 @@ from typing import Mapping
 
 import numpy as np
 
+from host_tools.control import SCHED_TICK_S as RAMP_STEP_S  # the duty ramp's step
 from host_tools.runfmt import Run
 
 
@@ -95,7 +96,6 @@ def _feasible_arc(t: np.ndarray, values: list[np.ndarray], period: float):
     return ((best_start + start) % phases.size) * step, (best_len - 1) * step, ks
 
 
-RAMP_STEP_S = 1e-3   # the firmware's duty ramp steps once per 1 kHz scheduler tick
 
 
 def _ramped_duty(t: np.ndarray, duty: tuple, phase: float, period: float,

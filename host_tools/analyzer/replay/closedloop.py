@@ -11,9 +11,11 @@ from host_tools import protocol as P
 from host_tools.analyzer.effects import plant_setup
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import Channel
+from host_tools.control import REF_KINDS as PROFILE_KINDS
 
 
-REF_KINDS = ("line", "arc", "figure_eight", "drive")
+# meta.json reference.kind: the firmware's profiles and its drive mode (the Drive commands)
+REF_KINDS = (*PROFILE_KINDS, "drive")
 # meta.json "controller" values that mean lib/control's cascade (absent: assumed)
 REPLAYABLE_CONTROLLERS = ("improved", "cascade")
 # meta.json "controller_variant": the cascade's velocity loop (absent: the firmware's default,

@@ -4,9 +4,7 @@ from __future__ import annotations
 from typing import Mapping, Sequence
 
 from host_tools.analyzer.effects import folded_robot, plant_setup
-
-
-MODEL_FORMAT = "ddmodel/1"
+from host_tools.model import FORMAT as MODEL_FORMAT
 
 
 def updated_model(meta: Mapping, effects: Mapping[str, Mapping[str, float]],

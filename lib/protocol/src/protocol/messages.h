@@ -13,6 +13,7 @@ static const uint8_t kVersion = 4;
 static const uint8_t kMaxPayload = 96;
 static const uint32_t kBaud = 115200UL;  // 8N1
 static const uint32_t kFcpuHz = 16000000UL;
+static const uint32_t kSchedTickUs = 1000UL;  // task periods are whole ticks
 // current sense: Motor Shield R3 sense outputs (A0 right, A1 left): |armature current| x volts_per_amp, read by the ATmega2560's ADC against AVcc; Telemetry fields in A (current_r, current_l) carry the raw count, scale = adc_vref_v / 2^adc_bits / volts_per_amp (protocol/generate.py checks it)
 static const float kCurrentSenseVoltsPerAmp = 1.65f;
 static const uint8_t kCurrentSenseAdcBits = 10;

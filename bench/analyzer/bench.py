@@ -1,4 +1,4 @@
-"""Benchmark of the analyzer on synthetic cases: ``python -m host_tools.analyzer.bench``.
+"""Benchmark of the analyzer on synthetic cases: ``python bench/analyzer/bench.py``.
 
 Each case is four 1.5 s runs (ramp, turn, slow, brake) from the NOMINAL plant with one
 effect switched on (or none).  This measures speed and catches regressions; it is not the
@@ -12,6 +12,8 @@ import os
 import sys
 import tempfile
 import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 
 CASES: dict[str, dict] = {
     "null": {},
@@ -34,7 +36,7 @@ CASES: dict[str, dict] = {
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m host_tools.analyzer.bench", description=__doc__,
+    ap = argparse.ArgumentParser(prog="bench/analyzer/bench.py", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated case names")
     ap.add_argument("--jobs", type=int, default=2)

@@ -1,4 +1,4 @@
-"""Benchmark of the analyzer on long recordings: ``python -m host_tools.analyzer.bench_long``.
+"""Benchmark of the analyzer on long recordings: ``python bench/analyzer/bench_long.py``.
 
 Records long runs with the independent truth simulator (``host_tools.truth``, tour references
 of speed ramps, cruises, arcs, stops and turns on the spot; this project's firmware pipeline as
@@ -18,6 +18,9 @@ import subprocess
 import sys
 import tempfile
 import time
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
+sys.path.insert(0, ROOT)
 
 TIME_TARGET_S = 60.0
 MEMORY_TARGET_MB = 1024.0
@@ -45,7 +48,8 @@ def _analyze(paths: list[str], out: str, jobs: int) -> tuple[dict, float, float,
                "u = resource.getrusage(resource.RUSAGE_CHILDREN); "
                "print(u.ru_utime + u.ru_stime, u.ru_maxrss); sys.exit(rc)")
     t0 = time.time()
-    res = subprocess.run([sys.executable, "-c", wrapper, *cmd], capture_output=True, text=True)
+    res = subprocess.run([sys.executable, "-c", wrapper, *cmd], capture_output=True, text=True,
+                         cwd=ROOT)
     dt = time.time() - t0
     try:
         cpu_s, rss_kb = (float(v) for v in res.stdout.strip().splitlines()[-1].split())
@@ -61,7 +65,7 @@ def _analyze(paths: list[str], out: str, jobs: int) -> tuple[dict, float, float,
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m host_tools.analyzer.bench_long",
+    ap = argparse.ArgumentParser(prog="bench/analyzer/bench_long.py",
                                  description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", default=",".join(c[0] for c in CASES),
