@@ -38,6 +38,7 @@ D_MAX_S = 0.15          # search range: above the vocabulary's actuation_delay b
 D_STEP_S = 0.0005
 SATURATED = 0.995       # |duty| at or above this is saturated (left out)
 F_SIGNIFICANT = 25.0    # chi-square(1) at 5 sigma
+JACKKNIFE_BLOCKS = 8    # per run, for the standard error
 COLUMNS = ("tau_cmd_r", "tau_cmd_l", "pwm_r", "pwm_l")
 
 
@@ -110,6 +111,28 @@ class _RunLag:
             out.append(pwm[idx] - A @ coef)
         return out
 
+    def block_rss(self, d: float) -> np.ndarray:
+        """The residual sum of squares of each of JACKKNIFE_BLOCKS contiguous time blocks."""
+        out = np.zeros(JACKKNIFE_BLOCKS)
+        span = max(float(self.t[-1] - self.t[0]), 1e-9)
+        for (idx, _, _), r in zip(self.wheels, self.residuals(d)):
+            b = np.minimum((JACKKNIFE_BLOCKS * (self.t[idx] - self.t[0]) / span).astype(int),
+                           JACKKNIFE_BLOCKS - 1)
+            out += np.bincount(b, weights=r * r, minlength=JACKKNIFE_BLOCKS)
+        return out
+
+
+def _best_step(rss: np.ndarray) -> tuple[int, int]:
+    """(first, last) grid index of the step of least RSS."""
+    j = int(np.argmin(rss))
+    tie = rss[j] + 1e-9 * max(rss[j], 1e-30)
+    lo = hi = j
+    while lo > 0 and rss[lo - 1] <= tie:
+        lo -= 1
+    while hi < rss.size - 1 and rss[hi + 1] <= tie:
+        hi += 1
+    return lo, hi
+
 
 def _rho(res: Sequence[np.ndarray]) -> float:
     num = den = 0.0
@@ -135,26 +158,33 @@ def command_lag(preps: Sequence, d_max: float = D_MAX_S, d_step: float = D_STEP_
     if not runs:
         return None
     grid = np.arange(0.0, d_max + 0.5 * d_step, d_step)
-    rss = np.array([sum(float(r @ r) for rl in runs for r in rl.residuals(d)) for d in grid])
-    j = int(np.argmin(rss))
+    blocks = np.array([np.concatenate([rl.block_rss(d) for rl in runs]) for d in grid])
+    rss = blocks.sum(axis=1)
+    lo, hi = _best_step(rss)
+    j = lo
     best = rss[j]
-    tie = best + 1e-9 * max(best, 1e-30)
-    lo = hi = j
-    while lo > 0 and rss[lo - 1] <= tie:
-        lo -= 1
-    while hi < grid.size - 1 and rss[hi + 1] <= tie:
-        hi += 1
+
+    def centre(a: int, b: int) -> float:
+        return 0.5 * (grid[a] + grid[b] + d_step) if a > 0 else 0.0
+
+    # jackknife over the time blocks: how far the best step moves without each block (the
+    # residual is not white where a tick's command is unreported, so the curvature of RSS(d)
+    # alone understates the spread)
+    used = np.flatnonzero(blocks.sum(axis=0) > 0)
+    jk = np.array([centre(*_best_step(rss - blocks[:, b])) for b in used])
+    jk_sd = math.sqrt((jk.size - 1) / jk.size * float(np.sum((jk - jk.mean()) ** 2))) \
+        if jk.size > 1 else 0.0
     res = [r for rl in runs for r in rl.residuals(float(grid[j]))]
     n = sum(r.size for r in res)
     rho = _rho(res)
     n_eff = n * (1.0 - rho) / (1.0 + rho)
     var = best / n_eff if best > 0 else 0.0
     F = (rss[0] - best) / var if var > 0 else (math.inf if rss[0] > best else 0.0)
-    d_hat = 0.5 * (grid[lo] + grid[hi] + d_step) if lo > 0 else 0.0
+    d_hat = centre(lo, hi)
     within = np.flatnonzero(rss <= best + var)
     half = 0.5 * (grid[within.max()] - grid[within.min()] + d_step)
     phase_sd = max(rl.phase_sd for rl in runs)
-    std = math.hypot(max((grid[hi] - grid[lo] + d_step) / math.sqrt(12.0), half), phase_sd)
+    std = math.hypot(max((grid[hi] - grid[lo] + d_step) / math.sqrt(12.0), half, jk_sd), phase_sd)
     significant = bool(F >= F_SIGNIFICANT and lo > 0)
     return {"delay_s": float(d_hat) if significant else 0.0, "estimate_s": float(d_hat),
             "std_s": float(std), "F": float(F), "n": int(n), "n_eff": float(n_eff),
