@@ -13,6 +13,7 @@ from typing import Callable, Mapping, Sequence
 from host_tools import runfmt
 from host_tools.analyzer.fit.workers import log_stderr
 from host_tools.analyzer.locate import detect_mismatch, locate_mismatch
+from host_tools.analyzer.prepare.command_lag import command_lag
 from host_tools.analyzer.prepare.inputs import prepare_timed
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.anchors import note_slip_episodes
@@ -49,13 +50,14 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     sel = select_effects(det, cands, jobs, pairs_top, log)
     selected = selected_entries(sel, det.rss0)
     verdict, hint = decide_verdict(det, sel.effects, selected, preps, duty, notes)
+    verdict, model_effects = _command_delay(preps, selected, verdict, sel.effects, notes, log)
     updated, cl_updated = _replay_updated(preps, duty, cl, sel.effects)
     closed_loop = closed_loop_report(cl, cl_updated, loc, sel.effects)
     fit_table = error_tables(det, sel, loc.floors, closed_loop)
     recorder = recorder_findings(preps, nominal, loc.floors, notes)
     localization = localize(preps, nominal, updated, loc.floors, det.problem.fit_channels,
                             det.strong_k)
-    model = updated_model(runs[0].meta, sel.effects, [r.path for r in runs])
+    model = updated_model(runs[0].meta, model_effects, [r.path for r in runs])
     an = Analysis(runs, preps, loc.floors, nominal, nominal_t, updated,
                   loc.entries if verdict != "no_mismatch" else [],
                   sorted(sel.singles + sel.pairs, key=lambda c: c.delta_bic), selected, verdict,
@@ -177,6 +179,31 @@ def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: 
     nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
     nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
     return nominal, nominal_t
+
+
+def _command_delay(preps: Sequence[PreparedRun], selected: list[dict], verdict: str,
+                   effects: Mapping, notes: list[str], log: Callable[[str], None]
+                   ) -> tuple[str, dict]:
+    """The command-to-duty delay (``prepare.command_lag``): where the recorded duty (the duty
+    in force) lags the torque command significantly, ``actuation_delay`` is selected with the
+    lag as ``delay_s`` (and its standard error), the updated model gets it, and a note says so.
+    The duty replay, driven by that duty in force, cannot see such a delay, so it is neither
+    fitted there nor added to the replays' effects; a run without the delay's signature leaves
+    the verdict as the replays decided it.  Returns (verdict, the updated model's effects)."""
+    lag = command_lag(preps)
+    if lag is None or not lag["significant"] or "actuation_delay" in effects:
+        return verdict, dict(effects)
+    d, sd = lag["delay_s"], lag["std_s"]
+    log(f"command-to-duty lag: {1e3 * d:.1f} +- {1e3 * sd:.1f} ms (F = {lag['F']:.3g})")
+    notes.append(f"the recorded duty lags the torque command by {1e3 * d:.1f} +- {1e3 * sd:.1f} ms "
+                 f"(F = {lag['F']:.3g} against no lag, {lag['n_eff']:.0f} effective samples): "
+                 "actuation_delay selected from the command-to-duty lag, which the duty replay "
+                 "(driven by the duty in force) cannot see")
+    selected.append({"effect": "actuation_delay", "params": {"delay_s": round(d, 4)},
+                     "std": {"delay_s": round(sd, 4)}, "unidentified": [], "equivalent": [],
+                     "separating_measurement": {}, "from": "command_lag"})
+    return ("explained" if verdict == "no_mismatch" else verdict,
+            {**effects, "actuation_delay": {"delay_s": d}})
 
 
 def _replay_updated(preps: Sequence[PreparedRun], duty: OpenLoopReplay, cl: NominalClosedLoop,

@@ -62,6 +62,8 @@ def configure(reference: Mapping, effects: Mapping | None, clamp: bool, duration
     sim.set("sim.tel_period", rec["tel_s"])
     sim.set("rec.tel_jitter", rec["tel_jitter_s"])
     sim.set("rec.pwm_in_force", 1.0 if rec["pwm"] == "in_force" else 0.0)
+    # the delay of the duty in force: the plant's actuation delay, wherever the plant applies it
+    sim.set("rec.pwm_delay", float(dict((effects or {}).get("actuation_delay", {})).get("delay_s", 0.0)))
     sim.set("rec.seed", float(rng_rec.integers(0, 2 ** 32)))
     # the board's telemetry phase against its tick, and the camera's own clock
     sim.set("sim.tel_phase", float(rng.choice([0.002, 0.004, 0.006, 0.008, 0.012])) % rec["tel_s"])

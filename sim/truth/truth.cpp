@@ -57,6 +57,7 @@ const KeyDef kKeys[] = {
     {"rec.tel_jitter", 0.0, 0, 0.5},         // telemetry frame time jitter, uniform +-, s
     {"rec.seed", 0, 0, 4294967295.0},        // seed of the jitter
     {"rec.pwm_in_force", 0, 0, 1},           // pwm_*: 0 the duty commanded at the tick; 1 the duty in force (after actuation_delay)
+    {"rec.pwm_delay", -1, -1, 1},            // delay of the duty in force reported, s (-1: actuation_delay.delay_s; an external plant's own delay)
     {"pi.kp", 0.04, 0, 10},                  // N m per rad/s
     {"pi.ki", 0.3, 0, 100},                  // N m per rad
     {"pi.j_ff", 0.0023, 0, 1},               // acceleration feed-forward, kg m^2 (per wheel)
@@ -627,8 +628,9 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
       double rep_r = io.pwm_r, rep_l = io.pwm_l;  // the duty reported
       if (H("rec.pwm_in_force") != 0.0) {        // the duty in force: the delayed command
         rep_r = rep_l = 0.0;
+        const double rep_delay = H("rec.pwm_delay") >= 0.0 ? H("rec.pwm_delay") : delay;
         for (long i = hist_n - 1; i >= 0 && i >= hist_n - kHist; --i)
-          if (hist_t[i % kHist] <= t - delay + 1e-12) { rep_r = hist_r[i % kHist]; rep_l = hist_l[i % kHist]; break; }
+          if (hist_t[i % kHist] <= t - rep_delay + 1e-12) { rep_r = hist_r[i % kHist]; rep_l = hist_l[i % kHist]; break; }
       }
       double* row = tel + static_cast<long>(nt) * kTelColCount;
       const double vals[] = {t, double(counts(th_r)), double(counts(th_l)), io.omega_r, io.omega_l, io.tau_r, io.tau_l,
