@@ -3,7 +3,8 @@
 firmware's timing budgets on a run (timing), find, name and model what a recording shows and
 the nominal model leaves out (analyze), record a run from the real firmware in simavr
 against the plant (fil), reproduce the thesis's simulations and the analyzer demo (demo),
-write a run and its analysis as an MCAP file for Foxglove (export), make a run from a ROS
+drive the robot by velocity commands while recording (drive), write a run and its analysis as
+an MCAP file for Foxglove (export), make a run from a ROS
 bag (import), analyze many run sets on a Dask cluster into a fleet table and drift report
 (batch).  ``COMMAND --help`` gives a command's options.  Messages go to stderr; ``-v``
 adds details, ``-q`` keeps errors only (both before COMMAND).  Exit codes: 0 done, 1 a check

@@ -454,8 +454,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--alpha", type=float, default=d.spec["drive"]["alpha"], help="|dw/dt| limit, rad/s^2")
     p.add_argument("--cmd-timeout", type=float, default=d.spec["drive"]["cmd_timeout"],
                    help="without a Drive for this long the robot ramps to rest, s")
-    p.add_argument("--clamp", choices=["on", "off"])
-    p.add_argument("--controller", choices=sorted(d.enums["controller"]))
+    p.add_argument("--clamp", choices=["on", "off"],
+                   help="the torque clamp at tau_max on or off (default: as the robot has it)")
+    p.add_argument("--controller", choices=sorted(d.enums["controller"]),
+                   help="the velocity loop the robot runs (default: as the robot has it)")
     p.add_argument("--elf", help="with --fil: firmware ELF (default: build it)")
     p.add_argument("sim_options", nargs=argparse.REMAINDER, help="with --fil, after '--': options of .build/fil/fil")
 

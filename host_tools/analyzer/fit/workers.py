@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
-import sys
 import time
 
+from host_tools._stdio import say
 from host_tools.analyzer.fit.judge import Candidate, evaluate_candidate
 from host_tools.analyzer.fit.problem import Problem
 
 
 def log_stderr(msg: str) -> None:
-    print(f"[analyze {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+    say(f"[analyze {time.strftime('%H:%M:%S')}] {msg}")  # a closed pipe never ends the analysis
 
 
 _PROBLEM: Problem | None = None
