@@ -23,7 +23,9 @@ def test_reference_kinds_are_the_protocols_profiles():
     profile = protocol.definition().enums["profile"]
     assert control.REF_KINDS == {("line" if k == "straight" else k): v for k, v in profile.items()}
     assert control.REF_KINDS["line"] == profile["straight"]
-    assert closedloop.REF_KINDS is control.REF_KINDS and conceal.REF_KINDS is control.REF_KINDS
+    # the closed-loop replay takes the profiles and the firmware's drive mode
+    assert closedloop.REF_KINDS == (*control.REF_KINDS, "drive")
+    assert conceal.REF_KINDS is control.REF_KINDS
     assert truth._REF_KINDS is control.REF_KINDS
     for rel in ("host_tools/analyzer/replay/closedloop.py", "host_tools/suite/conceal.py"):
         assert '"line", "arc", "figure_eight"' not in _source(rel), rel
