@@ -68,6 +68,23 @@ class LivePublisher:
                                                     message_encoding=M.message_encoding(enc),
                                                     context=self.ctx)
 
+    def subscribed(self, topics: Sequence[str] | None = None) -> bool:
+        """True when a viewer is subscribed to every one of ``topics`` (default: all)."""
+        want = list(self.channels) if topics is None else list(topics)
+        return bool(want) and all(t in self.channels and self.channels[t].has_sinks()
+                                  for t in want)
+
+    def wait_subscribed(self, topics: Sequence[str] | None = None,
+                        timeout_s: float = 10.0) -> bool:
+        """Wait until :meth:`subscribed` (a recording started by a script that must not lose
+        its first frames to a viewer still connecting); False after ``timeout_s``."""
+        end = time.monotonic() + timeout_s
+        while not self.subscribed(topics):
+            if time.monotonic() >= end:
+                return False
+            time.sleep(0.005)
+        return True
+
     def publish(self, row: Mapping[str, Any]) -> None:
         if self._failed:
             return

@@ -78,15 +78,21 @@ def test_client_receives_published_rows():
     cols = TelemetryColumns(P.definition()).columns
     pub = live.LivePublisher(port=0, columns=cols)
     try:
+        assert not pub.subscribed()
         th, box = _run_client(pub.port, {"/telemetry": 1, "/odometry/pose": 2}, want=5)
         assert "error" not in box, box.get("error")
+        # the server handles the subscription after the client sent it: rows published
+        # before that reach no one
+        assert pub.wait_subscribed(["/telemetry", "/odometry/pose"], 20.0)
+        assert not pub.subscribed()  # /odometry/tf has no subscriber
         rows = [{c: float(i) * 0.01 for c in cols} for i in range(5)]
         for r in rows:
             r["phi_odo_rad"] = 0.5
             pub.publish(r)
-        th.join(20)
+        th.join(30)
     finally:
         pub.close()
+    assert not th.is_alive(), "the client did not receive 5 messages on each topic"
     meta, got = box["result"]
     ch = meta["channels"]
     assert ch["/telemetry"]["encoding"] == "json"
@@ -118,6 +124,7 @@ def test_fil_recording_is_served_live(elf, tmp_path):
     out = tmp_path / "fil_live"
     try:
         th, box = _run_client(pub.port, {"/telemetry": 1, "/odometry/tf": 2}, want=40)
+        assert pub.wait_subscribed(["/telemetry", "/odometry/tf"], 20.0)
         code, lg, _ = fil.record(out, elf, {"profile": "straight", "wheel_accel": 48.0,
                                             "accel_time": 0.5, "duration": 1.0, "radius": 0.0},
                                  clamp=False, on_row=pub.publish)
