@@ -40,7 +40,7 @@ def main(argv=None) -> int:
         p = sub.add_parser(name, help=help_)
         p.add_argument("--set", dest="which", choices=C.SETS, default="tuning",
                        help="tuning or mujoco (rules may be settled on them), heldback, "
-                            "heldback2 to heldback6 (only scored)")
+                            f"heldback2 to {C.SETS[-1]} (only scored)")
         p.add_argument("--fast", action="store_true", help="only the set's fast subset (CI)")
         p.add_argument("--no-long", action="store_true",
                        help="leave out the 10-minute cases (held-back set)")
@@ -84,11 +84,7 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if getattr(a, "out", "") is None:
-        a.out = {"tuning": "out/suite", "heldback": "out/suite-heldback",
-                 "heldback2": "out/suite-heldback2", "heldback3": "out/suite-heldback3",
-                 "heldback4": "out/suite-heldback4",
-                 "heldback5": "out/suite-heldback5", "mujoco": "out/suite-mujoco",
-                 "heldback6": "out/suite-heldback6"}[a.which]
+        a.out = "out/suite" if a.which == "tuning" else f"out/suite-{a.which}"
     for c in sel:
         c.seed += getattr(a, "seed_offset", 0)
     if getattr(a, "recorder", None):

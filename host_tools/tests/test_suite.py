@@ -151,11 +151,12 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
 
 @pytest.mark.parametrize("which, size, n_nulls", [("heldback3", 20, 13), ("heldback4", 28, 18),
                                                     ("heldback5", 25, 16),
-                                                    ("heldback6", 24, 11)])
+                                                    ("heldback6", 24, 11),
+                                                    ("heldback7", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
-             "heldback6"]
+             "heldback6", "heldback7"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -176,6 +177,13 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
         assert sum(c.expect == "unexplained" for c in new) == 2
         assert any(not clamp for c in new for _, clamp, _ in c.experiments
                    if c.length == "1 min")
+    if which == "heldback7":  # both engines in every kind, 20 s and 60 s runs, clamp off
+        for expect in ("no_mismatch", "explained", "unexplained"):
+            assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
+        assert {c.length for c in new} == {"short", "20 s", "1 min"}
+        assert {c.engine for c in new if c.length == "1 min" and c.expect == "no_mismatch"
+                and not any(clamp for _, clamp, _ in c.experiments)} == {"truth", "mujoco"}
+        assert sum(c.expect == "unexplained" for c in new) == 3
 
 
 def test_mujoco_tuning_group():
@@ -264,6 +272,7 @@ FROZEN_SETS = {
     "heldback5": "532d15b0911080364562fc2717417caec12a32ade8bb23ff7c1ea44e6bfa025c",
     "mujoco": "8a918a5798fe7774d78aff9f5603e9b818879149fb738aef69398daa02b5b72c",
     "heldback6": "da69f94348397603530cf91320d65af3258d127e82544bb879a684479fca8267",
+    "heldback7": "66ac3fcebea2c79d7632280fde5aef3685cebb45ecf4137beb0d50e0851dbe2f",
 }
 
 
@@ -309,6 +318,13 @@ def test_set_provenance_commit_generates_the_same_cases():
     funcs = {"tuning": "all_cases", "heldback": "heldback_cases", "mujoco": "mujoco_cases"}
     for which, d in cases.SET_DATA.items():
         commit = d["provenance"]["cases_unchanged_since"]
+        data = subprocess.run(["git", "show", f"{commit}:host_tools/suite/sets.json"], cwd=root,
+                              capture_output=True, text=True)
+        if data.returncode == 0 and which in json.loads(data.stdout)["sets"]:
+            # defined as data: the set's data at that commit are today's (but provenance)
+            then = dict(json.loads(data.stdout)["sets"][which], provenance=None)
+            assert then == dict(d, provenance=None), (which, commit)
+            continue
         res = subprocess.run(["git", "show", f"{commit}:host_tools/suite/cases.py"], cwd=root,
                              capture_output=True, text=True)
         if res.returncode != 0:
