@@ -29,8 +29,8 @@ from host_tools.analyzer.select import (decide_verdict, fit_candidates, select_e
                                          selected_entries)
 
 
-def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | None = None,
-            dt_s: float = 5e-4, pairs_top: int = 5,
+def analyze(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run], jobs: int = 2,
+            effects: Sequence[str] | None = None, dt_s: float = 5e-4, pairs_top: int = 5,
             log: Callable[[str], None] = log_stderr) -> Analysis:
     """Analyze the runs in ``run_dirs`` (one robot): the stages below, in this order.  Each
     stage's docstring says what it decides and why.  ``notes`` collects the report's notes in
@@ -71,7 +71,8 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     return an
 
 
-def _load_runs(run_dirs: Sequence[str], log: Callable[[str], None]) -> list[runfmt.Run]:
+def _load_runs(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run],
+               log: Callable[[str], None]) -> list[runfmt.Run]:
     """Load and validate the run folders.  Several runs must come from one robot
     (``runfmt.check_compatible``): the fits pool them under one set of parameters.  When two
     folders share a base name, the report's run list and the model's sources give full paths,
