@@ -280,7 +280,7 @@ def _grid_start(fun, base: np.ndarray, grid: int) -> tuple[np.ndarray, int]:
             s_ = base.copy()
             s_[j] = lv
             starts.append(s_)
-    best, best_c = None, math.inf
+    best, best_c = base, math.inf   # the neutral point when every start costs inf
     for s_ in starts:
         c = float(np.sum(fun(s_) ** 2))
         nfev += 1
