@@ -25,7 +25,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from host_tools import _build, _cabi
-from host_tools._build import NativeBuildError  # noqa: F401  (re-exported)
+from host_tools._build import NativeBuildError as NativeBuildError  # noqa: F401  (re-exported)
 
 _lock = threading.Lock()
 _lib: ctypes.CDLL | None = None

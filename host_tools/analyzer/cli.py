@@ -16,8 +16,13 @@ import argparse
 import math
 import os
 import signal
+from types import FrameType
+from typing import TYPE_CHECKING, Any
 
 from host_tools._stdio import out, say
+
+if TYPE_CHECKING:
+    from host_tools.runfmt import Run
 
 # Bounds of the options (every option is bounded: a value outside gives exit 2).
 DT_MIN_S, DT_MAX_S = 1e-4, 1e-2   # plant step; 5e-4 is the default, 1e-4 costs 5x as long
@@ -65,7 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "(report.html and the series are still written)")
 
 
-def _native_build_error() -> type:
+def _native_build_error() -> type[BaseException]:
     try:
         from host_tools._native import NativeBuildError
         return NativeBuildError
@@ -94,7 +99,7 @@ def check_out_dir(out: str) -> tuple[str | None, str | None]:
         return None, f"--out {shown} cannot be created or written: {exc.strerror or exc}"
 
 
-def check_analyzable(runs: list, dt_s: float) -> None:
+def check_analyzable(runs: list[Run], dt_s: float) -> None:
     """What the analyzer needs beyond the run format (RunFormatError naming file, row, column):
     an inner loop no faster than the plant step (the replay applies one command per inner
     tick; a loop of 1e-5 s, the format's minimum, would take the replay hours for nothing it
@@ -131,14 +136,14 @@ class _Interrupted(Exception):
 _STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
 
-def _stop_on_signals() -> dict:
+def _stop_on_signals() -> dict[int, Any]:
     """SIGINT, SIGTERM and SIGHUP end the analysis with exit 1 and a message.  The first one
     raises :class:`_Interrupted`; the ones after it are ignored, so that a second SIGTERM (or a
     volley of Ctrl-Cs) cannot interrupt the clean-up and end in a traceback.  The worker
     processes it forks end silently on them (the default action), as the pool expects."""
     main_pid = os.getpid()
 
-    def handler(signum, _frame):
+    def handler(signum: int, _frame: FrameType | None) -> None:
         if os.getpid() != main_pid:
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
@@ -148,7 +153,7 @@ def _stop_on_signals() -> dict:
             if sig is not None:
                 signal.signal(sig, signal.SIG_IGN)
         raise _Interrupted(signal.Signals(signum).name)
-    old = {}
+    old: dict[int, Any] = {}
     for name in _STOP_SIGNALS:
         sig = getattr(signal, name, None)
         if sig is not None:
@@ -158,7 +163,7 @@ def _stop_on_signals() -> dict:
 
 def main(args: argparse.Namespace) -> int:
     old = _stop_on_signals()
-    state: dict = {"staging": None, "committed": False}
+    state: dict[str, Any] = {"staging": None, "committed": False}
     try:
         return _main(args, state)
     except _Interrupted as exc:
@@ -177,7 +182,7 @@ def main(args: argparse.Namespace) -> int:
             signal.signal(sig, h)
 
 
-def _main(args: argparse.Namespace, state: dict) -> int:
+def _main(args: argparse.Namespace, state: dict[str, Any]) -> int:
     from host_tools import runfmt
     from host_tools.runfmt import RunFormatError
 

@@ -8,16 +8,16 @@ generic bounds around their default (see :func:`spec_for`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from typing import Any, Callable, Mapping
 
 
 @dataclass(frozen=True)
 class ParamSpec:
     name: str
-    neutral: Callable[[Mapping], float]  # meta -> neutral value
-    lo: Callable[[Mapping], float]
-    hi: Callable[[Mapping], float]
-    floor: Callable[[Mapping], float]  # smallest |value - neutral| worth reporting
+    neutral: Callable[[Mapping[str, Any]], float]  # meta -> neutral value
+    lo: Callable[[Mapping[str, Any]], float]
+    hi: Callable[[Mapping[str, Any]], float]
+    floor: Callable[[Mapping[str, Any]], float]  # smallest |value - neutral| worth reporting
     unit: str = ""
     # A fitted coordinate that is not itself a vocabulary parameter: (vocabulary parameter it
     # sets, function of the effect's fitted coordinates).  Used to fit inside the physically
@@ -29,7 +29,7 @@ class ParamSpec:
     # one).  mu_s with mu_k held: wheels that slip all run pin mu_k and say nothing about mu_s,
     # while in the (mu_s, mu_k/mu_s) coordinates both move mu_k and look identified.
     given: tuple[str, str, Callable[[float, float], float],
-                 Callable[[float, Mapping], tuple[float, float]]] | None = None
+                 Callable[[float, Mapping[str, Any]], tuple[float, float]]] | None = None
 
 
 @dataclass(frozen=True)
@@ -43,15 +43,15 @@ class EffectSpec:
         return self.params[0].name
 
 
-def _c(v: float) -> Callable[[Mapping], float]:
+def _c(v: float) -> Callable[[Mapping[str, Any]], float]:
     return lambda meta: v
 
 
-def _robot(key: str, scale: float = 1.0) -> Callable[[Mapping], float]:
+def _robot(key: str, scale: float = 1.0) -> Callable[[Mapping[str, Any]], float]:
     return lambda meta: scale * float(meta["robot"][key])
 
 
-def _motor(key: str, scale: float = 1.0) -> Callable[[Mapping], float]:
+def _motor(key: str, scale: float = 1.0) -> Callable[[Mapping[str, Any]], float]:
     return lambda meta: scale * float(meta["motor"][key])
 
 
@@ -120,7 +120,7 @@ SPECS: dict[str, EffectSpec] = {s.name: s for s in [
 ]}
 
 # The measurement that tells two confusable effects apart.
-SEPARATORS: dict[frozenset, str] = {
+SEPARATORS: dict[frozenset[str], str] = {
     frozenset({"motor_back_emf", "axle_viscous"}):
         "hold the wheels at one speed with two different supply voltages (or log motor current): "
         "back-EMF scales with the voltage, axle friction does not",

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit.problem import Problem
 from host_tools.analyzer.prepare.run import PreparedRun
-from host_tools.analyzer.replay.channels import CHANNELS, CUMULATIVE, FIT_CHANNELS
+from host_tools.analyzer.replay.channels import CHANNELS, CUMULATIVE, FIT_CHANNELS, Channel
 from host_tools.analyzer.replay.closedloop import CLOSED_LOOP_CHANNELS
 from host_tools.analyzer.signals import round_sig
 
@@ -47,7 +47,7 @@ BIAS_ALPHA = 0.01
 BIAS_MIN_FLOORS = 0.5
 
 
-def _block_means(ch, floor: float, block_s: float = BIAS_BLOCK_S) -> list[float]:
+def _block_means(ch: Channel, floor: float, block_s: float = BIAS_BLOCK_S) -> list[float]:
     """Means of the channel's residual (in floors) over blocks of ``block_s`` within each
     replay window; a block with fewer than 3 samples is left out."""
     z = ch.resid / floor
@@ -71,10 +71,11 @@ def _block_means(ch, floor: float, block_s: float = BIAS_BLOCK_S) -> list[float]
     return out
 
 
-def bias_test(nominal: Sequence[Mapping[str, object]], floors: Mapping[str, float],
+def bias_test(nominal: Sequence[Mapping[str, Channel]], floors: Mapping[str, float],
               channels_: Sequence[str], alpha: float = BIAS_ALPHA,
               min_floors: float = BIAS_MIN_FLOORS,
-              allowed: Sequence[Mapping[str, float] | None] | None = None) -> dict[str, dict]:
+              allowed: Sequence[Mapping[str, float] | None] | None = None
+              ) -> dict[str, dict[str, Any]]:
     """Per fit channel: the mean residual over all runs (in noise floors), the number of
     blocks (effective samples), the t statistic of the block means, the threshold for the
     false-alarm rate ``alpha`` per analysis (two-sided, Bonferroni over ``channels_``) and
@@ -83,7 +84,7 @@ def bias_test(nominal: Sequence[Mapping[str, object]], floors: Mapping[str, floa
     joins the standard error: the tolerance is one set of parameters for all runs, so its
     error does not average out over blocks; it is taken as fully shared by the runs."""
     from scipy import stats
-    out: dict[str, dict] = {}
+    out: dict[str, dict[str, Any]] = {}
     m = max(len(channels_), 1)
     for c in channels_:
         f = floors.get(c, 0.0)
@@ -124,7 +125,7 @@ def current_count_a(preps: Sequence[PreparedRun]) -> float:
     the largest over the runs, 0 when neither says."""
     counts = []
     for p in preps:
-        cs = p.run.meta.get("current_sense") if isinstance(p.run.meta, Mapping) else None
+        cs: Any = p.run.meta.get("current_sense") if isinstance(p.run.meta, Mapping) else None
         try:
             counts.append(float(cs["adc_vref_v"]) / 2 ** int(cs["adc_bits"])
                           / float(cs["volts_per_amp"]))
@@ -138,7 +139,7 @@ def current_count_a(preps: Sequence[PreparedRun]) -> float:
     return max(counts, default=0.0)
 
 
-def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, object]]
+def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Channel]]
                  ) -> dict[str, float]:
     """Per-channel noise floor, pooled over runs, estimated from the data:
     encoder quantization for wheel speeds and counts, at least one ADC count for the motor
@@ -189,7 +190,7 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, ob
     return floors
 
 
-def closed_loop_floors(chans_per_run: Sequence[Mapping[str, object]]) -> dict[str, float]:
+def closed_loop_floors(chans_per_run: Sequence[Mapping[str, Channel]]) -> dict[str, float]:
     """Noise floor of the closed-loop channels (recorded minus replayed controller output),
     from the data: the white part of the nominal residual (MAD of second differences), which
     holds the torque jumps that single encoder-count differences between the real wheel and the
@@ -207,12 +208,14 @@ def closed_loop_floors(chans_per_run: Sequence[Mapping[str, object]]) -> dict[st
     return floors
 
 
-def _window_entries(preps, chans_per_run, floors, channel_names, replay_name,
-                    regime_cands_per_run, tau_max) -> tuple[list[dict], dict]:
+def _window_entries(preps: Sequence[PreparedRun], chans_per_run: Sequence[Mapping[str, Channel]],
+                    floors: Mapping[str, float], channel_names: Sequence[str], replay_name: str,
+                    regime_cands_per_run: Sequence[Mapping[str, np.ndarray]], tau_max: float
+                    ) -> tuple[list[dict[str, Any]], dict[tuple[int, str], list[sg.Window]]]:
     """Significant windows of every channel, with the regime that best explains them.
     Returns the report entries and {(run, channel): windows}."""
-    entries: list[dict] = []
-    wins: dict = {}
+    entries: list[dict[str, Any]] = []
+    wins: dict[tuple[int, str], list[sg.Window]] = {}
     for c in channel_names:
         masks, preds_runs, per_run = [], [], []
         for i, (prep, chans) in enumerate(zip(preps, chans_per_run)):
@@ -244,18 +247,19 @@ def _window_entries(preps, chans_per_run, floors, channel_names, replay_name,
 @dataclass
 class Located:
     """Noise floors and significant windows of the nominal replays."""
-    floors: dict            # duty replay's channels
-    floors_t: dict          # torque replay's channels
-    cl_floors: dict         # closed-loop channels
-    entries: list[dict]     # the report's mismatch entries (duty replay)
-    entries_t: list[dict]   # ... of the torque replay
-    cl_entries: list[dict]  # ... of the closed-loop replay
-    windows: dict           # (run index, channel) -> [Window], duty replay
-    cl_windows: dict        # ... closed-loop replay
+    floors: dict[str, float]            # duty replay's channels
+    floors_t: dict[str, float]          # torque replay's channels
+    cl_floors: dict[str, float]         # closed-loop channels
+    entries: list[dict[str, Any]]       # the report's mismatch entries (duty replay)
+    entries_t: list[dict[str, Any]]     # ... of the torque replay
+    cl_entries: list[dict[str, Any]]    # ... of the closed-loop replay
+    windows: dict[tuple[int, str], list[sg.Window]]     # (run index, channel) -> [Window], duty
+    cl_windows: dict[tuple[int, str], list[sg.Window]]  # ... closed-loop replay
 
 
-def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict],
-                    nominal_t: Sequence[dict], cl_nominal: Sequence[dict], log: Callable[[str], None]) -> Located:
+def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Channel]],
+                    nominal_t: Sequence[dict[str, Channel]], cl_nominal: Sequence[dict[str, Channel]],
+                    log: Callable[[str], None]) -> Located:
     """Noise floors from the data (``noise_floors``, ``closed_loop_floors``) and the windows
     where each replay's residual stands out of them, each with the regime of the run's state
     (speed, torque against its limit, ...) that best explains where they are.  A residual only
@@ -273,8 +277,8 @@ def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict],
     entries_t, _ = _window_entries(preps, nominal_t, floors_t, chan_names, "torque", states,
                                    tau_max)
     cl_floors = closed_loop_floors(cl_nominal)
-    cl_entries: list[dict] = []
-    cl_wins: dict = {}
+    cl_entries: list[dict[str, Any]] = []
+    cl_wins: dict[tuple[int, str], list[sg.Window]] = {}
     if any(cl_nominal):
         cl_entries, cl_wins = _window_entries(preps, cl_nominal, cl_floors,
                                               [c for c in CLOSED_LOOP_CHANNELS if c in cl_floors],
@@ -290,11 +294,11 @@ class Detection:
     nrms0: float            # ... as a normalized RMS
     strong_k: float         # noise floors that make one window a mismatch on its own
     mismatch_seen: bool
-    bias: dict | None = None  # channel -> bias_test's figures
+    bias: dict[str, dict[str, Any]] | None = None  # channel -> bias_test's figures
 
 
-def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict], loc: Located,
-                    vocab: dict, dt_s: float, notes: list[str], log: Callable[[str], None]) -> Detection:
+def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Channel]], loc: Located,
+                    vocab: dict[str, dict[str, float]], dt_s: float, notes: list[str], log: Callable[[str], None]) -> Detection:
     """Build the fit problem (the fit channels, and on long runs the windows the fits see) and
     decide whether there is a mismatch at all: a strong window in a fit channel (``strong_k``
     floors, raised with the recording's length so the false-alarm rate per analysis stays

@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from host_tools import runfmt
 from host_tools.analyzer.fit.workers import log_stderr
@@ -17,7 +17,7 @@ from host_tools.analyzer.prepare.command_lag import command_lag
 from host_tools.analyzer.prepare.inputs import prepare_timed
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.anchors import note_slip_episodes
-from host_tools.analyzer.replay.channels import channels
+from host_tools.analyzer.replay.channels import Channel, channels
 from host_tools.analyzer.replay.closedloop import ClosedLoopReplay, closed_loop_channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
 from host_tools.analyzer.replay.tolerance import tolerance_uncertainty
@@ -29,8 +29,8 @@ from host_tools.analyzer.select import (decide_verdict, fit_candidates, select_e
                                          selected_entries)
 
 
-def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | None = None,
-            dt_s: float = 5e-4, pairs_top: int = 5,
+def analyze(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run], jobs: int = 2,
+            effects: Sequence[str] | None = None, dt_s: float = 5e-4, pairs_top: int = 5,
             log: Callable[[str], None] = log_stderr) -> Analysis:
     """Analyze the runs in ``run_dirs`` (one robot): the stages below, in this order.  Each
     stage's docstring says what it decides and why.  ``notes`` collects the report's notes in
@@ -71,7 +71,8 @@ def analyze(run_dirs: Sequence[str], jobs: int = 2, effects: Sequence[str] | Non
     return an
 
 
-def _load_runs(run_dirs: Sequence[str], log: Callable[[str], None]) -> list[runfmt.Run]:
+def _load_runs(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run],
+               log: Callable[[str], None]) -> list[runfmt.Run]:
     """Load and validate the run folders.  Several runs must come from one robot
     (``runfmt.check_compatible``): the fits pool them under one set of parameters.  When two
     folders share a base name, the report's run list and the model's sources give full paths,
@@ -86,7 +87,8 @@ def _load_runs(run_dirs: Sequence[str], log: Callable[[str], None]) -> list[runf
     return runs
 
 
-def _vocabulary(effects: Sequence[str] | None) -> tuple[dict, dict]:
+def _vocabulary(effects: Sequence[str] | None
+                ) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, float]]]:
     """(the whole effect vocabulary of lib/slipmodel, the effects to fit as candidates).  The
     fit problem knows the whole vocabulary; ``effects`` (the command line's ``--effects``) only
     narrows which candidates are fitted, and an unknown name is an input error, not an empty
@@ -118,9 +120,9 @@ def _prepare(runs: Sequence[runfmt.Run], log: Callable[[str], None]) -> list[Pre
 class NominalClosedLoop:
     """The nominal closed-loop replay, per run."""
     replay: ClosedLoopReplay
-    setups: list            # the replay's set-up (reference, clamp, schedule), or None
-    runs: list[dict]        # the report's entry: replayed, problems, assumptions, reference
-    nominal: list[dict]     # channel -> Channel of the nominal replay, or {} when not replayed
+    setups: list[dict[str, Any] | None]  # the replay's set-up (reference, clamp, schedule)
+    runs: list[dict[str, Any]]  # the report's entry: replayed, problems, assumptions, reference
+    nominal: list[dict[str, Channel]]  # channel -> Channel of the nominal replay, or {}
 
 
 def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[str],
@@ -134,9 +136,9 @@ def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[s
     since the closed-loop channels are reported and not used for decisions."""
     clr = ClosedLoopReplay(dt_s=dt_s)
     ok, why = clr.available()
-    setups: list = [None] * len(preps)
-    runs: list[dict] = []
-    nominal: list[dict] = [{} for _ in preps]
+    setups: list[dict[str, Any] | None] = [None] * len(preps)
+    runs: list[dict[str, Any]] = []
+    nominal: list[dict[str, Channel]] = [{} for _ in preps]
     for i, p in enumerate(preps):
         if not ok:
             runs.append({"run": p.name, "replayed": False, "problems": [why],
@@ -163,7 +165,7 @@ def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[s
 
 
 def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: OpenLoopReplay
-                    ) -> tuple[list[dict], list[dict]]:
+                    ) -> tuple[list[dict[str, Channel]], list[dict[str, Channel]]]:
     """The nominal open-loop replays (no effect), per run: channel -> Channel, driven by the
     recorded duty (what locates the mismatch and decides) and by the recorded torque command
     (reported apart: it separates motor and driver from the rest).  On a run of several
@@ -181,9 +183,9 @@ def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: 
     return nominal, nominal_t
 
 
-def _command_delay(preps: Sequence[PreparedRun], selected: list[dict], verdict: str,
-                   effects: Mapping, notes: list[str], log: Callable[[str], None]
-                   ) -> tuple[str, dict]:
+def _command_delay(preps: Sequence[PreparedRun], selected: list[dict[str, Any]], verdict: str,
+                   effects: Mapping[str, Mapping[str, float]], notes: list[str],
+                   log: Callable[[str], None]) -> tuple[str, dict[str, Mapping[str, float]]]:
     """The command-to-duty delay (``prepare.command_lag``): where the recorded duty (the duty
     in force) lags the torque command significantly, ``actuation_delay`` is selected with the
     lag as ``delay_s`` (and its standard error), the updated model gets it, and a note says so.
@@ -207,7 +209,8 @@ def _command_delay(preps: Sequence[PreparedRun], selected: list[dict], verdict: 
 
 
 def _replay_updated(preps: Sequence[PreparedRun], duty: OpenLoopReplay, cl: NominalClosedLoop,
-                    final_effects: Mapping) -> tuple[list[dict] | None, list[dict]]:
+                    final_effects: Mapping[str, Mapping[str, float]]
+                    ) -> tuple[list[dict[str, Channel]] | None, list[dict[str, Channel]]]:
     """The replays with the selected effects: the duty replay (None without an update) and the
     closed loop (a run without an update, or not replayed, keeps its nominal channels)."""
     updated = None

@@ -5,7 +5,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -17,9 +17,12 @@ from host_tools.analyzer.fit.problem import Problem, effective_n
 from host_tools.analyzer.fit.workers import run_tasks
 from host_tools.analyzer.locate import STRONG_WINDOW, Detection, state_table
 from host_tools.analyzer.prepare.run import PreparedRun
-from host_tools.analyzer.replay.channels import channels
+from host_tools.analyzer.replay.channels import Channel, channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
 from host_tools.analyzer.signals import round_sig
+
+if TYPE_CHECKING:
+    from host_tools.analyzer.fit.workers import FitTask
 
 
 # After the update: explained when the residual is back within the noise floor (normalized RMS
@@ -32,17 +35,17 @@ from host_tools.analyzer.signals import round_sig
 EXPLAINED_RMS = 1.0
 
 
-def excess(problem: Problem, effects: Mapping) -> float:
+def excess(problem: Problem, effects: Mapping[str, Mapping[str, float]]) -> float:
     r = problem.residual(effects, list(range(len(problem.preps))), full=True)
     return float(np.mean(r ** 2)) if r.size else 0.0
 
 
-def fit_candidates(det: Detection, vocab_fit: Mapping, jobs: int, notes: list[str],
+def fit_candidates(det: Detection, vocab_fit: Mapping[str, Mapping[str, float]], jobs: int, notes: list[str],
                    log: Callable[[str], None]) -> list[Candidate]:
     """Fit every effect of ``vocab_fit`` alone and judge it (``fit.judge``: BIC, held-out
     error, size, physical possibility, per-channel veto); sorted by BIC gain.  Without a
     mismatch nothing is fitted: the verdict does not depend on the candidates."""
-    tasks = [([e], None, {}) for e in vocab_fit] if det.mismatch_seen else []
+    tasks: list[FitTask] = [([e], None, {}) for e in vocab_fit] if det.mismatch_seen else []
     if tasks:
         log(f"fitting {len(tasks)} candidate effect(s) on {jobs} process(es)")
     else:
@@ -58,7 +61,7 @@ def fit_candidates(det: Detection, vocab_fit: Mapping, jobs: int, notes: list[st
 class Selection:
     """What the fits select."""
     chosen: Candidate | None        # the accepted single or pair, or None
-    effects: dict                   # its fitted effects: name -> params ({} when none)
+    effects: dict[str, dict[str, float]]  # its fitted effects: name -> params ({} when none)
     singles: list[Candidate]        # the single effects fitted (judged, by BIC gain)
     pairs: list[Candidate]          # the pairs fitted (judged, by BIC gain), or []
 
@@ -113,7 +116,7 @@ def _fit_pairs(problem: Problem, cands: list[Candidate], best_single: Candidate 
             if e != lead and (lead, e) not in combos and (e, lead) not in combos:
                 combos.append((lead, e))
     single = {c.effects[0]: c for c in cands}
-    pair_tasks = [([a, b], np.concatenate([single[a].fit.x, single[b].fit.x]), {})
+    pair_tasks: list[FitTask] = [([a, b], np.concatenate([single[a].fit.x, single[b].fit.x]), {})
                   for a, b in combos]
     if not pair_tasks:
         return []
@@ -173,7 +176,7 @@ def _pair_bic(pair: Candidate, single: Candidate, problem: Problem) -> float:
                      pair.fit.n_free - single.fit.n_free)
 
 
-def _remaining_windows(problem: Problem, effects: Mapping, fit_chans: Sequence[str],
+def _remaining_windows(problem: Problem, effects: Mapping[str, Mapping[str, float]], fit_chans: Sequence[str],
                        strong: float = STRONG_WINDOW) -> int:
     """Number of significant windows left whose RMS is at least ``strong`` noise floors."""
     n = 0
@@ -189,7 +192,7 @@ def _remaining_windows(problem: Problem, effects: Mapping, fit_chans: Sequence[s
     return n
 
 
-def selected_entries(sel: Selection, rss0: float) -> list[dict]:
+def selected_entries(sel: Selection, rss0: float) -> list[dict[str, Any]]:
     """The report's entries of the selected effects, each with its equivalents: alternatives
     that explain about as much (BIC within 10, held-out error close) and would themselves be
     worth adopting (BIC, held-out gain, size, physically possible; not the per-channel veto,
@@ -225,9 +228,9 @@ def selected_entries(sel: Selection, rss0: float) -> list[dict]:
     return selected
 
 
-def decide_verdict(det: Detection, final_effects: Mapping, selected: Sequence[dict],
-                   preps: Sequence[PreparedRun], duty: OpenLoopReplay, notes: list[str]
-                   ) -> tuple[str, dict | None]:
+def decide_verdict(det: Detection, final_effects: Mapping[str, Mapping[str, float]],
+                   selected: Sequence[dict[str, Any]], preps: Sequence[PreparedRun],
+                   duty: OpenLoopReplay, notes: list[str]) -> tuple[str, dict[str, Any] | None]:
     """(verdict, hint).  ``no_mismatch`` when detection saw none; ``explained`` when effects
     were selected and their residual is back within the noise floor (normalized RMS at most
     ``EXPLAINED_RMS``: a claim of explanation asks for noise level, not merely below the
@@ -246,9 +249,11 @@ def decide_verdict(det: Detection, final_effects: Mapping, selected: Sequence[di
     return "unexplained", hint
 
 
-def sparse_hint(preps, chans_per_run) -> dict | None:
+def sparse_hint(preps: Sequence[PreparedRun], chans_per_run: Sequence[Mapping[str, Channel]]
+                ) -> dict[str, Any] | None:
     """Sparse regression of the wheel-acceleration residual on named state features."""
-    X, y = [], []
+    xs: list[np.ndarray] = []
+    ys: list[np.ndarray] = []
     names = ["1", "sign(w)", "w", "w*|w|", "dw/dt", "tau_cmd", "duty", "yaw_rate*side",
              "duty*w", "t"]
     for prep, chans in zip(preps, chans_per_run):
@@ -264,13 +269,13 @@ def sparse_hint(preps, chans_per_run) -> dict | None:
             tau = np.interp(ch.t, st["t"], st[f"tau_{side}"])
             u = np.interp(ch.t, st["t"], st[f"u_{side}"])
             yaw = np.interp(ch.t, st["t"], st["yaw"])
-            X.append(np.column_stack([np.ones_like(w), np.sign(w) * (np.abs(w) > 0.5), w,
-                                      w * np.abs(w), a, tau, u, yaw * sgn, u * w, ch.t]))
-            y.append(acc)
-    if not X:
+            xs.append(np.column_stack([np.ones_like(w), np.sign(w) * (np.abs(w) > 0.5), w,
+                                       w * np.abs(w), a, tau, u, yaw * sgn, u * w, ch.t]))
+            ys.append(acc)
+    if not xs:
         return None
-    X = np.vstack(X)
-    y = np.concatenate(y)
+    X = np.vstack(xs)
+    y = np.concatenate(ys)
     terms = sg.stlsq(X, y, names, threshold=0.15, max_terms=3)
     if not terms:
         return {"target": "d/dt of the wheel-speed residual (rad/s^2)", "terms": {},

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -28,13 +29,13 @@ def hf_noise_std(resid: np.ndarray) -> float:
     r = r[np.isfinite(r)]
     if r.size < 5:
         return 0.0
-    return robust_std(np.diff(r, 2)) / np.sqrt(6.0)
+    return cast(float, robust_std(np.diff(r, 2)) / np.sqrt(6.0))
 
 
 def quantization_std(step: float) -> float:
     """Std of the difference of two independent uniform quantization errors of one step
     (e.g. a speed from two encoder readings)."""
-    return float(step) / np.sqrt(6.0)
+    return cast(float, float(step) / np.sqrt(6.0))
 
 
 def quantization_step(x: np.ndarray, rel_tol: float = 0.1) -> float:
@@ -63,7 +64,7 @@ def smooth(x: np.ndarray, n: int) -> np.ndarray:
     """Centred moving average over n samples (n odd), edges shrunk."""
     x = np.asarray(x, dtype=float)
     if n <= 1 or x.size == 0:
-        return x.copy()
+        return cast(np.ndarray, x.copy())
     n = int(n) | 1
     k = np.ones(n)
     num = np.convolve(x, k, mode="same")

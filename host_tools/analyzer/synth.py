@@ -11,7 +11,7 @@ ground truth with noise and dropouts."""
 from __future__ import annotations
 
 import os
-from typing import Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -31,15 +31,17 @@ PROFILES: dict[str, Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]] = {
 }
 
 
-def _odometry(counts_r, counts_l, t, r, b, ppr):
+def _odometry(counts_r: np.ndarray, counts_l: np.ndarray, t: np.ndarray, r: float, b: float,
+              ppr: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     from host_tools.analyzer.prepare.odometry import encoder_odometry as odo
     return odo(counts_r, counts_l, t, r, b, ppr, (0.0, 0.0, 0.0))
 
 
-def make_run(path: str | os.PathLike, profile: str, effects: Mapping[str, Mapping[str, float]]
-             | None = None, duration_s: float = 1.5, seed: int = 0, meta: Mapping | None = None,
+def make_run(path: str | os.PathLike[str], profile: str, effects: Mapping[str, Mapping[str, float]]
+             | None = None, duration_s: float = 1.5, seed: int = 0, meta: Mapping[str, Any] | None = None,
              gt_noise_m: float = 1e-3, gt_noise_rad: float = 0.01, gt_rate_hz: float = 30.0,
-             dropout: float = 0.05, plant_factory=None, tick_phase: float | None = None) -> str:
+             dropout: float = 0.05, plant_factory: Callable[..., Any] | None = None,
+             tick_phase: float | None = None) -> str:
     from host_tools import _native
     rng = np.random.default_rng(seed)
     full = runfmt.validate_meta(dict(meta or {}, experiment=f"synthetic {profile}",
@@ -103,8 +105,9 @@ def make_run(path: str | os.PathLike, profile: str, effects: Mapping[str, Mappin
     return os.fspath(path)
 
 
-def make_case(root: str | os.PathLike, effects: Mapping[str, Mapping[str, float]] | None,
-              profiles=("ramp", "turn", "slow", "brake"), seed: int = 0, **kw) -> list[str]:
+def make_case(root: str | os.PathLike[str], effects: Mapping[str, Mapping[str, float]] | None,
+              profiles: Sequence[str] = ("ramp", "turn", "slow", "brake"), seed: int = 0,
+              **kw: Any) -> list[str]:
     """One case: a run per profile, all with the same hidden effects."""
     paths = []
     for i, prof in enumerate(profiles):

@@ -8,13 +8,16 @@ from __future__ import annotations
 import argparse
 import signal
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from host_tools import gt_align
 from host_tools import protocol as P
 from host_tools._stdio import out, say
 from host_tools.logger.errors import LoggerError
 from host_tools.logger.session import STOP_SIGNALS, Logger
+
+if TYPE_CHECKING:
+    from host_tools.interop.live import LivePublisher
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -98,7 +101,7 @@ def main(args: argparse.Namespace) -> int:
     if record_s is None and experiment is not None:
         record_s = args.duration + 5.0  # safety net if the end of the run is never reported
 
-    def open_port():
+    def open_port() -> Any:
         import serial
         return serial.serial_for_url(args.port, baudrate=args.baud, timeout=0.05, write_timeout=0.5)
 
@@ -135,7 +138,7 @@ def _hold_signals() -> dict[int, Any]:
     return held
 
 
-def _record(args: argparse.Namespace, lg: Logger, pub) -> int:
+def _record(args: argparse.Namespace, lg: Logger, pub: LivePublisher | None) -> int:
     try:
         code = lg.run()
     except LoggerError as exc:
@@ -155,7 +158,7 @@ def _record(args: argparse.Namespace, lg: Logger, pub) -> int:
     return code
 
 
-def _live(args: argparse.Namespace, d: P.Definition):
+def _live(args: argparse.Namespace, d: P.Definition) -> LivePublisher | None:
     """The live view's server of --live, or None."""
     if getattr(args, "live", None) is None:
         return None

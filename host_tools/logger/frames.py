@@ -10,7 +10,7 @@ records Acks and Params, and counts everything in ``stats``.  It uses the sessio
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -18,6 +18,11 @@ from host_tools import protocol as P
 from host_tools import runfmt
 from host_tools._stdio import say
 from host_tools.logger.errors import LoggerError
+
+if TYPE_CHECKING:  # the state and methods the other parts provide (parts.py)
+    from host_tools.logger.parts import SessionParts
+else:
+    SessionParts = object
 
 CONFIRM_FRAMES = 2   # following frames that must continue a reset, a jump or the first frame
 MAX_AHEAD_S = 2.0    # board time may run ahead of the host time elapsed by this much
@@ -46,7 +51,7 @@ class TelemetryColumns:
         rest = [f.column for f in self.fields if f.column not in required]
         self.columns = required + ["seq", "host_t_s"] + rest
         self.index = {f.name: i for i, f in enumerate(self.msg.fields)}
-        self._conv = []
+        self._conv: list[tuple[str, int, float | None, int]] = []
         for i, f in enumerate(self.msg.fields):
             if f.name == "t_us":
                 continue
@@ -55,7 +60,7 @@ class TelemetryColumns:
             else:
                 self._conv.append((f.column, i, f.scale, _decimals(f.scale)))
 
-    def row(self, raws: tuple, t_s: float, seq: int, host_t: float) -> dict[str, Any]:
+    def row(self, raws: tuple[Any, ...], t_s: float, seq: int, host_t: float) -> dict[str, Any]:
         out: dict[str, Any] = {"t_s": round(t_s, 6), "seq": seq, "host_t_s": round(host_t, 4)}
         for col, i, scale, nd in self._conv:
             r = raws[i]
@@ -63,7 +68,7 @@ class TelemetryColumns:
         return out
 
 
-class FramesMixin:
+class FramesMixin(SessionParts):
     """Frame handling and statistics of one recording session."""
 
     def _init_frames(self) -> None:
@@ -80,8 +85,8 @@ class FramesMixin:
         self.t_wraps = 0
         self.last_t_s: float | None = None
         self.last_host_t: float | None = None
-        self.last_row: dict | None = None
-        self.params: dict | None = None
+        self.last_row: dict[str, Any] | None = None
+        self.params: dict[str, Any] | None = None
         self.acks: dict[int, tuple[int, int]] = {}
         self.running = False
         self._run_frames = 0
@@ -158,6 +163,7 @@ class FramesMixin:
         if not self._config_sent:
             return
         p, bad = self.params, []
+        assert p is not None  # called on a Params frame, after it is stored
         if self.mu is not None:
             for k, v in zip(("mu_s", "mu_k"), self.mu):
                 if abs(p[k] - v) > 1e-4:
@@ -204,7 +210,7 @@ class FramesMixin:
         self.event("robot_reset", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset,
                    t_epoch_s=round(self.t_epoch, 6), boot=boot, last_boot=self.boot)
 
-    def _telemetry(self, f: P.Frame, raws: tuple, host_t: float) -> None:
+    def _telemetry(self, f: P.Frame, raws: tuple[Any, ...], host_t: float) -> None:
         """A verified Telemetry frame.  A frame that continues the current boot in time is a
         row at once.  One that would change what the rows mean -- a boot number never seen
         (a reset), a board time far ahead of the host time elapsed (a jump), or the first
@@ -317,7 +323,7 @@ class FramesMixin:
                        boot=raws[self.cols.index["boot_count"]], current_boot=self.boot,
                        reason=reason, values=values)
 
-    def _accept(self, f: P.Frame, raws: tuple, host_t: float) -> None:
+    def _accept(self, f: P.Frame, raws: tuple[Any, ...], host_t: float) -> None:
         t_us = raws[0]
         self._count_seq(f, t_us)
         if self.last_t_us is not None and t_us < self.last_t_us:
@@ -331,8 +337,9 @@ class FramesMixin:
         self.writer.write_row(row)
         self.reftrack.row(row)  # the reference the firmware tracks (meta.json "reference")
         self.stats["telemetry_rows"] += 1
-        if getattr(self, "on_row", None) is not None:
-            self.on_row(row)
+        on_row = getattr(self, "on_row", None)
+        if on_row is not None:
+            on_row(row)
         self.last_t_us, self.last_t_s, self.last_host_t, self.last_row = t_us, t_s, host_t, row
         status = raws[self.cols.index["status"]]
         flags = self.d.flags["status"]
@@ -370,6 +377,6 @@ class FramesMixin:
 class _Chain:
     """Telemetry frames held until confirmed: ``kind`` "first", "reset" or "jump"."""
 
-    def __init__(self, kind: str, frames: list):
+    def __init__(self, kind: str, frames: list[tuple[P.Frame, tuple[Any, ...], float]]):
         self.kind = kind
         self.frames = frames

@@ -10,22 +10,27 @@ time.  Every byte read goes to raw.bin and to the stream decoder; the verified f
 from __future__ import annotations
 
 import time
-from typing import Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from host_tools import protocol as P
 from host_tools.logger.errors import LoggerError
+
+if TYPE_CHECKING:  # the state and methods the other parts provide (parts.py)
+    from host_tools.logger.parts import SessionParts
+else:
+    SessionParts = object
 
 HEARTBEAT_S = 0.2
 RECONNECT_POLL_S = 0.5
 FLUSH_EVERY_S = 0.2
 
 
-class LinkMixin:
+class LinkMixin(SessionParts):
     """Port, send and receive of one recording session."""
 
     def _init_link(self) -> None:
         self.dec = P.StreamDecoder(self.d.version, self.d.max_payload)
-        self.port = None
+        self.port: Any = None  # a pyserial-like object (read, write, in_waiting, close)
         self.tx_seq = 0
         self._heartbeat = False
 
@@ -71,7 +76,7 @@ class LinkMixin:
             except Exception:
                 pass
 
-    def send(self, name: str, values: dict | None = None) -> int:
+    def send(self, name: str, values: dict[str, Any] | None = None) -> int:
         """Send one command (validated against the definition). Returns its seq."""
         seq = self.tx_seq
         frame = self.d.encode(name, seq, values)  # ProtocolError on a bad value

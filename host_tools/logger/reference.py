@@ -67,6 +67,7 @@ class ReferenceTracker:
         self.drive = drive
 
     def _drive_row(self, row: dict[str, Any]) -> None:
+        assert self.t0_s is not None  # _begin set it: a drive run has begun
         t = float(row["t_s"])
         cmd = (float(row["v_cmd_m_s"]), float(row["omega_cmd_rad_s"]))
         if self._last is None:  # the first frame of the run: the start tick's target
@@ -80,7 +81,8 @@ class ReferenceTracker:
                                   "v": cmd[0], "omega": cmd[1]})
         self._last = (t, *cmd)
 
-    def reference(self, start: dict | None, robot_r: float, limits: dict[str, float]) -> dict | None:
+    def reference(self, start: dict[str, Any] | None, robot_r: float, limits: dict[str, float]
+                  ) -> dict[str, Any] | None:
         """meta.json ``reference``, or None before a run started."""
         if self.t0_s is None:
             return None

@@ -10,11 +10,16 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from host_tools import firmware_id, runfmt
 from host_tools.logger.errors import LoggerError
 from host_tools.logger.frames import shortest_f32
+
+if TYPE_CHECKING:  # the state and methods the other parts provide (parts.py)
+    from host_tools.logger.parts import SessionParts
+else:
+    SessionParts = object
 
 RESERVE_BYTES = 256 * 1024  # kept free in the run folder for the final meta.json and events
 RESERVE_NAME = ".logger-reserve"
@@ -48,7 +53,7 @@ def clear_failed(out: str) -> None:
             pass
 
 
-def describe_experiment(cmd: dict) -> str:
+def describe_experiment(cmd: dict[str, Any]) -> str:
     p, a, ta, T = cmd["profile"], cmd["wheel_accel"], cmd["accel_time"], cmd["duration"]
     base = f"{a:g} rad/s^2 wheel acceleration for {ta:g} s, then hold; {T:g} s in all"
     if p == "straight":
@@ -58,7 +63,7 @@ def describe_experiment(cmd: dict) -> str:
     return f"figure eight of loop radius {cmd['radius']:g} m, " + base
 
 
-class RunFolderMixin:
+class RunFolderMixin(SessionParts):
     """Files of one recording session."""
 
     def prepare_out(self) -> None:
@@ -119,7 +124,7 @@ class RunFolderMixin:
         self.raw = open(os.path.join(self.out, "raw.bin"), "wb")
         self.events = open(os.path.join(self.out, "events.jsonl"), "w")
 
-    def _meta(self) -> dict:
+    def _meta(self) -> dict[str, Any]:
         dflt = self.d.robot_defaults
         meta: dict[str, Any] = {
             "format": runfmt.FORMAT,
@@ -138,7 +143,7 @@ class RunFolderMixin:
             meta["failed"] = self.failed
         mu_ok = self.mu is not None and self._acked("SetMu")
         clamp_ok = self.clamp is not None and self._acked("SetClamp")
-        if mu_ok:
+        if mu_ok and self.mu is not None:
             meta["robot"]["mu_s"], meta["robot"]["mu_k"] = self.mu
         meta["torque_clamp"] = bool(self.clamp) if clamp_ok else False
         p = self.params
@@ -185,7 +190,7 @@ class RunFolderMixin:
             return names.get(int(p["controller"]), f"unknown (code {int(p['controller'])})")
         return self.controller if ctl_ok else None
 
-    def _drive_limits_in_force(self) -> dict:
+    def _drive_limits_in_force(self) -> dict[str, Any]:
         """The drive limits: the acknowledged SetDriveLimits, else the firmware's boot defaults
         (protocol.json drive)."""
         if self.drive_limits is not None and self._acked("SetDriveLimits"):
@@ -195,7 +200,7 @@ class RunFolderMixin:
     def _acked(self, name: str) -> bool:
         return any(c["command"] == name and c["result"] == "ok" for c in self.commands)
 
-    def _meta_for_writer(self) -> dict:
+    def _meta_for_writer(self) -> dict[str, Any]:
         return self._meta()
 
     def write_meta(self) -> None:
@@ -204,7 +209,7 @@ class RunFolderMixin:
         # beside and renamed, in a file created exclusively: never a half-written meta.json
         runfmt.write_atomic(path, json.dumps(meta, indent=2) + "\n")
 
-    def event(self, kind: str, **kw) -> None:
+    def event(self, kind: str, **kw: Any) -> None:
         kw = {"host_t_s": round(self.clock() - self._t0, 4), "kind": kind, **kw}
         self.events.write(json.dumps(kw) + "\n")
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import signal
 import threading
 import time
+from types import FrameType
 from typing import Any, Callable
 
 from host_tools import protocol as P
@@ -34,13 +35,13 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
     in_waiting, close) or raises; it is called again to reconnect."""
 
     def __init__(self, out_dir: str, open_port: Callable[[], Any], port_name: str, baud: int,
-                 experiment: dict | None = None, clamp: bool | None = None,
+                 experiment: dict[str, Any] | None = None, clamp: bool | None = None,
                  mu: tuple[float, float] | None = None, record_s: float | None = None,
                  controller: str | None = None, reconnect_timeout_s: float = 30.0, params_timeout_s: float = 1.0,
                  status: bool = True, description: str | None = None,
                  d: P.Definition | None = None, clock: Callable[[], float] = time.monotonic,
-                 model: dict | None = None, drive_limits: dict | None = None,
-                 on_row: Callable[[dict], None] | None = None):
+                 model: dict[str, Any] | None = None, drive_limits: dict[str, Any] | None = None,
+                 on_row: Callable[[dict[str, Any]], None] | None = None):
         self.d = d or P.definition()
         self.out = out_dir
         self.open_port = open_port
@@ -72,7 +73,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         self._signals = 0
         self._interruptible = False
         self._write_error: OSError | None = None
-        self.commands: list[dict] = []
+        self.commands: list[dict[str, Any]] = []
         self._params_before_config = 0
         self._config_sent = False
         self.end_reason = ""
@@ -200,7 +201,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
                     raise Stopped()
                 self.event("no_params_after_config", waited_s=self.params_timeout_s)
 
-    def command(self, name: str, values: dict | None = None) -> None:
+    def command(self, name: str, values: dict[str, Any] | None = None) -> None:
         """Send a command and wait for its Ack (retrying); LoggerError if rejected/unanswered."""
         rec = {"command": name, "values": values or {}, "result": None}
         self.commands.append(rec)
@@ -234,7 +235,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
             return True
         return False
 
-    def _on_signal(self, signum, _frame) -> None:
+    def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
         """The first signal asks the session to stop; a later one interrupts it at once, but
         only once and only while the session runs: closing the folder (the queued frames, the
         end event, meta.json, the reserve file) is never interrupted, however many follow."""
@@ -248,7 +249,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
             self._interruptible = False
             raise KeyboardInterrupt  # a second signal: stop at once (close() still runs)
 
-    def _install_signals(self) -> dict:
+    def _install_signals(self) -> dict[int, Any]:
         if threading.current_thread() is not threading.main_thread():
             return {}
         old = {}

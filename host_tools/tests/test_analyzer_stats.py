@@ -243,3 +243,15 @@ def test_the_camera_anchor_is_computed_once_per_window_and_slip_state(tmp_path):
         assert calls == [1.0, 1.0]
     finally:
         anchors._gt_anchor_of = real
+
+
+def test_grid_start_keeps_the_neutral_point_when_every_start_costs_infinity():
+    """A replay that blows up at every start of the coarse grid (residuals so large that their
+    squares overflow to inf) leaves the fit at its neutral point: no start was chosen before,
+    and the two-parameter refinement failed on None (found by mypy)."""
+    from host_tools.analyzer.fit.problem import _grid_start
+    base = np.array([0.5, 0.25])
+    with np.errstate(over="ignore"):
+        x0, nfev = _grid_start(lambda x: np.full(4, 1e200), base.copy(), 3)
+    assert isinstance(x0, np.ndarray) and np.array_equal(x0, base)
+    assert nfev == 1 + 2 * 3 + 3

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -34,13 +34,13 @@ class Candidate:
     output_size: float           # RMS change of the fit channels, in noise floors
     checks: dict[str, bool] = field(default_factory=dict)
     reasons: list[str] = field(default_factory=list)
-    heldout_per_channel: dict = field(default_factory=dict)
+    heldout_per_channel: dict[str, dict[str, Any]] = field(default_factory=dict)
     # per channel: held-out residuals (unit of the channel) before and after, sample by sample
-    heldout_pairs: dict = field(default_factory=dict)
+    heldout_pairs: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     recorder_notes: list[str] = field(default_factory=list)
     # all fit channels pooled, in noise floors: held-out residuals before and after, sample by
     # sample (the paired adoption test); None when not kept
-    heldout_pooled: tuple | None = None
+    heldout_pooled: tuple[np.ndarray, np.ndarray] | None = None
     heldout_z: float = math.nan   # the paired test's z of the held-out improvement
 
     @property
@@ -52,9 +52,10 @@ class Candidate:
         return "+".join(self.effects)
 
 
-def evaluate_candidate(problem: Problem, names: Sequence[str], base: Mapping | None = None,
+def evaluate_candidate(problem: Problem, names: Sequence[str],
+                       base: Mapping[str, Mapping[str, float]] | None = None,
                        x0: np.ndarray | None = None, ref_rss: float | None = None,
-                       ref_effects: Mapping | None = None) -> Candidate:
+                       ref_effects: Mapping[str, Mapping[str, float]] | None = None) -> Candidate:
     """Fit ``names`` on all runs, then held-out: leave one run out (several runs) or a time
     split (one run).  Comparisons are against ``ref_effects`` (default: nominal)."""
     runs = list(range(len(problem.preps)))
@@ -108,7 +109,7 @@ def evaluate_candidate(problem: Problem, names: Sequence[str], base: Mapping | N
     ha = math.sqrt(sq_a / max(cnt, 1))
     rfit = problem.residual(full.params, runs)
     size = float(np.sqrt(np.mean((rfit - r_ref) ** 2))) if r_ref.size == rfit.size else 0.0
-    rms = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
+    rms: Callable[[Any], float] = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
     pooled = ((np.concatenate(pool_b), np.concatenate(pool_a))
               if pool_b and len(pool_b) == len(folds) else None)
     return Candidate(list(names), full, dbic, hb, ha,
@@ -187,8 +188,9 @@ def paired_worse(before: np.ndarray, after: np.ndarray, floor: float,
 
 
 def heldout_channel_check(before: Mapping[str, float], after: Mapping[str, float],
-                          floors: Mapping[str, float], pairs: Mapping | None = None
-                          ) -> dict[str, dict]:
+                          floors: Mapping[str, float],
+                          pairs: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None
+                          ) -> dict[str, dict[str, Any]]:
     """Per channel: held-out RMSE before and after the update, the increase in noise floors,
     the paired test's z, whether the channel is derived, and whether it holds.  Channels
     without a noise floor or without both values are left out."""
@@ -210,7 +212,7 @@ def heldout_channel_check(before: Mapping[str, float], after: Mapping[str, float
     return out
 
 
-def judge(problem: Problem, cand: Candidate, ref_effects: Mapping | None = None,
+def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[str, float]] | None = None,
           only: Sequence[str] | None = None, bic_margin: float = BIC_MARGIN,
           stability: float = 0.5, min_output: float = 0.5) -> None:
     """Fill ``cand.checks`` with the acceptance tests (and why they failed): ``bic``,

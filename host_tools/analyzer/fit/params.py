@@ -3,7 +3,7 @@ and the result of a fit."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -18,7 +18,7 @@ class Param:
     lo: float
     hi: float
     floor: float
-    given: tuple | None = None   # ParamSpec.given
+    given: tuple[Any, ...] | None = None   # ParamSpec.given
 
     def to_x(self, v: float) -> float:
         return (v - self.lo) / (self.hi - self.lo)
@@ -27,7 +27,7 @@ class Param:
         return self.lo + float(x) * (self.hi - self.lo)
 
 
-def params_for(names: Sequence[str], meta: Mapping, vocab: Mapping[str, Mapping[str, float]]
+def params_for(names: Sequence[str], meta: Mapping[str, Any], vocab: Mapping[str, Mapping[str, float]]
                ) -> list[Param]:
     out = []
     for n in names:
@@ -61,7 +61,7 @@ class FitResult:
     ok: bool = True
     message: str = ""
     coords: list[tuple[str, str]] = field(default_factory=list)  # (effect, fitted coordinate)
-    fixed: dict = field(default_factory=dict)       # coordinate index -> pinned value in [0, 1]
+    fixed: dict[int, float] = field(default_factory=dict)  # coordinate index -> pinned value in [0, 1]
     unidentified: list[str] = field(default_factory=list)   # "effect.coordinate" pinned
 
     @property

@@ -3,14 +3,14 @@ least-squares fit of a set of effects."""
 from __future__ import annotations
 
 import math
-from typing import Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import least_squares, minimize_scalar
 
 from host_tools.analyzer.fit.params import FitResult, Param, effects_dict, params_for
 from host_tools.analyzer.prepare.run import PreparedRun
-from host_tools.analyzer.replay.channels import FIT_CHANNELS, channels
+from host_tools.analyzer.replay.channels import FIT_CHANNELS, Channel, channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
 
 
@@ -37,7 +37,7 @@ def effective_n(r: np.ndarray) -> float:
 class Problem:
     """The fitting problem over a set of runs; picklable (plants are made lazily)."""
 
-    def __init__(self, preps: list[PreparedRun], floors: Mapping[str, float],
+    def __init__(self, preps: Sequence[PreparedRun], floors: Mapping[str, float],
                  vocab: Mapping[str, Mapping[str, float]], dt_s: float = 5e-4,
                  fit_channels: Sequence[str] = FIT_CHANNELS, split_frac: float = 0.6):
         self.preps = preps
@@ -56,7 +56,7 @@ class Problem:
             self._replay = OpenLoopReplay("duty", dt_s=self.dt_s)
         return self._replay
 
-    def __getstate__(self):
+    def __getstate__(self) -> dict[str, Any]:
         d = dict(self.__dict__)
         d["_replay"] = None
         return d
@@ -68,7 +68,7 @@ class Problem:
         return float(t[0] + self.split_frac * (t[-1] - t[0]))
 
     def sim_channels(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int],
-                     full: bool = False):
+                     full: bool = False) -> list[dict[str, Channel]]:
         """Channels of ``runs`` replayed with ``effects``: on the fitting windows
         (:meth:`select_windows`) unless ``full``."""
         out = []
@@ -79,7 +79,7 @@ class Problem:
             out.append(channels(prep, sim, "duty"))
         return out
 
-    def select_windows(self, nominal: Sequence[Mapping[str, object]],
+    def select_windows(self, nominal: Sequence[Mapping[str, Channel]],
                        budget_s: float = FIT_BUDGET_S) -> dict[int, list[int]] | None:
         """Fit on the windows that carry information, so that the cost of a fit grows with the
         budget and not with the run's length: per run, the replay windows whose nominal
@@ -136,7 +136,7 @@ class Problem:
         r = np.concatenate(parts)
         return np.where(np.isfinite(r), r, 1e6)
 
-    def channel_resids(self, effects, runs: Sequence[int], part: str = "all",
+    def channel_resids(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int], part: str = "all",
                        full: bool = False) -> dict[str, np.ndarray]:
         """Residual per channel in the channel's unit, concatenated over ``runs``."""
         acc: dict[str, list[np.ndarray]] = {}
@@ -151,7 +151,7 @@ class Problem:
                 acc.setdefault(c, []).append(r)
         return {c: np.concatenate(v) for c, v in acc.items() if sum(a.size for a in v)}
 
-    def channel_rmse(self, effects, runs: Sequence[int], part: str = "all",
+    def channel_rmse(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int], part: str = "all",
                      full: bool = False) -> dict[str, float]:
         """RMSE per channel in the channel's unit, pooled over ``runs``."""
         return {c: float(np.sqrt(np.mean(v ** 2)))
@@ -176,12 +176,12 @@ class Problem:
         for i, v in fixed.items():
             full0[i] = v
 
-        def expand(xf):
-            x = full0.copy()
+        def expand(xf: np.ndarray) -> np.ndarray:
+            x: np.ndarray = full0.copy()
             x[free] = xf
             return x
 
-        def fun(xf):
+        def fun(xf: np.ndarray) -> np.ndarray:
             x = expand(xf)
             return self.residual(effects_dict(params, [p.from_x(v) for p, v in zip(params, x)]),
                                  runs, part)
@@ -219,8 +219,10 @@ class Problem:
         return out
 
 
-def _unidentified_given(params: Sequence, free: Sequence[int], x: np.ndarray,
-                        values: Sequence[float], r: np.ndarray, expand, fun, meta: Mapping
+def _unidentified_given(params: Sequence[Param], free: Sequence[int], x: np.ndarray,
+                        values: Sequence[float], r: np.ndarray,
+                        expand: Callable[[np.ndarray], np.ndarray],
+                        fun: Callable[[np.ndarray], np.ndarray], meta: Mapping[str, Any]
                         ) -> dict[int, float]:
     """Coordinates with a ``given`` spec (effects.ParamSpec.given) that the data do not
     identify with the held quantity at its fitted value: their 1-sigma uncertainty along the
@@ -267,7 +269,8 @@ def _unidentified_given(params: Sequence, free: Sequence[int], x: np.ndarray,
     return out
 
 
-def _grid_start(fun, base: np.ndarray, grid: int) -> tuple[np.ndarray, int]:
+def _grid_start(fun: Callable[[np.ndarray], np.ndarray], base: np.ndarray, grid: int
+                ) -> tuple[np.ndarray, int]:
     """Coarse multi-start: the neutral point ``base`` and a grid along each parameter; for
     2-parameter effects the second coordinate refined around the best first one.  Returns the
     best start and the number of residual evaluations."""
@@ -280,7 +283,7 @@ def _grid_start(fun, base: np.ndarray, grid: int) -> tuple[np.ndarray, int]:
             s_ = base.copy()
             s_[j] = lv
             starts.append(s_)
-    best, best_c = None, math.inf
+    best, best_c = base, math.inf   # the neutral point when every start costs inf
     for s_ in starts:
         c = float(np.sum(fun(s_) ** 2))
         nfev += 1
@@ -299,7 +302,8 @@ def _grid_start(fun, base: np.ndarray, grid: int) -> tuple[np.ndarray, int]:
     return x0, nfev
 
 
-def _solve(fun, x0: np.ndarray, grid: int, max_nfev: int):
+def _solve(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, grid: int, max_nfev: int
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, bool, str, int]:
     """The bounded fit from ``x0``: (x, residual, Jacobian or None, ok, message, evaluations)."""
     k = x0.size
     nfev = 0
@@ -310,7 +314,7 @@ def _solve(fun, x0: np.ndarray, grid: int, max_nfev: int):
             # finite-difference gradient.
             half = 1.0 / max(grid - 1, 1)
             lo, hi = max(0.0, x0[0] - half), min(1.0, x0[0] + half)
-            cost = lambda v: float(np.sum(fun(np.array([v])) ** 2))  # noqa: E731
+            cost: Callable[[float], float] = lambda v: float(np.sum(fun(np.array([v])) ** 2))  # noqa: E731
             sol = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
                                   options={"xatol": 2e-4, "maxiter": max_nfev})
             x = np.array([sol.x if sol.fun <= cost(x0[0]) else x0[0]])
@@ -334,7 +338,7 @@ def _solve(fun, x0: np.ndarray, grid: int, max_nfev: int):
     return x, r, J, ok, msg, nfev
 
 
-def _param_std(J, r: np.ndarray, params: Sequence[Param], free: Sequence[int]) -> list[float]:
+def _param_std(J: np.ndarray | None, r: np.ndarray, params: Sequence[Param], free: Sequence[int]) -> list[float]:
     """1-sigma uncertainty of each parameter (nan: pinned; inf: not estimated), from the
     parameter covariance inflated for correlated residuals."""
     k = len(free)

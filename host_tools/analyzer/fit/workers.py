@@ -5,10 +5,19 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import time
+from typing import TYPE_CHECKING, Mapping
 
 from host_tools._stdio import say
 from host_tools.analyzer.fit.judge import Candidate, evaluate_candidate
 from host_tools.analyzer.fit.problem import Problem
+
+if TYPE_CHECKING:
+    from concurrent.futures import Executor
+
+    import numpy as np
+
+    # (effects to fit, start coordinates or None, effects the candidate is compared with)
+    FitTask = tuple[list[str], np.ndarray | None, Mapping[str, Mapping[str, float]]]
 
 
 def log_stderr(msg: str) -> None:
@@ -35,14 +44,15 @@ def _init_worker(problem: Problem) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _eval_task(args):
+def _eval_task(args: FitTask) -> tuple[Candidate, float]:
     names, x0, ref_effects = args
+    assert _PROBLEM is not None  # _init_worker set it in this process
     t0 = time.time()
     cand = evaluate_candidate(_PROBLEM, names, x0=x0, ref_effects=ref_effects)
     return cand, time.time() - t0
 
 
-def _stop_workers(ex) -> None:
+def _stop_workers(ex: Executor) -> None:
     """End the pool's worker processes at once (an interrupted analysis must not wait for
     their fits).  ProcessPoolExecutor has no public way to do so before Python 3.14
     (``terminate_workers``): its process table is used when that method is missing."""
@@ -57,7 +67,7 @@ def _stop_workers(ex) -> None:
             pass
 
 
-def run_tasks(problem: Problem, tasks: list, jobs: int, label: str) -> list[Candidate]:
+def run_tasks(problem: Problem, tasks: list[FitTask], jobs: int, label: str) -> list[Candidate]:
     """Fit ``tasks`` (candidate effects) with ``jobs`` worker processes; the candidates in the
     order of ``tasks``.  A worker that dies (the out-of-memory killer's SIGKILL, a SIGTERM sent
     to it alone) breaks the pool: every fit of a task the pool had not returned is then done

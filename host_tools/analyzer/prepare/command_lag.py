@@ -29,11 +29,14 @@ half-width of the d range within one residual variance of the minimum."""
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import TYPE_CHECKING, Any, Sequence, cast
 
 import numpy as np
 
 from host_tools.analyzer.prepare.timing import _feasible_arc
+
+if TYPE_CHECKING:
+    from host_tools.analyzer.prepare.run import PreparedRun
 
 D_MAX_S = 0.15          # search range: above the vocabulary's actuation_delay bound (0.1 s)
 D_STEP_S = 0.0005
@@ -48,13 +51,13 @@ def _tick_series(t: np.ndarray, x: np.ndarray, k: np.ndarray, k0: int, n_k: int)
     """The value of ``x`` at each tick k0 .. k0 + n_k - 1: the first frame that reported the
     tick; a tick no frame reported gets the line between its reported neighbours."""
     ks, first = np.unique(k, return_index=True)
-    return np.interp(np.arange(k0, k0 + n_k), ks, x[first])
+    return cast(np.ndarray, np.interp(np.arange(k0, k0 + n_k), ks, x[first]))
 
 
 class _RunLag:
     """One run's data for the scan over d."""
 
-    def __init__(self, prep, d_max: float):
+    def __init__(self, prep: PreparedRun, d_max: float) -> None:
         tel = prep.run.telemetry
         self.t = np.asarray(tel["t_s"], float)
         T, phase = float(prep.inner_period or 0.0), prep.tick_phase
@@ -101,7 +104,7 @@ class _RunLag:
             k = np.floor((self.t - d - self.phase) / self.T + 1e-9).astype(int)
         else:   # latest frame at or before t - d
             k = np.searchsorted(self.t, self.t - d + 1e-9, side="right") - 1
-        return np.maximum(k - self.k0, 0)
+        return cast(np.ndarray, np.maximum(k - self.k0, 0))
 
     def residuals(self, d: float) -> list[np.ndarray]:
         src = self.source_tick(d)
@@ -145,7 +148,8 @@ def _rho(res: Sequence[np.ndarray]) -> float:
     return min(max(num / den, 0.0), 0.99) if den > 0 else 0.0
 
 
-def command_lag(preps: Sequence, d_max: float = D_MAX_S, d_step: float = D_STEP_S) -> dict | None:
+def command_lag(preps: Sequence[PreparedRun], d_max: float = D_MAX_S, d_step: float = D_STEP_S
+                ) -> dict[str, Any] | None:
     """The lag of the duty in force behind the torque command over the runs (model above):
     ``delay_s`` (0 when not significant), ``estimate_s`` and ``std_s`` of the best step, ``F``,
     ``n``, ``n_eff``, ``significant``.  None when no run has both columns moving."""

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
@@ -71,7 +72,7 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
         if started and t_start is not None:
             # the first tick is the start itself (a tick the phase puts a little earlier is it)
             ticks = np.concatenate([[t_start], ticks[ticks > t_start + 0.5 * period]])
-        dense = lambda v: np.interp(ticks, known, np.asarray(v, float)[first])  # noqa: E731
+        dense: Callable[[np.ndarray], np.ndarray] = lambda v: np.interp(ticks, known, np.asarray(v, float)[first])  # noqa: E731
         duty = (dense(duty[0]), dense(duty[1]))
         torque = (dense(torque[0]), dense(torque[1]))
         t_in, t_in_tau = ticks.copy(), ticks.copy()

@@ -1,6 +1,8 @@
 """How the recorder's odometry columns relate to its own encoder counts."""
 from __future__ import annotations
 
+from typing import Any, cast
+
 import numpy as np
 
 from host_tools.analyzer.prepare.run import GAP_S, PreparedRun
@@ -26,7 +28,7 @@ def odometry_times(prep: PreparedRun) -> np.ndarray:
     return t if tk is None else np.maximum(tk, t[0])
 
 
-def recorder_odometry(prep: PreparedRun) -> dict:
+def recorder_odometry(prep: PreparedRun) -> dict[str, Any]:
     """How the recorder's odometry columns relate to its own encoder counts, from the recording
     alone: lib/control's odometry (exact arc, III.2-III.4) of the recorded counts is computed
     at the inner ticks (counts interpolated there; a frame reports the latest tick's pose, as
@@ -62,13 +64,13 @@ def recorder_odometry(prep: PreparedRun) -> dict:
             after_gap = i_a > 0 and t[i_a] - t[i_a - 1] > GAP_S and i_b - i_a >= 2
             at_t = np.maximum(uniq, t[0])
 
-            def counts_at(n):
+            def counts_at(n: np.ndarray) -> np.ndarray:
                 c = np.interp(at_t, t, n)
                 if after_gap:
                     early = at_t < t[i_a]
                     slope = (n[i_a + 1] - n[i_a]) / (t[i_a + 1] - t[i_a])
                     c[early] = n[i_a] + slope * (at_t[early] - t[i_a])
-                return np.floor(c + 1e-9)
+                return cast(np.ndarray, np.floor(c + 1e-9))
             cr, cl = counts_at(tel["enc_r"]), counts_at(tel["enc_l"])
             if uniq.size >= 2:
                 xo, yo, po = encoder_odometry(cr, cl, at_t + 1e-9 * np.arange(at_t.size), r, b, ppr,
@@ -77,17 +79,17 @@ def recorder_odometry(prep: PreparedRun) -> dict:
         for name, (xo, yo, po) in cand.items():
             errs[name].append(np.column_stack([rec[:, 0] - xo, rec[:, 1] - yo,
                                                wrap_angle(rec[:, 2] - po)]))
-    out: dict = {}
-    for name, e in errs.items():
-        if not e:
+    out: dict[str, dict[str, float]] = {}
+    for name, es in errs.items():
+        if not es:
             continue
-        e = np.vstack(e)
+        e = np.vstack(es)
         out[name] = {"rms_m": float(np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2))),
                      "rms_rad": float(np.sqrt(np.mean(e[:, 2] ** 2)))}
     if not out:
         return {}
     best = min(out, key=lambda n: out[n]["rms_m"] / tol_m + out[n]["rms_rad"] / tol_rad)
-    res = {"schedule": best, "tolerance_m": tol_m, "tolerance_rad": tol_rad, "by_schedule": out}
+    res: dict[str, Any] = {"schedule": best, "tolerance_m": tol_m, "tolerance_rad": tol_rad, "by_schedule": out}
     res["agrees"] = bool(out[best]["rms_m"] <= tol_m and out[best]["rms_rad"] <= tol_rad)
     return res
 

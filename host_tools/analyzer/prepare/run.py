@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -18,12 +19,12 @@ class PreparedRun:
     duty: tuple[np.ndarray, np.ndarray]
     torque: tuple[np.ndarray, np.ndarray]
     t_grid: np.ndarray        # times at which the simulation is sampled
-    robot: dict
-    motor: dict
+    robot: dict[str, Any]
+    motor: dict[str, Any]
     start_pose: tuple[float, float, float]
     ppr: int
     # replay windows: frame index ranges [i_a, i_b) covering the run (see make_windows)
-    windows: list = field(default_factory=list)
+    windows: list[tuple[int, int]] = field(default_factory=list)
     # input timing (prepare): the inner loop's period and its tick phase (None: not pinned
     # down); the firmware's odometry is computed at its ticks (see replay.channels)
     inner_period: float = 0.0
@@ -38,14 +39,15 @@ class PreparedRun:
     # recorder's odometry relates to its counts (prepare.odometry.recorder_odometry)
     timing: str | None = None
     phase_uncertainty_s: float = 0.0
-    recorder_odometry: dict | None = None
+    recorder_odometry: dict[str, Any] | None = None
     odo_schedule: str | None = None        # "ticks" or "frames"
     # replay: the nominal replay's slip episodes (board times; replay.anchors) and the replay's
     # uncertainty from unreported commands (channel -> (t, std); replay.unseen)
-    slip_episodes: list = field(default_factory=list)
-    replay_unc: dict | None = None
-    tolerance_bias: dict | None = None  # channel -> whole-run bias the model's tolerance allows
-    anchor_cache: dict = field(default_factory=dict)  # replay.anchors._gt_anchor's results
+    slip_episodes: list[tuple[float, float]] = field(default_factory=list)
+    replay_unc: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
+    tolerance_bias: dict[str, float] | None = None  # channel -> whole-run bias the model's tolerance allows
+    anchor_cache: dict[tuple[float, float, tuple[tuple[float, ...], ...]],  # replay.anchors.
+                       dict[str, float] | None] = field(default_factory=dict)  # _gt_anchor's
 
     @property
     def name(self) -> str:

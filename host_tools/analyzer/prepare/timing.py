@@ -23,7 +23,7 @@ def reconstruct_input_times(t: np.ndarray, values: list[np.ndarray], period: flo
     at 50 Hz); ``arc_position`` picks the phase along it (0 start, 0.5 centre, 1 end), unless
     ``phase`` gives it (e.g. from :func:`board_rate_phase`)."""
     t = np.asarray(t, float)
-    eff = t.copy()
+    eff: np.ndarray = t.copy()
     if phase is None:
         arc = _feasible_arc(t, values, period)
         if arc is None:
@@ -59,7 +59,8 @@ def _changes(t: np.ndarray, values: list[np.ndarray]) -> np.ndarray:
     return np.flatnonzero(changed)
 
 
-def _feasible_arc(t: np.ndarray, values: list[np.ndarray], period: float):
+def _feasible_arc(t: np.ndarray, values: list[np.ndarray], period: float
+                  ) -> tuple[float, float, np.ndarray] | None:
     """(first phase, width, frames where an input changed) of the arc of tick phases that put a
     tick in every interval in which an input changed; None when the data do not pin it down."""
     if t.size < 3 or period <= 0:
@@ -98,8 +99,8 @@ def _feasible_arc(t: np.ndarray, values: list[np.ndarray], period: float):
 
 
 
-def _ramped_duty(t: np.ndarray, duty: tuple, phase: float, period: float,
-                 latency: np.ndarray | None) -> tuple[np.ndarray, tuple]:
+def _ramped_duty(t: np.ndarray, duty: tuple[np.ndarray, np.ndarray], phase: float, period: float,
+                 latency: np.ndarray | None) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """The duty of a recorder that ramps it between its ticks (meta ``duty_ramp``: this
     project's firmware, src/motor.cpp): at a tick it sets d_k, then every millisecond adds the
     slope s_k the torque->PWM map chose, and a frame reports the duty in force at its own time.

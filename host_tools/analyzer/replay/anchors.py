@@ -4,7 +4,7 @@ recorded counts."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING, Any, Mapping, cast
 
 import numpy as np
 
@@ -103,7 +103,7 @@ def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
     ok = np.isfinite(ph[m]) if ph is not None else np.zeros(tm.size, bool)
     ox, oy = odo["x_m"] - odo["x_m"].mean(), odo["y_m"] - odo["y_m"].mean()
     spread = float(np.sqrt(np.mean(ox ** 2 + oy ** 2)))
-    if spread >= MIN_SPREAD_M or ok.sum() < 3:
+    if spread >= MIN_SPREAD_M or ok.sum() < 3 or ph is None:  # (ph None: ok is all False)
         qx, qy = gx - gx.mean(), gy - gy.mean()
         delta_at = float(np.arctan2(np.sum(ox * qy - oy * qx), np.sum(ox * qx + oy * qy)))
         delta = np.full(tm.size, delta_at)
@@ -112,7 +112,7 @@ def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
         d0 = float(np.median(wrap_angle(d)))
         dl = d0 + wrap_angle(d - d0)
         A = np.column_stack([np.ones(ok.sum()), tm[ok] - at])
-        coef = np.linalg.lstsq(A, dl, rcond=None)[0] if np.ptp(tm[ok]) > 0 else [np.mean(dl), 0]
+        coef: np.ndarray | list[Any] = np.linalg.lstsq(A, dl, rcond=None)[0] if np.ptp(tm[ok]) > 0 else [np.mean(dl), 0]
         delta = coef[0] + coef[1] * (tm - at)
         delta_at = float(coef[0])
     cx = gx - (np.cos(delta) * odo["x_m"] - np.sin(delta) * odo["y_m"])
@@ -126,7 +126,8 @@ def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
 
 def window_start(prep: PreparedRun, w: int,
                  effects: Mapping[str, Mapping[str, float]] | None = None
-                 ) -> tuple[float, tuple, tuple | None]:
+                 ) -> tuple[float, tuple[float, float, float],
+                        tuple[float, float, float, float, float] | None]:
     """(start time, start pose, start velocity or None) of replay window ``w``: the run's
     start pose at rest for the first window; otherwise BURN_IN_S before the window (not before
     a gap), moving as the recording says: wheel speeds from the counts around that frame,
@@ -190,8 +191,9 @@ def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.
     geo = folded_robot(prep.robot, effects or {})
     r, b = float(geo["r"]), float(geo["b"])
     g = np.asarray(sim["t_s"], float)
-    pose0 = tuple(float(np.interp(t[0], g, np.asarray(sim[c], float)))
-                  for c in ("x_m", "y_m", "phi_rad"))
+    pose0 = cast("tuple[float, float, float]",
+                 tuple(float(np.interp(t[0], g, np.asarray(sim[c], float)))
+                       for c in ("x_m", "y_m", "phi_rad")))
     q_sim = [np.floor((th - th[0]) / k + 1e-9) for th in (th_r, th_l)]
     q_rec = [np.asarray(tel[f"enc_{s}"][i_a:i_b], float) - float(tel[f"enc_{s}"][i_a])
              for s in ("r", "l")]

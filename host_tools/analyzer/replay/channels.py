@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Mapping, cast
 
 import numpy as np
 
@@ -37,11 +37,12 @@ def _theta_at(sim: Mapping[str, np.ndarray], side: str, times: np.ndarray) -> np
     s = np.where(h > 0, (times - g[i]) / np.where(h > 0, h, 1.0), 0.0)
     h00, h10 = 2 * s ** 3 - 3 * s ** 2 + 1, s ** 3 - 2 * s ** 2 + s
     h01, h11 = -2 * s ** 3 + 3 * s ** 2, s ** 3 - s ** 2
-    return h00 * th[i] + h10 * h * w[i] + h01 * th[i + 1] + h11 * h * w[i + 1]
+    return cast(np.ndarray, h00 * th[i] + h10 * h * w[i] + h01 * th[i + 1] + h11 * h * w[i + 1])
 
 
 def _replay_odometry(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.ndarray,
-                     th0_r: float, th0_l: float, pose0) -> tuple[np.ndarray, ...]:
+                     th0_r: float, th0_l: float, pose0: tuple[float, float, float]
+                     ) -> tuple[np.ndarray, ...]:
     """The odometry a telemetry frame reports: the firmware integrates it at its inner-loop
     ticks from the counts of that tick, and a frame carries the pose of the latest tick at or
     before it (the counts in the same frame are read at the frame's own time).  With the tick
@@ -69,7 +70,7 @@ def _replay_odometry(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.nda
 CURRENT_SETTLE_S = 1e-3
 
 
-def _last_change(t_in: np.ndarray, values: tuple, t: np.ndarray) -> np.ndarray:
+def _last_change(t_in: np.ndarray, values: tuple[np.ndarray, ...], t: np.ndarray) -> np.ndarray:
     """Time of the latest change of any of ``values`` (held from ``t_in``) at or before ``t``."""
     ch = np.zeros(t_in.size, bool)
     ch[0] = True
@@ -118,7 +119,8 @@ class Channel:
         return [float(np.ptp(self.rec[self.seg == s])) for s in np.unique(self.seg)]
 
 
-def channels(prep: PreparedRun, sim, mode: str = "duty") -> dict[str, Channel]:
+def channels(prep: PreparedRun, sim: Mapping[str, np.ndarray] | WindowSims, mode: str = "duty"
+             ) -> dict[str, Channel]:
     """Recording against simulation on common channels.  ``sim`` is one simulation of the whole
     run (:meth:`OpenLoopReplay.simulate`) or the windows of :meth:`~OpenLoopReplay.simulate_windows`;
     windows are compared each from its own start and concatenated."""
@@ -169,7 +171,7 @@ class _Window:
         self.th_r, self.th_l = self.at("theta_r_rad", self.t), self.at("theta_l_rad", self.t)
 
     def at(self, name: str, times: np.ndarray) -> np.ndarray:
-        return np.interp(times, self.g, np.asarray(self.sim[name], float))
+        return cast(np.ndarray, np.interp(times, self.g, np.asarray(self.sim[name], float)))
 
     def seg(self, size: int) -> np.ndarray | None:
         return None if self.w is None else np.full(size, self.w, dtype=np.int32)
@@ -303,9 +305,9 @@ def _camera_channels(win: _Window) -> dict[str, Channel]:
         # compared modulo 2 pi (Channel.resid wraps)
         sv = at("phi_rad", tg[ok]) - shift["phi_rad"][ok]
         if anchored:
-            ref = (an or {}).get("phi_rad")
-            if ref is None:
-                ref = float(ph[ok][0])
-            sv = sv - float(at("phi_rad", t[:1])[0]) + ref
+            ref_phi = (an or {}).get("phi_rad")
+            if ref_phi is None:
+                ref_phi = float(ph[ok][0])
+            sv = sv - float(at("phi_rad", t[:1])[0]) + ref_phi
         out["phi_rad"] = Channel("phi_rad", tg[ok], ph[ok], sv, "rad", seg(int(ok.sum())))
     return out

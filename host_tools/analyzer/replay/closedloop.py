@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from typing import Any, Mapping, cast
 
 import numpy as np
 
@@ -24,8 +24,8 @@ VELOCITY_LOOPS = dict(P.definition().enums["controller"])
 CLOSED_LOOP_CHANNELS = ("tau_cmd_r", "tau_cmd_l", "pwm_r", "pwm_l")
 
 
-def closed_loop_setup(meta: Mapping, t: np.ndarray, tau_r: np.ndarray, tau_l: np.ndarray
-                      ) -> tuple[dict | None, list[str], list[str]]:
+def closed_loop_setup(meta: Mapping[str, Any], t: np.ndarray, tau_r: np.ndarray, tau_l: np.ndarray
+                      ) -> tuple[dict[str, Any] | None, list[str], list[str]]:
     """What the closed-loop replay needs from a run, or why it cannot run.
 
     Returns (setup, problems, assumptions).  ``setup`` is None when a problem makes the replay
@@ -159,7 +159,7 @@ class ClosedLoopReplay:
             return False, f"the lib/control C ABI could not be loaded: {exc}"
         return True, ""
 
-    def setup(self, prep: "PreparedRun") -> tuple[dict | None, list[str], list[str]]:
+    def setup(self, prep: "PreparedRun") -> tuple[dict[str, Any] | None, list[str], list[str]]:
         tel = prep.run.telemetry
         setup, problems, assumptions = closed_loop_setup(prep.run.meta, tel["t_s"],
                                                          tel["tau_cmd_r"], tel["tau_cmd_l"])
@@ -178,7 +178,7 @@ class ClosedLoopReplay:
         return setup, problems, assumptions
 
     def simulate(self, prep: "PreparedRun", effects: Mapping[str, Mapping[str, float]],
-                 setup: dict | None = None) -> dict[str, np.ndarray]:
+                 setup: dict[str, Any] | None = None) -> dict[str, np.ndarray]:
         """Per tick: ``t_s`` (board time), the controller's columns (``tau_cmd_r`` ... ``pwm_l``)
         and the plant's state at the tick (wheel angles ``theta_r_rad``, ``theta_l_rad``, ...).
         Raises ValueError when the run lacks what the replay needs (see
@@ -204,10 +204,10 @@ class ClosedLoopReplay:
                           # the firmware's 1 kHz duty ramp, where the recorder says it ramps
                           duty_ramp=bool(prep.run.meta.get("duty_ramp", False)),
                           drive=setup.get("drive"))
-        return loop.run(n)
+        return cast("dict[str, np.ndarray]", loop.run(n))
 
 
-def closed_loop_channels(prep: "PreparedRun", sim: Mapping[str, np.ndarray]) -> dict:
+def closed_loop_channels(prep: "PreparedRun", sim: Mapping[str, np.ndarray]) -> dict[str, Channel]:
     """Recorded against replayed controller outputs at the telemetry frames: a frame reports
     the output of the latest tick at or before it."""
     tel = prep.run.telemetry

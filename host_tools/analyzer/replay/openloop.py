@@ -1,7 +1,7 @@
 """Open-loop replay: the plant driven with the recorded duty or torque command."""
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -32,9 +32,9 @@ class OpenLoopReplay:
         self.name = f"open-loop {mode}"
         self.dt_s = dt_s
         self._factory = plant_factory
-        self._plants: dict = {}
+        self._plants: dict[tuple[tuple[tuple[str, Any], ...], tuple[tuple[str, Any], ...]], Any] = {}
 
-    def _plant(self, robot: dict, motor: dict):
+    def _plant(self, robot: dict[str, Any], motor: dict[str, Any]) -> Any:
         key = (tuple(sorted(robot.items())), tuple(sorted(motor.items())))
         p = self._plants.get(key)
         if p is None:
@@ -46,7 +46,8 @@ class OpenLoopReplay:
             self._plants[key] = p
         return p
 
-    def _ready(self, prep: PreparedRun, effects: Mapping[str, Mapping[str, float]]):
+    def _ready(self, prep: PreparedRun, effects: Mapping[str, Mapping[str, float]]
+               ) -> tuple[Any, tuple[np.ndarray, np.ndarray], np.ndarray]:
         """(plant with ``effects`` switched on, the replayed inputs, their times)."""
         robot, plant_effects = plant_setup(prep.robot, effects)
         plant = self._plant(robot, prep.motor)
@@ -98,10 +99,11 @@ class OpenLoopReplay:
         return WindowSims(out, effects)
 
 
-class WindowSims(list):
+class WindowSims(list[tuple[int, dict[str, np.ndarray]]]):
     """[(window index, plant outputs)] of a windowed replay, with the ``effects`` the plant
     ran with (the candidate's geometry, which the count-anchored camera channels need)."""
 
-    def __init__(self, items=(), effects: Mapping[str, Mapping[str, float]] | None = None):
+    def __init__(self, items: Iterable[tuple[int, dict[str, np.ndarray]]] = (),
+                 effects: Mapping[str, Mapping[str, float]] | None = None):
         super().__init__(items)
         self.effects = dict(effects or {})

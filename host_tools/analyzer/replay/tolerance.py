@@ -6,12 +6,15 @@ much without any physics missing."""
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
 from host_tools import params as P
 from host_tools.analyzer.prepare.run import PreparedRun
+
+if TYPE_CHECKING:
+    from host_tools.analyzer.replay.openloop import OpenLoopReplay
 
 TOLERANCE_ENSEMBLE = 8     # replays with the robot's parameters drawn within their tolerance
 
@@ -42,7 +45,8 @@ def tolerance_draws(robot: Mapping[str, float], n: int, rng: np.random.Generator
     return out
 
 
-def tolerance_uncertainty(prep: PreparedRun, replay, n: int = TOLERANCE_ENSEMBLE) -> int:
+def tolerance_uncertainty(prep: PreparedRun, replay: OpenLoopReplay, n: int = TOLERANCE_ENSEMBLE
+                          ) -> int:
     """Per channel and sample, the spread (std) of ``n`` duty replays whose robot parameters are
     drawn within their tolerance (:func:`tolerance_draws`), added in quadrature to the run's
     replay uncertainty (``prep.replay_unc``, which :func:`input_uncertainty` may already hold):
@@ -64,7 +68,8 @@ def tolerance_uncertainty(prep: PreparedRun, replay, n: int = TOLERANCE_ENSEMBLE
     acc: dict[str, list[np.ndarray]] = {}
     t_of: dict[str, np.ndarray] = {}
     for draw in tolerance_draws(prep.robot, n, rng):
-        def factory(robot, motor, _d=draw):
+        def factory(robot: dict[str, Any], motor: dict[str, Any], _d: dict[str, float] = draw
+                    ) -> Any:
             return _native.Plant(robot={**robot, **_d}, motor=motor)
         rep = OpenLoopReplay(replay.mode, dt_s=replay.dt_s, plant_factory=factory)
         for name, ch in channels(prep, rep.simulate_windows(prep, {}), replay.mode).items():

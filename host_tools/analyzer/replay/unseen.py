@@ -3,7 +3,7 @@ fill refined with the controller's pattern, and the replay's uncertainty from th
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING, Mapping, cast
 
 import numpy as np
 
@@ -36,7 +36,7 @@ def _replay_tick_shift(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray], k: n
 
     def bend(v: np.ndarray) -> np.ndarray:
         w = (x[1:-1] - x[:-2]) / np.maximum(x[2:] - x[:-2], 1e-9)
-        return v[1:-1] - (v[:-2] + (v[2:] - v[:-2]) * w)
+        return cast(np.ndarray, v[1:-1] - (v[:-2] + (v[2:] - v[:-2]) * w))
     best, best_s, err0 = np.inf, 0, np.inf
     for s in (0, -1, 1):
         ks = k[i] + s
@@ -115,7 +115,7 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
             lo = np.minimum(out[prev_i], out[next_i]) - UNSEEN_BRACKET_SIGMA * sigma
             hi = np.maximum(out[prev_i], out[next_i]) + UNSEEN_BRACKET_SIGMA * sigma
             out[unseen] = np.clip(out[unseen] + off, lo, hi)
-        return out
+        return cast(np.ndarray, out)
     prep.duty = (refined(prep.duty[0], "pwm_r"), refined(prep.duty[1], "pwm_l"))
     if prep.t_in_tau.size == prep.t_in.size and np.array_equal(prep.t_in_tau, prep.t_in):
         prep.torque = (refined(prep.torque[0], "tau_cmd_r"), refined(prep.torque[1], "tau_cmd_l"))
@@ -176,7 +176,7 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
         bend.append(dev / math.sqrt(3.0))
     seed = int(np.uint32(int(np.sum(np.asarray(prep.run.telemetry["t_s"], float) * 1e3)) & 0xFFFFFFFF))
     rng = np.random.default_rng([seed, unseen.size])
-    base = tuple(np.asarray(u, float) for u in prep.duty)
+    base = cast("tuple[np.ndarray, np.ndarray]", tuple(np.asarray(u, float) for u in prep.duty))
     acc: dict[str, list[np.ndarray]] = {}
     t_of: dict[str, np.ndarray] = {}
     try:
@@ -187,7 +187,7 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
                 z = rng.standard_normal(int(gap[-1]) + 1)
                 v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
                 draw.append(np.clip(v, -1.0, 1.0))
-            prep.duty = tuple(draw)
+            prep.duty = cast("tuple[np.ndarray, np.ndarray]", tuple(draw))
             for name, ch in channels(prep, replay.simulate_windows(prep, {}), "duty").items():
                 acc.setdefault(name, []).append(ch.resid)
                 t_of[name] = ch.t

@@ -17,9 +17,10 @@ def main() -> None:
     ap.add_argument("--work", default=None, help="folder for the runs and outputs (default: "
                     "a temporary one)")
     a = ap.parse_args()
-    from host_tools import runfmt, truth
+    from host_tools import runfmt
     from host_tools.analyzer.pipeline import analyze
     from host_tools.analyzer.report.writers import write_outputs
+    from host_tools.truth.run import simulate_run
 
     d = a.work or tempfile.mkdtemp(prefix="bench-outputs-")
     line = {"kind": "line", "accel": 1.0}
@@ -27,9 +28,9 @@ def main() -> None:
     for k, cruise in enumerate((0.6, 0.4)):
         p = os.path.join(d, f"r{k}")
         if not os.path.exists(p):
-            truth.simulate_run(p, {**line, "cruise": cruise},
-                               {"motor_back_emf": {"ke_ratio": 1.2}}, duration_s=a.duration,
-                               seed=3 + k)
+            simulate_run(p, {**line, "cruise": cruise},
+                         {"motor_back_emf": {"ke_ratio": 1.2}}, duration_s=a.duration,
+                         seed=3 + k)
         paths.append(p)
     runs = [runfmt.load_run(p) for p in paths]
     runfmt.label_runs(runs)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import html
 import json
+from typing import Any
 
 import numpy as np
 
@@ -26,16 +27,16 @@ def _dec(s: Series) -> np.ndarray:
     return np.arange(n) if n <= MAX_POINTS else np.arange(0, n, int(np.ceil(n / MAX_POINTS)))
 
 
-def _l(a: np.ndarray, idx: np.ndarray) -> list:
+def _l(a: np.ndarray, idx: np.ndarray) -> list[float | None]:
     return [None if not np.isfinite(v) else float(v) for v in np.asarray(a)[idx]]
 
 
-def channel_figure(s: Series) -> dict:
+def channel_figure(s: Series) -> dict[str, Any]:
     """A plotly figure (as a dict) of one channel: values above, residuals below."""
     idx = _dec(s)
     t = _l(s.t, idx)
     kind = "closed loop" if s.replay == "closed_loop" else "simulation"
-    tr = [{"type": "scatter", "mode": "markers", "x": t, "y": _l(s.rec, idx),
+    tr: list[dict[str, Any]] = [{"type": "scatter", "mode": "markers", "x": t, "y": _l(s.rec, idx),
            "name": "recording", "marker": {"size": 3, "color": COLORS["recording"]},
            "xaxis": "x", "yaxis": "y"},
           {"type": "scatter", "mode": "lines", "x": t, "y": _l(s.nominal, idx),
@@ -67,7 +68,7 @@ def channel_figure(s: Series) -> dict:
                    "name": "nominal residual outside the band",
                    "marker": {"size": 4, "color": COLORS["outside"]},
                    "xaxis": "x", "yaxis": "y2"})
-    shapes = []
+    shapes: list[dict[str, Any]] = []
     for a, b in s.windows:
         for yref in ("y domain", "y2 domain"):
             shapes.append({"type": "rect", "xref": "x", "yref": yref, "x0": a, "x1": b,
@@ -88,7 +89,7 @@ def channel_figure(s: Series) -> dict:
     return {"data": tr, "layout": layout}
 
 
-def path_figure(run: str, series: list[Series]) -> dict | None:
+def path_figure(run: str, series: list[Series]) -> dict[str, Any] | None:
     """The x–y path of a run: the recording (ground truth, else the odometry) with the nominal
     and updated replays."""
     by = {s.channel: s for s in series}
@@ -154,7 +155,7 @@ def report_html(an: Analysis, summary_md: list[str], runs: list[tuple[int, list[
     """The whole page."""
     from plotly.offline import get_plotlyjs
 
-    figs: list[tuple[str, dict]] = []
+    figs: list[tuple[str, dict[str, Any]]] = []
     body = [_md_to_html(summary_md), "<h2>Runs and channels</h2>",
             "<p>Per run: the x–y path, then every channel. Upper panel: recording (dots), "
             "nominal and updated replay. Lower panel: residuals (recording − replay) with the "

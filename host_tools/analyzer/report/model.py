@@ -1,14 +1,14 @@
 """The updated model-parameter file (model.json)."""
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 from host_tools.analyzer.effects import folded_robot, plant_setup
 from host_tools.model import FORMAT as MODEL_FORMAT
 
 
-def updated_model(meta: Mapping, effects: Mapping[str, Mapping[str, float]],
-                  sources: Sequence[str]) -> dict:
+def updated_model(meta: Mapping[str, Any], effects: Mapping[str, Mapping[str, float]],
+                  sources: Sequence[str]) -> dict[str, Any]:
     """The updated model-parameter file (format ``ddmodel/1``, see docs/analyzer.md)."""
     from host_tools import _native
     robot = dict(meta["robot"])

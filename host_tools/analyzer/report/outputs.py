@@ -23,6 +23,7 @@ import signal
 import stat
 import tempfile
 from contextlib import contextmanager
+from typing import Callable, Iterator
 
 STAGING_PREFIX = ".analyze-staging-"
 SERIES_DIR = "series"
@@ -55,7 +56,7 @@ def write_text(staging: str, name: str, text: str) -> None:
 
 
 @contextmanager
-def _signals_held():
+def _signals_held() -> Iterator[None]:
     sigs = {getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)}
     old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
     try:
@@ -92,7 +93,8 @@ def _unlink_if_file(path: str) -> None:
         pass
 
 
-def commit(staging: str, out_dir: str, names: list[str], on_commit=None) -> None:
+def commit(staging: str, out_dir: str, names: list[str],
+           on_commit: Callable[[], object] | None = None) -> None:
     """Move the staged ``names`` into OUT_DIR as one set (see the module's docstring) and
     remove the staging folder.  ``on_commit()`` is called once the set is in place, before the
     held-back signals are delivered."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
@@ -13,7 +13,7 @@ from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit.judge import HELDOUT_RULE, Candidate, heldout_channel_check
 from host_tools.analyzer.locate import Detection, Located
 from host_tools.analyzer.prepare.run import PreparedRun
-from host_tools.analyzer.replay.channels import DERIVED
+from host_tools.analyzer.replay.channels import DERIVED, Channel
 from host_tools.analyzer.replay.closedloop import CLOSED_LOOP_CHANNELS
 from host_tools.analyzer.select import excess, Selection
 from host_tools.analyzer.signals import round_sig
@@ -25,7 +25,8 @@ if TYPE_CHECKING:
 REPORT_FORMAT = "mismatch-report/1"
 
 
-def _pooled_rmse(chans_per_run, names) -> dict[str, float]:
+def _pooled_rmse(chans_per_run: Sequence[Mapping[str, Channel]], names: Sequence[str]
+                 ) -> dict[str, float]:
     out = {}
     for c in names:
         r = [ch[c].resid for ch in chans_per_run if ch and c in ch]
@@ -39,29 +40,30 @@ class Analysis:
     runs: list[runfmt.Run]
     preps: list[PreparedRun]
     floors: dict[str, float]
-    nominal: list[dict]                 # per run: channel -> Channel (duty replay)
-    nominal_torque: list[dict]          # per run: channel -> Channel (torque replay)
-    updated: list[dict] | None
-    mismatch: list[dict]
+    nominal: list[dict[str, Channel]]   # per run: channel -> Channel (duty replay)
+    nominal_torque: list[dict[str, Channel]]  # per run: channel -> Channel (torque replay)
+    updated: list[dict[str, Channel]] | None
+    mismatch: list[dict[str, Any]]
     candidates: list[Candidate]
-    selected: list[dict]
+    selected: list[dict[str, Any]]
     verdict: str
-    fit_table: dict
-    hint: dict | None
-    model: dict
+    fit_table: dict[str, Any]
+    hint: dict[str, Any] | None
+    model: dict[str, Any]
     notes: list[str] = field(default_factory=list)
-    torque_mismatch: list[dict] = field(default_factory=list)
-    windows: dict = field(default_factory=dict)   # (run idx, channel) -> [Window]
+    torque_mismatch: list[dict[str, Any]] = field(default_factory=list)
+    windows: dict[tuple[int, str], list[sg.Window]] = field(default_factory=dict)
     timing_s: float = 0.0
-    closed_loop: dict = field(default_factory=dict)      # report section (see docs/analyzer.md)
-    cl_nominal: list = field(default_factory=list)       # per run: channel -> Channel, or {}
-    cl_updated: list = field(default_factory=list)
-    recorder: dict = field(default_factory=dict)         # findings about the recorder
-    localization: list = field(default_factory=list)     # where in time the mismatch is
+    closed_loop: dict[str, Any] = field(default_factory=dict)  # report section (docs/analyzer.md)
+    cl_nominal: list[dict[str, Channel]] = field(default_factory=list)  # per run, or {}
+    cl_updated: list[dict[str, Channel]] = field(default_factory=list)
+    recorder: dict[str, Any] = field(default_factory=dict)     # findings about the recorder
+    localization: list[dict[str, Any]] = field(default_factory=list)  # where the mismatch is
 
 
-def closed_loop_report(cl: NominalClosedLoop, cl_updated: Sequence[dict], loc: Located,
-                       final_effects: Mapping) -> dict:
+def closed_loop_report(cl: NominalClosedLoop, cl_updated: Sequence[Mapping[str, Channel]],
+                       loc: Located, final_effects: Mapping[str, Mapping[str, float]]
+                       ) -> dict[str, Any]:
     """The report's closed-loop section (see docs/analyzer.md): per run whether it was replayed
     and on which assumptions, the controller-output errors before and after the update, in
     their units and in noise floors, and the closed loop's significant windows.  Reported, not
@@ -70,7 +72,7 @@ def closed_loop_report(cl: NominalClosedLoop, cl_updated: Sequence[dict], loc: L
     cl_b = _pooled_rmse(cl.nominal, CLOSED_LOOP_CHANNELS)
     cl_a = _pooled_rmse(cl_updated, CLOSED_LOOP_CHANNELS)
 
-    def _nrms(chs):
+    def _nrms(chs: Sequence[Mapping[str, Channel]]) -> float | None:
         r = [ch[c].resid / cl_floors[c] for ch in chs if ch for c in cl_floors if c in ch]
         return round_sig(float(np.sqrt(np.mean(np.concatenate(r) ** 2)))) if r else None
 
@@ -88,8 +90,8 @@ def closed_loop_report(cl: NominalClosedLoop, cl_updated: Sequence[dict], loc: L
         "used_for_decisions": False}
 
 
-def error_tables(det: Detection, sel: Selection, floors: Mapping, closed_loop: Mapping
-                 ) -> dict:
+def error_tables(det: Detection, sel: Selection, floors: Mapping[str, float],
+                 closed_loop: Mapping[str, Any]) -> dict[str, Any]:
     """The report's error tables: RMSE per channel before and after the update on the fitting
     data and on the held-out parts (leave one run out, or a time split of a single run) with
     the held-out rule's per-channel check, the noise floors, and the normalized RMS before and
@@ -108,7 +110,7 @@ def error_tables(det: Detection, sel: Selection, floors: Mapping, closed_loop: M
         c0 = sel.singles[0] if sel.singles else None
         hb = c0.heldout_channels_before if c0 else dict(rb)
         ha = dict(hb)
-    fit_table = {"rmse_before": {k: round_sig(v) for k, v in rb.items()},
+    fit_table: dict[str, Any] = {"rmse_before": {k: round_sig(v) for k, v in rb.items()},
                  "rmse_after": {k: round_sig(v) for k, v in ra.items()},
                  "heldout_rmse_before": {k: round_sig(v) for k, v in hb.items()},
                  "heldout_rmse_after": {k: round_sig(v) for k, v in ha.items()},
@@ -131,8 +133,8 @@ def error_tables(det: Detection, sel: Selection, floors: Mapping, closed_loop: M
     return fit_table
 
 
-def recorder_findings(preps: Sequence[PreparedRun], nominal: Sequence[Mapping], floors: Mapping,
-                      notes: list[str]) -> dict:
+def recorder_findings(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Channel]],
+                      floors: Mapping[str, float], notes: list[str]) -> dict[str, Any]:
     """What the recording says about its recorder (not about the physics): how its odometry
     columns relate to its own counts (replay.recorder_odometry), and whether the derived
     odometry channels disagree with the replay while the counts agree."""
@@ -167,9 +169,10 @@ def recorder_findings(preps: Sequence[PreparedRun], nominal: Sequence[Mapping], 
             "derived_used_for_decisions": False}
 
 
-def localize(preps: Sequence[PreparedRun], nominal: Sequence[Mapping],
-             updated: Sequence[Mapping] | None, floors: Mapping, fit_chans: Sequence[str],
-             strong_k: float, merge_s: float = 0.5) -> list[dict]:
+def localize(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Channel]],
+             updated: Sequence[Mapping[str, Channel]] | None, floors: Mapping[str, float],
+             fit_chans: Sequence[str], strong_k: float, merge_s: float = 0.5
+             ) -> list[dict[str, Any]]:
     """Where in time the recordings disagree with the nominal model: significant windows of the
     fit channels merged across channels (gaps under ``merge_s``), each with its peak in noise
     floors and whether it remains after the update (an effect that holds for part of a run,
@@ -184,7 +187,7 @@ def localize(preps: Sequence[PreparedRun], nominal: Sequence[Mapping],
             w, _ = sg.significant_windows(ch.t, ch.deflated(floors[c]), floors[c])
             spans += [(x.t_start_s, x.t_end_s, x.rms / floors[c], c) for x in w]
         spans.sort()
-        merged: list[list] = []
+        merged: list[list[Any]] = []
         for a, b, pk, c in spans:
             if merged and a <= merged[-1][1] + merge_s:
                 m = merged[-1]

@@ -40,7 +40,7 @@ class Series:
     unc: np.ndarray             # the replay's own uncertainty per sample (0 when none)
     band: np.ndarray            # BAND_K * sqrt(floor^2 + unc^2): where the residual is noise
     window: np.ndarray          # replay window (re-anchoring) of each sample
-    windows: list               # significant-mismatch windows: [(t_start_s, t_end_s)]
+    windows: list[tuple[float, float]]  # significant-mismatch windows: [(t_start_s, t_end_s)]
 
     @property
     def anchor_edges(self) -> list[float]:

@@ -5,13 +5,13 @@ from __future__ import annotations
 import json
 import math
 import os
-from typing import Any
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from host_tools.analyzer.report import outputs
 from host_tools.analyzer.report.sections import REPORT_FORMAT, Analysis
-from host_tools.analyzer.report.series import BAND_K
+from host_tools.analyzer.report.series import BAND_K, Series
 from host_tools.analyzer.signals import round_sig
 from host_tools.runfmt import display
 
@@ -34,10 +34,10 @@ def _finite(obj: Any) -> Any:
     return obj
 
 
-def report_dict(an: Analysis) -> dict:
+def report_dict(an: Analysis) -> dict[str, Any]:
     cands = []
     for c in an.candidates:
-        entry = {"effect": c.name, "params": {}, "delta_bic": round_sig(c.delta_bic, 5),
+        entry: dict[str, Any] = {"effect": c.name, "params": {}, "delta_bic": round_sig(c.delta_bic, 5),
                  "heldout_rmse_before": round_sig(c.heldout_before), "heldout_rmse_after":
                      round_sig(c.heldout_after),
                  "accepted": c.accepted, "checks": dict(c.checks), "why_not": c.reasons,
@@ -55,7 +55,7 @@ def report_dict(an: Analysis) -> dict:
             key = k if len(c.effects) == 1 else f"{e}.{k}"
             entry["param_std"][key] = round_sig(sd)
         cands.append(entry)
-    return _finite({
+    rep: dict[str, Any] = _finite({
         "format": REPORT_FORMAT,
         "verdict": an.verdict,
         "mismatch": an.mismatch,
@@ -73,14 +73,15 @@ def report_dict(an: Analysis) -> dict:
                               "noise floor over the fit channels",
         "elapsed_s": round(an.timing_s, 2),
     })
+    return rep
 
 
-def plot_choice(runs: list[tuple[int, list]], max_plots: int = MAX_PLOTS) -> list:
+def plot_choice(runs: list[tuple[int, list[Series]]], max_plots: int = MAX_PLOTS) -> list[Series]:
     """The (run, channel) series that get a PNG, in this order: each run's largest mismatch
     first (every run represented), then the largest mismatches of all runs.  A series' size is
     its largest RMS over a mismatch window in noise floors, then its overall RMS in noise floors
     (a run without windows shows the channel closest to leaving its noise)."""
-    def size(s) -> tuple[float, float]:
+    def size(s: Series) -> tuple[float, float]:
         f = s.floor if s.floor > 0 else 1.0
         return (s.worst_floors(), float(np.sqrt(np.mean(s.resid_nominal ** 2))) / f
                 if s.t.size else 0.0)
@@ -90,11 +91,11 @@ def plot_choice(runs: list[tuple[int, list]], max_plots: int = MAX_PLOTS) -> lis
     return chosen + rest[:max(0, max_plots - len(chosen))]
 
 
-def _png_name(s) -> str:
+def _png_name(s: Series) -> str:
     return f"{s.run}_{s.channel}.png".replace(os.sep, "_")
 
 
-def _plots(an: Analysis, staging: str, runs: list[tuple[int, list]]) -> list[str]:
+def _plots(an: Analysis, staging: str, runs: list[tuple[int, list[Series]]]) -> list[str]:
     """PNG plots (see :func:`plot_choice`) and one x–y path per run."""
     import matplotlib
     matplotlib.use("Agg")
@@ -245,7 +246,7 @@ def summary_lines(an: Analysis) -> list[str]:
     return L
 
 
-def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
+def _md(an: Analysis, rep: dict[str, Any], plots: list[str]) -> str:
     L = summary_lines(an) + ["# Details", ""]
     if an.selected:
         L += ["## Selected effects", "", "| effect | parameters | cannot be told apart from | "
@@ -293,7 +294,7 @@ def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
     ft = an.fit_table
     hc = ft.get("heldout_check", {})
     for c in ft["rmse_before"]:
-        g = lambda d: (f"{d[c]:.4g}" if d.get(c) is not None else "-")  # noqa: E731
+        g: Callable[[Mapping[str, Any]], str] = lambda d: (f"{d[c]:.4g}" if d.get(c) is not None else "-")  # noqa: E731
         lim = (("worse (derived: no veto)" if hc[c].get("worse") else "ok") if hc[c]["ok"]
                else "WORSE") if c in hc else "-"
         L.append(f"| {c} | {g(ft['noise_floor'])} | {g(ft['rmse_before'])} | "
@@ -335,7 +336,7 @@ def _md(an: Analysis, rep: dict, plots: list[str]) -> str:
     return "\n".join(L)
 
 
-def _outputs(an: Analysis, staging: str, plots: bool) -> dict:
+def _outputs(an: Analysis, staging: str, plots: bool) -> dict[str, Any]:
     """Write every output file into ``staging``; report.json's content (its ``outputs``: the
     files' names relative to OUT_DIR)."""
     from host_tools.analyzer.report import html as report_html
@@ -364,7 +365,8 @@ def _outputs(an: Analysis, staging: str, plots: bool) -> dict:
 
 
 def write_outputs(an: Analysis, out_dir: str, plots: bool = True,
-                  staging: str | None = None, on_commit=None) -> dict:
+                  staging: str | None = None, on_commit: Callable[[], object] | None = None
+                  ) -> dict[str, Any]:
     """Write the output set into ``out_dir``, all or nothing (report/outputs.py): staged in
     ``staging`` (a fresh folder of :func:`outputs.create_staging`; made here when None), then
     committed.  Returns report.json's content.  On any failure the staging folder is removed
