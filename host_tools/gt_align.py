@@ -2,10 +2,21 @@
 
 ``python -m host_tools log --out RUN_DIR --attach-groundtruth TRACKER.csv`` adds the tracker's
 track (columns t_s, x_m, y_m, optional phi_rad, on the tracker's own clock) to a recorded run
-as groundtruth.csv, shifting its time by ``--gt-offset``, by an offset estimated by
-cross-correlating the speed from odometry with the speed from the tracker, or
-(``--gt-unix-time``, a tracker stamped by a PC clock) through the logger's own host clock
-recorded in meta.json; meta.json gets a "groundtruth" section saying how.
+as groundtruth.csv, its time shifted by one of:
+
+* an offset estimated with its standard error from the start from rest, which the wheels and
+  the body make at one instant even when the wheels slip (:func:`estimate_onset_offset`; the
+  speed correlation, :func:`correlate`, only finds the start in the tracker's file).  Refused
+  (exit 2, nothing written) when the data cannot pin it within one tracker frame: a robot that
+  never moves, a telemetry that does not start at rest, a repeated motion that leaves the
+  correlation ambiguous, or a 95 % interval wider than one frame;
+* ``--gt-unix-time``: the exact path, one clock for both: a tracker stamped with the logging
+  PC's Unix time is mapped through the logger's host clock (meta.json logger.host_t0_unix_s
+  and the host_t_s column), within the link's latency;
+* ``--gt-offset S``: given (forces an offset the estimate refused).
+
+meta.json gets a "groundtruth" section saying how, with ``offset_s`` and ``offset_se_s`` (the
+run format keeps keys it does not name).  The workflow: README, "Ground truth from a tracker".
 """
 from __future__ import annotations
 
@@ -90,6 +101,7 @@ START_PRE_S = 0.5      # tracker samples fitted before the start from rest ...
 START_POST_S = 0.3     # ... and after it (before the wheels can have slipped far)
 START_STEP_S = 0.0005  # grid of candidate offsets
 MOVED_M = 0.0005       # the wheels have left their first position (4 encoder counts)
+UNIX_WINDOW_S = 1.0    # --gt-unix-time: the board-host clock difference per this much host time
 Z95 = 1.96             # 95 % of a normal distribution within +- Z95 standard errors
 AMBIGUOUS = 0.9        # a second correlation peak this high (of the first) leaves the lag ambiguous
 
@@ -228,6 +240,22 @@ def estimate_onset_offset(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarra
             "second_peak_correlation": second}
 
 
+def estimate_run_offset(run: runfmt.Run, trk: dict[str, np.ndarray], max_offset_s: float = 10.0,
+                        csv_path: str = "tracker") -> dict[str, Any]:
+    """:func:`estimate_onset_offset` for a loaded run and a tracker's columns (t_s, x_m, y_m):
+    the wheels' distance from the encoder counts, the robot's wheel radius and encoder_ppr."""
+    tel = run.telemetry
+    wheel_m = None
+    if "enc_r" in tel and "enc_l" in tel:
+        r = float((run.meta.get("robot") or {}).get("r", runfmt.DEFAULT_META["robot"]["r"]))
+        ppr = float(run.meta.get("encoder_ppr") or runfmt.DEFAULT_META["encoder_ppr"])
+        wheel_m = (tel["enc_r"] + tel["enc_l"]) / 2 * (2 * math.pi * r / ppr)
+    return estimate_onset_offset(tel["t_s"], tel["x_odo_m"], tel["y_odo_m"],
+                                 trk["t_s"], trk["x_m"], trk["y_m"], max_offset_s,
+                                 labels=(runfmt.display(os.path.join(run.path, "telemetry.csv")),
+                                         runfmt.display(csv_path)), wheel_m=wheel_m)
+
+
 def describe(info: dict[str, Any]) -> str:
     """The line ``log --attach-groundtruth`` prints: the offset with its standard error."""
     se = info.get("offset_se_s")
@@ -249,6 +277,7 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
         raise GroundTruthError(f"--gt-offset {offset_s:g} must be a finite number of seconds "
                                "within +-1e10 (Unix time is about 1.8e9)", 2)
     info: dict[str, Any] = {"file": os.path.basename(csv_path), "rows": int(trk["t_s"].size)}
+    shift: np.ndarray | float = 0.0  # board time - tracker time, per tracker sample or for all
     if unix_time:
         # tracker stamped by a PC clock (Unix seconds): map through the logger's host clock
         t0 = (run.meta.get("logger") or {}).get("host_t0_unix_s")
@@ -257,32 +286,37 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
                               "(meta.json logger.host_t0_unix_s and the host_t_s column)", 2)
         tel = run.telemetry
         # board time - host reception time: reception latency only lowers it, so take a high
-        # percentile (the least delayed frames) rather than the maximum (robust to outliers).
-        # Even those frames may have spent up to their transmission time on the wire
-        # (protocol.json's frame size and baud) after the board stamped them (the firmware in
-        # the loop: 7 ms of a 9 ms wire time): the standard error holds half of it and the
-        # scatter of the least delayed quarter.
+        # percentile (the least delayed frames) rather than the maximum (robust to outliers),
+        # per UNIX_WINDOW_S of host time (a board clock that drifts against the PC's, or a
+        # simulated one that falls behind it, is followed), interpolated at each tracker sample.
+        # The firmware stamps a frame before its first byte leaves; the host has it after the
+        # last: even the least delayed frames spent their transmission time on the wire
+        # (protocol.json's frame size and baud), added back.  Standard error: the scatter of
+        # the least delayed quarter of each window (median over windows) and half the wire time.
         lag = tel["t_s"] - (t0 + tel["host_t_s"])
         d = P.definition()
         wire_s = d.wire_size("Telemetry") * d.bits_per_byte / d.baud
-        offset_s = float(np.percentile(lag, 95))
-        least = np.sort(lag)[-max(2, lag.size // 4):]
-        se = math.hypot(float(np.std(least, ddof=1)), wire_s / 2)
+        h = tel["host_t_s"]
+        centres, env, scatter = [], [], []
+        for a in np.arange(h[0], max(h[-1] - UNIX_WINDOW_S, h[0]) + UNIX_WINDOW_S / 4, UNIX_WINDOW_S / 4):
+            k = (h >= a) & (h < a + UNIX_WINDOW_S)
+            if k.sum() < 8:
+                continue
+            centres.append(float(np.median(h[k])))
+            env.append(float(np.percentile(lag[k], 95)) + wire_s)
+            least = np.sort(lag[k])[-max(2, int(k.sum()) // 4):]
+            scatter.append(float(np.std(least, ddof=1)))
+        if not centres:
+            centres, env, scatter = [float(np.median(h))], [float(np.percentile(lag, 95)) + wire_s], [0.0]
+        shift = np.interp(trk["t_s"] - t0, centres, env)
+        offset_s = float(np.median(env))
+        se = math.hypot(float(np.median(scatter)), wire_s / 2)
         info.update(method="unix time via the logger's host clock (host_t0_unix_s + host_t_s)",
                     offset_s=round(offset_s, 4), offset_se_s=round(se, 4), wire_s=round(wire_s, 5),
+                    offset_range_s=[round(min(env), 4), round(max(env), 4)],
                     host_board_spread_s=round(float(lag.max() - lag.min()), 4))
     elif offset_s is None:
-        tel = run.telemetry
-        meta = {**runfmt.DEFAULT_META, **run.meta}
-        wheel_m = None
-        if "enc_r" in tel and "enc_l" in tel:
-            r = float((meta.get("robot") or {}).get("r", runfmt.DEFAULT_META["robot"]["r"]))
-            ppr = float(meta.get("encoder_ppr") or runfmt.DEFAULT_META["encoder_ppr"])
-            wheel_m = (tel["enc_r"] + tel["enc_l"]) / 2 * (2 * math.pi * r / ppr)
-        est = estimate_onset_offset(tel["t_s"], tel["x_odo_m"], tel["y_odo_m"],
-                                    trk["t_s"], trk["x_m"], trk["y_m"], max_offset_s,
-                                    labels=(runfmt.display(os.path.join(run_dir, "telemetry.csv")),
-                                            runfmt.display(csv_path)), wheel_m=wheel_m)
+        est = estimate_run_offset(run, trk, max_offset_s, csv_path)
         frame = float(np.median(np.diff(trk["t_s"])))
         lag, se, peak = est["offset_s"], est["offset_se_s"], est["peak_correlation"]
         info.update(method="start from rest: tracker fitted to the wheels' distance (speed correlation "
@@ -304,12 +338,14 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
         offset_s = lag
     else:
         info.update(method="given", offset_s=offset_s)
+    if not isinstance(shift, np.ndarray):
+        shift = float(offset_s)
     phi = trk.get("phi_rad")
     start_pose = None
     if set_start_pose:
         # the tracker's pose at the first telemetry frame, on the board clock
         t0 = float(run.telemetry["t_s"][0])
-        tb = trk["t_s"] + offset_s
+        tb = trk["t_s"] + shift
         if not tb[0] <= t0 <= tb[-1]:
             raise GroundTruthError(f"{csv_path}: the tracker does not cover the run start (board time {t0:.3f} s)", 1)
         ok = np.isfinite(phi) if phi is not None else np.zeros(tb.shape, bool)
@@ -320,7 +356,7 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
                       float(np.interp(t0, tb[ok], ph))]
         info["start_pose_from"] = "tracker pose at the first telemetry frame"
     try:
-        runfmt.write_groundtruth(run_dir, trk["t_s"] + offset_s, trk["x_m"], trk["y_m"], phi,
+        runfmt.write_groundtruth(run_dir, trk["t_s"] + shift, trk["x_m"], trk["y_m"], phi,
                                  overwrite=overwrite)
     except runfmt.RunFormatError as exc:
         raise GroundTruthError(str(exc), 2) from None

@@ -18,7 +18,7 @@ from host_tools import runfmt
 
 SHIFT_S = 3.2      # the tracker's clock: t_tracker = t_board - SHIFT_S
 FRAME_S = 0.01     # the simulated tracker's frame (--cam-rate 100)
-MOCAP = ["--cam-rate", "100", "--cam-noise-xy", "0.0005"]  # a motion-capture system: 0.5 mm noise
+MOCAP = ["--cam-rate", "100", "--cam-noise-xy", "0.0002"]  # a motion-capture system: 0.2 mm noise
 
 
 def _record(out: Path, elf, experiment: dict | None, sim_args: list[str], record_s: float | None = None):
