@@ -180,11 +180,12 @@ def estimate_onset_offset(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarra
                           labels: tuple[str, str] = ("telemetry", "tracker"),
                           wheel_m: np.ndarray | None = None) -> dict[str, Any]:
     """Offset (t_board = t_tracker + offset) with its standard error, from the instant the robot
-    starts to move from rest, seen by the odometry and by the tracker (:func:`onset`); the speed
+    starts to move from rest, seen by the wheels and by the tracker (:func:`fit_start`); the speed
     correlation (:func:`correlate`) only says where in the tracker's file to look.  The start
     is one instant on both clocks even when the wheels slip.  GroundTruthError (2) when the
-    data cannot give it: a robot that never moves, a telemetry that does not start at rest,
-    an ambiguous correlation (periodic motion), no start seen by the tracker.  ``wheel_m``: the
+    data cannot give it: a robot that never moves, an ambiguous correlation (periodic motion),
+    no start seen by the tracker (a telemetry that does not start at rest:
+    :func:`estimate_run_offset`).  ``wheel_m``: the
     distance the wheels rolled per frame (mean of both, from the encoder counts), used for the
     start instead of the odometry columns, which a recorder may update less often than it
     sends frames (this project's firmware: every other frame)."""
@@ -196,12 +197,8 @@ def estimate_onset_offset(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarra
     if moved.size == 0:
         raise GroundTruthError(f"{labels[0]}: the robot never moves (odometry path {path * 1000:.1f} mm): "
                                "no motion to align the tracker by; pass --gt-offset, or record a "
-                               "start from rest (README, \"Ground truth\")", 2)
+                               "start from rest (README, \"Ground truth from a tracker\")", 2)
     t_move = float(t_tel[moved[0]])
-    if moved[0] < 1:
-        raise GroundTruthError(f"{labels[0]}: the robot is already moving in the first frames: the "
-                               "alignment needs the start from rest in the recording; pass --gt-offset "
-                               "or --gt-unix-time", 2)
     lags, scores = correlate(t_tel, x_odo, y_odo, t_trk, x_trk, y_trk, max_offset_s, labels=labels)
     if not np.isfinite(scores).any():
         raise GroundTruthError("the tracker and the telemetry do not overlap in time within "
@@ -219,7 +216,8 @@ def estimate_onset_offset(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarra
         raise GroundTruthError(
             f"the clock offset is ambiguous: the speed correlation peaks at {coarse:.3f} s ({peak:.2f}) "
             f"and nearly as high at {float(lags[j]):.3f} s ({second:.2f}) (a repeated motion?); "
-            "pass --gt-offset, or use a start/stop sync (README, \"Ground truth\")", 2)
+            "pass --gt-offset, or stamp the tracker with the logging PC's clock (--gt-unix-time; README, "
+            "\"Ground truth from a tracker\")", 2)
     dist = sx if wheel_m is not None else np.hypot(sx - sx[0], sy - sy[0])
     fit = fit_start(t_tel, dist, t_trk, x_trk, y_trk, t_move, coarse)
     # how far the shape after the start differs from the wheels' (slip): the estimate with
@@ -229,8 +227,8 @@ def estimate_onset_offset(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarra
         o = fit_start(t_tel, dist, t_trk, x_trk, y_trk, t_move, coarse, post_s=post)
         others.append(o[0] if o is not None else math.nan)
     if fit is not None:
-        spread = 0.5 * (max(others + [fit[0]]) - min(others + [fit[0]]))
-        fit = (fit[0], math.hypot(fit[1], spread) if math.isfinite(spread) else math.inf, fit[2])
+        offs = [fit[0]] + [o for o in others if math.isfinite(o)]
+        fit = (fit[0], math.hypot(fit[1], 0.5 * (max(offs) - min(offs))), fit[2])
     if fit is None:
         raise GroundTruthError(f"{labels[1]}: too few tracker samples around the start from rest "
                                f"(board time {t_move:.3f} s, tracker time about {t_move - coarse:.3f} s); "
@@ -245,6 +243,11 @@ def estimate_run_offset(run: runfmt.Run, trk: dict[str, np.ndarray], max_offset_
     """:func:`estimate_onset_offset` for a loaded run and a tracker's columns (t_s, x_m, y_m):
     the wheels' distance from the encoder counts, the robot's wheel radius and encoder_ppr."""
     tel = run.telemetry
+    tel_name = runfmt.display(os.path.join(run.path, "telemetry.csv"))
+    if "omega_r" in tel and "omega_l" in tel and (tel["omega_r"][0] != 0 or tel["omega_l"][0] != 0):
+        raise GroundTruthError(f"{tel_name}: the wheels already turn in the first frame (data row 1): "
+                               "the alignment needs the start from rest in the recording; pass "
+                               "--gt-offset or --gt-unix-time", 2)
     wheel_m = None
     if "enc_r" in tel and "enc_l" in tel:
         r = float((run.meta.get("robot") or {}).get("r", runfmt.DEFAULT_META["robot"]["r"]))
@@ -252,8 +255,7 @@ def estimate_run_offset(run: runfmt.Run, trk: dict[str, np.ndarray], max_offset_
         wheel_m = (tel["enc_r"] + tel["enc_l"]) / 2 * (2 * math.pi * r / ppr)
     return estimate_onset_offset(tel["t_s"], tel["x_odo_m"], tel["y_odo_m"],
                                  trk["t_s"], trk["x_m"], trk["y_m"], max_offset_s,
-                                 labels=(runfmt.display(os.path.join(run.path, "telemetry.csv")),
-                                         runfmt.display(csv_path)), wheel_m=wheel_m)
+                                 labels=(tel_name, runfmt.display(csv_path)), wheel_m=wheel_m)
 
 
 def describe(info: dict[str, Any]) -> str:
@@ -331,7 +333,7 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
                 f"{lag:.4f} s +- {se * 1000:.1f} ms (standard error; 95 %: +- {Z95 * se * 1000:.1f} ms) "
                 f"from {est['samples']} tracker samples around the start from rest; nothing written. "
                 "Pass --gt-offset S to use an offset anyway, or align exactly (--gt-unix-time; "
-                "README, \"Ground truth\")", 2)
+                "README, \"Ground truth from a tracker\")", 2)
         if peak < min_correlation:
             raise GroundTruthError(f"clock offset estimate is unreliable (peak correlation {peak:.2f} < "
                               f"{min_correlation}); pass --gt-offset", 1)

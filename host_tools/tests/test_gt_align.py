@@ -150,3 +150,19 @@ def test_a_repeated_motion_without_its_start_is_refused_as_ambiguous(tmp_path, c
     err = capsys.readouterr().err
     assert "ambiguous" in err and "--gt-offset" in err
     assert not (run / "groundtruth.csv").exists()
+
+
+def test_a_recording_that_starts_in_motion_is_refused(runs, tmp_path, capsys):
+    """The telemetry's first frame finds the wheels turning: the start from rest is not in the
+    recording, so there is nothing to align by."""
+    run = _without_groundtruth(runs["figure_eight"], tmp_path / "run")
+    lines = (run / "telemetry.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    omega = [float(row.split(",")[header.index("omega_r")]) for row in lines[1:]]
+    first_moving = next(i for i, w in enumerate(omega) if w > 1.0)
+    (run / "telemetry.csv").write_text("\n".join([lines[0]] + lines[1 + first_moving:]) + "\n")
+    trk = _tracker(runs["figure_eight"], tmp_path / "tracker.csv")
+    assert L.main(_args(["--out", str(run), "--attach-groundtruth", str(trk)])) == 2
+    err = capsys.readouterr().err
+    assert "already turn in the first frame" in err and "--gt-offset" in err
+    assert not (run / "groundtruth.csv").exists()
