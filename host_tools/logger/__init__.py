@@ -45,9 +45,11 @@ Guarantees:
 
 ``--attach-groundtruth TRACKER.csv`` (without ``--port``) adds an external tracker's CSV
 (columns t_s, x_m, y_m, optional phi_rad, on the tracker's own clock) to a recorded run as
-groundtruth.csv, shifting its time by ``--gt-offset``, by an offset estimated by
-cross-correlating the speed from odometry with the speed from the tracker, or (``--gt-unix-time``,
-a tracker stamped by a PC clock) through the logger's own host clock recorded in meta.json
+groundtruth.csv, shifting its time by an offset estimated from the start from rest and printed
+with its standard error (refused, exit 2 and nothing written, when the data cannot pin it
+within one tracker frame), by ``--gt-offset``, or (``--gt-unix-time``, a tracker stamped by the
+logging PC's clock: no estimate, within the link's latency) through the logger's own host clock
+recorded in meta.json
 (:mod:`host_tools.gt_align`).
 
 Modules, by concern: ``link`` (the serial port: connect, reconnect, send, the receive loop),

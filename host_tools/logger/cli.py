@@ -49,7 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--attach-groundtruth", metavar="TRACKER_CSV",
                    help="add an external tracker CSV (t_s,x_m,y_m[,phi_rad]) to the run in --out")
     p.add_argument("--gt-offset", type=float, help="tracker clock offset, s (t_board = t_tracker + offset); "
-                   "estimated by speed cross-correlation when omitted")
+                   "forces this offset; when omitted it is estimated with its uncertainty from the start from "
+                   "rest, and refused (exit 2) when the data cannot pin it within one tracker frame")
     p.add_argument("--gt-max-offset", type=float, default=10.0, help="search window, s (default 10)")
     p.add_argument("--gt-unix-time", action="store_true", help="the tracker's t_s is Unix time from a PC clock: "
                    "align through the logger's host clock instead of estimating")
@@ -68,8 +69,7 @@ def main(args: argparse.Namespace) -> int:
         except gt_align.GroundTruthError as exc:
             say(f"error: {exc}")
             return exc.code
-        out(f"groundtruth.csv written: offset {info['offset_s']} s ({info['method']}"
-              + (f", peak correlation {info['peak_correlation']}" if "peak_correlation" in info else "") + ")")
+        out(gt_align.describe(info))
         return 0
     if not args.port:
         say("error: --port is required (or --attach-groundtruth)")

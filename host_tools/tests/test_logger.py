@@ -953,11 +953,12 @@ def test_groundtruth_with_unix_timestamps(tmp_path):
     run = tmp_path / "run"
     t0_unix, board_minus_host = 1_700_000_000.25, 12.5  # robot booted 12.5 s before the logger
     rng = np.random.default_rng(3)
+    wire_s = D.wire_size("Telemetry") * D.bits_per_byte / D.baud  # a frame's last byte arrives after this
     with runfmt.RunWriter(str(run), {"experiment": "t", "logger": {"host_t0_unix_s": t0_unix}}) as w:
         for i in range(200):
             host_t = 0.5 + 0.02 * i
             w.write_row({**{c: 0 for c in runfmt.TELEMETRY_COLUMNS}, "t_s": host_t + board_minus_host,
-                         "host_t_s": host_t + abs(rng.normal(0, 0.004))})  # radio/USB latency
+                         "host_t_s": host_t + wire_s + abs(rng.normal(0, 0.004))})  # radio/USB latency
     csv = tmp_path / "tracker.csv"
     csv.write_text("t_s,x_m,y_m\n" + "".join(f"{t0_unix + 0.5 + k / 30:.4f},0,0\n" for k in range(100)))
     assert L.main(_args(["--out", str(run), "--attach-groundtruth", str(csv), "--gt-unix-time"])) == 0

@@ -71,6 +71,7 @@ struct Options {
     bool exit_on_hangup = true;
     std::vector<std::pair<std::string, double>> keys;
     double cam_rate = 100.0, cam_xy = 0.0, cam_phi = 0.0, cam_dropout = 0.0;
+    std::string cam_unix_csv;      // also write the camera samples stamped with the host's Unix clock
     double enc_jitter_us = 0.0, enc_glitch = 0.0;
     double link_ber = 0.0, link_drop = 0.0;
     bool link_up = true, link_down = true;
@@ -214,6 +215,7 @@ struct Fil {
 
     // recorder.cpp
     FILE* gt_f = nullptr;
+    FILE* gt_unix_f = nullptr;  // --cam-unix-csv: the same samples, stamped when made (CLOCK_REALTIME)
     FILE* plant_f = nullptr;
     FILE* snap_f = nullptr;
     double next_cam_t = 0;

@@ -30,6 +30,8 @@ void usage() {
         "  --cam-noise-xy M     ground-truth position noise, standard deviation (default 0)\n"
         "  --cam-noise-phi RAD  ground-truth heading noise (default 0)\n"
         "  --cam-dropout P      probability that a ground-truth sample is missing (default 0)\n"
+        "  --cam-unix-csv FILE  also write the samples as a tracker on the host would: t_s = the host's\n"
+        "                       Unix time when each sample was made (the clock the logger stamps in)\n"
         "  --enc-jitter-us US   encoder edge time noise, standard deviation (default 0)\n"
         "  --enc-glitch P       probability per edge of an extra bounce (forth and back, 2 us)\n"
         "  --link-ber P         probability per byte of one flipped bit (default 0)\n"
@@ -93,6 +95,7 @@ void parse(Options& opt, int argc, char** argv) {
         else if (a == "--cam-noise-xy") opt.cam_xy = nonneg(val());
         else if (a == "--cam-noise-phi") opt.cam_phi = nonneg(val());
         else if (a == "--cam-dropout") opt.cam_dropout = prob(val());
+        else if (a == "--cam-unix-csv") opt.cam_unix_csv = val();
         else if (a == "--enc-jitter-us") opt.enc_jitter_us = nonneg(val());
         else if (a == "--enc-glitch") opt.enc_glitch = prob(val());
         else if (a == "--link-ber") opt.link_ber = prob(val());

@@ -5,6 +5,7 @@
 #include <errno.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 namespace fil {
@@ -20,6 +21,11 @@ void Fil::open_recording() {
     adc_f = fopen((opt.run_dir + "/adc_samples.csv").c_str(), "w");
     if (!gt_f || !plant_f || !snap_f || !adc_f) die("cannot write in %s: %s", opt.run_dir.c_str(), strerror(errno));
     fprintf(gt_f, "t_s,x_m,y_m,phi_rad\n");
+    if (!opt.cam_unix_csv.empty()) {
+        gt_unix_f = fopen(opt.cam_unix_csv.c_str(), "w");
+        if (!gt_unix_f) die("cannot write %s: %s", opt.cam_unix_csv.c_str(), strerror(errno));
+        fprintf(gt_unix_f, "t_s,x_m,y_m,phi_rad\n");
+    }
     fprintf(snap_f, "t_s,counts_true_r,counts_true_l,edges_driven_r,edges_driven_l,boot\n");
     fprintf(adc_f, "t_s,wheel,current_a,sense_v\n");
     fprintf(plant_f, "t_s,x_m,y_m,phi_rad,v_m_s,w_m_s,omega_rad_s,theta_r_rad,theta_l_rad,dtheta_r_rad_s,"
@@ -32,6 +38,8 @@ void Fil::close_recording() {
     fclose(plant_f);
     fclose(snap_f);
     fclose(adc_f);
+    if (gt_unix_f) fclose(gt_unix_f);
+    gt_unix_f = nullptr;
     gt_f = plant_f = snap_f = adc_f = nullptr;
 }
 
@@ -58,6 +66,14 @@ void Fil::camera(double t0, double x0, double y0, double p0, double t1, double x
         if (opt.cam_xy > 0) { x += opt.cam_xy * gauss(rng); y += opt.cam_xy * gauss(rng); }
         if (opt.cam_phi > 0) ph += opt.cam_phi * gauss(rng);
         fprintf(gt_f, "%.6f,%.6f,%.6f,%.6f\n", t, x, y, ph);
+        if (gt_unix_f) {
+            // a tracker on the host stamps a sample when it arrives: the wall clock now, less the
+            // board time that has passed since the sample's instant (at most one plant step)
+            struct timespec now;
+            clock_gettime(CLOCK_REALTIME, &now);
+            double unix_s = static_cast<double>(now.tv_sec) + 1e-9 * static_cast<double>(now.tv_nsec) - (board_now() - t);
+            fprintf(gt_unix_f, "%.6f,%.6f,%.6f,%.6f\n", unix_s, x, y, ph);
+        }
         ++gt_rows;
     }
 }
