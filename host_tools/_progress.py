@@ -39,6 +39,7 @@ def _tqdm(**kw: Any) -> Any:
         cols, rows = os.get_terminal_size(sys.stderr.fileno())
     except (OSError, ValueError, AttributeError):
         cols = rows = 0
+    tqdm.monitor_interval = 0  # no monitor thread: the analyzer forks its fitting workers
     try:  # a terminal that gives no size (0 x 0: a bare pseudo-terminal) is taken as 80 x 24
         bar = tqdm(file=sys.stderr, dynamic_ncols=cols > 0, ncols=None if cols > 0 else 80,
                    nrows=None if rows > 0 else 24, **kw)
@@ -93,24 +94,25 @@ class Progress:
         else:
             self.log.info("%s", line)
 
-    def _draw(self, fn: Callable[[], Any]) -> None:
-        if self.bar is None:
+    def _draw(self, fn: Callable[[Any], Any]) -> None:
+        """``fn(bar)`` when a bar is drawn; a terminal gone drops the bar, the work goes on."""
+        bar = self.bar
+        if bar is None:
             return
         try:
-            fn()
-        except (OSError, ValueError):  # the terminal went away: no bar, the work goes on
-            _close(self.bar)
+            fn(bar)
+        except (OSError, ValueError):
+            _close(bar)
             self.bar = None
 
     def step(self, line: str | None = None, n: float = 1) -> None:
         """``n`` more units done; ``line``: the one-line message of this step."""
-        self._draw(lambda: self.bar.update(n))
+        self._draw(lambda bar: bar.update(n))
         self._line(line)
 
     def set(self, value: float, line: str | None = None) -> None:
         """The units done so far are ``value`` (e.g. the simulated seconds reached)."""
-        if self.bar is not None and value != self.bar.n:
-            self._draw(lambda: self.bar.update(value - self.bar.n))  # redrawn at most 10/s
+        self._draw(lambda bar: value != bar.n and bar.update(value - bar.n))  # <= 10 redraws/s
         self._line(line)
 
     def close(self) -> None:

@@ -244,3 +244,19 @@ def test_suite_as_a_module_logs_through_the_handler():
     for flags in ([], ["-q"]):
         r = _piped([sys.executable, "-m", "host_tools.suite", *flags, "list", "--cases", "nope"])
         assert r.returncode == 2 and r.stderr.startswith("error: unknown case(s) nope"), r.stderr
+
+
+def test_a_terminal_gone_mid_bar_never_ends_the_work(monkeypatch):
+    term = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", term)
+    monkeypatch.setattr(_progress, "shown", lambda: True)
+    bar = _progress.Progress(10, "work")
+    assert bar.bar is not None
+    bar.step()
+    term.close()           # writes now raise ValueError
+    for _ in range(5):
+        bar.step("a line")  # no exception
+        bar.set(9)
+    logging.getLogger("host_tools.test").error("after the terminal went")
+    bar.close()
+    assert not _progress._bars
