@@ -8,6 +8,7 @@ import io
 import logging
 import os
 import pty
+import re
 import select
 import subprocess
 import sys
@@ -151,13 +152,24 @@ def test_fitting_progress_is_a_bar_or_lines(caught):
 # ------------------------------------------------------------------ bars on a pseudo-terminal
 
 _BAR_SCRIPT = textwrap.dedent("""
-    import sys
+    import os, sys, types
     from host_tools.__main__ import setup_logging
     setup_logging({level})
-    from host_tools import _progress
-    with _progress.Progress(4, "suite bench", unit="case", emit=print) as bar:
-        for i in range(4):
-            bar.step(f"[{{i + 1}}/4] case_{{i}}: OK")
+    from host_tools.suite import bench as B
+    # suite bench's own loop, with the cases' generation, analysis and scoring stubbed out
+    data = sys.argv[1]
+    os.makedirs(os.path.join(data, "labels"), exist_ok=True)
+    cases = [types.SimpleNamespace(name=f"case_{{i}}") for i in range(4)]
+    for c in cases:
+        open(os.path.join(data, "labels", c.name + ".json"), "w").write("{{}}")
+    B._case_runs = lambda case, data_dir, regenerate: []
+    def run_analyzer(runs, rep_dir, jobs, log, timeout_s, perf):
+        perf.update(wall_s=1.0, peak_rss_mb=100.0)
+        return 0, None
+    B.run_analyzer = run_analyzer
+    B.score_case = lambda label, rc, report: {{"ok": True, "verdict": "explained", "named": "x"}}
+    B.summarize = lambda results, total_s: ("summary", {{}})
+    B.bench(data, cases, out=print)
     from host_tools import fil
     on_row, fbar = fil._record_progress({{"duration": 2.0}}, None, None)
     with fbar:
@@ -167,22 +179,25 @@ _BAR_SCRIPT = textwrap.dedent("""
 
 
 @pytest.mark.parametrize("level", [0, -1, 1])
-def test_bars_on_a_terminal_lines_elsewhere(level):
-    script = [sys.executable, "-c", _BAR_SCRIPT.format(level=level)]
+def test_bars_on_a_terminal_lines_elsewhere(level, tmp_path):
+    script = [sys.executable, "-c", _BAR_SCRIPT.format(level=level), str(tmp_path)]
     rc, out, term = _on_pty(script)
     assert rc == 0, term
     piped = _piped(script)
     assert piped.returncode == 0, piped.stderr
-    lines = [f"[{i + 1}/4] case_{i}: OK" for i in range(4)]
+    lines = [f"[{i + 1}/4] case_{i}: OK verdict explained named x (analysis 1 s, 100 MB; "
+             "case 0 s)" for i in range(4)]
     # piped: the one-line messages as before (to stdout, as bench's lines), never a bar
     assert piped.stdout.splitlines() == lines and BAR not in piped.stderr + piped.stdout
     if level == -1:  # -q: nothing on stderr; bench's lines on stdout stay (a result)
         assert term == "" and out.splitlines() == lines
         return
     assert "suite bench: 100%|" in term and "4/4" in term
+    assert re.search(r"4/4 \[\d\d:\d\d<\d\d:\d\d", term)  # elapsed < ETA
     assert "fil record: 100%|" in term and "2.0/2 simulated s" in term
     assert out == ""  # on a terminal the bar replaces the lines
-    assert ("info: [1/4] case_0: OK" in term) == (level == 1)  # -v: the lines above the bar
+    assert ("info: [1/4] case_0: OK" in term) == (level == 1)
+    assert "case_0" not in term.replace("info: [1/4] case_0", "")  # -v: the lines above the bar
 
 
 def _small_run(tmp_path: Path) -> Path:
