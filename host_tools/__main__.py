@@ -7,7 +7,8 @@ drive the robot by velocity commands while recording (drive), write a run and it
 an MCAP file for Foxglove (export), make a run from a ROS
 bag (import), analyze many run sets on a Dask cluster into a fleet table and drift report
 (batch).  ``COMMAND --help`` gives a command's options.  Messages go to stderr; ``-v``
-adds details, ``-q`` keeps errors only (both before COMMAND).  Exit codes: 0 done, 1 a check
+adds details, ``-q`` keeps errors only (both before COMMAND); on a terminal, long work
+shows a progress bar.  Exit codes: 0 done, 1 a check
 failed, 2 bad input (with the file and the place).
 """
 from __future__ import annotations
@@ -46,25 +47,21 @@ def version() -> str:
 
 
 def setup_logging(verbosity: int) -> None:
-    """Messages to stderr: warnings and errors by default, INFO with -v, DEBUG with -vv,
-    errors only with -q.  Idempotent (the handler is replaced, not added twice)."""
-    level = {-1: logging.ERROR, 0: logging.WARNING, 1: logging.INFO}.get(verbosity, logging.DEBUG)
-    root = logging.getLogger("host_tools")
-    for h in list(root.handlers):
-        if getattr(h, "_ddrobot", False):
-            root.removeHandler(h)
-    h = logging.StreamHandler(sys.stderr)
-    h._ddrobot = True  # type: ignore[attr-defined]
-    h.setFormatter(logging.Formatter("%(levelname_lower)s: %(message)s"))
-    h.addFilter(_lower_level)
-    root.addHandler(h)
-    root.setLevel(level)
-    root.propagate = False
+    """Messages to stderr (``host_tools._stdio.StatusHandler``): progress, notes, warnings and
+    errors by default, INFO with -v, DEBUG with -vv, errors only with -q (no progress bars
+    either).  Idempotent (the handler is replaced, not added twice)."""
+    from host_tools import _stdio
+    _stdio.install({-1: logging.ERROR, 0: _stdio.STATUS, 1: logging.INFO}.get(verbosity,
+                                                                             logging.DEBUG))
 
 
-def _lower_level(record: logging.LogRecord) -> bool:
-    record.levelname_lower = record.levelname.lower()
-    return True
+def add_verbosity(parser: argparse.ArgumentParser) -> None:
+    """-v/-vv and -q (``args.verbose``, ``args.quiet_log``): :func:`setup_logging`'s input."""
+    loud = parser.add_mutually_exclusive_group()
+    loud.add_argument("-v", "--verbose", action="count", default=0,
+                      help="more messages on stderr (-v: progress details, -vv: debugging)")
+    loud.add_argument("-q", "--quiet", dest="quiet_log", action="store_true",
+                      help="errors only on stderr (no progress bar)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -73,11 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"%(prog)s {version()}",
                         help="print the version and exit")
-    loud = parser.add_mutually_exclusive_group()
-    loud.add_argument("-v", "--verbose", action="count", default=0,
-                      help="more messages on stderr (-v: progress details, -vv: debugging)")
-    loud.add_argument("-q", "--quiet", dest="quiet_log", action="store_true",
-                      help="errors only on stderr")
+    add_verbosity(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -100,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         if "params.json" in msg or "protocol.json" in msg:
             msg += ("\n(a file of the installation itself is broken: restore it from the "
                     "release or from git)")
-        _stdio.say(f"error: {msg}")
+        logging.getLogger("host_tools").error("%s", msg)
         return 2
     finally:
         _stdio.settle()  # a closed status pipe never turns into a traceback at exit
@@ -122,7 +115,8 @@ def _main(argv: list[str] | None) -> int:
         parser.print_help()
         return 2
     if getattr(args, "_import_error", None):
-        print(f"error: command '{args.command}' is unavailable: {args._import_error}", file=sys.stderr)
+        logging.getLogger("host_tools").error("command '%s' is unavailable: %s", args.command,
+                                              args._import_error)
         return 2
     args._owns_process = argv is None  # the command line of this process, not a caller's list
     return int(importlib.import_module(args._module).main(args) or 0)

@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from host_tools import _build
+from host_tools import _build, _progress
 from host_tools import logger as L
 from host_tools import protocol as P
 
@@ -34,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BUILD = ROOT / ".build" / "fil"
 SIM = _build.TARGETS["fil"].output_path()
 PIO_ELF = ROOT / ".pio" / "build" / "megaatmega2560" / "firmware.elf"
+FREE_RECORDING_S = 5.0  # a recording without an experiment (and without --record-s), s
 
 
 class FilError(Exception):
@@ -184,7 +185,7 @@ def record(out: str | Path, elf: str | Path, experiment: dict | None = None, cla
         if (out / f).exists():
             raise FilError(f"{out / f} already exists; refusing to overwrite a recorded run")
     if record_s is None:
-        record_s = (experiment["duration"] + 5.0) if experiment else 5.0
+        record_s = (experiment["duration"] + 5.0) if experiment else FREE_RECORDING_S
     args = list(args or [])
     if "--t-end" not in args:  # the simulator's own limit (board time) must not cut the recording
         args += ["--t-end", f"{record_s + 10.0:g}"]
@@ -363,9 +364,10 @@ def main(a: argparse.Namespace) -> int:
                 mu, fw_model = M.firmware_commands(m, a.model)
                 opts = sim_args(M.plant_keys(m)) + opts
             clamp = None if a.clamp is None else a.clamp == "on"
-            code, lg, s = record(a.out, elf, exp, clamp, mu, opts, record_s=a.record_s,
-                                 controller=a.controller, model=fw_model,
-                                 on_row=pub.publish if pub else None)
+            on_row, bar = _record_progress(exp, a.record_s, pub)
+            with bar:
+                code, lg, s = record(a.out, elf, exp, clamp, mu, opts, record_s=a.record_s,
+                                     controller=a.controller, model=fw_model, on_row=on_row)
             print(f"{a.out}: {lg.stats['telemetry_rows']} telemetry rows, {s['groundtruth']['rows']} ground-truth "
                   f"rows; {s['sim_s']:.2f} simulated s at {s['sim_s_per_wall_s']:.2f} simulated s per wall s; "
                   f"logger: {lg.end_reason}")
@@ -377,6 +379,27 @@ def main(a: argparse.Namespace) -> int:
     finally:
         if pub:
             pub.close()
+
+
+def _record_progress(exp: dict | None, record_s: float | None, pub: Any
+                     ) -> tuple[Any, _progress.Progress]:
+    """``fil record``'s progress bar on a terminal: the simulated seconds recorded (board time
+    since the first telemetry row) out of the experiment's length (or --record-s, or the 5 s
+    of a free recording); and the row callback that draws it and feeds the live view."""
+    total = exp["duration"] if exp else FREE_RECORDING_S
+    if record_s is not None:
+        total = min(total, record_s) if exp else record_s
+    bar = _progress.Progress(total, "fil record", logger=log, bar_format=(
+        "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:g} simulated s [{elapsed}<{remaining}]"))
+    first: list[float] = []
+
+    def on_row(row: dict) -> None:
+        if pub:
+            pub.publish(row)
+        if not first:
+            first.append(row["t_s"])
+        bar.set(min(row["t_s"] - first[0], total))
+    return on_row, bar
 
 
 if __name__ == "__main__":

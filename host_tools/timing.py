@@ -44,13 +44,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import os
 import tempfile
 from dataclasses import dataclass
 
 from host_tools import protocol as P
-from host_tools._stdio import out, say
+from host_tools._stdio import out
+
+log = logging.getLogger(__name__)
 
 SATURATED_UNITS = 65535  # telemetry task times saturate at 65535 units of 16 cycles
 EDGE_RATE_MAX = 1e8      # --edge-rate bound, edges/s (the design rate is 200 000)
@@ -467,12 +470,12 @@ def main(args: argparse.Namespace) -> int:
     d = P.definition()
     problem = _check_options(args)
     if problem:
-        say(f"error: {problem}")
+        log.error("%s", problem)
         return 2
     try:
         rows, notes = check(d, args.run, args.sim, args.edge_rate, args.isr_cycles, not args.no_fil)
     except TimingInputError as exc:
-        say(f"error: {exc}")
+        log.error("%s", exc)
         return 2
     if args.json:
         try:
@@ -480,7 +483,7 @@ def main(args: argparse.Namespace) -> int:
             doc = {"rows": [dict(r.__dict__, margin=r.margin) for r in rows], "notes": notes}
             write_atomic(args.json, json.dumps(doc, indent=2, allow_nan=False) + "\n")
         except OSError as exc:
-            say(f"error: cannot write --json {args.json!r}: {exc.strerror or exc}")
+            log.error(f"cannot write --json {args.json!r}: {exc.strerror or exc}")
             return 1
     out(render(rows, notes))
     bad = [r for r in rows if not r.ok]

@@ -13,13 +13,16 @@ checked for writing, before any analysis starts."""
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import os
 import signal
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from host_tools._stdio import out, say
+from host_tools._stdio import STATUS, out
+
+log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from host_tools.runfmt import Run
@@ -43,7 +46,7 @@ outputs (in OUT_DIR):
   model.json    updated model parameters (format ddmodel/1, see docs/analyzer.md)
 the set is replaced all or nothing (staged in OUT_DIR/.analyze-staging-*, then renamed).
 
-progress goes to stderr.  exit status: 0 done, 2 bad input (file, row, column), 1 native
+progress goes to stderr (a progress bar on a terminal; -q: errors only).  exit status: 0 done, 2 bad input (file, row, column), 1 native
 plant unavailable or the outputs could not be written.
 """
 
@@ -79,7 +82,7 @@ def _native_build_error() -> type[BaseException]:
 
 
 def _bad(msg: str) -> int:
-    say(f"error: bad input: {msg}")
+    log.error("bad input: %s", msg)
     return 2
 
 
@@ -168,11 +171,11 @@ def main(args: argparse.Namespace) -> int:
         return _main(args, state)
     except _Interrupted as exc:
         if state["committed"]:
-            say(f"error: interrupted by {exc} after the outputs were written (complete)")
+            log.error(f"interrupted by {exc} after the outputs were written (complete)")
         else:
-            say(f"error: interrupted by {exc}; no outputs written (the previous outputs in "
-                  "--out, if any, are left as they were: the outputs are replaced as one set "
-                  "or not at all)")
+            log.error(f"interrupted by {exc}; no outputs written (the previous outputs in "
+                      "--out, if any, are left as they were: the outputs are replaced as one set "
+                      "or not at all)")
         return 1
     finally:
         if state["staging"] is not None and not state["committed"]:
@@ -180,6 +183,8 @@ def main(args: argparse.Namespace) -> int:
             outputs.remove_staging(state["staging"])
         for sig, h in old.items():
             signal.signal(sig, h)
+        from host_tools import _progress
+        _progress.end_stages("analyze")
 
 
 def _main(args: argparse.Namespace, state: dict[str, Any]) -> int:
@@ -214,9 +219,13 @@ def _main(args: argparse.Namespace, state: dict[str, Any]) -> int:
             return _bad(f"--dt {args.dt:g} s is longer than the longest stable plant step for "
                         f"{runfmt.display(os.path.join(r.path, 'meta.json'))} ({dt_max:.3g} s: "
                         "twice a slipping wheel's back-EMF time constant); pass a smaller --dt")
+    for r in runs:
+        log.info("%s: %d telemetry rows", runfmt.display(r.path), len(r.telemetry["t_s"]))
+    log.debug("options: --jobs %d, --dt %g s, --effects %s", args.jobs, args.dt,
+              ",".join(effects) if effects else "all")
     notes = [n for r in runs for n in r.notes]
     for n in notes:
-        say(f"note: {n}")
+        log.log(STATUS, f"note: {n}")
     from host_tools.analyzer.pipeline import analyze
     from host_tools.analyzer.report.writers import write_outputs
     try:
@@ -225,16 +234,18 @@ def _main(args: argparse.Namespace, state: dict[str, Any]) -> int:
         return _bad(str(exc))
     except (ImportError, OSError, _native_build_error()) as exc:
         # the native plant (lib/slipmodel via host_tools._native) could not be built or loaded
-        say(f"error: the native plant is unavailable: {type(exc).__name__}: {exc}")
+        log.error(f"the native plant is unavailable: {type(exc).__name__}: {exc}")
         return 1
     an.notes.extend(notes)
     try:
         write_outputs(an, args.out, plots=not args.no_plots, staging=staging,
                       on_commit=lambda: state.update(committed=True))
     except OSError as exc:
-        say(f"error: cannot write the outputs into {runfmt.display(args.out)}: "
-              f"{exc.strerror or exc}; the previous outputs there, if any, are left as they "
-              "were")
+        log.error(f"cannot write the outputs into {runfmt.display(args.out)}: "
+                  f"{exc.strerror or exc}; the previous outputs there, if any, are left as they "
+                  "were")
         return 1
+    from host_tools import _progress
+    _progress.end_stages("analyze")  # the result below the finished stage line
     out(f"verdict: {an.verdict}; report: {runfmt.display(os.path.join(args.out, 'report.json'))}")
     return 0

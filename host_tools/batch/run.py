@@ -9,13 +9,16 @@ scheduler.  Sets already done (``task.is_done``) are skipped unless ``redo``.
 """
 from __future__ import annotations
 
+import logging
 import os
-import sys
 import time
 from typing import Callable, Sequence
 
+from host_tools import _progress
 from host_tools.batch import task as T
 from host_tools.batch.sets import RunSet
+
+log = logging.getLogger(__name__)
 
 #: default Dask worker memory limit of the local cluster (the analysis itself runs in a
 #: subprocess bounded by ``mem_mb``)
@@ -43,7 +46,7 @@ def run_batch(sets: Sequence[RunSet], out_root: str, scheduler: str | None = Non
     ``sets``; stats: done, skipped, failed, wall_s, workers)."""
     from dask.distributed import as_completed
 
-    say = progress or (lambda s: print(s, file=sys.stderr, flush=True))
+    say = progress or (lambda s: log.log(_progress.STATUS, "%s", s))
     out_root = os.path.abspath(out_root)
     os.makedirs(out_root, exist_ok=True)
     if timeout_s:
@@ -68,6 +71,7 @@ def run_batch(sets: Sequence[RunSet], out_root: str, scheduler: str | None = Non
                                   pure=False)
                 futs[f] = s
             n_ok = n_bad = 0
+            bar = _progress.Progress(len(todo), "batch", unit="set", logger=log, emit=say)
             for k, f in enumerate(as_completed(futs), start=1):
                 s = futs[f]
                 try:
@@ -84,8 +88,9 @@ def run_batch(sets: Sequence[RunSet], out_root: str, scheduler: str | None = Non
                 eta = el / k * (len(todo) - k)
                 what = (rec.get("report") or {}).get("verdict") if rec["status"] == "ok" \
                     else f"{rec['status'].upper()}: {rec.get('error')}"
-                say(f"[{k}/{len(todo)}] {s.set_id}: {what} ({rec.get('wall_s', 0):.1f} s) "
-                    f"- {n_ok} ok, {n_bad} failed, {el:.0f} s elapsed, ~{eta:.0f} s left")
+                bar.step(f"[{k}/{len(todo)}] {s.set_id}: {what} ({rec.get('wall_s', 0):.1f} s) "
+                         f"- {n_ok} ok, {n_bad} failed, {el:.0f} s elapsed, ~{eta:.0f} s left")
+            bar.close()
         finally:
             client.close()
             if cluster is not None:

@@ -6,18 +6,21 @@ adds an external tracker's CSV to a recorded run (:mod:`host_tools.gt_align`).
 from __future__ import annotations
 
 import argparse
+import logging
 import signal
 import threading
 from typing import TYPE_CHECKING, Any
 
 from host_tools import gt_align
 from host_tools import protocol as P
-from host_tools._stdio import out, say
+from host_tools._stdio import STATUS, out
 from host_tools.logger.errors import LoggerError
 from host_tools.logger.session import STOP_SIGNALS, Logger
 
 if TYPE_CHECKING:
     from host_tools.interop.live import LivePublisher
+
+log = logging.getLogger(__name__)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -67,12 +70,12 @@ def main(args: argparse.Namespace) -> int:
                                                args.gt_max_offset, set_start_pose=args.gt_start_pose,
                                                unix_time=args.gt_unix_time)
         except gt_align.GroundTruthError as exc:
-            say(f"error: {exc}")
+            log.error("%s", exc)
             return exc.code
         out(gt_align.describe(info))
         return 0
     if not args.port:
-        say("error: --port is required (or --attach-groundtruth)")
+        log.error("--port is required (or --attach-groundtruth)")
         return 2
     d = P.definition()
     experiment = None
@@ -95,7 +98,7 @@ def main(args: argparse.Namespace) -> int:
         if mu is not None:
             d.raw_values("SetMu", {"mu_s": mu[0], "mu_k": mu[1]})
     except (P.ProtocolError, ValueError, OverflowError) as exc:  # ModelError is a ValueError
-        say(f"error: {exc}")
+        log.error("%s", exc)
         return 2
     record_s = args.record_s
     if record_s is None and experiment is not None:
@@ -108,13 +111,13 @@ def main(args: argparse.Namespace) -> int:
     try:
         pub = _live(args, d)
     except ValueError as exc:
-        say(f"error: {exc}")
+        log.error("%s", exc)
         return 2
     lg = Logger(args.out, open_port, args.port, args.baud, experiment=experiment,
                 clamp=None if args.clamp is None else args.clamp == "on", mu=mu, record_s=record_s,
                 controller=getattr(args, "controller", None), model=model,
                 reconnect_timeout_s=args.reconnect_timeout, params_timeout_s=args.params_timeout,
-                status=not args.quiet, description=args.description, d=d,
+                status=not args.quiet and log.isEnabledFor(STATUS), description=args.description, d=d,
                 on_row=pub.publish if pub else None)
     # signals before and after the recording (a third quick Ctrl-C arriving while the summary
     # is printed or the process exits) are ignored: the recording owns them while it runs.
@@ -142,19 +145,19 @@ def _record(args: argparse.Namespace, lg: Logger, pub: LivePublisher | None) -> 
     try:
         code = lg.run()
     except LoggerError as exc:
-        say(f"error: {exc}")
+        log.error("%s", exc)
         return exc.code
     finally:
         if pub:
             pub.close()
     s = lg.stats
-    say(f"\n{args.out}: {s['telemetry_rows']} rows, {lg.dec.crc_errors} CRC errors, "
+    log.log(STATUS, f"{args.out}: {s['telemetry_rows']} rows, {lg.dec.crc_errors} CRC errors, "
           f"{lg.dec.bad_blocks - lg.dec.crc_errors} other bad blocks, {s['gaps']} gaps "
           f"({s['lost_frames']} frames lost), {s['duplicates']} duplicates, {s['stale']} stale, "
           f"{s['implausible']} implausible (flagged in events.jsonl), {s['robot_resets']} resets, "
           f"{s['disconnects']} disconnects; end: {lg.end_reason}")
     if code:
-        say(f"error: {lg.end_reason}")
+        log.error("%s", lg.end_reason)
     return code
 
 

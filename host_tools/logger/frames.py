@@ -9,6 +9,7 @@ records Acks and Params, and counts everything in ``stats``.  It uses the sessio
 """
 from __future__ import annotations
 
+import logging
 import math
 from typing import TYPE_CHECKING, Any
 
@@ -16,7 +17,6 @@ import numpy as np
 
 from host_tools import protocol as P
 from host_tools import runfmt
-from host_tools._stdio import say
 from host_tools.logger.errors import LoggerError
 
 if TYPE_CHECKING:  # the state and methods the other parts provide (parts.py)
@@ -26,6 +26,8 @@ else:
 
 CONFIRM_FRAMES = 2   # following frames that must continue a reset, a jump or the first frame
 MAX_AHEAD_S = 2.0    # board time may run ahead of the host time elapsed by this much
+
+log = logging.getLogger(__name__)
 
 
 def shortest_f32(v: float) -> float:
@@ -151,7 +153,7 @@ class FramesMixin(SessionParts):
                 self.params = old
                 self.event("bad_params", reason=str(exc), seq=f.seq,
                            **{k: (v if not isinstance(v, float) or math.isfinite(v) else str(v)) for k, v in shown.items()})
-                say(f"\nwarning: ignoring the robot's Params (seq {f.seq}): {exc}")
+                log.warning(f"ignoring the robot's Params (seq {f.seq}): {exc}")
                 return
             self._params_count += 1
             self.event("params", **shown)
@@ -174,7 +176,7 @@ class FramesMixin(SessionParts):
             bad.append(f"controller {p['controller']} (commanded {self.controller})")
         if bad:
             self.event("params_mismatch", detail=bad)
-            say("\nwarning: the robot reports " + ", ".join(bad))
+            log.warning("the robot reports " + ", ".join(bad))
 
     def _sequence(self, f: P.Frame) -> str:
         """Track the robot's frame counter for Ack and Params frames (they carry neither board

@@ -9,6 +9,7 @@ shows the live status line.
 """
 from __future__ import annotations
 
+import logging
 import signal
 import threading
 import time
@@ -28,6 +29,8 @@ ACK_TIMEOUT_S = 0.4
 ACK_RETRIES = 3
 STATUS_EVERY_S = 0.5
 STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+log = logging.getLogger(__name__)
 
 
 class Logger(LinkMixin, FramesMixin, RunFolderMixin):
@@ -320,7 +323,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
             self.write_meta()
         except Exception as exc:  # never lose the data over a meta problem
             failed = True
-            say(f"\nwarning: could not rewrite meta.json: {exc}")
+            log.warning(f"could not rewrite meta.json: {exc}")
         self._free_reserve()
         self._close_port()
         self._status(force=True, note=self.end_reason or "stopped")

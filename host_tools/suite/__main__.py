@@ -5,8 +5,11 @@ are only scored and their figures are the ones that count (docs/suite.md, docs/v
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
+
+log = logging.getLogger("host_tools.suite")  # also when run as __main__
 
 
 def _recorder_option(text: str, profiles: dict) -> tuple[dict, str]:
@@ -32,6 +35,8 @@ def _recorder_option(text: str, profiles: dict) -> tuple[dict, str]:
 def main(argv=None) -> int:
     from host_tools.suite import cases as C
     ap = argparse.ArgumentParser(prog="python -m host_tools.suite", description=__doc__)
+    from host_tools.__main__ import add_verbosity, setup_logging
+    add_verbosity(ap)
     sub = ap.add_subparsers(dest="cmd", required=True)
     for name, help_ in (("list", "list the cases"), ("generate", "write the runs and hidden labels"),
                         ("bench", "generate, run the analyzer on every case, score"),
@@ -77,11 +82,12 @@ def main(argv=None) -> int:
             p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                            help="run the cases as one batch on the Dask cluster at ADDRESS")
     a = ap.parse_args(argv)
+    setup_logging(-1 if a.quiet_log else a.verbose)
     try:
         sel = C.get(a.cases.split(",") if a.cases else None, fast=a.fast, which=a.which,
                     long=not a.no_long)
     except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return 2
     if getattr(a, "out", "") is None:
         a.out = "out/suite" if a.which == "tuning" else f"out/suite-{a.which}"
@@ -91,7 +97,7 @@ def main(argv=None) -> int:
         try:
             extra, name = _recorder_option(a.recorder, C.RECORDERS)
         except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            log.error("%s", exc)
             return 2
         for c in sel:
             c.recorder = {**c.recorder, **extra}
@@ -132,7 +138,7 @@ def main(argv=None) -> int:
         try:
             res = collect(a.out, sel, rescore=a.rescore)
         except (FileNotFoundError, ScoreFileError) as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            log.error("%s", exc)
             return 2
         text, _ = summarize(res, sum(r.get("case_s", 0.0) for r in res))
         print(f"set: {a.which}")

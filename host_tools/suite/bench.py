@@ -9,6 +9,7 @@ and the peak resident memory of its process tree (sampled every 0.1 s) are measu
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import signal
@@ -17,7 +18,8 @@ import sys
 import time
 from typing import Any
 
-from host_tools import runfmt
+from host_tools import _progress, runfmt
+from host_tools._stdio import STATUS
 from host_tools.suite.generate import generate_case
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -26,6 +28,8 @@ TARGETS = {"null_ok": 1.0, "named": 0.90, "param": 0.85, "oov_ok": 1.0, "impossi
            "long_s": 60.0, "long_mb": 1024.0}
 #: analyzer time limit per case: past it the case is stopped and scored as a timeout
 DEFAULT_TIMEOUT_S = 300.0
+
+_log = logging.getLogger(__name__)
 
 
 def _tree_rss_kb(root: int) -> int:
@@ -95,7 +99,7 @@ def run_analyzer(runs: list[str], out_dir: str, jobs: int = 2, log=None,
         with open(rp) as fh:
             report = json.load(fh)
     elif rc != 0 and not timed_out:
-        sys.stderr.write(err_text[-2000:])
+        _log.log(STATUS, "%s", err_text[-2000:].rstrip("\n"))
     if perf is not None:
         perf.update(wall_s=wall, peak_rss_mb=peak / 1024.0, timeout=timed_out)
     return rc, report
@@ -469,6 +473,8 @@ def bench(data_dir: str, case_list: list, jobs: int = 2, regenerate: bool = True
     t0 = time.time()
     results = [] if scheduler is None else \
         _bench_dask(data_dir, case_list, jobs, regenerate, out, timeout_s, scheduler)
+    bar = _progress.Progress(len(case_list), "suite bench", unit="case", logger=_log, emit=out,
+                             show=scheduler is None)
     for i, case in enumerate(case_list if scheduler is None else []):
         tc = time.time()
         runs = _case_runs(case, data_dir, regenerate)
@@ -486,9 +492,10 @@ def bench(data_dir: str, case_list: list, jobs: int = 2, regenerate: bool = True
         r["peak_rss_mb"] = perf["peak_rss_mb"]
         runfmt.write_atomic(os.path.join(rep_dir, "score.json"), json.dumps(r, indent=2))
         results.append(r)
-        out(f"[{i + 1}/{len(case_list)}] {case.name}: {'OK' if r['ok'] else 'MISS'} "
-            f"verdict {r['verdict']} named {r['named']} (analysis {r['analysis_s']:.0f} s, "
-            f"{r['peak_rss_mb']:.0f} MB; case {r['case_s']:.0f} s)")
+        bar.step(f"[{i + 1}/{len(case_list)}] {case.name}: {'OK' if r['ok'] else 'MISS'} "
+                 f"verdict {r['verdict']} named {r['named']} (analysis {r['analysis_s']:.0f} s, "
+                 f"{r['peak_rss_mb']:.0f} MB; case {r['case_s']:.0f} s)")
+    bar.close()
     text, m = summarize(results, time.time() - t0)
     runfmt.write_atomic(os.path.join(data_dir, "bench.json"),
                         json.dumps({"results": results, "metrics": m}, indent=2))

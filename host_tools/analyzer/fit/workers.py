@@ -2,12 +2,13 @@
 problem."""
 from __future__ import annotations
 
+import logging
 import multiprocessing as mp
 import os
 import time
 from typing import TYPE_CHECKING, Mapping
 
-from host_tools._stdio import say
+from host_tools import _progress
 from host_tools.analyzer.fit.judge import Candidate, evaluate_candidate
 from host_tools.analyzer.fit.problem import Problem
 
@@ -20,8 +21,17 @@ if TYPE_CHECKING:
     FitTask = tuple[list[str], np.ndarray | None, Mapping[str, Mapping[str, float]]]
 
 
+log = logging.getLogger(__name__)
+
+
 def log_stderr(msg: str) -> None:
-    say(f"[analyze {time.strftime('%H:%M:%S')}] {msg}")  # a closed pipe never ends the analysis
+    """A stage of the analysis: the stage line on a terminal, else a STATUS message (a closed
+    pipe never ends the analysis: host_tools._stdio)."""
+    _progress.stage("analyze", msg, log, emit=_fitted)
+
+
+def _fitted(msg: str) -> None:
+    log.log(_progress.STATUS, "[analyze %s] %s", time.strftime('%H:%M:%S'), msg)
 
 
 _PROBLEM: Problem | None = None
@@ -73,13 +83,20 @@ def run_tasks(problem: Problem, tasks: list[FitTask], jobs: int, label: str) -> 
     to it alone) breaks the pool: every fit of a task the pool had not returned is then done
     here, in this process, one after the other, and the analysis goes on (a message on stderr
     says so) instead of waiting for ever for the dead worker's result."""
+    with _progress.Progress(len(tasks), f"fitting {label}s", unit=label, logger=log,
+                            emit=_fitted, leave=False) as bar:
+        return _run_tasks(problem, tasks, jobs, label, bar)
+
+
+def _run_tasks(problem: Problem, tasks: list, jobs: int, label: str,
+               bar: _progress.Progress) -> list[Candidate]:
     out: list[Candidate] = []
     if jobs <= 1 or len(tasks) <= 1:
         _init_worker(problem)
         for i, task in enumerate(tasks, 1):
             cand, dt = _eval_task(task)
             out.append(cand)
-            log_stderr(f"{label} {i}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
+            bar.step(f"{label} {i}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s")
         return out
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
@@ -101,8 +118,8 @@ def run_tasks(problem: Problem, tasks: list[FitTask], jobs: int, label: str) -> 
                     broken = exc
                     continue
                 done[futures[f]] = cand
-                log_stderr(f"{label} {len(done)}/{len(tasks)}: {cand.name} fitted in "
-                           f"{dt:.1f} s")
+                bar.step(f"{label} {len(done)}/{len(tasks)}: {cand.name} fitted in "
+                         f"{dt:.1f} s")
     except BaseException:
         _stop_workers(ex)
         ex.shutdown(wait=False, cancel_futures=True)
@@ -111,14 +128,14 @@ def run_tasks(problem: Problem, tasks: list[FitTask], jobs: int, label: str) -> 
         _stop_workers(ex)
         ex.shutdown(wait=False, cancel_futures=True)
         left = [k for k in range(len(tasks)) if k not in done]
-        log_stderr(f"a fitting worker process died ({broken}); fitting the {len(left)} "
-                   f"{label}(s) it left here, in this process, one after the other")
+        log.warning(f"a fitting worker process died ({broken}); fitting the {len(left)} "
+                    f"{label}(s) it left here, in this process, one after the other")
         _init_worker(problem)
         for k in left:
             cand, dt = _eval_task(tasks[k])
             done[k] = cand
-            log_stderr(f"{label} {len(done)}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s "
-                       "(in-process, after the worker died)")
+            bar.step(f"{label} {len(done)}/{len(tasks)}: {cand.name} fitted in {dt:.1f} s "
+                     "(in-process, after the worker died)")
     else:
         ex.shutdown(wait=True)
     return [done[k] for k in range(len(tasks))]
