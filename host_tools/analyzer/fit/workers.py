@@ -9,6 +9,7 @@ import time
 from typing import TYPE_CHECKING, Mapping
 
 from host_tools import _progress
+from host_tools._stdio import STATUS
 from host_tools.analyzer.fit.judge import Candidate, evaluate_candidate
 from host_tools.analyzer.fit.problem import Problem
 
@@ -31,7 +32,7 @@ def log_stderr(msg: str) -> None:
 
 
 def _fitted(msg: str) -> None:
-    log.log(_progress.STATUS, "[analyze %s] %s", time.strftime('%H:%M:%S'), msg)
+    log.log(STATUS, "[analyze %s] %s", time.strftime('%H:%M:%S'), msg)
 
 
 _PROBLEM: Problem | None = None
@@ -88,7 +89,7 @@ def run_tasks(problem: Problem, tasks: list[FitTask], jobs: int, label: str) -> 
         return _run_tasks(problem, tasks, jobs, label, bar)
 
 
-def _run_tasks(problem: Problem, tasks: list, jobs: int, label: str,
+def _run_tasks(problem: Problem, tasks: list[FitTask], jobs: int, label: str,
                bar: _progress.Progress) -> list[Candidate]:
     out: list[Candidate] = []
     if jobs <= 1 or len(tasks) <= 1:
