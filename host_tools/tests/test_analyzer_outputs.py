@@ -476,3 +476,24 @@ def test_a_folder_where_an_output_goes_fails_before_anything_is_replaced(analyse
     after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == {**{p: b for p, b in before.items() if p.name != "report.json"},
                      out / "report.json" / "keep": b"x"}
+
+
+def test_an_interrupted_fitting_pool_leaves_no_manager_thread(monkeypatch):
+    """A signal while the candidates are fitted (here: KeyboardInterrupt from the wait) stops
+    the workers and waits for the pool's manager thread: left running, it races the
+    interpreter's exit hook of concurrent.futures, and a cleanly interrupted analysis ended in
+    a traceback ("Bad file descriptor") once in a while."""
+    import concurrent.futures as cf
+    import threading
+
+    from host_tools.analyzer.fit import workers
+
+    def interrupted(*_a, **_k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cf, "wait", interrupted)
+    before = set(threading.enumerate())
+    with pytest.raises(KeyboardInterrupt):
+        workers.run_tasks(object(), [(("wheel_radius",), None, None)] * 2, 2, "candidate")
+    left = [t for t in set(threading.enumerate()) - before if t.is_alive()]
+    assert not left, left

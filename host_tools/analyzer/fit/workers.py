@@ -78,6 +78,18 @@ def _stop_workers(ex: Executor) -> None:
             pass
 
 
+def _end_pool(ex: Executor) -> None:
+    """Stop the pool's workers and wait (bounded) for its manager thread to end.  Without the
+    wait, the interpreter's exit hook of concurrent.futures may wake the manager thread while it
+    closes its pipe, and the analysis that a signal ended cleanly would end in a traceback
+    ("Bad file descriptor") after its message."""
+    manager = getattr(ex, "_executor_manager_thread", None)  # shutdown() forgets it
+    _stop_workers(ex)
+    ex.shutdown(wait=False, cancel_futures=True)
+    if manager is not None:
+        manager.join(10.0)
+
+
 def run_tasks(problem: Problem, tasks: list[FitTask], jobs: int, label: str) -> list[Candidate]:
     """Fit ``tasks`` (candidate effects) with ``jobs`` worker processes; the candidates in the
     order of ``tasks``.  A worker that dies (the out-of-memory killer's SIGKILL, a SIGTERM sent
@@ -122,12 +134,10 @@ def _run_tasks(problem: Problem, tasks: list[FitTask], jobs: int, label: str,
                 bar.step(f"{label} {len(done)}/{len(tasks)}: {cand.name} fitted in "
                          f"{dt:.1f} s")
     except BaseException:
-        _stop_workers(ex)
-        ex.shutdown(wait=False, cancel_futures=True)
+        _end_pool(ex)
         raise
     if broken is not None:
-        _stop_workers(ex)
-        ex.shutdown(wait=False, cancel_futures=True)
+        _end_pool(ex)
         left = [k for k in range(len(tasks)) if k not in done]
         log.warning(f"a fitting worker process died ({broken}); fitting the {len(left)} "
                     f"{label}(s) it left here, in this process, one after the other")
