@@ -7,6 +7,7 @@ through host_tools._native.  Effects the plant knows but this table does not get
 generic bounds around their default (see :func:`spec_for`)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
@@ -226,15 +227,48 @@ def vocabulary_params(effect: str, fitted: Mapping[str, float]) -> dict[str, flo
     return out
 
 
-def physically_possible(effect: str, params: Mapping[str, float]) -> list[str]:
-    """Why a fitted parameter set is physically impossible (empty list: possible)."""
+#: The physical range of each vocabulary parameter, the one place that says it (the analyzer's
+#: judge refuses a candidate outside it; the suite's scorer counts a reported fit outside it as
+#: impossible): ">0" positive, ">=0" non-negative, "|x|<pi/2" an angle below 90 degrees.
+PHYSICAL_RANGE: dict[str, dict[str, str]] = {
+    "friction_coefficient": {"mu_s": ">0", "mu_k": ">0"},
+    "wheel_radius": {"r_eff": ">0"}, "track_width": {"b_eff": ">0"},
+    "motor_back_emf": {"ke_ratio": ">0"}, "driver_voltage_drop": {"volts": ">=0"},
+    "actuation_delay": {"delay_s": ">=0"}, "motor_lag": {"tau_s": ">=0"},
+    "axle_viscous": {"c": ">=0"}, "axle_coulomb": {"torque": ">=0"},
+    "caster_drag": {"mu": ">=0"}, "load_transfer": {"h": ">=0"},
+    "stribeck": {"mu_k0": ">=0", "v_s": ">0"}, "deadband": {"volts": ">=0"},
+    "motor_gain_asymmetry": {"ratio": ">0"}, "floor_slope": {"rad": "|x|<pi/2"},
+    "payload": {"mass_kg": ">=0"},
+}
+#: (effect, lower, upper): within one effect's parameters, ``lower`` never exceeds ``upper``
+#: (kinetic friction never exceeds static friction)
+PHYSICAL_ORDER: tuple[tuple[str, str, str], ...] = (
+    ("friction_coefficient", "mu_k", "mu_s"), ("stribeck", "mu_k0", "mu_s"))
+
+
+def physically_possible(effect: str, params: Mapping[str, Any]) -> list[str]:
+    """Why a fitted parameter set of ``effect`` is physically impossible (empty list:
+    possible): a value that is not a finite number, one outside :data:`PHYSICAL_RANGE`, an
+    order of :data:`PHYSICAL_ORDER` broken, a mass or inertia (``m_*``, ``I_*``) not positive."""
     why = []
-    if effect == "friction_coefficient" and params.get("mu_k", 0.0) > params.get("mu_s", 1e9) + 1e-12:
-        why.append(f"mu_k {params['mu_k']:.4g} > mu_s {params['mu_s']:.4g}")
+    ranges = PHYSICAL_RANGE.get(effect, {})
     for k, v in params.items():
-        if k in ("mu_s", "mu_k", "mu_k0", "mu", "c", "torque", "delay_s", "tau_s", "h", "r_eff",
-                 "b_eff", "volts", "ke_ratio", "ratio", "v_s", "mass_kg") and v < 0:
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+            why.append(f"{k} = {v!r} is not a finite number")
+            continue
+        kind = ranges.get(k, ">0" if k.startswith(("m_", "I_")) else "")
+        if kind == ">0" and v <= 0:
+            why.append(f"{k} = {v:.4g} <= 0")
+        elif kind == ">=0" and v < 0:
             why.append(f"{k} = {v:.4g} < 0")
+        elif kind == "|x|<pi/2" and abs(v) >= math.pi / 2:
+            why.append(f"{k} = {v:.4g}: |{k}| >= pi/2")
+    for eff, lower, upper in PHYSICAL_ORDER:
+        lo, hi = params.get(lower), params.get(upper)
+        if eff == effect and isinstance(lo, (int, float)) and isinstance(hi, (int, float)) \
+                and lo > hi + 1e-12:
+            why.append(f"{lower} {lo:.4g} > {upper} {hi:.4g}")
     return why
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import signal
 import subprocess
@@ -105,16 +104,6 @@ def run_analyzer(runs: list[str], out_dir: str, jobs: int = 2, log=None,
     return rc, report
 
 
-#: parameters that must be positive (> 0) or non-negative (>= 0) to be physical
-_POSITIVE = {("friction_coefficient", "mu_s"), ("friction_coefficient", "mu_k"),
-             ("wheel_radius", "r_eff"), ("track_width", "b_eff"), ("motor_back_emf", "ke_ratio"),
-             ("stribeck", "v_s"), ("motor_gain_asymmetry", "ratio")}
-_NON_NEGATIVE = {("driver_voltage_drop", "volts"), ("actuation_delay", "delay_s"),
-                 ("motor_lag", "tau_s"), ("axle_viscous", "c"), ("axle_coulomb", "torque"),
-                 ("caster_drag", "mu"), ("load_transfer", "h"), ("stribeck", "mu_k0"),
-                 ("deadband", "volts"), ("payload", "mass_kg")}
-
-
 def _fits(report: dict) -> list[tuple[str, str, dict]]:
     """(where, effect, {param: value}) of every reported fit, pairs split into their effects."""
     out = []
@@ -131,29 +120,13 @@ def _fits(report: dict) -> list[tuple[str, str, dict]]:
 
 
 def impossible_fits(report: dict | None) -> list[str]:
-    """Reported fits (selected or candidates) that no physical robot has: mu_k > mu_s,
-    negative masses, friction, delays or lags, non-positive radii or ratios, non-finite
-    values, a slope beyond +-90 degrees."""
-    bad = []
-    for where, eff, ps in _fits(report or {}):
-        for p, v in ps.items():
-            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
-                bad.append(f"{where} {eff}.{p} = {v!r}")
-            elif (eff, p) in _POSITIVE and v <= 0:
-                bad.append(f"{where} {eff}.{p} = {v:.4g} <= 0")
-            elif (eff, p) in _NON_NEGATIVE and v < 0:
-                bad.append(f"{where} {eff}.{p} = {v:.4g} < 0")
-            elif eff == "floor_slope" and abs(v) >= math.pi / 2:
-                bad.append(f"{where} {eff}.{p} = {v:.4g}")
-            elif (p.startswith("m_") or p.startswith("I_")) and v <= 0:
-                bad.append(f"{where} {eff}.{p} = {v:.4g} <= 0")
-        mu_s, mu_k = ps.get("mu_s"), ps.get("mu_k")
-        if isinstance(mu_s, (int, float)) and isinstance(mu_k, (int, float)) and mu_k > mu_s:
-            bad.append(f"{where} {eff}: mu_k {mu_k:.4g} > mu_s {mu_s:.4g}")
-        if eff == "stribeck" and isinstance(ps.get("mu_k0"), (int, float)) and \
-                isinstance(mu_s, (int, float)) and ps["mu_k0"] > mu_s:
-            bad.append(f"{where} stribeck: mu_k0 {ps['mu_k0']:.4g} > mu_s {mu_s:.4g}")
-    return bad
+    """Reported fits (selected or candidates) that no physical robot has, by the analyzer's own
+    physical ranges (host_tools.analyzer.effects.physically_possible): mu_k > mu_s, negative
+    masses, friction, delays or lags, non-positive radii or ratios, non-finite values, a slope
+    beyond +-90 degrees."""
+    from host_tools.analyzer.effects import physically_possible
+    return [f"{where} {eff}.{why}" for where, eff, ps in _fits(report or {})
+            for why in physically_possible(eff, ps)]
 
 
 def _named(report: dict) -> set[str]:

@@ -339,3 +339,19 @@ def test_set_provenance_commit_generates_the_same_cases():
         dump = [dict({"engine": "truth", "engine_options": {}}, **c.label(), seed=c.seed,
                      fast=c.fast) for c in old]
         assert json.dumps(dump, sort_keys=True) == _set_dump(which), (which, commit)
+
+
+def test_the_scorer_and_the_judge_share_one_physical_range():
+    """Each vocabulary parameter's physical range is stated once (analyzer.effects): the
+    suite's scorer and the analyzer's judge refuse the same values."""
+    from host_tools.analyzer import effects as fx
+    assert set(fx.PHYSICAL_RANGE) == set(cases.MAIN_PARAM)
+    for eff, params in fx.PHYSICAL_RANGE.items():
+        assert set(params) >= {cases.MAIN_PARAM[eff]}, eff
+        for p, kind in params.items():
+            bad = {">0": 0.0, ">=0": -1e-3, "|x|<pi/2": 2.0}[kind]
+            rep = {"selected": [{"effect": eff, "params": {p: bad}}]}
+            assert fx.physically_possible(eff, {p: bad}) and bench.impossible_fits(rep), (eff, p)
+            assert not fx.physically_possible(eff, {p: cases.NEUTRAL[eff].get(p, 0.5)}), (eff, p)
+    assert fx.physically_possible("wheel_radius", {"r_eff": float("nan")})
+    assert fx.physically_possible("payload", {"m_r": 0.0})
