@@ -10,7 +10,8 @@ import numpy as np
 
 from host_tools import runfmt
 from host_tools.analyzer import signals as sg
-from host_tools.analyzer.fit.judge import HELDOUT_RULE, Candidate, heldout_channel_check
+from host_tools.analyzer.fit.judge import (HELDOUT_RULE, Candidate, heldout_channel_check,
+                                           heldout_method)
 from host_tools.analyzer.locate import Detection, Located
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import DERIVED
@@ -112,8 +113,7 @@ def error_tables(det: Detection, sel: Selection, floors: Mapping, closed_loop: M
                  "rmse_after": {k: round_sig(v) for k, v in ra.items()},
                  "heldout_rmse_before": {k: round_sig(v) for k, v in hb.items()},
                  "heldout_rmse_after": {k: round_sig(v) for k, v in ha.items()},
-                 "heldout_method": ("leave one run out" if len(runs_idx) > 1 else
-                                    f"time split at {problem.split_frac:.0%} of the run"),
+                 "heldout_method": heldout_method(len(runs_idx), problem.split_frac),
                  "noise_floor": {k: round_sig(v) for k, v in floors.items()},
                  "heldout_rule": HELDOUT_RULE,
                  "heldout_check": {k: {q: (round_sig(x) if isinstance(x, float) and q != "ok"
