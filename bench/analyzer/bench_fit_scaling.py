@@ -6,9 +6,9 @@ this benchmark's own seeds), prepares the first 8, 32 and 128 of them as the ana
 (nominal replay, noise floors, fit problem) and fits one candidate effect with its held-out
 folds (``fit.judge.evaluate_candidate``, the work each candidate of an analysis does).  Prints
 per run count: the fit's wall and CPU time, the CPU time per run and its ratio to the smallest
-count's (1.0 when the cost grows linearly with the runs), and the runs replayed per run (a
-count that the machine's load does not change).  On a shared machine compare the CPU columns
-and the replay counts; wall times vary with the other jobs."""
+count's (1.0 when the cost grows linearly with the runs) and the runs replayed per run (a
+count that the machine's load does not change); then the peak memory.  On a shared machine
+compare the CPU columns and the replay counts; wall times vary with the other jobs."""
 from __future__ import annotations
 
 import argparse
@@ -57,6 +57,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from host_tools import truth
     from host_tools.analyzer.fit.judge import evaluate_candidate, heldout_method
+    from host_tools.analyzer.fit.problem import CACHE_BYTES
 
     counts = sorted(int(n) for n in args.runs.split(","))
     root = args.keep or tempfile.mkdtemp(prefix="analyzer-bench-fit-")
@@ -85,7 +86,10 @@ def main(argv=None) -> int:
         print(f"{n:5d} {wall:7.1f}s {cpu:7.1f}s {per:7.3f}s {per / base:9.2f} "
               f"{(pb.n_simulated - n0) / n:11.1f}  {heldout_method(n, pb.split_frac)}; "
               f"{args.effect} {cand.fit.params[args.effect]}", flush=True)
-    print(f"\nruns under {root}")
+    import resource
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    print(f"\npeak resident memory of this process {peak:.0f} MB (the replay cache holds at most "
+          f"{CACHE_BYTES / 2 ** 20:.0f} MB); runs under {root}")
     return 0
 
 

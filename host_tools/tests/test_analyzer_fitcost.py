@@ -98,6 +98,8 @@ def test_cache_tells_effects_apart_to_the_last_bit(tmp_path):
     assert pb.n_simulated == n + 1
     assert np.array_equal(pb.residual(e1, [0]), r1) and pb.n_simulated == n + 1
     assert np.array_equal(pb.residual(e2, [0]), r2)
+    pb.forget()                                  # after a prepared run changed
+    assert np.array_equal(pb.residual(e1, [0]), r1) and pb.n_simulated == n + 2
 
 
 def test_fit_channels_alone_equal_those_of_all_channels(tmp_path):

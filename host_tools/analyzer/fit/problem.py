@@ -11,7 +11,7 @@ from scipy.optimize import least_squares, minimize_scalar
 
 from host_tools.analyzer.fit.params import FitResult, Param, effects_dict, params_for
 from host_tools.analyzer.prepare.run import PreparedRun
-from host_tools.analyzer.replay.channels import FIT_CHANNELS, channels
+from host_tools.analyzer.replay.channels import FIT_CHANNELS, Channel, channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
 
 
@@ -55,7 +55,8 @@ class Problem:
         self._replay: OpenLoopReplay | None = None
         self.meta = preps[0].run.meta
         self.fit_windows: dict[int, list[int]] | None = None
-        self._cache: OrderedDict = OrderedDict()
+        self._cache: OrderedDict[tuple[object, ...], tuple[dict[str, Channel], bool, int]] = \
+            OrderedDict()
         self._cache_bytes = 0
         self.n_simulated = 0     # runs replayed (not found in the cache), for the benchmarks
 
@@ -79,14 +80,16 @@ class Problem:
         return float(t[0] + self.split_frac * (t[-1] - t[0]))
 
     def sim_channels(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int],
-                     full: bool = False, fit_only: bool = False):
+                     full: bool = False, fit_only: bool = False
+                     ) -> list[dict[str, Channel]]:
         """Channels of ``runs`` replayed with ``effects``: on the fitting windows
         (:meth:`select_windows`) unless ``full``; only the fit channels when ``fit_only``.
-        A replay is a function of the run, the windows and the effects alone, so each one is
-        kept (up to CACHE_BYTES, least recently used first out) and a second request for it
-        returns the same channels without simulating again.  The channels are shared: callers
-        must not change them."""
-        out = []
+        A replay is a function of the run, the windows and the effects alone (the prepared
+        runs do not change once the problem is built; whatever changes one must call
+        :meth:`forget`), so each one is kept (up to CACHE_BYTES, least recently used first
+        out) and a second request for it returns the same channels without simulating again.
+        The channels are shared: callers must not change them."""
+        out: list[dict[str, Channel]] = []
         for i in runs:
             which = None if (full or self.fit_windows is None) else self.fit_windows.get(i)
             key = (i, None if which is None else tuple(which), _effects_key(effects))
@@ -103,7 +106,13 @@ class Problem:
             out.append(chans)
         return out
 
-    def _remember(self, key, chans: Mapping[str, object], partial: bool) -> None:
+    def forget(self) -> None:
+        """Drop the kept replays (after a prepared run changed)."""
+        self._cache.clear()
+        self._cache_bytes = 0
+
+    def _remember(self, key: tuple[object, ...], chans: dict[str, Channel], partial: bool
+                  ) -> None:
         size = sum(a.nbytes for ch in chans.values()
                    for a in (ch.t, ch.rec, ch.sim, ch.seg, ch.unc) if a is not None)
         old = self._cache.pop(key, None)
@@ -257,7 +266,8 @@ class Problem:
         return out
 
 
-def _effects_key(effects: Mapping[str, Mapping[str, float]]) -> tuple:
+def _effects_key(effects: Mapping[str, Mapping[str, float]]
+                 ) -> tuple[tuple[str, tuple[tuple[str, str], ...]], ...]:
     """A hashable key of ``effects`` that tells apart any two that differ in a bit of a
     parameter (float.hex), so that a cached replay is only ever reused for the same input."""
     return tuple(sorted((str(e), tuple(sorted((str(k), float(v).hex()) for k, v in ps.items())))
