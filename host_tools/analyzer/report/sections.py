@@ -92,10 +92,10 @@ def closed_loop_report(cl: NominalClosedLoop, cl_updated: Sequence[dict], loc: L
 def error_tables(det: Detection, sel: Selection, floors: Mapping, closed_loop: Mapping
                  ) -> dict:
     """The report's error tables: RMSE per channel before and after the update on the fitting
-    data and on the held-out parts (leave one run out, or a time split of a single run) with
-    the held-out rule's per-channel check, the noise floors, and the normalized RMS before and
-    after; the closed-loop channels' rows come from the closed-loop section.  Without an update
-    the errors after are the errors before."""
+    data and on the held-out parts (``fit.judge.heldout_folds``: runs left out, or a time split
+    of a single run) with the held-out rule's per-channel check, the noise floors, and the
+    normalized RMS before and after; the closed-loop channels' rows come from the closed-loop
+    section.  Without an update the errors after are the errors before."""
     problem, final_effects = det.problem, sel.effects
     runs_idx = list(range(len(problem.preps)))
     rb = problem.channel_rmse({}, runs_idx, full=True)
