@@ -46,6 +46,7 @@ def test_heldout_folds_leave_one_run_out_up_to_the_fold_count_then_group_runs():
     for n in (JG.HELDOUT_FOLDS + 1, 32, 200):
         folds = JG.heldout_folds(n)
         assert len(folds) == JG.HELDOUT_FOLDS
+        assert JG.heldout_method(n, 0.6) == f"{JG.HELDOUT_FOLDS} folds of consecutive runs, each held out once"
         held = [i for _, test, _, _ in folds for i in test]
         assert held == list(range(n))
         for train, test, _, _ in folds:
