@@ -7,8 +7,10 @@ this benchmark's own seeds), prepares the first 8, 32 and 128 of them as the ana
 folds (``fit.judge.evaluate_candidate``, the work each candidate of an analysis does).  Prints
 per run count: the fit's wall and CPU time, the CPU time per run and its ratio to the smallest
 count's (1.0 when the cost grows linearly with the runs) and the runs replayed per run (a
-count that the machine's load does not change); then the peak memory.  On a shared machine
-compare the CPU columns and the replay counts; wall times vary with the other jobs."""
+count that the machine's load does not change), and the CPU per run of the stages before the
+fit (loading, preparing, replaying and locating, for comparison); then the peak memory.  On a
+shared machine compare the CPU columns and the replay counts; wall times vary with the other
+jobs."""
 from __future__ import annotations
 
 import argparse
@@ -72,10 +74,12 @@ def main(argv=None) -> int:
     print(f"one candidate ({args.effect}) fitted with its held-out folds on N mismatching "
           f"{DURATION_S:g} s runs ({os.cpu_count()} cores)")
     print(f"{'runs':>5s} {'wall':>8s} {'CPU':>8s} {'CPU/run':>8s} {'ratio/run':>9s} "
-          f"{'replays/run':>11s}  held out")
+          f"{'replays/run':>11s} {'prep/run':>8s}  held out")
     base = None
     for n in counts:
+        c_prep = time.process_time()
         det = _problem(paths[:n])
+        prep = (time.process_time() - c_prep) / n
         pb = det.problem
         n0 = pb.n_simulated
         t0, c0 = time.perf_counter(), time.process_time()
@@ -84,7 +88,7 @@ def main(argv=None) -> int:
         per = cpu / n
         base = base or per
         print(f"{n:5d} {wall:7.1f}s {cpu:7.1f}s {per:7.3f}s {per / base:9.2f} "
-              f"{(pb.n_simulated - n0) / n:11.1f}  {heldout_method(n, pb.split_frac)}; "
+              f"{(pb.n_simulated - n0) / n:11.1f} {prep:7.3f}s  {heldout_method(n, pb.split_frac)}; "
               f"{args.effect} {cand.fit.params[args.effect]}", flush=True)
     import resource
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
