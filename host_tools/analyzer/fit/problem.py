@@ -3,6 +3,7 @@ least-squares fit of a set of effects."""
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -16,6 +17,11 @@ from host_tools.analyzer.replay.openloop import OpenLoopReplay
 
 # Recording time per run that the fit replays (see Problem.select_windows).
 FIT_BUDGET_S = 16.0
+
+# Bytes of replayed channels each process keeps (Problem.sim_channels): the replays a fit asks
+# for again (the nominal one, the fitted point, the start and first steps every held-out fold
+# shares) are looked up instead of simulated again.
+CACHE_BYTES = 128 * 2 ** 20
 
 # A fitted coordinate is unidentified when its 1-sigma uncertainty exceeds this fraction of its
 # search range: the data say nothing about it.
@@ -49,6 +55,10 @@ class Problem:
         self._replay: OpenLoopReplay | None = None
         self.meta = preps[0].run.meta
         self.fit_windows: dict[int, list[int]] | None = None
+        self._cache: OrderedDict[tuple[object, ...], tuple[dict[str, Channel], bool, int]] = \
+            OrderedDict()
+        self._cache_bytes = 0
+        self.n_simulated = 0     # runs replayed (not found in the cache), for the benchmarks
 
     @property
     def replay(self) -> OpenLoopReplay:
@@ -59,6 +69,8 @@ class Problem:
     def __getstate__(self) -> dict[str, Any]:
         d = dict(self.__dict__)
         d["_replay"] = None
+        d["_cache"] = OrderedDict()
+        d["_cache_bytes"] = 0
         return d
 
     # ------------------------------------------------------------------ residuals
@@ -68,16 +80,51 @@ class Problem:
         return float(t[0] + self.split_frac * (t[-1] - t[0]))
 
     def sim_channels(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int],
-                     full: bool = False) -> list[dict[str, Channel]]:
+                     full: bool = False, fit_only: bool = False
+                     ) -> list[dict[str, Channel]]:
         """Channels of ``runs`` replayed with ``effects``: on the fitting windows
-        (:meth:`select_windows`) unless ``full``."""
-        out = []
+        (:meth:`select_windows`) unless ``full``; only the fit channels when ``fit_only``.
+        A replay is a function of the run, the windows and the effects alone (the prepared
+        runs do not change once the problem is built; whatever changes one must call
+        :meth:`forget`), so each one is kept (up to CACHE_BYTES, least recently used first
+        out) and a second request for it returns the same channels without simulating again.
+        The channels are shared: callers must not change them."""
+        out: list[dict[str, Channel]] = []
         for i in runs:
-            prep = self.preps[i]
             which = None if (full or self.fit_windows is None) else self.fit_windows.get(i)
+            key = (i, None if which is None else tuple(which), _effects_key(effects))
+            hit = self._cache.get(key)
+            if hit is not None and (fit_only or not hit[1]):
+                self._cache.move_to_end(key)
+                out.append(hit[0])
+                continue
+            prep = self.preps[i]
             sim = self.replay.simulate_windows(prep, effects, which)
-            out.append(channels(prep, sim, "duty"))
+            chans = channels(prep, sim, "duty", only=self.fit_channels if fit_only else None)
+            self.n_simulated += 1
+            self._remember(key, chans, fit_only)
+            out.append(chans)
         return out
+
+    def forget(self) -> None:
+        """Drop the kept replays (after a prepared run changed)."""
+        self._cache.clear()
+        self._cache_bytes = 0
+
+    def _remember(self, key: tuple[object, ...], chans: dict[str, Channel], partial: bool
+                  ) -> None:
+        size = sum(a.nbytes for ch in chans.values()
+                   for a in (ch.t, ch.rec, ch.sim, ch.seg, ch.unc) if a is not None)
+        old = self._cache.pop(key, None)
+        if old is not None:
+            self._cache_bytes -= old[2]
+        if size > CACHE_BYTES:
+            return
+        self._cache[key] = (chans, partial, size)
+        self._cache_bytes += size
+        while self._cache_bytes > CACHE_BYTES:
+            _, (_, _, n) = self._cache.popitem(last=False)
+            self._cache_bytes -= n
 
     def select_windows(self, nominal: Sequence[Mapping[str, Channel]],
                        budget_s: float = FIT_BUDGET_S) -> dict[int, list[int]] | None:
@@ -119,7 +166,7 @@ class Problem:
         """Stacked normalized residual of the fit channels.  ``part``: "all", "early" (before
         the time split) or "late" (after it)."""
         parts = []
-        for i, chans in zip(runs, self.sim_channels(effects, runs, full)):
+        for i, chans in zip(runs, self.sim_channels(effects, runs, full, fit_only=True)):
             ts = self._split_t(self.preps[i])
             for c in self.fit_channels:
                 ch = chans.get(c)
@@ -217,6 +264,14 @@ class Problem:
                 re.nfev += out.nfev
                 return re
         return out
+
+
+def _effects_key(effects: Mapping[str, Mapping[str, float]]
+                 ) -> tuple[tuple[str, tuple[tuple[str, str], ...]], ...]:
+    """A hashable key of ``effects`` that tells apart any two that differ in a bit of a
+    parameter (float.hex), so that a cached replay is only ever reused for the same input."""
+    return tuple(sorted((str(e), tuple(sorted((str(k), float(v).hex()) for k, v in ps.items())))
+                        for e, ps in effects.items()))
 
 
 def _unidentified_given(params: Sequence[Param], free: Sequence[int], x: np.ndarray,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Mapping, cast
+from typing import Collection, Mapping, cast
 
 import numpy as np
 
@@ -119,15 +119,16 @@ class Channel:
         return [float(np.ptp(self.rec[self.seg == s])) for s in np.unique(self.seg)]
 
 
-def channels(prep: PreparedRun, sim: Mapping[str, np.ndarray] | WindowSims, mode: str = "duty"
-             ) -> dict[str, Channel]:
+def channels(prep: PreparedRun, sim: Mapping[str, np.ndarray] | WindowSims, mode: str = "duty",
+             only: Collection[str] | None = None) -> dict[str, Channel]:
     """Recording against simulation on common channels.  ``sim`` is one simulation of the whole
     run (:meth:`OpenLoopReplay.simulate`) or the windows of :meth:`~OpenLoopReplay.simulate_windows`;
-    windows are compared each from its own start and concatenated."""
+    windows are compared each from its own start and concatenated.  ``only`` (channel names):
+    the groups of channels none of which is named are not computed (a fit's residual)."""
     n = prep.run.telemetry["t_s"].size
     if not isinstance(sim, WindowSims):
-        return _with_uncertainty(prep, _channels_window(prep, sim, 0, n, None))
-    parts = [_channels_window(prep, s, *prep.windows[w], w, sim.effects) for w, s in sim]
+        return _with_uncertainty(prep, _channels_window(prep, sim, 0, n, None, None, only))
+    parts = [_channels_window(prep, s, *prep.windows[w], w, sim.effects, only) for w, s in sim]
     out: dict[str, Channel] = {}
     for name in CHANNELS:
         got = [c[name] for c in parts if name in c]
@@ -178,17 +179,16 @@ class _Window:
 
 
 def _channels_window(prep: PreparedRun, sim: Mapping[str, np.ndarray], i_a: int, i_b: int,
-                     w: int | None, effects: Mapping[str, Mapping[str, float]] | None = None
-                     ) -> dict[str, Channel]:
+                     w: int | None, effects: Mapping[str, Mapping[str, float]] | None = None,
+                     only: Collection[str] | None = None) -> dict[str, Channel]:
     """Channels of the frames [i_a, i_b) against ``sim`` (simulated with ``effects``).  A window
     that does not start the run is compared as increments from its first frame (counts,
     odometry, camera pose)."""
     win = _Window(prep, sim, i_a, i_b, w, effects)
     out: dict[str, Channel] = {}
-    out.update(_wheel_channels(win))
-    out.update(_odometry_channels(win))
-    out.update(_current_channels(win))
-    out.update(_camera_channels(win))
+    for names, group in _GROUPS:
+        if only is None or any(c in only for c in names):
+            out.update(group(win))
     return out
 
 
@@ -311,3 +311,10 @@ def _camera_channels(win: _Window) -> dict[str, Channel]:
             sv = sv - float(at("phi_rad", t[:1])[0]) + ref_phi
         out["phi_rad"] = Channel("phi_rad", tg[ok], ph[ok], sv, "rad", seg(int(ok.sum())))
     return out
+
+
+# The channels each group computes, in the order _channels_window adds them.
+_GROUPS = ((("omega_r", "omega_l", "enc_r", "enc_l"), _wheel_channels),
+           (("x_odo_m", "y_odo_m", "phi_odo_rad"), _odometry_channels),
+           (("current_r_a", "current_l_a"), _current_channels),
+           (("x_m", "y_m", "phi_rad"), _camera_channels))

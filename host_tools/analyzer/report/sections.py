@@ -10,7 +10,8 @@ import numpy as np
 
 from host_tools import runfmt
 from host_tools.analyzer import signals as sg
-from host_tools.analyzer.fit.judge import HELDOUT_RULE, Candidate, heldout_channel_check
+from host_tools.analyzer.fit.judge import (HELDOUT_RULE, Candidate, heldout_channel_check,
+                                           heldout_method)
 from host_tools.analyzer.locate import Detection, Located
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import DERIVED, Channel
@@ -93,10 +94,10 @@ def closed_loop_report(cl: NominalClosedLoop, cl_updated: Sequence[Mapping[str, 
 def error_tables(det: Detection, sel: Selection, floors: Mapping[str, float],
                  closed_loop: Mapping[str, Any]) -> dict[str, Any]:
     """The report's error tables: RMSE per channel before and after the update on the fitting
-    data and on the held-out parts (leave one run out, or a time split of a single run) with
-    the held-out rule's per-channel check, the noise floors, and the normalized RMS before and
-    after; the closed-loop channels' rows come from the closed-loop section.  Without an update
-    the errors after are the errors before."""
+    data and on the held-out parts (``fit.judge.heldout_folds``: runs left out, or a time split
+    of a single run) with the held-out rule's per-channel check, the noise floors, and the
+    normalized RMS before and after; the closed-loop channels' rows come from the closed-loop
+    section.  Without an update the errors after are the errors before."""
     problem, final_effects = det.problem, sel.effects
     runs_idx = list(range(len(problem.preps)))
     rb = problem.channel_rmse({}, runs_idx, full=True)
@@ -114,8 +115,7 @@ def error_tables(det: Detection, sel: Selection, floors: Mapping[str, float],
                  "rmse_after": {k: round_sig(v) for k, v in ra.items()},
                  "heldout_rmse_before": {k: round_sig(v) for k, v in hb.items()},
                  "heldout_rmse_after": {k: round_sig(v) for k, v in ha.items()},
-                 "heldout_method": ("leave one run out" if len(runs_idx) > 1 else
-                                    f"time split at {problem.split_frac:.0%} of the run"),
+                 "heldout_method": heldout_method(len(runs_idx), problem.split_frac),
                  "noise_floor": {k: round_sig(v) for k, v in floors.items()},
                  "heldout_rule": HELDOUT_RULE,
                  "heldout_check": {k: {q: (round_sig(x) if isinstance(x, float) and q != "ok"
