@@ -189,6 +189,72 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, ob
     return floors
 
 
+# Where the nominal model cannot pin the replay down, the replay is no evidence.  In a slip
+# episode of the nominal replay the body's motion follows the contact forces, whose direction
+# follows the slip velocity: a small change of the parameters within their tolerance moves the
+# body's heading by radians within a second of a spin (a 60 s null with braking reversals: 2.5
+# rad off after a 3 s spin at the start, where the tolerance ensemble of 8 draws spread by 0.28
+# rad: the recording is one more draw, and nothing bounds it by the ensemble's spread).  An
+# episode is unpinned when, inside it, the replay's own uncertainty of a pose channel (the
+# tolerance ensemble and the input spread, ``Channel.unc``) exceeds that channel's noise floor.
+# From the first such sample, the pose channels are no evidence until the replay is
+# re-anchored (the end of the window: the pose integrates the error), and the wheel-speed and
+# current channels until BURN_IN_S after the episode ends (the slipping wheels' friction follows
+# the body's unpinned motion; once they roll again the wheels are tied to the recorded duty).
+# "No evidence" is an unbounded replay uncertainty (UNPINNED_UNC): the deflated residual is
+# nil there, in the decisions and the fits alike.
+POSE_CHANNELS = ("x_m", "y_m", "phi_rad")
+UNPINNED_UNC = 1e9
+
+
+def unpinned_episodes(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, object]],
+                      floors: Mapping[str, float]) -> list[list[tuple[float, float]]]:
+    """Mark the nominal replay's unpinned slip episodes (above) as no evidence: per run, the
+    replay uncertainty ``prep.replay_unc`` (which every later replay of the run attaches to
+    its channels) and the nominal channels' ``unc`` are set to UNPINNED_UNC over the spans
+    they cover.  Returns per run the (onset, end) of the unpinned episodes."""
+    from host_tools.analyzer.prepare.run import BURN_IN_S
+    out: list[list[tuple[float, float]]] = []
+    for prep, chans in zip(preps, nominal):
+        found: list[tuple[float, float]] = []
+        unc = dict(prep.replay_unc or {})
+        for a, b in prep.slip_episodes:
+            onset = math.inf
+            for c in POSE_CHANNELS:
+                ch = chans.get(c)
+                f = floors.get(c, 0.0)
+                if ch is None or ch.unc is None or not f > 0:
+                    continue
+                m = (ch.t >= a) & (ch.t <= b) & (ch.unc > f)
+                if m.any():
+                    onset = min(onset, float(ch.t[m][0]))
+            if math.isfinite(onset):
+                found.append((onset, b))
+        if not found:
+            out.append([])
+            continue
+        for c, ch in chans.items():
+            if c not in FIT_CHANNELS or ch.t.size == 0:
+                continue
+            seg = ch.seg if ch.seg is not None else np.zeros(ch.t.size, int)
+            mask = np.zeros(ch.t.size, bool)
+            for onset, b in found:
+                if c in POSE_CHANNELS:
+                    here = seg[np.argmin(np.abs(ch.t - onset))]
+                    mask |= (ch.t >= onset) & (seg == here)
+                else:
+                    mask |= (ch.t >= onset) & (ch.t <= b + BURN_IN_S)
+            if not mask.any():
+                continue
+            base = ch.unc if ch.unc is not None else np.zeros(ch.t.size)
+            new = np.where(mask, UNPINNED_UNC, base)
+            ch.unc = new
+            unc[c] = (ch.t.copy(), new.copy())
+        prep.replay_unc = unc
+        out.append(found)
+    return out
+
+
 def closed_loop_floors(chans_per_run: Sequence[Mapping[str, object]]) -> dict[str, float]:
     """Noise floor of the closed-loop channels (recorded minus replayed controller output),
     from the data: the white part of the nominal residual (MAD of second differences), which
@@ -264,6 +330,11 @@ def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict],
     floors = noise_floors(preps, nominal)
     floors_t = noise_floors(preps, nominal_t)
     log("noise floors: " + ", ".join(f"{c}={v:.3g}" for c, v in sorted(floors.items())))
+    unpinned = unpinned_episodes(preps, nominal, floors)
+    if any(unpinned):
+        log("slip episodes the model's tolerance does not pin down (no evidence): " + "; ".join(
+            f"{p.name} " + ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in u)
+            for p, u in zip(preps, unpinned) if u))
     from host_tools import _native
     plant = _native.Plant.from_meta(preps[0].run.meta)
     tau_max = float(min(plant.tau_max()))

@@ -16,7 +16,7 @@ from host_tools.analyzer.locate import detect_mismatch, locate_mismatch
 from host_tools.analyzer.prepare.command_lag import command_lag
 from host_tools.analyzer.prepare.inputs import prepare_timed
 from host_tools.analyzer.prepare.run import PreparedRun
-from host_tools.analyzer.replay.anchors import note_slip_episodes
+from host_tools.analyzer.replay.anchors import edges_outside_slip
 from host_tools.analyzer.replay.channels import channels
 from host_tools.analyzer.replay.closedloop import ClosedLoopReplay, closed_loop_channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
@@ -173,7 +173,7 @@ def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: 
     compared."""
     for p in preps:
         if len(p.windows) > 1:
-            note_slip_episodes(p, duty.simulate_windows(p, {}))
+            edges_outside_slip(p, duty)
         input_uncertainty(p, duty)
         tolerance_uncertainty(p, duty)
     nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]

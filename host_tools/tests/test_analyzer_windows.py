@@ -121,3 +121,32 @@ def test_a_window_is_re_anchored_in_heading_too(tmp_path, monkeypatch):
     # ... and the positions do not drift with it (10 mrad over a 4 s window is ~1 cm)
     for c in ("x_m", "y_m"):
         assert rms(turned[c]) < 1.2 * rms(base[c]) + 2e-4, (c, rms(base[c]), rms(turned[c]))
+
+
+def test_window_edges_leave_the_slip_of_a_reversal(tmp_path, monkeypatch):
+    """A window that starts inside a slip starts from a state the robot was never in (the body
+    rolling with the wheels, the pose from an odometry that stopped following the body): its
+    replay stays off the camera for the whole window.  The edges are moved past the slip."""
+    def reversals(t):
+        fwd = (t % 4.0) < 3.8          # a hard reversal 0.2 s before each 4 s window edge
+        ramp = np.clip(t / 0.3, 0, 1)
+        return np.where(fwd, 0.7, -0.9) * ramp, np.where(fwd, 0.5, -0.9) * ramp
+    monkeypatch.setitem(synth.PROFILES, "reversals", reversals)
+    path = synth.make_run(tmp_path / "rev", "reversals", duration_s=12.0, seed=5)
+    prep = PI.prepare_timed(load_run(path))
+    assert len(prep.windows) == 3
+    rp = OL.OpenLoopReplay("duty")
+    rms = lambda ch: max(float(np.sqrt(np.mean(ch[c].resid ** 2)))  # noqa: E731
+                         for c in ("x_m", "y_m"))
+    AN.note_slip_episodes(prep, rp.simulate_windows(prep, {}))
+    t = prep.run.telemetry["t_s"]
+    inside = lambda: [w for w, (i_a, _) in enumerate(prep.windows)  # noqa: E731
+                      if w and any(a < t[i_a] and b > t[i_a] - PR.BURN_IN_S
+                                   for a, b in prep.slip_episodes)]
+    assert inside() == [1, 2]          # both edges fall in a reversal's slip
+    fixed = rms(CH.channels(prep, rp.simulate_windows(prep, {})))
+    assert fixed > 0.02                # centimetres off the camera (1 mm noise)
+    prep.anchor_cache.clear()
+    assert AN.edges_outside_slip(prep, rp) == 2
+    assert len(prep.windows) == 3 and inside() == []
+    assert rms(CH.channels(prep, rp.simulate_windows(prep, {}))) < 1.5e-3

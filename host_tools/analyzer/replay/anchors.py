@@ -37,6 +37,65 @@ def note_slip_episodes(prep: "PreparedRun", sims: "WindowSims") -> int:
     return len(episodes)
 
 
+MAX_EDGE_MOVES = 6
+
+
+def edges_outside_slip(prep: "PreparedRun", replay) -> int:
+    """Move the edges between replay windows out of the nominal replay's slip episodes, and
+    note the episodes (``note_slip_episodes``) of the windows as they end up.
+
+    A window after the first starts from the recorded state: the wheel speeds from the counts
+    with the body rolling with them, and the pose from the recorder's odometry corrected onto
+    the camera.  Across a slip neither holds — the body does not roll with the wheels and the
+    odometry stops following it (the camera-minus-odometry heading moved by 4 rad within 1.5 s
+    of a braking reversal on the truth simulator's 60 s null) — so a window whose early start
+    or first frame falls in a slip begins in a state the robot was never in, and its replay
+    stays off the recording for the whole window (100–570 camera floors there, while the
+    window before, integrating through the slip, stayed within 3).  An edge inside or just
+    after an episode is moved to ``BURN_IN_S`` after the episode's end: the window before
+    integrates through the slip as the model says, and the next one starts rolling and is
+    re-anchored to the camera where the odometry follows the body again.  An episode that
+    still runs at the end of the window's replay is seen to its end in the next round (at most
+    ``MAX_EDGE_MOVES``).  An edge that would pass the next one removes it (the two windows
+    become one).  Returns the number
+    of edges moved."""
+    t = prep.run.telemetry["t_s"]
+    moved_total = 0
+    for _ in range(MAX_EDGE_MOVES):
+        note_slip_episodes(prep, replay.simulate_windows(prep, {}))
+        wins = [list(w) for w in prep.windows]
+        moved = 0
+        w = 1
+        while w < len(wins):
+            i_a = wins[w][0]
+            # only an edge inside one stretch of telemetry (a gap always ends a window)
+            if wins[w - 1][1] != i_a or t[i_a] - t[i_a - 1] > GAP_S:
+                w += 1
+                continue
+            lo = t[i_a] - BURN_IN_S
+            late = [b for a, b in prep.slip_episodes if a < t[i_a] and b > lo]
+            if not late:
+                w += 1
+                continue
+            target = max(late) + BURN_IN_S
+            j = int(np.searchsorted(t, target))
+            if j >= wins[w][1] - 1:
+                # past the next edge: the two windows become one
+                wins[w - 1][1] = wins[w][1]
+                del wins[w]
+            else:
+                wins[w - 1][1] = j
+                wins[w][0] = j
+                w += 1
+            moved += 1
+        if not moved:
+            break
+        prep.windows = [tuple(x) for x in wins]
+        prep.anchor_cache.clear()
+        moved_total += moved
+    return moved_total
+
+
 def _line_at(t: np.ndarray, v: np.ndarray, at: float) -> float:
     """Value at ``at`` of a straight line fitted to (t, v)."""
     tt = t - at
