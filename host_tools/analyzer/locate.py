@@ -189,34 +189,42 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, ob
     return floors
 
 
-# Where the nominal model cannot pin the replay down, the replay is no evidence.  In a slip
-# episode of the nominal replay the body's motion follows the contact forces, whose direction
-# follows the slip velocity: a small change of the parameters within their tolerance moves the
-# body's heading by radians within a second of a spin (a 60 s null with braking reversals: 2.5
-# rad off after a 3 s spin at the start, where the tolerance ensemble of 8 draws spread by 0.28
-# rad: the recording is one more draw, and nothing bounds it by the ensemble's spread).  An
-# episode is unpinned when, inside it, the replay's own uncertainty of a pose channel (the
-# tolerance ensemble and the input spread, ``Channel.unc``) exceeds that channel's noise floor.
-# From the first such sample, the pose channels are no evidence until the replay is
-# re-anchored (the end of the window: the pose integrates the error), and the wheel-speed and
-# current channels until BURN_IN_S after the episode ends (the slipping wheels' friction follows
-# the body's unpinned motion; once they roll again the wheels are tied to the recorded duty).
-# "No evidence" is an unbounded replay uncertainty (UNPINNED_UNC): the deflated residual is
-# nil there, in the decisions and the fits alike.
+# Where the nominal model cannot pin the replay down, the replay is no evidence.  A run replayed
+# in windows notes its nominal replay's slip episodes (``replay.anchors``).  In a slip the body's
+# motion and the slipping wheels follow the contact forces, whose size and direction follow the
+# slip velocity and the contact's form, which no plant reproduces in detail: the tolerance
+# ensemble can call a slip pinned and the recording still depart (a braking reversal of the
+# MuJoCo tuning set's 60 s null: 6 camera floors of slip distance where the 8 draws spread by
+# 0.4, and 4-6 floors of current in a slipping reversal where they spread by 0.5).  So:
+# - the pose channels are no evidence from a slip's onset until the replay is re-anchored (the
+#   end of its window; a window is cut after each slip, ``anchors._edges_after_slip``): the pose
+#   integrates the slip's error;
+# - the wheel-speed and current channels are no evidence within a slip episode, and when the
+#   episode is unpinned — inside it the replay's own uncertainty of a pose channel (the tolerance
+#   ensemble and the input spread, ``Channel.unc``) exceeds that channel's noise floor: the model
+#   cannot say where the body goes (a 3 s spin at the start of heldback6's MuJoCo 60 s null ended
+#   2.5 rad off, the ensemble spreading by 0.28 rad) — until BURN_IN_S after it ends, while the
+#   wheels settle from the body's unpinned motion.  Elsewhere they are evidence, the ensemble's
+#   spread joining the noise floor as everywhere.
+# "No evidence" is an unbounded replay uncertainty (UNPINNED_UNC): the deflated residual is nil
+# there, in the decisions and the fits alike.  A run replayed in one window (up to 6 s, from
+# rest) notes no episodes: its slips are the experiment's regime, its replay starts pinned at
+# rest, and the friction effects show there.
 POSE_CHANNELS = ("x_m", "y_m", "phi_rad")
 UNPINNED_UNC = 1e9
 
 
 def unpinned_episodes(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, object]],
                       floors: Mapping[str, float]) -> list[list[tuple[float, float]]]:
-    """Mark the nominal replay's unpinned slip episodes (above) as no evidence: per run, the
-    replay uncertainty ``prep.replay_unc`` (which every later replay of the run attaches to
-    its channels) and the nominal channels' ``unc`` are set to UNPINNED_UNC over the spans
-    they cover.  Returns per run the (onset, end) of the unpinned episodes."""
+    """Mark the nominal replay's slip episodes as no evidence (above): per run, the replay
+    uncertainty ``prep.replay_unc`` (which every later replay of the run attaches to its
+    channels) and the nominal channels' ``unc`` are set to UNPINNED_UNC over the spans they
+    cover.  Returns per run the (onset, end) of the unpinned episodes."""
     from host_tools.analyzer.prepare.run import BURN_IN_S
     out: list[list[tuple[float, float]]] = []
     for prep, chans in zip(preps, nominal):
         found: list[tuple[float, float]] = []
+        slips = list(prep.slip_episodes)
         unc = dict(prep.replay_unc or {})
         for a, b in prep.slip_episodes:
             onset = math.inf
@@ -230,7 +238,7 @@ def unpinned_episodes(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[st
                     onset = min(onset, float(ch.t[m][0]))
             if math.isfinite(onset):
                 found.append((onset, b))
-        if not found:
+        if not found and not slips:
             out.append([])
             continue
         for c, ch in chans.items():
@@ -238,12 +246,15 @@ def unpinned_episodes(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[st
                 continue
             seg = ch.seg if ch.seg is not None else np.zeros(ch.t.size, int)
             mask = np.zeros(ch.t.size, bool)
-            for onset, b in found:
-                if c in POSE_CHANNELS:
-                    here = seg[np.argmin(np.abs(ch.t - onset))]
-                    mask |= (ch.t >= onset) & (seg == here)
-                else:
+            if c in POSE_CHANNELS:
+                for a, b in slips:
+                    here = seg[np.argmin(np.abs(ch.t - a))]
+                    mask |= (ch.t >= a) & (seg == here)
+            else:
+                for onset, b in found:
                     mask |= (ch.t >= onset) & (ch.t <= b + BURN_IN_S)
+                for a, b in slips:
+                    mask |= (ch.t >= a) & (ch.t <= b)
             if not mask.any():
                 continue
             base = ch.unc if ch.unc is not None else np.zeros(ch.t.size)
@@ -332,7 +343,7 @@ def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict],
     log("noise floors: " + ", ".join(f"{c}={v:.3g}" for c, v in sorted(floors.items())))
     unpinned = unpinned_episodes(preps, nominal, floors)
     if any(unpinned):
-        log("slip episodes the model's tolerance does not pin down (no evidence): " + "; ".join(
+        log("slip episodes the model's tolerance does not pin down: " + "; ".join(
             f"{p.name} " + ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in u)
             for p, u in zip(preps, unpinned) if u))
     from host_tools import _native

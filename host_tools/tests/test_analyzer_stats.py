@@ -245,11 +245,11 @@ def test_the_camera_anchor_is_computed_once_per_window_and_slip_state(tmp_path):
         anchors._gt_anchor_of = real
 
 
-def test_a_slip_the_tolerance_does_not_pin_down_is_no_evidence():
-    """Inside a slip episode of the nominal replay where the replay's own uncertainty of the pose
-    exceeds its noise floor, the pose is no evidence until the window ends (the replay is
-    re-anchored there) and the wheels until the episode has ended and settled; a slip whose
-    pose the tolerance pins down (spread below the floor) changes nothing."""
+def test_a_slip_in_a_windowed_replay_is_no_evidence():
+    """In a slip episode of the nominal replay the pose is no evidence from the slip's onset to
+    the end of its window (the replay is re-anchored there) and the wheels within the episode;
+    where the replay's own uncertainty of the pose exceeds its noise floor inside the episode
+    (unpinned), the wheels stay out until BURN_IN_S after it."""
     from types import SimpleNamespace
 
     from host_tools.analyzer.locate import UNPINNED_UNC, unpinned_episodes
@@ -267,20 +267,28 @@ def test_a_slip_the_tolerance_does_not_pin_down_is_no_evidence():
                              seg.copy(), unc)
         return out
     floors = {c: 1.0 for c in FIT}
-    prep = SimpleNamespace(slip_episodes=[(1.0, 2.5)], replay_unc=None)
+    ep = (1.0, 2.5)
+    nothing = SimpleNamespace(slip_episodes=[], replay_unc=None)
+    quiet = chans(3.0)
+    assert unpinned_episodes([nothing], [quiet], floors) == [[]]
+    assert all(np.all(ch.unc <= 3.0) for ch in quiet.values()) and nothing.replay_unc is None
+    prep = SimpleNamespace(slip_episodes=[ep], replay_unc=None)
     pinned = chans(0.8)
     assert unpinned_episodes([prep], [pinned], floors) == [[]]
-    assert all(np.all(ch.unc < 1.0) for ch in pinned.values()) and prep.replay_unc is None
+    off = {c: pinned[c].unc >= UNPINNED_UNC for c in FIT}
+    assert np.array_equal(off["x_m"], (t >= ep[0]) & (t < 4.0))       # to the window's end
+    assert np.array_equal(off["omega_r"], (t >= ep[0]) & (t <= ep[1]))  # within the episode
+    prep = SimpleNamespace(slip_episodes=[ep], replay_unc=None)
     loose = chans(3.0)
     got = unpinned_episodes([prep], [loose], floors)
-    assert got[0] and abs(got[0][0][0] - 1.52) < 0.011 and got[0][0][1] == 2.5
+    assert got[0] and abs(got[0][0][0] - 1.52) < 0.011 and got[0][0][1] == ep[1]
     off = {c: loose[c].unc >= UNPINNED_UNC for c in FIT}
-    # the pose: from the onset to the end of its window (4 s), not beyond
-    assert np.array_equal(off["x_m"], (t >= got[0][0][0]) & (t < 4.0))
-    # the wheels: until BURN_IN_S after the episode
-    assert np.array_equal(off["omega_r"], (t >= got[0][0][0]) & (t <= 2.5 + BURN_IN_S))
+    assert np.array_equal(off["x_m"], (t >= ep[0]) & (t < 4.0))
+    assert np.array_equal(off["current_l_a"], (t >= ep[0]) & (t <= ep[1] + BURN_IN_S))
     # the run keeps it for every later replay (the fits attach prep.replay_unc)
     assert np.array_equal(prep.replay_unc["phi_rad"][1] >= UNPINNED_UNC, off["phi_rad"])
     # the deflated residual is nil there, and untouched elsewhere
     z = loose["x_m"].deflated(1.0)
-    assert np.all(np.abs(z[off["x_m"]]) < 1e-6) and np.abs(z[(t > 1.2) & (t < 1.5)]).min() > 25
+    assert np.all(np.abs(z[off["x_m"]]) < 1e-6) and np.abs(z[(t > 0.5) & (t < 1.0)]).max() == 0
+    z = loose["omega_r"].deflated(1.0)
+    assert np.abs(z[(t > 3.1) & (t < 4.0)]).min() > 25

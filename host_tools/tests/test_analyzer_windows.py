@@ -148,5 +148,28 @@ def test_window_edges_leave_the_slip_of_a_reversal(tmp_path, monkeypatch):
     assert fixed > 0.02                # centimetres off the camera (1 mm noise)
     prep.anchor_cache.clear()
     assert AN.edges_outside_slip(prep, rp) == 2
-    assert len(prep.windows) == 3 and inside() == []
+    # (and a cut after the launch's slip, 0.1-0.65 s: four windows)
+    assert len(prep.windows) == 4 and inside() == []
     assert rms(CH.channels(prep, rp.simulate_windows(prep, {}))) < 1.5e-3
+
+
+def test_a_window_is_cut_after_a_slip(tmp_path, monkeypatch):
+    """The pose is re-anchored after a slip: a window is cut BURN_IN_S after the episode ends,
+    when the cut leaves a second without slip after it and a second of window on either side."""
+    def reversals(t):
+        fwd = ((t - 2.0) % 4.0) < 3.8   # a hard reversal in the middle of each 4 s window
+        ramp = np.clip(t / 0.3, 0, 1)
+        return np.where(fwd, 0.7, -0.9) * ramp, np.where(fwd, 0.5, -0.9) * ramp
+    monkeypatch.setitem(synth.PROFILES, "mid_reversals", reversals)
+    path = synth.make_run(tmp_path / "mid", "mid_reversals", duration_s=12.0, seed=6)
+    prep = PI.prepare_timed(load_run(path))
+    assert len(prep.windows) == 3
+    rp = OL.OpenLoopReplay("duty")
+    AN.edges_outside_slip(prep, rp)
+    t = prep.run.telemetry["t_s"]
+    mid = [(a, b) for a, b in prep.slip_episodes if 1.5 < a < 2.5]
+    assert mid
+    edges = [float(t[i_a]) for i_a, _ in prep.windows[1:]]
+    end = max(b for _, b in mid)
+    assert any(abs(e - (end + PR.BURN_IN_S)) < 0.03 for e in edges)
+    assert all(a1 == b0 for (_, a1), (b0, _) in zip(prep.windows[:-1], prep.windows[1:]))

@@ -93,7 +93,44 @@ def edges_outside_slip(prep: "PreparedRun", replay) -> int:
         prep.windows = [tuple(x) for x in wins]
         prep.anchor_cache.clear()
         moved_total += moved
+    if _edges_after_slip(prep):
+        note_slip_episodes(prep, replay.simulate_windows(prep, {}))
     return moved_total
+
+
+MIN_REANCHOR_S = 1.0
+
+
+def _edges_after_slip(prep: "PreparedRun") -> int:
+    """Cut a window ``BURN_IN_S`` after a slip episode ends, so that the pose is re-anchored
+    to the camera there: the slip distance is the contact's, which no plant reproduces in
+    detail, and the pose after a slip carries its error to the end of the window (the pose
+    channels are no evidence from a slip's onset to the window's end,
+    ``locate.unpinned_episodes``).  A cut needs ``MIN_REANCHOR_S`` without slip after it and
+    that much of the window on either side; it is not made across a telemetry gap.  Returns
+    the number of edges added."""
+    t = prep.run.telemetry["t_s"]
+    eps = prep.slip_episodes
+    wins = [list(w) for w in prep.windows]
+    added = 0
+    for b in sorted({b for _, b in eps}):
+        target = b + BURN_IN_S
+        if any(a2 <= target + MIN_REANCHOR_S and b2 > b for a2, b2 in eps):
+            continue
+        j = int(np.searchsorted(t, target))
+        for w, (i_a, i_b) in enumerate(wins):
+            if not (i_a < j < i_b - 1):
+                continue
+            if (t[j] - t[i_a] >= MIN_REANCHOR_S and t[i_b - 1] - t[j] >= MIN_REANCHOR_S
+                    and not np.any(np.diff(t[max(i_a, j - 1):j + 1]) > GAP_S)
+                    and not np.any((t[i_a:j] >= b) & (np.diff(t[i_a:j + 1]) > GAP_S))):
+                wins[w:w + 1] = [[i_a, j], [j, i_b]]
+                added += 1
+            break
+    if added:
+        prep.windows = [tuple(x) for x in wins]
+        prep.anchor_cache.clear()
+    return added
 
 
 def _line_at(t: np.ndarray, v: np.ndarray, at: float) -> float:
