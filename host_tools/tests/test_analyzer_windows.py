@@ -123,15 +123,21 @@ def test_a_window_is_re_anchored_in_heading_too(tmp_path, monkeypatch):
         assert rms(turned[c]) < 1.2 * rms(base[c]) + 2e-4, (c, rms(base[c]), rms(turned[c]))
 
 
+def _reversals(shift_s: float):
+    """Duties of a run that reverses hard every 4 s, 0.2 s before (4 s + ``shift_s``) k."""
+    def duties(t):
+        fwd = ((t - shift_s) % 4.0) < 3.8
+        ramp = np.clip(t / 0.3, 0, 1)
+        return np.where(fwd, 0.7, -0.9) * ramp, np.where(fwd, 0.5, -0.9) * ramp
+    return duties
+
+
 def test_window_edges_leave_the_slip_of_a_reversal(tmp_path, monkeypatch):
     """A window that starts inside a slip starts from a state the robot was never in (the body
     rolling with the wheels, the pose from an odometry that stopped following the body): its
     replay stays off the camera for the whole window.  The edges are moved past the slip."""
-    def reversals(t):
-        fwd = (t % 4.0) < 3.8          # a hard reversal 0.2 s before each 4 s window edge
-        ramp = np.clip(t / 0.3, 0, 1)
-        return np.where(fwd, 0.7, -0.9) * ramp, np.where(fwd, 0.5, -0.9) * ramp
-    monkeypatch.setitem(synth.PROFILES, "reversals", reversals)
+    # a hard reversal 0.2 s before each 4 s window edge
+    monkeypatch.setitem(synth.PROFILES, "reversals", _reversals(0.0))
     path = synth.make_run(tmp_path / "rev", "reversals", duration_s=12.0, seed=5)
     prep = PI.prepare_timed(load_run(path))
     assert len(prep.windows) == 3
@@ -156,11 +162,8 @@ def test_window_edges_leave_the_slip_of_a_reversal(tmp_path, monkeypatch):
 def test_a_window_is_cut_after_a_slip(tmp_path, monkeypatch):
     """The pose is re-anchored after a slip: a window is cut BURN_IN_S after the episode ends,
     when the cut leaves a second without slip after it and a second of window on either side."""
-    def reversals(t):
-        fwd = ((t - 2.0) % 4.0) < 3.8   # a hard reversal in the middle of each 4 s window
-        ramp = np.clip(t / 0.3, 0, 1)
-        return np.where(fwd, 0.7, -0.9) * ramp, np.where(fwd, 0.5, -0.9) * ramp
-    monkeypatch.setitem(synth.PROFILES, "mid_reversals", reversals)
+    # a hard reversal in the middle of each 4 s window
+    monkeypatch.setitem(synth.PROFILES, "mid_reversals", _reversals(2.0))
     path = synth.make_run(tmp_path / "mid", "mid_reversals", duration_s=12.0, seed=6)
     prep = PI.prepare_timed(load_run(path))
     assert len(prep.windows) == 3
