@@ -45,6 +45,7 @@ class PreparedRun:
     slip_episodes: list = field(default_factory=list)
     replay_unc: dict | None = None
     tolerance_bias: dict | None = None  # channel -> whole-run bias the model's tolerance allows
+    tolerance_draw_means: dict | None = None  # channel -> each tolerance draw's mean residual
     anchor_cache: dict = field(default_factory=dict)  # replay.anchors._gt_anchor's results
 
     @property
