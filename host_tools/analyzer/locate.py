@@ -109,14 +109,14 @@ def bias_test(nominal: Sequence[Mapping[str, object]], floors: Mapping[str, floa
     from scipy import stats
     from host_tools.analyzer.replay.channels import Channel
     out: dict[str, dict] = {}
-    tests: list[tuple[str, list[tuple[list[float], float]], float]] = []
+    tests: list[tuple[str, list[tuple[list[float], float]], float, float]] = []
     for c in channels_:
         f = floors.get(c, 0.0)
         if not f > 0:
             continue
         tests.append((c, [(_block_means(chans[c], f),
                            (allowed[i] or {}).get(c, 0.0) / f if allowed else 0.0)
-                          for i, chans in enumerate(nominal) if c in chans], f))
+                          for i, chans in enumerate(nominal) if c in chans], f, BIAS_BLOCK_S))
     for a, b in WHEEL_PAIRS:
         fa, fb = floors.get(a, 0.0), floors.get(b, 0.0)
         if a not in channels_ or b not in channels_ or not (fa > 0 and fb > 0):
@@ -134,9 +134,9 @@ def bias_test(nominal: Sequence[Mapping[str, object]], floors: Mapping[str, floa
                                    cb.unc if cb.unc is not None else 0.0))
             per_run.append((_block_means(d, 1.0, PAIR_BLOCK_S, UNPINNED_UNC),
                             (allowed[i] or {}).get(name, 0.0) if allowed else 0.0))
-        tests.append((name, per_run, 1.0))
+        tests.append((name, per_run, 1.0, PAIR_BLOCK_S))
     m = max(len(tests), 1)
-    for c, per_run, f in tests:
+    for c, per_run, f, block_s in tests:
         means = [v for bm, _ in per_run for v in bm]
         n = len(means)
         if n < 3:
@@ -147,8 +147,8 @@ def bias_test(nominal: Sequence[Mapping[str, object]], floors: Mapping[str, floa
         se = math.sqrt(sd ** 2 / n + sys_ ** 2)
         tstat = mu / se if se > 0 else (math.inf if mu != 0 else 0.0)
         thr = float(stats.t.ppf(1 - alpha / (2 * m), n - 1))
-        out[c] = {"bias_floors": mu, "blocks": n, "t": tstat, "t_threshold": thr,
-                  "tolerance_floors": sys_,
+        out[c] = {"bias_floors": mu, "blocks": n, "block_s": block_s, "t": tstat,
+                  "t_threshold": thr, "tolerance_floors": sys_,
                   "significant": bool(abs(tstat) > thr and abs(mu) >= min_floors)}
     return out
 
@@ -470,7 +470,7 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict], loc: 
         notes.append("a consistent bias over many samples, each below the strong-window "
                      "threshold: " + ", ".join(f"{c} {bias[c]['bias_floors']:+.2f} noise floors "
                                                f"over {bias[c]['blocks']} blocks of "
-                                               f"{BIAS_BLOCK_S:g} s" for c in biased))
+                                               f"{bias[c]['block_s']:g} s" for c in biased))
     mismatch_seen = (bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
                      or bool(biased))
     sig_t = [e for e in loc.entries_t if e["channel"] in fit_chans]

@@ -324,6 +324,7 @@ def test_a_wheel_asymmetry_shows_in_the_wheels_difference():
         res = bias_test(_asymmetric_runs(np.random.default_rng(seed), 0.6), floors, FIT)
         assert not res["current_r_a"]["significant"] and not res["current_l_a"]["significant"]
         assert abs(res[name]["bias_floors"] + 0.6 * np.sqrt(2)) < 0.3
+        assert res[name]["block_s"] == 0.5 and res["current_r_a"]["block_s"] == 1.0
         found += res[name]["significant"]
         quiet = bias_test(_asymmetric_runs(np.random.default_rng(100 + seed), 0.0), floors, FIT)
         assert not any(v["significant"] for v in quiet.values())
