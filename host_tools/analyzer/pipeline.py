@@ -167,8 +167,10 @@ def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: 
     """The nominal open-loop replays (no effect), per run: channel -> Channel, driven by the
     recorded duty (what locates the mismatch and decides) and by the recorded torque command
     (reported apart: it separates motor and driver from the rest).  On a run of several
-    windows the duty replay's slip episodes are noted first (``note_slip_episodes``): the
-    window anchors to the camera are fitted within the slip-free spans.  The replay's own
+    windows the duty replay's slip episodes are noted first and the window edges moved out
+    of them, with a cut after each (``edges_outside_slip``): a window cannot start from the
+    recorded state inside a slip, the window anchors to the camera are fitted within the
+    slip-free spans, and ``locate`` takes the slips as no evidence.  The replay's own
     uncertainty (unreported commands, the model's tolerance) is drawn before the channels are
     compared."""
     for p in preps:
