@@ -46,14 +46,36 @@ BIAS_BLOCK_S = 1.0
 BIAS_ALPHA = 0.01
 BIAS_MIN_FLOORS = 0.5
 
+# The two wheels' difference.  A per-wheel effect (a motor-gain asymmetry) moves the two wheels'
+# residuals in opposite directions while the body's motion, and most of the replay's own error,
+# moves them alike: the difference (r - l)/sqrt(2) of a wheel pair's residuals in floors (speeds,
+# currents) holds the one without the other (heldback6's MuJoCo 10 % asymmetry: currents -0.64
+# and +0.48 floors, t -2.5 and +1.5 per wheel; their difference -0.79 floors, and its block means
+# decorrelate within half a second).  It is tested as one more channel (Bonferroni over the fit
+# channels and these), in blocks of PAIR_BLOCK_S: on the tuning and heldback6 nulls the lag-1
+# autocorrelation of the difference's 0.5 s block means is at most 0.2, so they are independent
+# samples.  The tolerance's allowed bias of the difference is that of the draws' differences
+# (``tolerance_draw_means``): the drawn parameters are the robot's, common to both wheels, so
+# it is small where the per-wheel one is not.
+WHEEL_PAIRS = (("omega_r", "omega_l"), ("current_r_a", "current_l_a"))
+PAIR_BLOCK_S = 0.5
 
-def _block_means(ch: Channel, floor: float, block_s: float = BIAS_BLOCK_S) -> list[float]:
+
+def pair_name(a: str, b: str) -> str:
+    return f"{a}-{b}"
+
+
+def _block_means(ch: Channel, floor: float, block_s: float = BIAS_BLOCK_S,
+                 no_evidence: float | None = None) -> list[float]:
     """Means of the channel's residual (in floors) over blocks of ``block_s`` within each
-    replay window; a block with fewer than 3 samples is left out."""
+    replay window; a block with fewer than 3 samples is left out, and so are the samples whose
+    replay uncertainty is ``no_evidence`` or more (default SLIP_UNC: ``unpinned_episodes``)."""
     z = ch.resid / floor
     t = np.asarray(ch.t, float)
     seg = ch.seg if ch.seg is not None else np.zeros(t.size, int)
     ok = np.isfinite(z)
+    if ch.unc is not None:
+        ok &= ch.unc < (SLIP_UNC if no_evidence is None else no_evidence)
     out: list[float] = []
     for s in np.unique(seg):
         m = (seg == s) & ok
@@ -79,32 +101,70 @@ def bias_test(nominal: Sequence[Mapping[str, Channel]], floors: Mapping[str, flo
     """Per fit channel: the mean residual over all runs (in noise floors), the number of
     blocks (effective samples), the t statistic of the block means, the threshold for the
     false-alarm rate ``alpha`` per analysis (two-sided, Bonferroni over ``channels_``) and
-    whether the bias is significant and at least ``min_floors``.  ``allowed`` (per run,
+    whether the bias is significant and at least ``min_floors``; and the same for each wheel
+    pair's difference (``WHEEL_PAIRS``, keyed ``pair_name``, in blocks of PAIR_BLOCK_S; the
+    Bonferroni count includes them).  ``allowed`` (per run,
     channel -> std of the whole-run bias the model's tolerance allows, ``tolerance_bias``)
     joins the standard error: the tolerance is one set of parameters for all runs, so its
     error does not average out over blocks; it is taken as fully shared by the runs."""
     from scipy import stats
+    from host_tools.analyzer.replay.channels import Channel
     out: dict[str, dict[str, Any]] = {}
-    m = max(len(channels_), 1)
+    tests: list[tuple[str, list[tuple[list[float], float]], float, float]] = []
     for c in channels_:
         f = floors.get(c, 0.0)
         if not f > 0:
             continue
-        per_run = [(_block_means(chans[c], f), (allowed[i] or {}).get(c, 0.0) if allowed else 0.0)
-                   for i, chans in enumerate(nominal) if c in chans]
+        tests.append((c, [(_block_means(chans[c], f),
+                           (allowed[i] or {}).get(c, 0.0) / f if allowed else 0.0)
+                          for i, chans in enumerate(nominal) if c in chans], f, BIAS_BLOCK_S))
+    for a, b in WHEEL_PAIRS:
+        fa, fb = floors.get(a, 0.0), floors.get(b, 0.0)
+        if a not in channels_ or b not in channels_ or not (fa > 0 and fb > 0):
+            continue
+        name = pair_name(a, b)
+        per_run = []
+        for i, chans in enumerate(nominal):
+            ca, cb = chans.get(a), chans.get(b)
+            if ca is None or cb is None or ca.t.size != cb.t.size or np.any(ca.t != cb.t):
+                continue
+            d = Channel(name, ca.t, (ca.resid / fa - cb.resid / fb) / math.sqrt(2),
+                        np.zeros(ca.t.size), "floors", ca.seg,
+                        None if ca.unc is None and cb.unc is None else
+                        np.maximum(ca.unc if ca.unc is not None else 0.0,
+                                   cb.unc if cb.unc is not None else 0.0))
+            per_run.append((_block_means(d, 1.0, PAIR_BLOCK_S, UNPINNED_UNC),
+                            (allowed[i] or {}).get(name, 0.0) if allowed else 0.0))
+        tests.append((name, per_run, 1.0, PAIR_BLOCK_S))
+    m = max(len(tests), 1)
+    for c, per_run, f, block_s in tests:
         means = [v for bm, _ in per_run for v in bm]
         n = len(means)
         if n < 3:
             continue
-        sys_ = sum(len(bm) * a for bm, a in per_run) / n / f
+        sys_ = sum(len(bm) * a for bm, a in per_run) / n
         mu = float(np.mean(means))
         sd = float(np.std(means, ddof=1))
         se = math.sqrt(sd ** 2 / n + sys_ ** 2)
         tstat = mu / se if se > 0 else (math.inf if mu != 0 else 0.0)
         thr = float(stats.t.ppf(1 - alpha / (2 * m), n - 1))
-        out[c] = {"bias_floors": mu, "blocks": n, "t": tstat, "t_threshold": thr,
-                  "tolerance_floors": sys_,
+        out[c] = {"bias_floors": mu, "blocks": n, "block_s": block_s, "t": tstat,
+                  "t_threshold": thr, "tolerance_floors": sys_,
                   "significant": bool(abs(tstat) > thr and abs(mu) >= min_floors)}
+    return out
+
+
+def allowed_bias(prep: PreparedRun, floors: Mapping[str, float]) -> dict[str, float]:
+    """The whole-run bias the model's tolerance allows (``prep.tolerance_bias``, channel units)
+    and, for each wheel pair, that of the pair's difference in floors: the std over the
+    tolerance draws of (mean_r / floor_r - mean_l / floor_l) / sqrt(2)."""
+    out = dict(prep.tolerance_bias or {})
+    draws = prep.tolerance_draw_means or {}
+    for a, b in WHEEL_PAIRS:
+        fa, fb = floors.get(a, 0.0), floors.get(b, 0.0)
+        if a in draws and b in draws and fa > 0 and fb > 0 and len(draws[a]) == len(draws[b]):
+            d = (np.asarray(draws[a]) / fa - np.asarray(draws[b]) / fb) / math.sqrt(2)
+            out[pair_name(a, b)] = float(np.std(d))
     return out
 
 
@@ -190,6 +250,85 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Ch
     return floors
 
 
+# Where the nominal model cannot pin the replay down, the replay is no evidence.  A run replayed
+# in windows notes its nominal replay's slip episodes (``replay.anchors``).  In a slip the body's
+# motion and the slipping wheels follow the contact forces, whose size and direction follow the
+# slip velocity and the contact's form, which no plant reproduces in detail: the tolerance
+# ensemble can call a slip pinned and the recording still depart (a braking reversal of the
+# MuJoCo tuning set's 60 s null: 6 camera floors of slip distance where the 8 draws spread by
+# 0.4, and 4-6 floors of current in a slipping reversal where they spread by 0.5).  So:
+# - the pose channels are no evidence from a slip's onset until the replay is re-anchored (the
+#   end of its window; a window is cut after each slip, ``anchors._edges_after_slip``): the pose
+#   integrates the slip's error;
+# - the wheel-speed and current channels are no evidence within a slip episode, and when the
+#   episode is unpinned — inside it the replay's own uncertainty of a pose channel (the tolerance
+#   ensemble and the input spread, ``Channel.unc``) exceeds that channel's noise floor: the model
+#   cannot say where the body goes (a 3 s spin at the start of heldback6's MuJoCo 60 s null ended
+#   2.5 rad off, the ensemble spreading by 0.28 rad) — until BURN_IN_S after it ends, while the
+#   wheels settle from the body's unpinned motion.  Elsewhere they are evidence, the ensemble's
+#   spread joining the noise floor as everywhere.
+# "No evidence" is an unbounded replay uncertainty (UNPINNED_UNC): the deflated residual is nil
+# there, in the decisions and the fits alike.  A run replayed in one window (up to 6 s, from
+# rest) notes no episodes: its slips are the experiment's regime, its replay starts pinned at
+# rest, and the friction effects show there.
+POSE_CHANNELS = ("x_m", "y_m", "phi_rad")
+UNPINNED_UNC = 1e9
+SLIP_UNC = 1e8      # a wheel channel in a pinned slip: no evidence, its pair's difference is
+
+
+def unpinned_episodes(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Channel]],
+                      floors: Mapping[str, float]) -> list[list[tuple[float, float]]]:
+    """Mark the nominal replay's slip episodes as no evidence (above): per run, the replay
+    uncertainty ``prep.replay_unc`` (which every later replay of the run attaches to its
+    channels) and the nominal channels' ``unc`` are set to UNPINNED_UNC over the spans they
+    cover.  Returns per run the (onset, end) of the unpinned episodes."""
+    from host_tools.analyzer.prepare.run import BURN_IN_S
+    out: list[list[tuple[float, float]]] = []
+    for prep, chans in zip(preps, nominal):
+        found: list[tuple[float, float]] = []
+        slips = list(prep.slip_episodes)
+        unc = dict(prep.replay_unc or {})
+        for a, b in prep.slip_episodes:
+            onset = math.inf
+            for c in POSE_CHANNELS:
+                ch = chans.get(c)
+                f = floors.get(c, 0.0)
+                if ch is None or ch.unc is None or not f > 0:
+                    continue
+                m = (ch.t >= a) & (ch.t <= b) & (ch.unc > f)
+                if m.any():
+                    onset = min(onset, float(ch.t[m][0]))
+            if math.isfinite(onset):
+                found.append((onset, b))
+        if not found and not slips:
+            out.append([])
+            continue
+        for c, ch in chans.items():
+            if c not in FIT_CHANNELS or ch.t.size == 0:
+                continue
+            seg = ch.seg if ch.seg is not None else np.zeros(ch.t.size, int)
+            mask = np.zeros(ch.t.size, bool)
+            slip = np.zeros(ch.t.size, bool)
+            if c in POSE_CHANNELS:
+                for a, b in slips:
+                    here = seg[np.argmin(np.abs(ch.t - a))]
+                    mask |= (ch.t >= a) & (seg == here)
+            else:
+                for onset, b in found:
+                    mask |= (ch.t >= onset) & (ch.t <= b + BURN_IN_S)
+                for a, b in slips:
+                    slip |= (ch.t >= a) & (ch.t <= b)
+            if not (mask.any() or slip.any()):
+                continue
+            base = ch.unc if ch.unc is not None else np.zeros(ch.t.size)
+            new = np.where(mask, UNPINNED_UNC, np.where(slip, np.maximum(base, SLIP_UNC), base))
+            ch.unc = new
+            unc[c] = (ch.t.copy(), new.copy())
+        prep.replay_unc = unc
+        out.append(found)
+    return out
+
+
 def closed_loop_floors(chans_per_run: Sequence[Mapping[str, Channel]]) -> dict[str, float]:
     """Noise floor of the closed-loop channels (recorded minus replayed controller output),
     from the data: the white part of the nominal residual (MAD of second differences), which
@@ -268,6 +407,11 @@ def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
     floors = noise_floors(preps, nominal)
     floors_t = noise_floors(preps, nominal_t)
     log("noise floors: " + ", ".join(f"{c}={v:.3g}" for c, v in sorted(floors.items())))
+    unpinned = unpinned_episodes(preps, nominal, floors)
+    if any(unpinned):
+        log("slip episodes the model's tolerance does not pin down: " + "; ".join(
+            f"{p.name} " + ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in u)
+            for p, u in zip(preps, unpinned) if u))
     from host_tools import _native
     plant = _native.Plant.from_meta(preps[0].run.meta)
     tau_max = float(min(plant.tau_max()))
@@ -321,7 +465,7 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
     strong_k = strong_threshold(total_s)
     strong0 = [e for e in sig_fit if e["rms"] >= strong_k * e["noise_floor"]]
     bias = bias_test(nominal, floors, fit_chans,
-                     allowed=[p.tolerance_bias for p in preps])
+                     allowed=[allowed_bias(p, floors) for p in preps])
     biased = [c for c, v in bias.items() if v["significant"]]
     if biased:
         log("consistent bias: " + ", ".join(
@@ -330,7 +474,7 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
         notes.append("a consistent bias over many samples, each below the strong-window "
                      "threshold: " + ", ".join(f"{c} {bias[c]['bias_floors']:+.2f} noise floors "
                                                f"over {bias[c]['blocks']} blocks of "
-                                               f"{BIAS_BLOCK_S:g} s" for c in biased))
+                                               f"{bias[c]['block_s']:g} s" for c in biased))
     mismatch_seen = (bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
                      or bool(biased))
     sig_t = [e for e in loc.entries_t if e["channel"] in fit_chans]

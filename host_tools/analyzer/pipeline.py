@@ -16,7 +16,7 @@ from host_tools.analyzer.locate import detect_mismatch, locate_mismatch
 from host_tools.analyzer.prepare.command_lag import command_lag
 from host_tools.analyzer.prepare.inputs import prepare_timed
 from host_tools.analyzer.prepare.run import PreparedRun
-from host_tools.analyzer.replay.anchors import note_slip_episodes
+from host_tools.analyzer.replay.anchors import edges_outside_slip
 from host_tools.analyzer.replay.channels import Channel, channels
 from host_tools.analyzer.replay.closedloop import ClosedLoopReplay, closed_loop_channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
@@ -169,13 +169,15 @@ def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: 
     """The nominal open-loop replays (no effect), per run: channel -> Channel, driven by the
     recorded duty (what locates the mismatch and decides) and by the recorded torque command
     (reported apart: it separates motor and driver from the rest).  On a run of several
-    windows the duty replay's slip episodes are noted first (``note_slip_episodes``): the
-    window anchors to the camera are fitted within the slip-free spans.  The replay's own
+    windows the duty replay's slip episodes are noted first and the window edges moved out
+    of them, with a cut after each (``edges_outside_slip``): a window cannot start from the
+    recorded state inside a slip, the window anchors to the camera are fitted within the
+    slip-free spans, and ``locate`` takes the slips as no evidence.  The replay's own
     uncertainty (unreported commands, the model's tolerance) is drawn before the channels are
     compared."""
     for p in preps:
         if len(p.windows) > 1:
-            note_slip_episodes(p, duty.simulate_windows(p, {}))
+            edges_outside_slip(p, duty)
         input_uncertainty(p, duty)
         tolerance_uncertainty(p, duty)
     nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]

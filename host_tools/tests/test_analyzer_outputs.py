@@ -120,6 +120,26 @@ def test_series_mark_the_reanchoring_edges(analysed):
     assert s.anchor_edges == [float(ch.t[np.argmax(ch.t > 0.7)])]
 
 
+def test_series_leave_samples_that_are_no_evidence_without_a_band(analysed):
+    """Samples of a slip that are no evidence (an unbounded replay uncertainty) have no band:
+    empty in the CSV, undrawn, never outside it (a band of 3e9 had flattened every plot)."""
+    from host_tools.analyzer.locate import SLIP_UNC, UNPINNED_UNC
+    from host_tools.analyzer.report.series import COLUMNS, run_series, to_csv
+    d, runs, out, an = analysed
+    a2 = copy.copy(an)
+    ch = copy.copy(an.nominal[0]["x_m"])
+    gone = (ch.t > 0.5) & (ch.t < 0.9)
+    ch.unc = np.where(gone, UNPINNED_UNC, 0.0)
+    ch.rec = np.where(gone, ch.rec + 1.0, ch.rec)          # a metre off there
+    a2.nominal = [{**an.nominal[0], "x_m": ch}, an.nominal[1]]
+    s = [x for x in run_series(a2, 0) if x.channel == "x_m"][0]
+    assert np.all(np.isnan(s.band[gone])) and np.all(np.isfinite(s.band[~gone]))
+    assert not s.outside_band()[gone].any() and np.nanmax(s.band) < 1.0
+    rows = [r.split(",") for r in to_csv([s]).splitlines()[1:]]
+    assert all(r[COLUMNS.index("band")] == "" for r, g in zip(rows, gone) if g)
+    assert SLIP_UNC <= UNPINNED_UNC
+
+
 # ------------------------------------------------------------------ report.md
 
 

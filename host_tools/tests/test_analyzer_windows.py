@@ -121,3 +121,58 @@ def test_a_window_is_re_anchored_in_heading_too(tmp_path, monkeypatch):
     # ... and the positions do not drift with it (10 mrad over a 4 s window is ~1 cm)
     for c in ("x_m", "y_m"):
         assert rms(turned[c]) < 1.2 * rms(base[c]) + 2e-4, (c, rms(base[c]), rms(turned[c]))
+
+
+def _reversals(shift_s: float):
+    """Duties of a run that reverses hard every 4 s, 0.2 s before (4 s + ``shift_s``) k."""
+    def duties(t):
+        fwd = ((t - shift_s) % 4.0) < 3.8
+        ramp = np.clip(t / 0.3, 0, 1)
+        return np.where(fwd, 0.7, -0.9) * ramp, np.where(fwd, 0.5, -0.9) * ramp
+    return duties
+
+
+def test_window_edges_leave_the_slip_of_a_reversal(tmp_path, monkeypatch):
+    """A window that starts inside a slip starts from a state the robot was never in (the body
+    rolling with the wheels, the pose from an odometry that stopped following the body): its
+    replay stays off the camera for the whole window.  The edges are moved past the slip."""
+    # a hard reversal 0.2 s before each 4 s window edge
+    monkeypatch.setitem(synth.PROFILES, "reversals", _reversals(0.0))
+    path = synth.make_run(tmp_path / "rev", "reversals", duration_s=12.0, seed=5)
+    prep = PI.prepare_timed(load_run(path))
+    assert len(prep.windows) == 3
+    rp = OL.OpenLoopReplay("duty")
+    rms = lambda ch: max(float(np.sqrt(np.mean(ch[c].resid ** 2)))  # noqa: E731
+                         for c in ("x_m", "y_m"))
+    AN.note_slip_episodes(prep, rp.simulate_windows(prep, {}))
+    t = prep.run.telemetry["t_s"]
+    inside = lambda: [w for w, (i_a, _) in enumerate(prep.windows)  # noqa: E731
+                      if w and any(a < t[i_a] and b > t[i_a] - PR.BURN_IN_S
+                                   for a, b in prep.slip_episodes)]
+    assert inside() == [1, 2]          # both edges fall in a reversal's slip
+    fixed = rms(CH.channels(prep, rp.simulate_windows(prep, {})))
+    assert fixed > 0.02                # centimetres off the camera (1 mm noise)
+    prep.anchor_cache.clear()
+    assert AN.edges_outside_slip(prep, rp) == 2
+    # (and a cut after the launch's slip, 0.1-0.65 s: four windows)
+    assert len(prep.windows) == 4 and inside() == []
+    assert rms(CH.channels(prep, rp.simulate_windows(prep, {}))) < 1.5e-3
+
+
+def test_a_window_is_cut_after_a_slip(tmp_path, monkeypatch):
+    """The pose is re-anchored after a slip: a window is cut BURN_IN_S after the episode ends,
+    when the cut leaves a second without slip after it and a second of window on either side."""
+    # a hard reversal in the middle of each 4 s window
+    monkeypatch.setitem(synth.PROFILES, "mid_reversals", _reversals(2.0))
+    path = synth.make_run(tmp_path / "mid", "mid_reversals", duration_s=12.0, seed=6)
+    prep = PI.prepare_timed(load_run(path))
+    assert len(prep.windows) == 3
+    rp = OL.OpenLoopReplay("duty")
+    AN.edges_outside_slip(prep, rp)
+    t = prep.run.telemetry["t_s"]
+    mid = [(a, b) for a, b in prep.slip_episodes if 1.5 < a < 2.5]
+    assert mid
+    edges = [float(t[i_a]) for i_a, _ in prep.windows[1:]]
+    end = max(b for _, b in mid)
+    assert any(abs(e - (end + PR.BURN_IN_S)) < 0.03 for e in edges)
+    assert all(a1 == b0 for (_, a1), (b0, _) in zip(prep.windows[:-1], prep.windows[1:]))

@@ -46,6 +46,7 @@ class PreparedRun:
     slip_episodes: list[tuple[float, float]] = field(default_factory=list)
     replay_unc: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
     tolerance_bias: dict[str, float] | None = None  # channel -> whole-run bias the model's tolerance allows
+    tolerance_draw_means: dict[str, list[float]] | None = None  # channel -> each tolerance draw's mean residual
     anchor_cache: dict[tuple[float, float, tuple[tuple[float, ...], ...]],  # replay.anchors.
                        dict[str, float] | None] = field(default_factory=dict)  # _gt_anchor's
 

@@ -13,7 +13,7 @@ from host_tools.analyzer.prepare.odometry import encoder_odometry, wrap_angle, o
 from host_tools.analyzer.prepare.run import BURN_IN_S, GAP_S, PreparedRun
 
 if TYPE_CHECKING:
-    from host_tools.analyzer.replay.openloop import WindowSims
+    from host_tools.analyzer.replay.openloop import OpenLoopReplay, WindowSims
 
 
 def note_slip_episodes(prep: "PreparedRun", sims: "WindowSims") -> int:
@@ -35,6 +35,102 @@ def note_slip_episodes(prep: "PreparedRun", sims: "WindowSims") -> int:
             episodes.append((float(g[a]), float(g[later[0] + 1]) if later.size else float(g[-1])))
     prep.slip_episodes = sorted(episodes)
     return len(episodes)
+
+
+MAX_EDGE_MOVES = 6
+
+
+def edges_outside_slip(prep: "PreparedRun", replay: "OpenLoopReplay") -> int:
+    """Move the edges between replay windows out of the nominal replay's slip episodes, and
+    note the episodes (``note_slip_episodes``) of the windows as they end up.
+
+    A window after the first starts from the recorded state: the wheel speeds from the counts
+    with the body rolling with them, and the pose from the recorder's odometry corrected onto
+    the camera.  Across a slip neither holds — the body does not roll with the wheels and the
+    odometry stops following it (the camera-minus-odometry heading moved by 4 rad within 1.5 s
+    of a braking reversal on the truth simulator's 60 s null) — so a window whose early start
+    or first frame falls in a slip begins in a state the robot was never in, and its replay
+    stays off the recording for the whole window (100–570 camera floors there, while the
+    window before, integrating through the slip, stayed within 3).  An edge inside or just
+    after an episode is moved to ``BURN_IN_S`` after the episode's end: the window before
+    integrates through the slip as the model says, and the next one starts rolling and is
+    re-anchored to the camera where the odometry follows the body again.  An episode that
+    still runs at the end of the window's replay is seen to its end in the next round (at most
+    ``MAX_EDGE_MOVES``).  An edge that would pass the next one removes it (the two windows
+    become one).  Returns the number
+    of edges moved."""
+    t = prep.run.telemetry["t_s"]
+    moved_total = 0
+    for _ in range(MAX_EDGE_MOVES):
+        note_slip_episodes(prep, replay.simulate_windows(prep, {}))
+        wins = [list(w) for w in prep.windows]
+        moved = 0
+        w = 1
+        while w < len(wins):
+            i_a = wins[w][0]
+            # only an edge inside one stretch of telemetry (a gap always ends a window)
+            if wins[w - 1][1] != i_a or t[i_a] - t[i_a - 1] > GAP_S:
+                w += 1
+                continue
+            lo = t[i_a] - BURN_IN_S
+            late = [b for a, b in prep.slip_episodes if a < t[i_a] and b > lo]
+            if not late:
+                w += 1
+                continue
+            target = max(late) + BURN_IN_S
+            j = int(np.searchsorted(t, target))
+            if j >= wins[w][1] - 1:
+                # past the next edge: the two windows become one
+                wins[w - 1][1] = wins[w][1]
+                del wins[w]
+            else:
+                wins[w - 1][1] = j
+                wins[w][0] = j
+                w += 1
+            moved += 1
+        if not moved:
+            break
+        prep.windows = [(int(x[0]), int(x[1])) for x in wins]
+        prep.anchor_cache.clear()
+        moved_total += moved
+    if _edges_after_slip(prep):
+        note_slip_episodes(prep, replay.simulate_windows(prep, {}))
+    return moved_total
+
+
+MIN_REANCHOR_S = 1.0
+
+
+def _edges_after_slip(prep: "PreparedRun") -> int:
+    """Cut a window ``BURN_IN_S`` after a slip episode ends, so that the pose is re-anchored
+    to the camera there: the slip distance is the contact's, which no plant reproduces in
+    detail, and the pose after a slip carries its error to the end of the window (the pose
+    channels are no evidence from a slip's onset to the window's end,
+    ``locate.unpinned_episodes``).  A cut needs ``MIN_REANCHOR_S`` without slip after it and
+    that much of the window on either side; it is not made across a telemetry gap.  Returns
+    the number of edges added."""
+    t = prep.run.telemetry["t_s"]
+    eps = prep.slip_episodes
+    wins = [list(w) for w in prep.windows]
+    added = 0
+    for b in sorted({b for _, b in eps}):
+        target = b + BURN_IN_S
+        if any(a2 <= target + MIN_REANCHOR_S and b2 > b for a2, b2 in eps):
+            continue
+        j = int(np.searchsorted(t, target))
+        for w, (i_a, i_b) in enumerate(wins):
+            if not (i_a < j < i_b - 1):
+                continue
+            if (t[j] - t[i_a] >= MIN_REANCHOR_S and t[i_b - 1] - t[j] >= MIN_REANCHOR_S
+                    and not np.any(np.diff(t[max(i_a, j - 1):j + 1]) > GAP_S)
+                    and not np.any((t[i_a:j] >= b) & (np.diff(t[i_a:j + 1]) > GAP_S))):
+                wins[w:w + 1] = [[i_a, j], [j, i_b]]
+                added += 1
+            break
+    if added:
+        prep.windows = [(int(x[0]), int(x[1])) for x in wins]
+        prep.anchor_cache.clear()
+    return added
 
 
 def _line_at(t: np.ndarray, v: np.ndarray, at: float) -> float:

@@ -55,7 +55,9 @@ def tolerance_uncertainty(prep: PreparedRun, replay: OpenLoopReplay, n: int = TO
     odometry is compared with the nominal geometry (the recorder's own arithmetic); only the
     plant's parameters are drawn.  Draws are seeded by the run's content, so an analysis is
     repeatable.  Also sets ``prep.tolerance_bias`` (channel -> std over the draws of the mean
-    residual: the whole-run bias the tolerance allows).  Returns the number of replays (0:
+    residual: the whole-run bias the tolerance allows) and ``prep.tolerance_draw_means``
+    (channel -> each draw's mean residual, from which ``locate.allowed_bias`` gets the bias
+    allowed in the wheels' difference).  Returns the number of replays (0:
     nothing drawn)."""
     from host_tools import _native
     from host_tools.analyzer.replay.channels import channels
@@ -88,6 +90,7 @@ def tolerance_uncertainty(prep: PreparedRun, replay: OpenLoopReplay, n: int = TO
     prep.replay_unc = {**old, **new}
     # the parameters are one set for the whole robot, so the error they cause is systematic: the
     # spread of each draw's mean residual is a bias the nominal model allows (``bias_test``)
-    prep.tolerance_bias = {name: float(np.std([float(np.mean(a)) for a in v]))
-                           for name, v in acc.items() if all(a.size for a in v)}
+    prep.tolerance_draw_means = {name: [float(np.mean(a)) for a in v]
+                                 for name, v in acc.items() if all(a.size for a in v)}
+    prep.tolerance_bias = {name: float(np.std(m)) for name, m in prep.tolerance_draw_means.items()}
     return n

@@ -13,6 +13,7 @@ from typing import Iterator
 
 import numpy as np
 
+from host_tools.analyzer.locate import SLIP_UNC
 from host_tools.analyzer.report.sections import Analysis
 
 # the analyzer's significance threshold in noise floors (signals.significant_windows' k)
@@ -91,6 +92,9 @@ def run_series(an: Analysis, i: int) -> list[Series]:
             f = float(floors.get(c) or 0.0)
             unc = (np.asarray(ch.unc, float) if ch.unc is not None
                    else np.zeros(ch.t.size))
+            # a sample that is no evidence (a slip of a windowed replay) has no band: NaN,
+            # written empty and left undrawn, never outside it
+            unc = np.where(unc >= SLIP_UNC, np.nan, unc)
             seg = (np.asarray(ch.seg, int) if ch.seg is not None
                    else np.zeros(ch.t.size, int))
             out.append(Series(
