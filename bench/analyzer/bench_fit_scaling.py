@@ -89,7 +89,8 @@ def main(argv=None) -> int:
         base = base or per
         print(f"{n:5d} {wall:7.1f}s {cpu:7.1f}s {per:7.3f}s {per / base:9.2f} "
               f"{(pb.n_simulated - n0) / n:11.1f} {prep:7.3f}s  {heldout_method(n, pb.split_frac)}; "
-              f"{args.effect} {cand.fit.params[args.effect]}", flush=True)
+              + ", ".join(f"{k} {v:.5g}" for k, v in cand.fit.params[args.effect].items()),
+              flush=True)
     import resource
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"\npeak resident memory of this process {peak:.0f} MB (the replay cache holds at most "
