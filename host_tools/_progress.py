@@ -107,7 +107,8 @@ class Progress:
 
     def step(self, line: str | None = None, n: float = 1) -> None:
         """``n`` more units done; ``line``: the one-line message of this step."""
-        self._draw(lambda bar: bar.update(n))
+        self._draw(lambda bar: bar.update(n) if bar.total is None or bar.n + n < bar.total
+                   else (bar.update(n), bar.refresh()))  # the last count always drawn
         self._line(line)
 
     def set(self, value: float, line: str | None = None) -> None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import signal
 import threading
+import sys
 import time
 from types import FrameType
 from typing import Any, Callable
@@ -28,6 +29,7 @@ from host_tools.logger.runfolder import RunFolderMixin
 ACK_TIMEOUT_S = 0.4
 ACK_RETRIES = 3
 STATUS_EVERY_S = 0.5
+STATUS_EVERY_PIPE_S = 2.0  # stderr not a terminal (a log file, CI): one whole line this often
 STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
 log = logging.getLogger(__name__)
@@ -266,7 +268,8 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         if not self.show_status:
             return
         now = self.clock()
-        if not force and now - self._last_status < STATUS_EVERY_S:
+        tty = _stderr_is_terminal()
+        if not force and now - self._last_status < (STATUS_EVERY_S if tty else STATUS_EVERY_PIPE_S):
             return
         t_mark, n_mark = self._rate_mark
         if now - t_mark >= 1.0:
@@ -290,7 +293,10 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
                 f"  flagged {self.stats['implausible']}  | {live}")
         if note:
             line += f"  [{note}]"
-        say("\r" + line[:160].ljust(160), end="\n" if note else "")
+        if tty:  # one line redrawn in place
+            say("\r" + line[:160].ljust(160), end="\n" if note else "")
+        else:  # a log keeps whole lines, no carriage returns
+            say(line)
 
     def close(self) -> bool:
         """Handle the frames still queued, close the files, finalize meta.json.  Returns True
@@ -331,3 +337,10 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
 
     def stop(self) -> None:
         self._stop = True
+
+
+def _stderr_is_terminal() -> bool:
+    try:
+        return bool(sys.stderr.isatty())
+    except (AttributeError, ValueError, OSError):
+        return False

@@ -966,3 +966,23 @@ def test_groundtruth_with_unix_timestamps(tmp_path):
     assert info["offset_s"] == pytest.approx(board_minus_host - t0_unix, abs=0.005)
     gt = runfmt.load_run(run, check_units=False).groundtruth
     assert gt["t_s"][0] == pytest.approx(0.5 + board_minus_host, abs=0.005)
+
+
+def test_status_line_in_a_log_is_whole_lines(tmp_path, capsys, monkeypatch):
+    """On a terminal the status line is redrawn in place every 0.5 s ("\\r"); into a pipe or a
+    log file (CI) it is a whole line every 2 s, with no carriage returns."""
+    from host_tools.logger import session as S
+    now = [0.0]
+    lg = L.Logger(str(tmp_path / "r"), lambda: None, "loop://", 115200, clock=lambda: now[0])
+    lg._last_status = lg._last_rx = 0.0  # as run() starts them
+    for k in range(1, 51):  # 25 s of status calls every 0.5 s
+        now[0] = 0.5 * k
+        lg._status()
+    err = capsys.readouterr().err
+    assert "\r" not in err and err.count("frames/s") == 12, err
+    monkeypatch.setattr(S, "_stderr_is_terminal", lambda: True)
+    for k in range(51, 61):
+        now[0] = 0.5 * k
+        lg._status()
+    err = capsys.readouterr().err
+    assert err.count("\r") == 10 and "\n" not in err
