@@ -71,7 +71,7 @@ fil_timing() {
         && .venv/bin/python -m host_tools timing --run .build/ci/fil-48
 }
 step timing    fil_timing
-step python    .venv/bin/python -m pytest -q host_tools/tests
+step python    .venv/bin/python -m pytest -q --durations=15 host_tools/tests
 step ruff      .venv/bin/ruff check host_tools bench sim scripts protocol params
 step mypy      .venv/bin/mypy
 step cppcheck  pio check -e megaatmega2560 -e native --fail-on-defect low
