@@ -13,6 +13,8 @@ wall-clock second.  Usage and the file contents: docs/fil.md.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import fcntl
 import json
 import logging
 import os
@@ -61,22 +63,39 @@ def build_sim() -> Path:
         raise FilError(str(exc)) from None
 
 
+@contextlib.contextmanager
+def pio_build_lock():
+    """Held around every ``pio run -e megaatmega2560`` of this checkout by the host tools and
+    their tests: two at once in the one .pio tree (tests run in parallel processes) would
+    race on SCons' database and on the ELF being read while it is rewritten."""
+    BUILD.mkdir(parents=True, exist_ok=True)
+    with open(BUILD / ".pio-build.lock", "w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 def build_firmware() -> Path:
     """Builds the megaatmega2560 firmware and returns a private copy of its ELF
-    (.build/fil/firmware.elf: other builds of the shared tree cannot change it mid-run)."""
+    (.build/fil/firmware.elf: other builds of the shared tree cannot change it mid-run; the
+    copy is replaced atomically, so a simulator starting meanwhile reads a whole file)."""
     pio = shutil.which("pio", path=_env()["PATH"])
     if pio is None:
         raise FilError("PlatformIO (pio) not found: run scripts/setup.sh, then source scripts/env.sh")
-    for attempt in range(3):  # the tree is shared: another build of .pio may be under way
-        r = subprocess.run([pio, "run", "-e", "megaatmega2560"], capture_output=True, text=True, env=_env(), cwd=ROOT)
-        if r.returncode == 0 and PIO_ELF.exists():
-            break
-        time.sleep(3)
-    if r.returncode != 0 or not PIO_ELF.exists():
-        raise FilError(f"pio run -e megaatmega2560 failed:\n{(r.stdout + r.stderr)[-3000:]}")
-    BUILD.mkdir(parents=True, exist_ok=True)
-    dst = BUILD / "firmware.elf"
-    shutil.copyfile(PIO_ELF, dst)
+    with pio_build_lock():
+        for attempt in range(3):  # the tree is shared: another build of .pio may be under way
+            r = subprocess.run([pio, "run", "-e", "megaatmega2560"], capture_output=True, text=True, env=_env(), cwd=ROOT)
+            if r.returncode == 0 and PIO_ELF.exists():
+                break
+            time.sleep(3)
+        if r.returncode != 0 or not PIO_ELF.exists():
+            raise FilError(f"pio run -e megaatmega2560 failed:\n{(r.stdout + r.stderr)[-3000:]}")
+        dst = BUILD / "firmware.elf"
+        tmp = BUILD / f".firmware.elf.{os.getpid()}.tmp"
+        shutil.copyfile(PIO_ELF, tmp)
+        os.replace(tmp, dst)
     return dst
 
 

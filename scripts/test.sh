@@ -13,24 +13,34 @@
 set -uo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
+T_START=$SECONDS
 bash scripts/setup.sh || { echo "test: setup failed" >&2; exit 1; }
 source scripts/env.sh
 
 failed=()
+times=("setup $((SECONDS - T_START)) s")
 LOGS="$(mktemp -d)"
 trap 'rm -rf "$LOGS"' EXIT
 step() {
     local name="$1"; shift
+    local t0=$SECONDS
     echo
     echo "=== test: $name: $*"
     "$@" 2>&1 | tee "$LOGS/$name.log"
-    local rc=${PIPESTATUS[0]}
+    local rc=${PIPESTATUS[0]} took=$((SECONDS - t0))
+    times+=("$name $took s")
     if [[ $rc == 0 ]]; then
-        echo "=== test: $name: ok"
+        echo "=== test: $name: ok ($took s)"
     else
-        echo "=== test: $name: FAILED (exit $rc)"
+        echo "=== test: $name: FAILED (exit $rc, $took s)"
         failed+=("$name")
     fi
+}
+# One line with each step's wall time (set-up included) and the total, for the CI log.
+step_times() {
+    local out="" t
+    for t in "${times[@]}"; do out+="${out:+, }$t"; done
+    echo "=== test: times: $out; total $((SECONDS - T_START)) s"
 }
 
 # Test cases counted from the runners' own summary lines (PlatformIO: "N test cases: ...",
@@ -61,7 +71,7 @@ fil_timing() {
         && .venv/bin/python -m host_tools timing --run .build/ci/fil-48
 }
 step timing    fil_timing
-step python    .venv/bin/python -m pytest -q host_tools/tests
+step python    .venv/bin/python -m pytest -q --durations=15 host_tools/tests
 step ruff      .venv/bin/ruff check host_tools bench sim scripts protocol params
 step mypy      .venv/bin/mypy
 step cppcheck  pio check -e megaatmega2560 -e native --fail-on-defect low
@@ -70,7 +80,9 @@ echo
 if ((${#failed[@]})); then
     echo "=== test: FAILED steps: ${failed[*]}"
     count_cases
+    step_times
     exit 1
 fi
 echo "=== test: all steps passed"
 count_cases
+step_times

@@ -85,7 +85,7 @@ def test_board_rate_phase_ignores_a_few_restarted_speed_estimates():
 
 
 @pytest.mark.parametrize("clamp", [False, True])
-def test_firmware_in_the_loop_nominal_run_is_no_mismatch(tmp_path, clamp):
+def test_firmware_in_the_loop_nominal_run_is_no_mismatch(elf, sim, tmp_path, clamp):
     """The real firmware in simavr against the nominal plant, a camera of 1 mm / 10 mrad
     noise like the truth simulator's: nothing to explain.  With a noiseless camera (floor
     0.2 mm) the latency and the ramp replayed, one clamp-off run of five still drifted 1 mm
@@ -94,11 +94,6 @@ def test_firmware_in_the_loop_nominal_run_is_no_mismatch(tmp_path, clamp):
     3.3 and 12.5 floors off on the noiseless runs."""
     from host_tools import fil
     from host_tools.analyzer.pipeline import analyze
-    try:
-        elf = fil.build_firmware()
-    except fil.FilError as exc:
-        pytest.skip(f"firmware cannot be built here: {exc}")
-    fil.build_sim()
     out = tmp_path / "fil"
     code, lg, _ = fil.record(out, elf, {"profile": "straight", "wheel_accel": 48.0,
                                         "accel_time": 0.5, "duration": 2.0, "radius": 0.0},

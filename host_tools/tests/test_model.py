@@ -64,16 +64,11 @@ def test_missing_and_unreadable_files(tmp_path):
         M.firmware_mu({"format": "ddmodel/1", "robot": {}})
 
 
-def test_fil_run_with_the_model(tmp_path):
+def test_fil_run_with_the_model(elf, sim, tmp_path):
     """The FIL plant takes the model's parameters and the firmware its mu (SetMu): the run's
     meta.json reports the firmware's mu, and fil.json the keys the plant was given."""
     from host_tools import fil
 
-    try:
-        elf = fil.build_firmware()
-        fil.build_sim()
-    except Exception as exc:  # pragma: no cover - reported, not hidden
-        pytest.skip(f"firmware or simulator cannot be built here: {exc}")
     out = tmp_path / "run"
     import argparse
     ap = argparse.ArgumentParser()

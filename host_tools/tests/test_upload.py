@@ -20,7 +20,7 @@ from pathlib import Path
 from host_tools import firmware_id
 from host_tools import protocol as P
 from host_tools import upload_sim as U
-from host_tools.fil import _env
+from host_tools.fil import _env, pio_build_lock
 
 ROOT = Path(__file__).resolve().parents[2]
 HEX = ROOT / ".pio" / "build" / "megaatmega2560" / "firmware.hex"
@@ -70,18 +70,21 @@ def test_the_board_image_is_the_mega_2560s():
 def test_upload_verify_readback_and_the_firmware_runs(tmp_path):
     d = P.definition()
     t0 = time.monotonic()
-    build = subprocess.run([_pio(), "run", "-e", "megaatmega2560"], capture_output=True, text=True,
-                           env=_env(), cwd=ROOT)
+    with pio_build_lock():  # the .pio tree is shared with the other test processes
+        build = subprocess.run([_pio(), "run", "-e", "megaatmega2560"], capture_output=True, text=True,
+                               env=_env(), cwd=ROOT)
     assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]
     flash_out = tmp_path / "flash.bin"
     with U.SimBoard(flash_out=flash_out, t_max=300) as board:
         t_up = time.monotonic()
-        up = subprocess.run([_pio(), "run", "-v", "-e", "megaatmega2560", "-t", "upload", "--upload-port", board.uart0],
-                            capture_output=True, text=True, env=_env(), cwd=ROOT, timeout=180)
+        with pio_build_lock():
+            up = subprocess.run([_pio(), "run", "-v", "-e", "megaatmega2560", "-t", "upload", "--upload-port",
+                                 board.uart0], capture_output=True, text=True, env=_env(), cwd=ROOT, timeout=180)
+            if up.returncode == 0:  # what was uploaded (the tree is shared)
+                shutil.copyfile(HEX, tmp_path / "firmware.hex")
         upload_s = time.monotonic() - t_up
         out = up.stdout + up.stderr
         assert up.returncode == 0, out[-4000:]
-        shutil.copyfile(HEX, tmp_path / "firmware.hex")  # what was uploaded (the tree is shared)
         image = U.hex_bytes(tmp_path / "firmware.hex")
         n = len(image)
         assert re.search(rf"\b{n} bytes of flash written", out), out[-3000:]

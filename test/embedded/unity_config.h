@@ -9,6 +9,7 @@
 
 #ifdef __AVR__
 #include <avr/io.h>
+#include <util/delay_basic.h>
 
 #ifndef UNITY_UART0_UBRR
 #define UNITY_UART0_UBRR 16  // 115200 baud with U2X at 16 MHz
@@ -22,8 +23,17 @@ static inline void unity_uart0_init(void) {
 }
 static unsigned char unity_uart0_sent;  // a byte was written since the last flush
 
+// The UART is polled at most every 765 cycles (_delay_loop_1(255): 3 cycles a count), about
+// twice per byte (1,360 cycles at 117,647 baud). Under simavr 1.6 every read of UCSR0A while
+// nothing has been received and TXC0 is clear costs the host a usleep() (avr_uart.c,
+// AVR_UART_FLAG_POLL_SLEEP, set by the stock simavr program that `pio test -e simavr` runs):
+// a tight loop made each printed line take seconds of wall time. On the board the pause
+// delays a byte by at most 48 us.
+#define UNITY_UART0_POLL_PAUSE() _delay_loop_1(255)
+
 static inline void unity_uart0_putc(char c) {
     while (!(UCSR0A & (1 << UDRE0))) {
+        UNITY_UART0_POLL_PAUSE();
     }
     UCSR0A = (1 << U2X0) | (1 << TXC0);  // clear TXC0 (write one): set again when this byte is out
     UDR0 = (unsigned char)c;
@@ -34,6 +44,7 @@ static inline void unity_uart0_putc(char c) {
 static inline void unity_uart0_flush(void) {
     if (!unity_uart0_sent) return;
     while (!(UCSR0A & (1 << TXC0))) {
+        UNITY_UART0_POLL_PAUSE();
     }
     unity_uart0_sent = 0;
 }
