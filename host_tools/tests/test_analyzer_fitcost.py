@@ -117,3 +117,44 @@ def test_fit_channels_alone_equal_those_of_all_channels(tmp_path):
     # the groups of channels name every channel once
     names = [c for group, _ in CH._GROUPS for c in group]
     assert sorted(names) == sorted(CH.CHANNELS)
+
+
+def test_the_fit_keeps_the_wheels_difference_where_single_wheels_are_no_evidence(tmp_path):
+    """In a slip of a windowed replay each wheel on its own is no evidence (SLIP_UNC) but the
+    pair's difference is, as in the detection's bias test: the fit's residual holds the
+    difference (r - l)/sqrt(2) in floors there, so a motor-gain asymmetry is fitted from it
+    even when nothing else is evidence (the pose channels unpinned).  Without it the residual
+    is nil (1e-9 floors: an unbounded uncertainty) and the update changes no output."""
+    from host_tools.analyzer.locate import SLIP_UNC, UNPINNED_UNC
+    path = synth.make_run(tmp_path / "run", "turn", {"motor_gain_asymmetry": {"ratio": 1.15}},
+                          duration_s=1.0, seed=71)
+    prep = PI.prepare_timed(load_run(path))
+    duty = OL.OpenLoopReplay("duty")
+    nominal = CH.channels(prep, duty.simulate_windows(prep, {}))
+    floors = noise_floors([prep], [nominal])
+    unc = {}
+    for c, ch in nominal.items():
+        if c in PB.FIT_CHANNELS:
+            level = SLIP_UNC if c.startswith(("omega", "current")) else UNPINNED_UNC
+            unc[c] = (ch.t.copy(), np.full(ch.t.size, level))
+    prep.replay_unc = unc
+    pb = PB.Problem([prep], floors, _native.effect_vocabulary())
+    chans = pb.sim_channels({}, [0], fit_only=True)[0]
+    diffs = pb.slip_differences(chans)
+    pairs = [(a, b) for a, b in (("omega_r", "omega_l"), ("current_r_a", "current_l_a"))
+             if a in pb.fit_channels and b in pb.fit_channels]
+    assert pairs and len(diffs) == len(pairs)
+    for (a, b), (d, t) in zip(pairs, diffs):
+        want = (chans[a].resid / floors[a] - chans[b].resid / floors[b]) / np.sqrt(2)
+        assert np.allclose(d, want) and np.array_equal(t, chans[a].t)
+    r0 = pb.residual({}, [0])
+    assert np.sqrt(np.mean(r0 ** 2)) > 0.5        # the difference is seen
+    cand = JG.evaluate_candidate(pb, ["motor_gain_asymmetry"])
+    assert abs(cand.fit.values[0] - 1.15) < 0.03, cand.fit.values
+    # the update's output change is counted in the difference too (without it: ~1e-9 floors)
+    assert cand.output_size >= 0.5, cand.output_size
+    # an unpinned stretch is no evidence for the difference either
+    for c in unc:
+        unc[c] = (unc[c][0], np.full(unc[c][0].size, UNPINNED_UNC))
+    pb2 = PB.Problem([prep], floors, _native.effect_vocabulary())
+    assert pb2.slip_differences(pb2.sim_channels({}, [0], fit_only=True)[0]) == []

@@ -176,3 +176,43 @@ def test_a_window_is_cut_after_a_slip(tmp_path, monkeypatch):
     end = max(b for _, b in mid)
     assert any(abs(e - (end + PR.BURN_IN_S)) < 0.03 for e in edges)
     assert all(a1 == b0 for (_, a1), (b0, _) in zip(prep.windows[:-1], prep.windows[1:]))
+
+
+def test_no_window_edge_is_left_in_a_slip():
+    """A window started from the recorded state where the recording slips slips at its own
+    start; moving its edge past that slip can land in the next one, round after round.  An
+    edge still in a slip when the rounds end (or put there by a cut) joins its two windows,
+    so that no window starts in a slip (heldback6's MuJoCo 60 s run with a 40 ms delay: an
+    edge left 0.5 s into a slip put its window 59 camera floors off to its end)."""
+    from types import SimpleNamespace
+    t = np.round(np.arange(0.0, 16.0 + 1e-9, 0.02), 6)
+    # the recording slips over these spans: a window whose early start is inside one slips
+    # until its end, and the edge moved 0.5 s past it has its early start in the next
+    rec = [(3.4 + 0.2 * k, 3.7 + 0.2 * k) for k in range(12)]
+
+    class Replay:
+        def simulate_windows(self, prep, effects):
+            out = []
+            for i_a, i_b in prep.windows:
+                # from the early start, 0.5 s before the window's first frame
+                g = t[max(i_a - 25, 0):i_b]
+                s = g[0]
+                slip = np.zeros(g.size, bool)
+                for a, b in rec:
+                    if a <= s < b:
+                        slip |= (g >= s) & (g < b)
+                out.append((None, {"t_s": g, "slip_r": slip.astype(float),
+                                   "slip_l": np.zeros(g.size)}))
+            return out
+
+    def edge_in_slip(prep):
+        return [round(float(t[a]), 3) for a, _ in prep.windows[1:]
+                if any(ea < t[a] and eb > t[a] - 0.5 for ea, eb in prep.slip_episodes)]
+
+    i4, i10 = int(np.searchsorted(t, 4.0)), int(np.searchsorted(t, 10.0))
+    prep = SimpleNamespace(run=SimpleNamespace(telemetry={"t_s": t}), slip_episodes=[],
+                           windows=[(0, i4), (i4, i10), (i10, t.size)], anchor_cache={})
+    AN.edges_outside_slip(prep, Replay())
+    assert edge_in_slip(prep) == []
+    assert [round(float(t[a]), 3) for a, _ in prep.windows] == [0.0, 10.0]
+    assert prep.windows[-1][1] == t.size

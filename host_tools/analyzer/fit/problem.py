@@ -178,10 +178,40 @@ class Problem:
                 elif part == "late":
                     r = r[ch.t > ts]
                 parts.append(r)
+            for d, t in self.slip_differences(chans):
+                parts.append(d if part == "all" else d[t <= ts] if part == "early" else d[t > ts])
         if not parts:
             return np.zeros(0)
         r = np.concatenate(parts)
         return np.where(np.isfinite(r), r, 1e6)
+
+    def slip_differences(self, chans: Mapping[str, Channel]
+                         ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per wheel pair (``locate.WHEEL_PAIRS``) of the fit channels: the pair's difference
+        (r - l)/sqrt(2) of the residuals in floors, and its times, on the samples where a wheel
+        on its own is no evidence but the pair's difference is (a slip of a windowed replay:
+        replay uncertainty at least ``locate.SLIP_UNC`` and below ``locate.UNPINNED_UNC``,
+        ``locate.unpinned_episodes``).  Elsewhere the two wheels' residuals are in the fit, and
+        r^2 + l^2 already holds the difference's square; in such a slip the common part is
+        dropped and the difference kept, as the detection's bias test keeps it
+        (``locate.bias_test``)."""
+        from host_tools.analyzer.locate import SLIP_UNC, UNPINNED_UNC, WHEEL_PAIRS
+        out: list[tuple[np.ndarray, np.ndarray]] = []
+        for a, b in WHEEL_PAIRS:
+            ca, cb = chans.get(a), chans.get(b)
+            if (ca is None or cb is None or a not in self.fit_channels
+                    or b not in self.fit_channels or ca.t.size != cb.t.size
+                    or (ca.unc is None and cb.unc is None)):
+                continue
+            ua = ca.unc if ca.unc is not None else np.zeros(ca.t.size)
+            ub = cb.unc if cb.unc is not None else np.zeros(cb.t.size)
+            m = ((np.maximum(ua, ub) >= SLIP_UNC) & (np.maximum(ua, ub) < UNPINNED_UNC)
+                 & (ca.t == cb.t))
+            if not m.any():
+                continue
+            d = (ca.resid[m] / self.floors[a] - cb.resid[m] / self.floors[b]) / math.sqrt(2)
+            out.append((d, ca.t[m]))
+        return out
 
     def channel_resids(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int], part: str = "all",
                        full: bool = False) -> dict[str, np.ndarray]:
