@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import logging
 import math
 import queue
 import sys
@@ -38,6 +39,9 @@ from typing import Any, Iterable, Sequence
 from host_tools import logger as L
 from host_tools import model as M
 from host_tools import protocol as P
+from host_tools._stdio import STATUS
+
+log = logging.getLogger(__name__)
 
 REPEAT_S = 0.05  # Drive commands per second: 20, as a ROS teleop node publishes cmd_vel
 
@@ -475,13 +479,13 @@ def main(a: argparse.Namespace) -> int:
                     model=a.model, drive_limits={"accel": a.accel, "alpha": a.alpha,
                                                  "cmd_timeout": a.cmd_timeout})
     except (ValueError, M.ModelError) as exc:  # ProtocolError is a ValueError
-        print(f"error: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return 2
     except RobotError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return exc.code
     except Exception as exc:  # the simulator or firmware build (FilError)
-        print(f"error: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return 2
     try:
         if rows is not None:
@@ -491,10 +495,10 @@ def main(a: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     except RobotError as exc:
-        print(f"\nerror: {exc}", file=sys.stderr)
+        log.error("%s", exc)
     finally:
         code = bot.close()
     s = bot.session.stats
-    print(f"\n{a.out}: {s['telemetry_rows']} rows, {bot.session.drive_sent} Drive commands; "
-          f"end: {bot.session.end_reason}", file=sys.stderr)
+    log.log(STATUS, "%s: %s rows, %s Drive commands; end: %s", a.out, s["telemetry_rows"],
+            bot.session.drive_sent, bot.session.end_reason)
     return code

@@ -12,8 +12,10 @@ columns), 2 bad input (a manifest's file, row and column, or a bad option)."""
 from __future__ import annotations
 
 import argparse
+import logging
 import math
-import sys
+
+log = logging.getLogger(__name__)
 
 EPILOG = """\
 outputs (in OUT):
@@ -60,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _bad(msg: str) -> int:
-    print(f"error: bad input: {msg}", file=sys.stderr)
+    log.error("bad input: %s", msg)
     return 2
 
 
@@ -92,7 +94,7 @@ def main(args: argparse.Namespace) -> int:
                                    timeout_s=args.timeout, mem_mb=args.memory or None,
                                    jobs=args.jobs, analyzer_args=extra, redo=args.redo)
     except OSError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        log.error("%s", exc)
         return 1
     pq, csv = fleet.write_table(records, args.out)
     md, series = fleet.write_report(records, args.out, alpha=alpha, plots=not args.no_plots)

@@ -127,12 +127,16 @@ def test_the_tools_messages_are_log_records(caught, tmp_path, monkeypatch):
     assert main(["log", "--out", str(tmp_path / "r")]) == 2
     from host_tools.suite.__main__ import main as suite_main
     assert suite_main(["list", "--cases", "no_such_case"]) == 2
+    assert main(["drive", "--port", "loop://", "--out", str(tmp_path / "d"),
+                 "--path", str(tmp_path / "no_path.csv")]) == 2
+    assert main(["batch", str(tmp_path / "no_fleet"), "--out", str(tmp_path / "b")]) == 2
     from host_tools.analyzer.fit import workers
     workers.log_stderr("loaded 1 run(s): r")
     got = {(r.name, r.levelno) for r in caught.records}
     assert {("host_tools.analyzer.cli", logging.ERROR), ("host_tools.timing", logging.ERROR),
             ("host_tools.logger.cli", logging.ERROR),
-            ("host_tools.suite", logging.ERROR),
+            ("host_tools.suite", logging.ERROR), ("host_tools.robot", logging.ERROR),
+            ("host_tools.batch.cli", logging.ERROR),
             ("host_tools.analyzer.fit.workers", _stdio.STATUS)} <= got, got
     bad = next(r for r in caught.records if r.name == "host_tools.analyzer.cli")
     assert bad.getMessage().startswith("bad input: ")
