@@ -20,7 +20,7 @@ import time
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
 sys.path.insert(0, ROOT)
-sys.path.insert(0, os.path.join(ROOT, "host_tools", "tests"))
+sys.path.insert(0, os.path.join(ROOT, "host_tools", "tests", "interop"))
 
 import numpy as np  # noqa: E402
 
