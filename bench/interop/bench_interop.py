@@ -6,7 +6,7 @@ nothing.
 
 A tour of ``--duration`` s from the truth simulator (telemetry every 20 ms, camera at its
 default rate) is exported to MCAP (host_tools.interop.mcap_export), written as a ROS 2 MCAP
-bag and a ROS 1 bag (the tests' writer, host_tools/tests/_bags.py) and imported back
+bag and a ROS 1 bag (the tests' writer, host_tools/tests/interop/_bags.py) and imported back
 (host_tools.interop.rosbag_import).  Wall-clock seconds per stage, messages per second and the
 file sizes; the largest column difference after the round trip.
 """
@@ -20,7 +20,7 @@ import time
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
 sys.path.insert(0, ROOT)
-sys.path.insert(0, os.path.join(ROOT, "host_tools", "tests"))
+sys.path.insert(0, os.path.join(ROOT, "host_tools", "tests", "interop"))
 
 import numpy as np  # noqa: E402
 

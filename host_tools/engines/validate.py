@@ -1,6 +1,6 @@
 """The MuJoCo engine against lib/slipmodel (the project's plant) and the truth simulator's
 physics, on rolling and slipping nulls. ``python -m host_tools.engines.validate`` prints the
-figures that docs/suite.md states and host_tools/tests/test_mujoco_engine.py holds.
+figures that docs/suite.md states and host_tools/tests/engines/test_mujoco_engine.py holds.
 
 Two comparisons per scenario (the firmware's controller, lib/control's reference):
 

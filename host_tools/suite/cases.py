@@ -7,7 +7,7 @@ A case is a hidden truth (effects switched on in the truth simulator) plus the e
 
 The sets are data (``sets.json`` beside this file, :data:`SET_DATA`; docs/suite.md; the protocol and
 each held-back set's record in docs/validation.md): each with what it is for, its provenance (the commit that defined it and the one
-since which its cases are unchanged, checked by host_tools/tests/test_suite.py), its seeds, its
+since which its cases are unchanged, checked by host_tools/tests/suite/test_suite.py), its seeds, its
 engine, its recorders and its cases. ``tuning`` (:func:`all_cases`) and ``mujoco``: analyzer rules
 may be settled on them; ``heldback`` to ``heldback7``: other seeds, effect sizes and recorders
 (the truth simulator's recorder variants), long runs; only scored.

@@ -230,7 +230,7 @@ _NOT_COPIES = {
 #: slip::table / SLIP_*_PARAMS / slip::table_ii2() (C++): (path, value) -> (how many, why).
 #: The count is exact, so a new copy in a listed file fails as well as a stale entry.
 _TEST_NOT_COPIES = {
-    ("host_tools/tests/test_demo.py", "0.095"): (1, "the thesis's printed tau_max in the demo's table"),
+    ("host_tools/tests/demo/test_demo.py", "0.095"): (1, "the thesis's printed tau_max in the demo's table"),
     ("test/native/test_slipmodel_traction/test_traction.cpp", "0.095"):
         (4, "the thesis's printed tau_max, which no variant of the model reproduces"),
     ("test/embedded/test_protocol/test_protocol.cpp", "36.65"):

@@ -13,7 +13,7 @@ from host_tools import runfmt
 from host_tools.runfmt import RunFormatError, validate_meta
 from host_tools.runfmt.validate import PLANT_DT_MIN_S, max_stable_plant_dt_s
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 @pytest.mark.parametrize("robot, key, why", [

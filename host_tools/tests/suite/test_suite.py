@@ -314,7 +314,7 @@ def test_set_provenance_commit_generates_the_same_cases():
     import subprocess
     import sys
     import types
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
     funcs = {"tuning": "all_cases", "heldback": "heldback_cases", "mujoco": "mujoco_cases"}
     for which, d in cases.SET_DATA.items():
         commit = d["provenance"]["cases_unchanged_since"]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from test_badinput import _base
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_stale_temp_links_and_a_closed_status_pipe(tmp_path):

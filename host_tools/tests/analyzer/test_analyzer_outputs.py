@@ -29,7 +29,7 @@ pytestmark = needs_native(truth=True)
 from host_tools import runfmt, truth  # noqa: E402
 from host_tools.__main__ import main as cli  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 LINE = {"kind": "line", "accel": 1.0, "cruise": 0.6}
 EFFECTS = ["motor_back_emf", "axle_coulomb"]
 
@@ -451,7 +451,7 @@ def test_a_killed_fitting_worker_does_not_hang_the_analysis(analysed, tmp_path, 
 
 
 def _bad_run(tmp_path, attack):
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).parent.parent))
     from test_badinput import _base, _lines, _set_cell
     run = _base(tmp_path / "run")
     if attack in ("1e9", "1e308"):

@@ -18,7 +18,7 @@ from host_tools.batch.cluster import ProcessCluster
 from host_tools.batch import task as T
 from host_tools.batch.sets import BadInput, RunSet, discover, from_manifest, from_tree
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 LINE = {"kind": "line", "accel": 1.0, "cruise": 0.6}
 ARC = {"kind": "arc", "accel": 0.8, "cruise": 0.5, "radius": 0.5}
 

@@ -19,7 +19,7 @@ from host_tools.runfmt import write as runfmt_write
 from test_logger import (ScriptedPort, _args, events, log_until_rows_then_signal, rows,
                          telemetry)
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 D = P.definition()
 
 

@@ -20,7 +20,7 @@ from host_tools import protocol as P
 from test_logger import ScriptedPort, _args, events, robot_on_pty, rows, telemetry
 from test_logger_reliability import _check_complete
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 D = P.definition()
 
 

@@ -176,7 +176,7 @@ def test_the_documented_map_and_topics_are_the_code(tmp_path):
     from pathlib import Path
 
     from host_tools.interop import messages, rosbag_import
-    doc = (Path(__file__).resolve().parents[2] / "docs" / "interop.md").read_text()
+    doc = (Path(__file__).resolve().parents[3] / "docs" / "interop.md").read_text()
     example = re.search(r"```yaml\n(.*?)```", doc, re.S).group(1)
     (tmp_path / "map.yaml").write_text(example)
     m = rosbag_import.load_map(str(tmp_path / "map.yaml"))

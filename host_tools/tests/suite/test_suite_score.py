@@ -11,7 +11,7 @@ import pytest
 
 from host_tools.suite import bench, cases
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _store(tmp_path, name, text):

@@ -820,7 +820,7 @@ def log_until_rows_then_signal(out, sig, min_rows=20, extra=(), period=0.01):
     from pathlib import Path
 
     robot, path, fds = robot_on_pty(period=period)
-    root = Path(__file__).resolve().parents[2]
+    root = Path(__file__).resolve().parents[3]
     proc = subprocess.Popen([sys.executable, "-m", "host_tools", "log", "--port", path, "--out",
                              str(out), *extra], cwd=root, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
