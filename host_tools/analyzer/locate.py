@@ -215,7 +215,7 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Ch
     dts = np.concatenate([np.diff(p.run.telemetry["t_s"]) for p in preps])
     dt = float(np.median(dts))
     floors: dict[str, float] = {}
-    names = set().union(*[set(c) for c in nominal])
+    names = sorted(set().union(*[set(c) for c in nominal]))  # report.json: one key order
     count_a = current_count_a(preps) if any(c.startswith("current") for c in names) else 0.0
     for c in names:
         res = [ch[c].resid for ch in nominal if c in ch]

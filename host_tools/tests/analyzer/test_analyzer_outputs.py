@@ -517,3 +517,22 @@ def test_an_interrupted_fitting_pool_leaves_no_manager_thread(monkeypatch):
         workers.run_tasks(object(), [(("wheel_radius",), None, None)] * 2, 2, "candidate")
     left = [t for t in set(threading.enumerate()) - before if t.is_alive()]
     assert not left, left
+
+
+def test_report_json_is_the_same_whatever_the_hash_seed(tmp_path):
+    """Two analyses of one run by processes with different string-hash seeds write the same
+    report.json but its elapsed time (the noise floors were keyed in a set's order)."""
+    from test_badinput import _base
+    run = _base(tmp_path / "run", n=300)
+    root = Path(__file__).resolve().parents[3]
+    got = []
+    for seed in ("1", "2"):
+        out = tmp_path / f"out{seed}"
+        env = dict(os.environ, PYTHONHASHSEED=seed)
+        r = subprocess.run([sys.executable, "-m", "host_tools", "analyze", str(run), "--out",
+                            str(out), "--no-plots", "--jobs", "1"], cwd=root, env=env,
+                           capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        text = (out / "report.json").read_text()
+        got.append(re.sub(r'"elapsed_s": [0-9.eE+-]+', '"elapsed_s": 0', text))
+    assert got[0] == got[1]
