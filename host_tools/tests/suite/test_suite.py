@@ -152,11 +152,12 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
 @pytest.mark.parametrize("which, size, n_nulls", [("heldback3", 20, 13), ("heldback4", 28, 18),
                                                     ("heldback5", 25, 16),
                                                     ("heldback6", 24, 11),
-                                                    ("heldback7", 28, 12)])
+                                                    ("heldback7", 28, 12),
+                                                    ("heldback8", 26, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
-             "heldback6", "heldback7"]
+             "heldback6", "heldback7", "heldback8"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -184,6 +185,12 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
         assert {c.engine for c in new if c.length == "1 min" and c.expect == "no_mismatch"
                 and not any(clamp for _, clamp, _ in c.experiments)} == {"truth", "mujoco"}
         assert sum(c.expect == "unexplained" for c in new) == 3
+    if which == "heldback8":  # both engines in every kind; radii on both sides of 1.5 % of r
+        for expect in ("no_mismatch", "explained", "unexplained"):
+            assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
+        r = cases.NEUTRAL["wheel_radius"]["r_eff"]
+        assert any(abs(c.effects[e]["r_eff"] / r - 1) < 0.015 for c in new
+                   for e in c.effects if e == "wheel_radius")
 
 
 def test_mujoco_tuning_group():
@@ -273,6 +280,7 @@ FROZEN_SETS = {
     "mujoco": "8a918a5798fe7774d78aff9f5603e9b818879149fb738aef69398daa02b5b72c",
     "heldback6": "da69f94348397603530cf91320d65af3258d127e82544bb879a684479fca8267",
     "heldback7": "66ac3fcebea2c79d7632280fde5aef3685cebb45ecf4137beb0d50e0851dbe2f",
+    "heldback8": "9feeefb399f681a4672f5b6156f1e371b9adc7f0a6e459d6f760711476b4bd3a",
 }
 
 
