@@ -42,7 +42,7 @@ def analyze(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run], jobs: int =
     duty = OpenLoopReplay("duty", dt_s=dt_s)
     torque = OpenLoopReplay("torque", dt_s=dt_s)
     preps = _prepare(runs, log)
-    cl = _replay_closed_loop(preps, dt_s, notes, log)
+    preps, cl = _replay_closed_loop(preps, dt_s, notes, log)
     nominal, nominal_t = _replay_nominal(preps, duty, torque)
     loc = locate_mismatch(preps, nominal, nominal_t, cl.nominal, log)
     det = detect_mismatch(preps, nominal, loc, vocab, dt_s, notes, log)
@@ -126,12 +126,14 @@ class NominalClosedLoop:
 
 
 def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[str],
-                        log: Callable[[str], None]) -> NominalClosedLoop:
+                        log: Callable[[str], None]
+                        ) -> tuple[list[PreparedRun], NominalClosedLoop]:
     """Replay each run closed loop through lib/control: the torque and duty the firmware should
     have commanded.  Runs first because it also refines the inputs of the open-loop replays:
     the inner ticks that no telemetry frame reported get their commands from the line between
-    the reported ones plus this replay's pattern (``fill_unseen_from_controller``, which
-    changes ``preps``).  A run that cannot be replayed (no lib/control binding, or a set-up the
+    the reported ones plus this replay's pattern (``fill_unseen_from_controller``).  Returns
+    (the prepared runs with those refined inputs, which every later stage replays; the nominal
+    closed-loop replay).  A run that cannot be replayed (no lib/control binding, or a set-up the
     meta data does not give) is reported with its problems; the analysis goes on without it,
     since the closed-loop channels are reported and not used for decisions."""
     clr = ClosedLoopReplay(dt_s=dt_s)
@@ -139,6 +141,7 @@ def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[s
     setups: list[dict[str, Any] | None] = [None] * len(preps)
     runs: list[dict[str, Any]] = []
     nominal: list[dict[str, Channel]] = [{} for _ in preps]
+    filled = list(preps)
     for i, p in enumerate(preps):
         if not ok:
             runs.append({"run": p.name, "replayed": False, "problems": [why],
@@ -151,7 +154,7 @@ def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[s
         if setup is not None:
             cl_sim = clr.simulate(p, {}, setup)
             nominal[i] = closed_loop_channels(p, cl_sim)
-            n_fill = fill_unseen_from_controller(p, cl_sim)
+            filled[i], n_fill = fill_unseen_from_controller(p, cl_sim)
             if n_fill:
                 runs[-1]["assumptions"].append(
                     f"{n_fill} inner ticks were reported by no frame: their commands are the "
@@ -161,7 +164,7 @@ def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[s
     n_cl = sum(1 for c in nominal if c)
     if n_cl:
         log(f"closed-loop replay through lib/control: {n_cl}/{len(preps)} run(s)")
-    return NominalClosedLoop(clr, setups, runs, nominal)
+    return filled, NominalClosedLoop(clr, setups, runs, nominal)
 
 
 def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: OpenLoopReplay

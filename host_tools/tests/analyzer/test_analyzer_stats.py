@@ -191,7 +191,7 @@ def _detect(paths, with_tolerance: bool, monkeypatch):
         notes: list[str] = []
         duty, torque = P.OpenLoopReplay("duty"), P.OpenLoopReplay("torque")
         preps = P._prepare(runs, quiet)
-        cl = P._replay_closed_loop(preps, 5e-4, notes, quiet)
+        preps, cl = P._replay_closed_loop(preps, 5e-4, notes, quiet)
         nom, nomt = P._replay_nominal(preps, duty, torque)
         loc = locate_mismatch(preps, nom, nomt, cl.nominal, quiet)
         return detect_mismatch(preps, nom, loc, vocab, 5e-4, notes, quiet).mismatch_seen
