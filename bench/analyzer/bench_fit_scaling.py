@@ -43,8 +43,8 @@ def _problem(paths: list[str]):
     notes: list[str] = []
     preps = pl._prepare(runs, quiet)
     preps, cl = pl._replay_closed_loop(preps, 5e-4, notes, quiet)
-    nominal, nominal_t = pl._replay_nominal(preps, OpenLoopReplay("duty"),
-                                            OpenLoopReplay("torque"))
+    preps, nominal, nominal_t = pl._replay_nominal(preps, OpenLoopReplay("duty"),
+                                                   OpenLoopReplay("torque"))
     loc = locate_mismatch(preps, nominal, nominal_t, cl.nominal, quiet)
     det = detect_mismatch(preps, nominal, loc, vocab, 5e-4, notes, quiet)
     return det

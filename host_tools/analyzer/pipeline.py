@@ -5,6 +5,7 @@ them, select, decide the verdict, and assemble the :class:`Analysis` that ``repo
 writes.  Each stage lives in its own module, in the order :func:`analyze` calls them."""
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from dataclasses import dataclass
@@ -43,7 +44,7 @@ def analyze(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run], jobs: int =
     torque = OpenLoopReplay("torque", dt_s=dt_s)
     preps = _prepare(runs, log)
     preps, cl = _replay_closed_loop(preps, dt_s, notes, log)
-    nominal, nominal_t = _replay_nominal(preps, duty, torque)
+    preps, nominal, nominal_t = _replay_nominal(preps, duty, torque)
     loc = locate_mismatch(preps, nominal, nominal_t, cl.nominal, log)
     det = detect_mismatch(preps, nominal, loc, vocab, dt_s, notes, log)
     cands = fit_candidates(det, vocab_fit, jobs, notes, log)
@@ -168,7 +169,8 @@ def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[s
 
 
 def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: OpenLoopReplay
-                    ) -> tuple[list[dict[str, Channel]], list[dict[str, Channel]]]:
+                    ) -> tuple[list[PreparedRun], list[dict[str, Channel]],
+                               list[dict[str, Channel]]]:
     """The nominal open-loop replays (no effect), per run: channel -> Channel, driven by the
     recorded duty (what locates the mismatch and decides) and by the recorded torque command
     (reported apart: it separates motor and driver from the rest).  On a run of several
@@ -177,15 +179,24 @@ def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: 
     recorded state inside a slip, the window anchors to the camera are fitted within the
     slip-free spans, and ``locate`` takes the slips as no evidence.  The replay's own
     uncertainty (unreported commands, the model's tolerance) is drawn before the channels are
-    compared."""
+    compared, and the prepared runs returned carry it (``replay_unc``, ``tolerance_bias``,
+    ``tolerance_draw_means``) for every later replay and decision.  Returns (those prepared
+    runs, the duty replay's channels, the torque replay's)."""
+    out = []
     for p in preps:
         if len(p.windows) > 1:
             edges_outside_slip(p, duty)
-        input_uncertainty(p, duty)
-        tolerance_uncertainty(p, duty)
-    nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
-    nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
-    return nominal, nominal_t
+        unc = input_uncertainty(p, duty)
+        if unc is not None:
+            p = dataclasses.replace(p, replay_unc=unc)
+        tol = tolerance_uncertainty(p, duty)
+        if tol is not None:
+            p = dataclasses.replace(p, replay_unc=tol.replay_unc, tolerance_bias=tol.tolerance_bias,
+                                    tolerance_draw_means=tol.tolerance_draw_means)
+        out.append(p)
+    nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in out]
+    nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in out]
+    return out, nominal, nominal_t
 
 
 def _command_delay(preps: Sequence[PreparedRun], selected: list[dict[str, Any]], verdict: str,

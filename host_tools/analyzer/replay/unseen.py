@@ -129,8 +129,11 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
 UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from their uncertainty
 
 
+ReplayUnc = dict[str, tuple[np.ndarray, np.ndarray]]  # channel -> (t, std) (PreparedRun.replay_unc)
+
+
 def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
-                      n: int = UNSEEN_ENSEMBLE) -> int:
+                      n: int = UNSEEN_ENSEMBLE) -> ReplayUnc | None:
     """The replay's uncertainty from the commands no frame reported (a loop faster than the
     telemetry, lost frames), per channel and sample: the spread of ``n`` replays whose unseen
     ticks' duties are drawn from what the reported ones allow.
@@ -147,18 +150,19 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     / sqrt(1.5): the fill's own error for white scatter), drawn per tick.  The replay turns the
     draws into the output errors they cause, large
     where the output is sensitive to the input (a slipping wheel, a step) and small elsewhere.
-    Stored in ``replay_unc`` (channel -> (t, std over the draws)) and attached to the
-    channels by :func:`channels`; decisions compare residuals with the noise floor and this
-    uncertainty in quadrature (:meth:`Channel.deflated`).  Draws are seeded by the run's
-    content, so an analysis is repeatable.  Returns the number of unseen ticks (0: no draw)."""
+    Returns it as channel -> (t, std over the draws), or None when no tick is unseen (no
+    draw); the pipeline puts it in the run's ``replay_unc``, which :func:`channels` attaches
+    to the channels; decisions compare residuals with the noise floor and this uncertainty in
+    quadrature (:meth:`Channel.deflated`).  Draws are seeded by the run's content, so an
+    analysis is repeatable.  ``prep`` is left as it is."""
     seen = prep.seen_ticks
     if seen is None:
-        return 0
+        return None
     seen = np.asarray(seen, bool)
     i_seen = np.flatnonzero(seen)
     unseen = np.flatnonzero(~seen)
     if unseen.size == 0 or i_seen.size < 3 or n < 2:
-        return 0
+        return None
     j = np.searchsorted(i_seen, unseen)
     a, b = np.clip(j - 1, 0, i_seen.size - 1), np.clip(j, 0, i_seen.size - 1)
     ts, tk = np.asarray(prep.t_in, float)[i_seen], np.asarray(prep.t_in, float)[unseen]
@@ -183,21 +187,16 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     base = cast("tuple[np.ndarray, np.ndarray]", tuple(np.asarray(u, float) for u in prep.duty))
     acc: dict[str, list[np.ndarray]] = {}
     t_of: dict[str, np.ndarray] = {}
-    try:
-        for _ in range(n):
-            draw = []
-            for u, w, bd in zip(base, white, bend):
-                v = u.copy()
-                z = rng.standard_normal(int(gap[-1]) + 1)
-                v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
-                draw.append(np.clip(v, -1.0, 1.0))
-            prep.duty = cast("tuple[np.ndarray, np.ndarray]", tuple(draw))
-            for name, ch in channels(prep, replay.simulate_windows(prep, {}), "duty").items():
-                acc.setdefault(name, []).append(ch.resid)
-                t_of[name] = ch.t
-    finally:
-        prep.duty = base
-    prep.replay_unc = {name: (t_of[name], np.std(np.array(v), axis=0))
-                                 for name, v in acc.items()
-                                 if len({a.size for a in v}) == 1 and t_of[name].size}
-    return int(unseen.size)
+    for _ in range(n):
+        draw = []
+        for u, w, bd in zip(base, white, bend):
+            v = u.copy()
+            z = rng.standard_normal(int(gap[-1]) + 1)
+            v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
+            draw.append(np.clip(v, -1.0, 1.0))
+        drawn = dataclasses.replace(prep, duty=cast("tuple[np.ndarray, np.ndarray]", tuple(draw)))
+        for name, ch in channels(drawn, replay.simulate_windows(drawn, {}), "duty").items():
+            acc.setdefault(name, []).append(ch.resid)
+            t_of[name] = ch.t
+    return {name: (t_of[name], np.std(np.array(v), axis=0)) for name, v in acc.items()
+            if len({a.size for a in v}) == 1 and t_of[name].size}

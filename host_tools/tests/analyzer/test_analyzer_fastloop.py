@@ -4,6 +4,8 @@ speeds (a cubic through the counts), fills the unreported ticks with the closed-
 pattern, and compares the camera against the count-anchored pose (docs/analyzer.md)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -151,7 +153,9 @@ def _fill_error_and_uncertainty(run, channels=("omega_r", "omega_l")):
     prep = PI.prepare_timed(run)
     prep, _ = UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
     duty = OL.OpenLoopReplay("duty")
-    assert UN.input_uncertainty(prep, duty) > 0
+    unc = UN.input_uncertainty(prep, duty)
+    assert unc and prep.replay_unc is None   # returned, the prepared run left as it is
+    prep = dataclasses.replace(prep, replay_unc=unc)
     filled = CH.channels(prep, duty.simulate_windows(prep, {}), "duty")
     base = prep.duty
     prep.duty = _true_commands(prep, run)
@@ -190,7 +194,7 @@ def test_no_replay_uncertainty_when_every_tick_is_reported(tmp_path):
     run = load_run(truth.simulate_run(tmp_path / "fw", ARC, None, clamp=True, duration_s=1.5,
                                       seed=33))
     prep = PI.prepare_timed(run)
-    assert UN.input_uncertainty(prep, OL.OpenLoopReplay("duty")) == 0
+    assert UN.input_uncertainty(prep, OL.OpenLoopReplay("duty")) is None
     chans = CH.channels(prep, OL.OpenLoopReplay("duty").simulate_windows(prep, {}), "duty")
     assert all(ch.unc is None for ch in chans.values())
     ch = chans["omega_r"]

@@ -185,14 +185,14 @@ def _detect(paths, with_tolerance: bool, monkeypatch):
     quiet = lambda m: None  # noqa: E731
     with monkeypatch.context() as mp:
         if not with_tolerance:
-            mp.setattr(P, "tolerance_uncertainty", lambda *a, **k: 0)
+            mp.setattr(P, "tolerance_uncertainty", lambda *a, **k: None)
         runs = P._load_runs(paths, quiet)
         vocab, _ = P._vocabulary(None)
         notes: list[str] = []
         duty, torque = P.OpenLoopReplay("duty"), P.OpenLoopReplay("torque")
         preps = P._prepare(runs, quiet)
         preps, cl = P._replay_closed_loop(preps, 5e-4, notes, quiet)
-        nom, nomt = P._replay_nominal(preps, duty, torque)
+        preps, nom, nomt = P._replay_nominal(preps, duty, torque)
         loc = locate_mismatch(preps, nom, nomt, cl.nominal, quiet)
         return detect_mismatch(preps, nom, loc, vocab, 5e-4, notes, quiet).mismatch_seen
 
