@@ -185,7 +185,7 @@ def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: 
     out = []
     for p in preps:
         if len(p.windows) > 1:
-            edges_outside_slip(p, duty)
+            p, _ = edges_outside_slip(p, duty)
         unc = input_uncertainty(p, duty)
         if unc is not None:
             p = dataclasses.replace(p, replay_unc=unc)
