@@ -42,10 +42,10 @@ def _problem(paths: list[str]):
     vocab, _ = pl._vocabulary(None)
     notes: list[str] = []
     preps = pl._prepare(runs, quiet)
-    cl = pl._replay_closed_loop(preps, 5e-4, notes, quiet)
-    nominal, nominal_t = pl._replay_nominal(preps, OpenLoopReplay("duty"),
-                                            OpenLoopReplay("torque"))
-    loc = locate_mismatch(preps, nominal, nominal_t, cl.nominal, quiet)
+    preps, cl = pl._replay_closed_loop(preps, 5e-4, notes, quiet)
+    preps, nominal, nominal_t = pl._replay_nominal(preps, OpenLoopReplay("duty"),
+                                                   OpenLoopReplay("torque"))
+    preps, nominal, loc = locate_mismatch(preps, nominal, nominal_t, cl.nominal, quiet)
     det = detect_mismatch(preps, nominal, loc, vocab, 5e-4, notes, quiet)
     return det
 

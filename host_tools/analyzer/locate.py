@@ -2,6 +2,7 @@
 residual stands out of them, and whether the recordings disagree with the nominal model at all."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
@@ -276,15 +277,27 @@ UNPINNED_UNC = 1e9
 SLIP_UNC = 1e8      # a wheel channel in a pinned slip: no evidence, its pair's difference is
 
 
+@dataclass(frozen=True)
+class Unpinned:
+    """What :func:`unpinned_episodes` returns, per run."""
+    preps: list[PreparedRun]               # with that replay uncertainty (``replay_unc``)
+    nominal: list[dict[str, Channel]]      # the nominal channels with it (``unc``)
+    episodes: list[list[tuple[float, float]]]  # (onset, end) of the unpinned episodes
+
+
 def unpinned_episodes(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Channel]],
-                      floors: Mapping[str, float]) -> list[list[tuple[float, float]]]:
+                      floors: Mapping[str, float]) -> Unpinned:
     """Mark the nominal replay's slip episodes as no evidence (above): per run, the replay
-    uncertainty ``prep.replay_unc`` (which every later replay of the run attaches to its
-    channels) and the nominal channels' ``unc`` are set to UNPINNED_UNC over the spans they
-    cover.  Returns per run the (onset, end) of the unpinned episodes."""
+    uncertainty ``replay_unc`` (which every later replay of the run attaches to its channels)
+    and the nominal channels' ``unc`` are UNPINNED_UNC over the spans they cover.  Returns
+    the prepared runs and nominal channels with that uncertainty (new values; those given are
+    left as they are) and per run the (onset, end) of the unpinned episodes."""
     from host_tools.analyzer.prepare.run import BURN_IN_S
     out: list[list[tuple[float, float]]] = []
-    for prep, chans in zip(preps, nominal):
+    out_preps: list[PreparedRun] = []
+    out_nominal: list[dict[str, Channel]] = []
+    for prep, given in zip(preps, nominal):
+        chans = dict(given)
         found: list[tuple[float, float]] = []
         slips = list(prep.slip_episodes)
         unc = dict(prep.replay_unc or {})
@@ -302,6 +315,8 @@ def unpinned_episodes(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[st
                 found.append((onset, b))
         if not found and not slips:
             out.append([])
+            out_preps.append(prep)
+            out_nominal.append(chans)
             continue
         for c, ch in chans.items():
             if c not in FIT_CHANNELS or ch.t.size == 0:
@@ -322,11 +337,12 @@ def unpinned_episodes(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[st
                 continue
             base = ch.unc if ch.unc is not None else np.zeros(ch.t.size)
             new = np.where(mask, UNPINNED_UNC, np.where(slip, np.maximum(base, SLIP_UNC), base))
-            ch.unc = new
+            chans[c] = dataclasses.replace(ch, unc=new)
             unc[c] = (ch.t.copy(), new.copy())
-        prep.replay_unc = unc
+        out_preps.append(dataclasses.replace(prep, replay_unc=unc))
+        out_nominal.append(chans)
         out.append(found)
-    return out
+    return Unpinned(out_preps, out_nominal, out)
 
 
 def closed_loop_floors(chans_per_run: Sequence[Mapping[str, Channel]]) -> dict[str, float]:
@@ -398,20 +414,24 @@ class Located:
 
 def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Channel]],
                     nominal_t: Sequence[dict[str, Channel]], cl_nominal: Sequence[dict[str, Channel]],
-                    log: Callable[[str], None]) -> Located:
+                    log: Callable[[str], None]
+                    ) -> tuple[list[PreparedRun], list[dict[str, Channel]], Located]:
     """Noise floors from the data (``noise_floors``, ``closed_loop_floors``) and the windows
     where each replay's residual stands out of them, each with the regime of the run's state
     (speed, torque against its limit, ...) that best explains where they are.  A residual only
     means something in units of its channel's noise, so every later decision is in noise
-    floors."""
+    floors.  The slips the model's tolerance does not pin down are no evidence
+    (``unpinned_episodes``): returns (the prepared runs and the nominal duty replay's channels
+    with that uncertainty, which every later stage uses; what was located)."""
     floors = noise_floors(preps, nominal)
     floors_t = noise_floors(preps, nominal_t)
     log("noise floors: " + ", ".join(f"{c}={v:.3g}" for c, v in sorted(floors.items())))
     unpinned = unpinned_episodes(preps, nominal, floors)
-    if any(unpinned):
+    preps, nominal = unpinned.preps, unpinned.nominal
+    if any(unpinned.episodes):
         log("slip episodes the model's tolerance does not pin down: " + "; ".join(
             f"{p.name} " + ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in u)
-            for p, u in zip(preps, unpinned) if u))
+            for p, u in zip(preps, unpinned.episodes) if u))
     from host_tools import _native
     plant = _native.Plant.from_meta(preps[0].run.meta)
     tau_max = float(min(plant.tau_max()))
@@ -427,7 +447,8 @@ def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
         cl_entries, cl_wins = _window_entries(preps, cl_nominal, cl_floors,
                                               [c for c in CLOSED_LOOP_CHANNELS if c in cl_floors],
                                               "closed-loop", states, tau_max)
-    return Located(floors, floors_t, cl_floors, entries, entries_t, cl_entries, wins, cl_wins)
+    return preps, nominal, Located(floors, floors_t, cl_floors, entries, entries_t, cl_entries,
+                                   wins, cl_wins)
 
 
 @dataclass

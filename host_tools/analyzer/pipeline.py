@@ -5,6 +5,7 @@ them, select, decide the verdict, and assemble the :class:`Analysis` that ``repo
 writes.  Each stage lives in its own module, in the order :func:`analyze` calls them."""
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from dataclasses import dataclass
@@ -42,9 +43,9 @@ def analyze(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run], jobs: int =
     duty = OpenLoopReplay("duty", dt_s=dt_s)
     torque = OpenLoopReplay("torque", dt_s=dt_s)
     preps = _prepare(runs, log)
-    cl = _replay_closed_loop(preps, dt_s, notes, log)
-    nominal, nominal_t = _replay_nominal(preps, duty, torque)
-    loc = locate_mismatch(preps, nominal, nominal_t, cl.nominal, log)
+    preps, cl = _replay_closed_loop(preps, dt_s, notes, log)
+    preps, nominal, nominal_t = _replay_nominal(preps, duty, torque)
+    preps, nominal, loc = locate_mismatch(preps, nominal, nominal_t, cl.nominal, log)
     det = detect_mismatch(preps, nominal, loc, vocab, dt_s, notes, log)
     cands = fit_candidates(det, vocab_fit, jobs, notes, log)
     sel = select_effects(det, cands, jobs, pairs_top, log)
@@ -126,12 +127,14 @@ class NominalClosedLoop:
 
 
 def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[str],
-                        log: Callable[[str], None]) -> NominalClosedLoop:
+                        log: Callable[[str], None]
+                        ) -> tuple[list[PreparedRun], NominalClosedLoop]:
     """Replay each run closed loop through lib/control: the torque and duty the firmware should
     have commanded.  Runs first because it also refines the inputs of the open-loop replays:
     the inner ticks that no telemetry frame reported get their commands from the line between
-    the reported ones plus this replay's pattern (``fill_unseen_from_controller``, which
-    changes ``preps``).  A run that cannot be replayed (no lib/control binding, or a set-up the
+    the reported ones plus this replay's pattern (``fill_unseen_from_controller``).  Returns
+    (the prepared runs with those refined inputs, which every later stage replays; the nominal
+    closed-loop replay).  A run that cannot be replayed (no lib/control binding, or a set-up the
     meta data does not give) is reported with its problems; the analysis goes on without it,
     since the closed-loop channels are reported and not used for decisions."""
     clr = ClosedLoopReplay(dt_s=dt_s)
@@ -139,6 +142,7 @@ def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[s
     setups: list[dict[str, Any] | None] = [None] * len(preps)
     runs: list[dict[str, Any]] = []
     nominal: list[dict[str, Channel]] = [{} for _ in preps]
+    filled = list(preps)
     for i, p in enumerate(preps):
         if not ok:
             runs.append({"run": p.name, "replayed": False, "problems": [why],
@@ -151,7 +155,7 @@ def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[s
         if setup is not None:
             cl_sim = clr.simulate(p, {}, setup)
             nominal[i] = closed_loop_channels(p, cl_sim)
-            n_fill = fill_unseen_from_controller(p, cl_sim)
+            filled[i], n_fill = fill_unseen_from_controller(p, cl_sim)
             if n_fill:
                 runs[-1]["assumptions"].append(
                     f"{n_fill} inner ticks were reported by no frame: their commands are the "
@@ -161,11 +165,12 @@ def _replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[s
     n_cl = sum(1 for c in nominal if c)
     if n_cl:
         log(f"closed-loop replay through lib/control: {n_cl}/{len(preps)} run(s)")
-    return NominalClosedLoop(clr, setups, runs, nominal)
+    return filled, NominalClosedLoop(clr, setups, runs, nominal)
 
 
 def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: OpenLoopReplay
-                    ) -> tuple[list[dict[str, Channel]], list[dict[str, Channel]]]:
+                    ) -> tuple[list[PreparedRun], list[dict[str, Channel]],
+                               list[dict[str, Channel]]]:
     """The nominal open-loop replays (no effect), per run: channel -> Channel, driven by the
     recorded duty (what locates the mismatch and decides) and by the recorded torque command
     (reported apart: it separates motor and driver from the rest).  On a run of several
@@ -174,15 +179,24 @@ def _replay_nominal(preps: Sequence[PreparedRun], duty: OpenLoopReplay, torque: 
     recorded state inside a slip, the window anchors to the camera are fitted within the
     slip-free spans, and ``locate`` takes the slips as no evidence.  The replay's own
     uncertainty (unreported commands, the model's tolerance) is drawn before the channels are
-    compared."""
+    compared, and the prepared runs returned carry it (``replay_unc``, ``tolerance_bias``,
+    ``tolerance_draw_means``) for every later replay and decision.  Returns (those prepared
+    runs, the duty replay's channels, the torque replay's)."""
+    out = []
     for p in preps:
         if len(p.windows) > 1:
-            edges_outside_slip(p, duty)
-        input_uncertainty(p, duty)
-        tolerance_uncertainty(p, duty)
-    nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in preps]
-    nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in preps]
-    return nominal, nominal_t
+            p, _ = edges_outside_slip(p, duty)
+        unc = input_uncertainty(p, duty)
+        if unc is not None:
+            p = dataclasses.replace(p, replay_unc=unc)
+        tol = tolerance_uncertainty(p, duty)
+        if tol is not None:
+            p = dataclasses.replace(p, replay_unc=tol.replay_unc, tolerance_bias=tol.tolerance_bias,
+                                    tolerance_draw_means=tol.tolerance_draw_means)
+        out.append(p)
+    nominal = [channels(p, duty.simulate_windows(p, {}), "duty") for p in out]
+    nominal_t = [channels(p, torque.simulate_windows(p, {}), "torque") for p in out]
+    return out, nominal, nominal_t
 
 
 def _command_delay(preps: Sequence[PreparedRun], selected: list[dict[str, Any]], verdict: str,

@@ -3,6 +3,7 @@ and the pose shift that only follows from the replayed wheels turning otherwise 
 recorded counts."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import TYPE_CHECKING, Any, Mapping, cast
 
@@ -16,10 +17,10 @@ if TYPE_CHECKING:
     from host_tools.analyzer.replay.openloop import OpenLoopReplay, WindowSims
 
 
-def note_slip_episodes(prep: "PreparedRun", sims: "WindowSims") -> int:
-    """Record the slip episodes of a nominal replay ``sims`` (``slip_episodes``, board
-    times): across a slip the recorder's odometry stops following the body, so a window's
-    camera anchor is fitted within the slip-free span around it.  Returns their number."""
+def slip_episodes_of(sims: "WindowSims") -> list[tuple[float, float]]:
+    """The slip episodes (onset, end) of a nominal replay ``sims`` (board times, sorted), a
+    prepared run's ``slip_episodes``: across a slip the recorder's odometry stops following
+    the body, so a window's camera anchor is fitted within the slip-free span around it."""
     episodes = []
     for _, sim in sims:
         slip = (np.asarray(sim.get("slip_r", 0)) > 0) | (np.asarray(sim.get("slip_l", 0)) > 0)
@@ -33,16 +34,27 @@ def note_slip_episodes(prep: "PreparedRun", sims: "WindowSims") -> int:
         for a in starts:
             later = ends[ends >= a]
             episodes.append((float(g[a]), float(g[later[0] + 1]) if later.size else float(g[-1])))
-    prep.slip_episodes = sorted(episodes)
-    return len(episodes)
+    return sorted(episodes)
+
+
+def _with_slip_episodes(prep: PreparedRun, replay: "OpenLoopReplay") -> PreparedRun:
+    """``prep`` with the slip episodes of its nominal replay in its windows."""
+    return dataclasses.replace(prep, slip_episodes=slip_episodes_of(
+        replay.simulate_windows(prep, {})))
+
+
+def _with_windows(prep: PreparedRun, wins: list[list[int]]) -> PreparedRun:
+    """``prep`` with other windows (and an empty camera-anchor cache)."""
+    return dataclasses.replace(prep, windows=[(int(x[0]), int(x[1])) for x in wins],
+                               anchor_cache={})
 
 
 MAX_EDGE_MOVES = 6
 
 
-def edges_outside_slip(prep: "PreparedRun", replay: "OpenLoopReplay") -> int:
-    """Move the edges between replay windows out of the nominal replay's slip episodes, and
-    note the episodes (``note_slip_episodes``) of the windows as they end up.
+def edges_outside_slip(prep: PreparedRun, replay: "OpenLoopReplay") -> tuple[PreparedRun, int]:
+    """Move the edges between replay windows out of the nominal replay's slip episodes, with
+    the episodes (``slip_episodes_of``) of the windows as they end up.
 
     A window after the first starts from the recorded state: the wheel speeds from the counts
     with the body rolling with them, and the pose from the recorder's odometry corrected onto
@@ -57,12 +69,12 @@ def edges_outside_slip(prep: "PreparedRun", replay: "OpenLoopReplay") -> int:
     re-anchored to the camera where the odometry follows the body again.  An episode that
     still runs at the end of the window's replay is seen to its end in the next round (at most
     ``MAX_EDGE_MOVES``).  An edge that would pass the next one removes it (the two windows
-    become one).  Returns the number
-    of edges moved."""
+    become one).  Returns (the prepared run with those windows and episodes, a new value:
+    ``prep`` is left as it is; the number of edges moved)."""
     t = prep.run.telemetry["t_s"]
     moved_total = 0
     for _ in range(MAX_EDGE_MOVES):
-        note_slip_episodes(prep, replay.simulate_windows(prep, {}))
+        prep = _with_slip_episodes(prep, replay)
         wins = [list(w) for w in prep.windows]
         moved = 0
         w = 1
@@ -90,15 +102,14 @@ def edges_outside_slip(prep: "PreparedRun", replay: "OpenLoopReplay") -> int:
             moved += 1
         if not moved:
             break
-        prep.windows = [(int(x[0]), int(x[1])) for x in wins]
-        prep.anchor_cache.clear()
+        prep = _with_windows(prep, wins)
         moved_total += moved
-    _edges_after_slip(prep)
-    _join_edges_in_slip(prep, replay)
-    return moved_total
+    prep, _ = _edges_after_slip(prep)
+    prep, _ = _join_edges_in_slip(prep, replay)
+    return prep, moved_total
 
 
-def _join_edges_in_slip(prep: "PreparedRun", replay: "OpenLoopReplay") -> int:
+def _join_edges_in_slip(prep: PreparedRun, replay: "OpenLoopReplay") -> tuple[PreparedRun, int]:
     """Remove the edges that are still in a slip episode of the windows as they end up (the
     rule of :func:`edges_outside_slip`), joining the two windows, until none is.  A window
     started from the recorded state where the recording slips and the nominal replay had not
@@ -106,12 +117,12 @@ def _join_edges_in_slip(prep: "PreparedRun", replay: "OpenLoopReplay") -> int:
     land in the next such slip: on heldback6's MuJoCo 60 s run with a 40 ms actuation delay
     an edge ended the rounds 0.5 s into a slip and its window stayed 6 cm (59 camera floors)
     off the recording to its end.  The joined window integrates through the slip, where its
-    pose is no evidence (``locate.unpinned_episodes``).  Returns the number of edges removed;
-    ``slip_episodes`` are those of the final windows."""
+    pose is no evidence (``locate.unpinned_episodes``).  Returns (the prepared run, whose
+    ``slip_episodes`` are those of the final windows; the number of edges removed)."""
     t = prep.run.telemetry["t_s"]
     removed = 0
     while True:
-        note_slip_episodes(prep, replay.simulate_windows(prep, {}))
+        prep = _with_slip_episodes(prep, replay)
         wins = [list(w) for w in prep.windows]
         keep = [wins[0]]
         for w in wins[1:]:
@@ -124,23 +135,22 @@ def _join_edges_in_slip(prep: "PreparedRun", replay: "OpenLoopReplay") -> int:
             else:
                 keep.append(w)
         if len(keep) == len(wins):
-            return removed
+            return prep, removed
         removed += len(wins) - len(keep)
-        prep.windows = [(int(x[0]), int(x[1])) for x in keep]
-        prep.anchor_cache.clear()
+        prep = _with_windows(prep, keep)
 
 
 MIN_REANCHOR_S = 1.0
 
 
-def _edges_after_slip(prep: "PreparedRun") -> list[int]:
+def _edges_after_slip(prep: PreparedRun) -> tuple[PreparedRun, list[int]]:
     """Cut a window ``BURN_IN_S`` after a slip episode ends, so that the pose is re-anchored
     to the camera there: the slip distance is the contact's, which no plant reproduces in
     detail, and the pose after a slip carries its error to the end of the window (the pose
     channels are no evidence from a slip's onset to the window's end,
     ``locate.unpinned_episodes``).  A cut needs ``MIN_REANCHOR_S`` without slip after it and
     that much of the window on either side; it is not made across a telemetry gap.  Returns
-    the frames of the edges added."""
+    (the prepared run with those windows, the frames of the edges added)."""
     t = prep.run.telemetry["t_s"]
     eps = prep.slip_episodes
     wins = [list(w) for w in prep.windows]
@@ -159,10 +169,7 @@ def _edges_after_slip(prep: "PreparedRun") -> list[int]:
                 wins[w:w + 1] = [[i_a, j], [j, i_b]]
                 added.append(j)
             break
-    if added:
-        prep.windows = [(int(x[0]), int(x[1])) for x in wins]
-        prep.anchor_cache.clear()
-    return added
+    return (_with_windows(prep, wins) if added else prep), added
 
 
 def _line_at(t: np.ndarray, v: np.ndarray, at: float) -> float:

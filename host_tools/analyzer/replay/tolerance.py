@@ -6,6 +6,7 @@ much without any physics missing."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
@@ -45,8 +46,17 @@ def tolerance_draws(robot: Mapping[str, float], n: int, rng: np.random.Generator
     return out
 
 
+@dataclass(frozen=True)
+class ToleranceUncertainty:
+    """What :func:`tolerance_uncertainty` finds for one run (the PreparedRun fields of the
+    same names)."""
+    replay_unc: dict[str, tuple[np.ndarray, np.ndarray]]  # channel -> (t, std), in quadrature
+    tolerance_bias: dict[str, float]               # channel -> whole-run bias allowed
+    tolerance_draw_means: dict[str, list[float]]   # channel -> each draw's mean residual
+
+
 def tolerance_uncertainty(prep: PreparedRun, replay: OpenLoopReplay, n: int = TOLERANCE_ENSEMBLE
-                          ) -> int:
+                          ) -> ToleranceUncertainty | None:
     """Per channel and sample, the spread (std) of ``n`` duty replays whose robot parameters are
     drawn within their tolerance (:func:`tolerance_draws`), added in quadrature to the run's
     replay uncertainty (``prep.replay_unc``, which :func:`input_uncertainty` may already hold):
@@ -54,16 +64,16 @@ def tolerance_uncertainty(prep: PreparedRun, replay: OpenLoopReplay, n: int = TO
     together (``Channel.deflated``), and the fits weigh samples by the same.  The recorded
     odometry is compared with the nominal geometry (the recorder's own arithmetic); only the
     plant's parameters are drawn.  Draws are seeded by the run's content, so an analysis is
-    repeatable.  Also sets ``prep.tolerance_bias`` (channel -> std over the draws of the mean
-    residual: the whole-run bias the tolerance allows) and ``prep.tolerance_draw_means``
-    (channel -> each draw's mean residual, from which ``locate.allowed_bias`` gets the bias
-    allowed in the wheels' difference).  Returns the number of replays (0:
-    nothing drawn)."""
+    repeatable.  Returns (None: nothing drawn, ``n`` < 2) that replay uncertainty, the
+    ``tolerance_bias`` (channel -> std over the draws of the mean residual: the whole-run bias
+    the tolerance allows) and the ``tolerance_draw_means`` (channel -> each draw's mean
+    residual, from which ``locate.allowed_bias`` gets the bias allowed in the wheels'
+    difference); the pipeline puts them in the prepared run.  ``prep`` is left as it is."""
     from host_tools import _native
     from host_tools.analyzer.replay.channels import channels
     from host_tools.analyzer.replay.openloop import OpenLoopReplay
     if n < 2:
-        return 0
+        return None
     seed = int(np.uint32(int(np.sum(np.asarray(prep.run.telemetry["t_s"], float) * 1e3))
                          & 0xFFFFFFFF))
     rng = np.random.default_rng([seed, 22])
@@ -87,10 +97,10 @@ def tolerance_uncertainty(prep: PreparedRun, replay: OpenLoopReplay, n: int = TO
         if name in old:
             spread = np.sqrt(spread ** 2 + np.interp(t, *old[name]) ** 2)
         new[name] = (t, spread)
-    prep.replay_unc = {**old, **new}
     # the parameters are one set for the whole robot, so the error they cause is systematic: the
     # spread of each draw's mean residual is a bias the nominal model allows (``bias_test``)
-    prep.tolerance_draw_means = {name: [float(np.mean(a)) for a in v]
-                                 for name, v in acc.items() if all(a.size for a in v)}
-    prep.tolerance_bias = {name: float(np.std(m)) for name, m in prep.tolerance_draw_means.items()}
-    return n
+    draw_means = {name: [float(np.mean(a)) for a in v]
+                  for name, v in acc.items() if all(a.size for a in v)}
+    return ToleranceUncertainty({**old, **new},
+                                {name: float(np.std(m)) for name, m in draw_means.items()},
+                                draw_means)

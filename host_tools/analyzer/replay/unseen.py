@@ -2,6 +2,7 @@
 fill refined with the controller's pattern, and the replay's uncertainty from them."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import TYPE_CHECKING, Mapping, cast
 
@@ -54,7 +55,8 @@ def _replay_tick_shift(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray], k: n
     return best_s if best < TICK_SHIFT_GAIN * err0 else 0
 
 
-def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray]) -> int:
+def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray]
+                                ) -> tuple[PreparedRun, int]:
     """Refine the commands of the ticks no frame reported (a loop faster than the telemetry,
     lost frames) with the pattern of the controller that produced them.
 
@@ -67,23 +69,24 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
     (``cl_sim``, per tick) has the staircase: its unreported ticks' offset from its own line
     through the reported ticks, averaged over the UNSEEN_PATTERN_HALF unreported ticks on
     either side (tick-level differences come from single encoder counts, which no replay
-    reproduces), is added to the fill.  The reported ticks stay as recorded.  Returns the
-    number of ticks changed."""
+    reproduces), is added to the fill.  The reported ticks stay as recorded.  Returns (the
+    prepared run with the refined commands, a new value: ``prep`` is left as it is; the
+    number of ticks changed, 0: ``prep`` itself)."""
     seen = prep.seen_ticks
     ts = np.asarray(cl_sim.get("t_s", np.zeros(0)), float)
     if seen is None or ts.size < 3 or bool(np.all(seen)):
-        return 0
+        return prep, 0
     T = float(ts[1] - ts[0])
     period = float(prep.inner_period or 0.0)
     if T <= 0 or abs(T - period) > 1e-6 * max(period, 1e-9):
-        return 0
+        return prep, 0
     k = np.round((prep.t_in - ts[0]) / T).astype(np.int64)
     k = k + _replay_tick_shift(prep, cl_sim, k, np.asarray(seen, bool))
     inside = (k >= 0) & (k < ts.size)
     k_seen = k[seen & inside]
     unseen = np.flatnonzero(~seen & inside)
     if k_seen.size < 2 or unseen.size == 0:
-        return 0
+        return prep, 0
 
     def pattern(u: np.ndarray) -> tuple[np.ndarray, float]:
         off = u[k[unseen]] - np.interp(k[unseen], k_seen, u[k_seen])
@@ -116,17 +119,21 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
             hi = np.maximum(out[prev_i], out[next_i]) + UNSEEN_BRACKET_SIGMA * sigma
             out[unseen] = np.clip(out[unseen] + off, lo, hi)
         return cast(np.ndarray, out)
-    prep.duty = (refined(prep.duty[0], "pwm_r"), refined(prep.duty[1], "pwm_l"))
+    duty = (refined(prep.duty[0], "pwm_r"), refined(prep.duty[1], "pwm_l"))
+    torque = prep.torque
     if prep.t_in_tau.size == prep.t_in.size and np.array_equal(prep.t_in_tau, prep.t_in):
-        prep.torque = (refined(prep.torque[0], "tau_cmd_r"), refined(prep.torque[1], "tau_cmd_l"))
-    return int(unseen.size)
+        torque = (refined(prep.torque[0], "tau_cmd_r"), refined(prep.torque[1], "tau_cmd_l"))
+    return dataclasses.replace(prep, duty=duty, torque=torque), int(unseen.size)
 
 
 UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from their uncertainty
 
 
+ReplayUnc = dict[str, tuple[np.ndarray, np.ndarray]]  # channel -> (t, std) (PreparedRun.replay_unc)
+
+
 def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
-                      n: int = UNSEEN_ENSEMBLE) -> int:
+                      n: int = UNSEEN_ENSEMBLE) -> ReplayUnc | None:
     """The replay's uncertainty from the commands no frame reported (a loop faster than the
     telemetry, lost frames), per channel and sample: the spread of ``n`` replays whose unseen
     ticks' duties are drawn from what the reported ones allow.
@@ -143,18 +150,19 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     / sqrt(1.5): the fill's own error for white scatter), drawn per tick.  The replay turns the
     draws into the output errors they cause, large
     where the output is sensitive to the input (a slipping wheel, a step) and small elsewhere.
-    Stored in ``replay_unc`` (channel -> (t, std over the draws)) and attached to the
-    channels by :func:`channels`; decisions compare residuals with the noise floor and this
-    uncertainty in quadrature (:meth:`Channel.deflated`).  Draws are seeded by the run's
-    content, so an analysis is repeatable.  Returns the number of unseen ticks (0: no draw)."""
+    Returns it as channel -> (t, std over the draws), or None when no tick is unseen (no
+    draw); the pipeline puts it in the run's ``replay_unc``, which :func:`channels` attaches
+    to the channels; decisions compare residuals with the noise floor and this uncertainty in
+    quadrature (:meth:`Channel.deflated`).  Draws are seeded by the run's content, so an
+    analysis is repeatable.  ``prep`` is left as it is."""
     seen = prep.seen_ticks
     if seen is None:
-        return 0
+        return None
     seen = np.asarray(seen, bool)
     i_seen = np.flatnonzero(seen)
     unseen = np.flatnonzero(~seen)
     if unseen.size == 0 or i_seen.size < 3 or n < 2:
-        return 0
+        return None
     j = np.searchsorted(i_seen, unseen)
     a, b = np.clip(j - 1, 0, i_seen.size - 1), np.clip(j, 0, i_seen.size - 1)
     ts, tk = np.asarray(prep.t_in, float)[i_seen], np.asarray(prep.t_in, float)[unseen]
@@ -179,21 +187,16 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     base = cast("tuple[np.ndarray, np.ndarray]", tuple(np.asarray(u, float) for u in prep.duty))
     acc: dict[str, list[np.ndarray]] = {}
     t_of: dict[str, np.ndarray] = {}
-    try:
-        for _ in range(n):
-            draw = []
-            for u, w, bd in zip(base, white, bend):
-                v = u.copy()
-                z = rng.standard_normal(int(gap[-1]) + 1)
-                v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
-                draw.append(np.clip(v, -1.0, 1.0))
-            prep.duty = cast("tuple[np.ndarray, np.ndarray]", tuple(draw))
-            for name, ch in channels(prep, replay.simulate_windows(prep, {}), "duty").items():
-                acc.setdefault(name, []).append(ch.resid)
-                t_of[name] = ch.t
-    finally:
-        prep.duty = base
-    prep.replay_unc = {name: (t_of[name], np.std(np.array(v), axis=0))
-                                 for name, v in acc.items()
-                                 if len({a.size for a in v}) == 1 and t_of[name].size}
-    return int(unseen.size)
+    for _ in range(n):
+        draw = []
+        for u, w, bd in zip(base, white, bend):
+            v = u.copy()
+            z = rng.standard_normal(int(gap[-1]) + 1)
+            v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
+            draw.append(np.clip(v, -1.0, 1.0))
+        drawn = dataclasses.replace(prep, duty=cast("tuple[np.ndarray, np.ndarray]", tuple(draw)))
+        for name, ch in channels(drawn, replay.simulate_windows(drawn, {}), "duty").items():
+            acc.setdefault(name, []).append(ch.resid)
+            t_of[name] = ch.t
+    return {name: (t_of[name], np.std(np.array(v), axis=0)) for name, v in acc.items()
+            if len({a.size for a in v}) == 1 and t_of[name].size}

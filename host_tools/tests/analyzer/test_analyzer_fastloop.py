@@ -4,6 +4,8 @@ speeds (a cubic through the counts), fills the unreported ticks with the closed-
 pattern, and compares the camera against the count-anchored pose (docs/analyzer.md)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -89,7 +91,10 @@ def test_unreported_ticks_filled_closer_to_the_commands_given(arc_run):
         return _rms(out)
     line = bias()
     cl = CL.ClosedLoopReplay().simulate(prep, {})
-    n = UN.fill_unseen_from_controller(prep, cl)
+    line_fill = prep
+    prep, n = UN.fill_unseen_from_controller(prep, cl)
+    # a new prepared run: the given one keeps the line's fill
+    assert prep is not line_fill and not np.array_equal(line_fill.duty[0], prep.duty[0])
     in_cl = (prep.t_in >= cl["t_s"][0] - 1e-9) & (prep.t_in <= cl["t_s"][-1] + 1e-9)
     assert n == int((~seen & in_cl).sum()) > 0.4 * seen.size
     assert np.array_equal(prep.duty[0][seen], given[0][seen])
@@ -103,7 +108,7 @@ def test_count_anchored_pose_only_for_unreported_inputs(tmp_path, arc_run):
                                          seed=31))
     assert not PI.prepare_timed(normal).count_anchored_pose
     duty = OL.OpenLoopReplay("duty")
-    UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
+    prep, _ = UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
     # a fill biased by 0.01 of duty on one wheel (what a wrong guess of the unreported
     # commands does): the replayed wheels drift, and with them the open-loop pose
     seen = prep.seen_ticks
@@ -125,7 +130,7 @@ def test_a_geometry_effect_stays_visible_in_the_anchored_pose(tmp_path):
     run = load_run(truth.simulate_run(tmp_path / "r", ARC, {"wheel_radius": {"r_eff": 0.0376}},
                                       clamp=True, duration_s=2.0, seed=32, recorder=LOOP10))
     prep = PI.prepare_timed(run)
-    UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
+    prep, _ = UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
     duty = OL.OpenLoopReplay("duty")
     nom = CH.channels(prep, duty.simulate_windows(prep, {}), "duty")
     eff = CH.channels(prep, duty.simulate_windows(prep, {"wheel_radius": {"r_eff": 0.0376}}),
@@ -146,9 +151,11 @@ def _fill_error_and_uncertainty(run, channels=("omega_r", "omega_l")):
     """Per channel: (sample times, the replay's error from the filled commands against the
     true ones, the replay uncertainty input_uncertainty gives for it)."""
     prep = PI.prepare_timed(run)
-    UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
+    prep, _ = UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
     duty = OL.OpenLoopReplay("duty")
-    assert UN.input_uncertainty(prep, duty) > 0
+    unc = UN.input_uncertainty(prep, duty)
+    assert unc and prep.replay_unc is None   # returned, the prepared run left as it is
+    prep = dataclasses.replace(prep, replay_unc=unc)
     filled = CH.channels(prep, duty.simulate_windows(prep, {}), "duty")
     base = prep.duty
     prep.duty = _true_commands(prep, run)
@@ -187,7 +194,7 @@ def test_no_replay_uncertainty_when_every_tick_is_reported(tmp_path):
     run = load_run(truth.simulate_run(tmp_path / "fw", ARC, None, clamp=True, duration_s=1.5,
                                       seed=33))
     prep = PI.prepare_timed(run)
-    assert UN.input_uncertainty(prep, OL.OpenLoopReplay("duty")) == 0
+    assert UN.input_uncertainty(prep, OL.OpenLoopReplay("duty")) is None
     chans = CH.channels(prep, OL.OpenLoopReplay("duty").simulate_windows(prep, {}), "duty")
     assert all(ch.unc is None for ch in chans.values())
     ch = chans["omega_r"]
@@ -208,7 +215,7 @@ def test_unreported_commands_stay_within_their_bracket(arc_run):
     cl = dict(cl)
     cl["pwm_r"] = np.asarray(cl["pwm_r"], float).copy()
     cl["pwm_r"][j] += 0.1
-    UN.fill_unseen_from_controller(prep, cl)
+    prep, _ = UN.fill_unseen_from_controller(prep, cl)
     lo = min(prep.duty[0][k - 1], prep.duty[0][k + 1])
     hi = max(prep.duty[0][k - 1], prep.duty[0][k + 1])
     assert lo - 0.02 <= prep.duty[0][k] <= hi + 0.02, (lo, prep.duty[0][k], hi)
@@ -262,7 +269,7 @@ def test_anchored_heading_has_no_wrap_spikes_across_pi(tmp_path):
         seed=31, recorder=dict(LOOP10, heading_gt="wrapped", heading_tel="wrapped")))
     prep = PI.prepare_timed(run)
     assert prep.count_anchored_pose and len(prep.windows) == 1
-    UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
+    prep, _ = UN.fill_unseen_from_controller(prep, CL.ClosedLoopReplay().simulate(prep, {}))
     sims = OL.OpenLoopReplay("duty").simulate_windows(prep, {})
     _, sim = next(iter(sims))
     assert np.ptp(sim["phi_rad"]) > 1.5 * np.pi

@@ -185,15 +185,15 @@ def _detect(paths, with_tolerance: bool, monkeypatch):
     quiet = lambda m: None  # noqa: E731
     with monkeypatch.context() as mp:
         if not with_tolerance:
-            mp.setattr(P, "tolerance_uncertainty", lambda *a, **k: 0)
+            mp.setattr(P, "tolerance_uncertainty", lambda *a, **k: None)
         runs = P._load_runs(paths, quiet)
         vocab, _ = P._vocabulary(None)
         notes: list[str] = []
         duty, torque = P.OpenLoopReplay("duty"), P.OpenLoopReplay("torque")
         preps = P._prepare(runs, quiet)
-        cl = P._replay_closed_loop(preps, 5e-4, notes, quiet)
-        nom, nomt = P._replay_nominal(preps, duty, torque)
-        loc = locate_mismatch(preps, nom, nomt, cl.nominal, quiet)
+        preps, cl = P._replay_closed_loop(preps, 5e-4, notes, quiet)
+        preps, nom, nomt = P._replay_nominal(preps, duty, torque)
+        preps, nom, loc = locate_mismatch(preps, nom, nomt, cl.nominal, quiet)
         return detect_mismatch(preps, nom, loc, vocab, 5e-4, notes, quiet).mismatch_seen
 
 
@@ -263,7 +263,7 @@ def test_a_slip_in_a_windowed_replay_is_no_evidence():
     from types import SimpleNamespace
 
     from host_tools.analyzer.locate import SLIP_UNC, UNPINNED_UNC, unpinned_episodes
-    from host_tools.analyzer.prepare.run import BURN_IN_S
+    from host_tools.analyzer.prepare.run import BURN_IN_S, PreparedRun
     t = np.arange(0.0, 8.0, 0.02)
     seg = (t >= 4.0).astype(int)                  # two replay windows, the edge at 4 s
 
@@ -278,25 +278,35 @@ def test_a_slip_in_a_windowed_replay_is_no_evidence():
         return out
     floors = {c: 1.0 for c in FIT}
     ep = (1.0, 2.5)
-    nothing = SimpleNamespace(slip_episodes=[], replay_unc=None)
+    def prep_of(episodes: list) -> PreparedRun:
+        none = (np.zeros(0), np.zeros(0))
+        return PreparedRun(SimpleNamespace(), t, t, none, none, t, {}, {}, (0.0, 0.0, 0.0), 1,
+                           slip_episodes=episodes)
+    nothing = prep_of([])
     quiet = chans(3.0)
-    assert unpinned_episodes([nothing], [quiet], floors) == [[]]
-    assert all(np.all(ch.unc <= 3.0) for ch in quiet.values()) and nothing.replay_unc is None
-    prep = SimpleNamespace(slip_episodes=[ep], replay_unc=None)
-    pinned = chans(0.8)
-    assert unpinned_episodes([prep], [pinned], floors) == [[]]
+    got = unpinned_episodes([nothing], [quiet], floors)
+    assert got.episodes == [[]]
+    assert all(np.all(ch.unc <= 3.0) for ch in got.nominal[0].values())
+    assert got.preps[0].replay_unc is None
+    prep = prep_of([ep])
+    given = chans(0.8)
+    got = unpinned_episodes([prep], [given], floors)
+    assert got.episodes == [[]]
+    pinned = got.nominal[0]
+    # new values: the given channels and run are left as they are
+    assert all(np.all(ch.unc <= 3.0) for ch in given.values()) and prep.replay_unc is None
     off = {c: pinned[c].unc >= UNPINNED_UNC for c in FIT}
     assert np.array_equal(off["x_m"], (t >= ep[0]) & (t < 4.0))       # to the window's end
     # the wheels within the episode: no evidence on their own, their difference kept
     assert not np.any(pinned["omega_r"].unc >= UNPINNED_UNC)
     assert np.array_equal(pinned["omega_r"].unc >= SLIP_UNC, (t >= ep[0]) & (t <= ep[1]))
-    prep = SimpleNamespace(slip_episodes=[ep], replay_unc=None)
-    loose = chans(3.0)
-    got = unpinned_episodes([prep], [loose], floors)
-    assert got[0] and abs(got[0][0][0] - 1.52) < 0.011 and got[0][0][1] == ep[1]
+    got = unpinned_episodes([prep_of([ep])], [chans(3.0)], floors)
+    loose, prep = got.nominal[0], got.preps[0]
+    assert got.episodes[0] and abs(got.episodes[0][0][0] - 1.52) < 0.011
+    assert got.episodes[0][0][1] == ep[1]
     off = {c: loose[c].unc >= UNPINNED_UNC for c in FIT}
     assert np.array_equal(off["x_m"], (t >= ep[0]) & (t < 4.0))
-    onset = got[0][0][0]
+    onset = got.episodes[0][0][0]
     assert np.array_equal(off["current_l_a"], (t >= onset) & (t <= ep[1] + BURN_IN_S))
     assert np.array_equal(loose["current_l_a"].unc >= SLIP_UNC,
                           (t >= ep[0]) & (t <= ep[1] + BURN_IN_S))

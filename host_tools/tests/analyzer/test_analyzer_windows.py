@@ -2,6 +2,8 @@
 recorder's odometry schedule found from the recording, and the fit on informative windows."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from _native_skip import needs_native
@@ -144,7 +146,8 @@ def test_window_edges_leave_the_slip_of_a_reversal(tmp_path, monkeypatch):
     rp = OL.OpenLoopReplay("duty")
     rms = lambda ch: max(float(np.sqrt(np.mean(ch[c].resid ** 2)))  # noqa: E731
                          for c in ("x_m", "y_m"))
-    AN.note_slip_episodes(prep, rp.simulate_windows(prep, {}))
+    prep = dataclasses.replace(prep, slip_episodes=AN.slip_episodes_of(
+        rp.simulate_windows(prep, {})))
     t = prep.run.telemetry["t_s"]
     inside = lambda: [w for w, (i_a, _) in enumerate(prep.windows)  # noqa: E731
                       if w and any(a < t[i_a] and b > t[i_a] - PR.BURN_IN_S
@@ -153,7 +156,10 @@ def test_window_edges_leave_the_slip_of_a_reversal(tmp_path, monkeypatch):
     fixed = rms(CH.channels(prep, rp.simulate_windows(prep, {})))
     assert fixed > 0.02                # centimetres off the camera (1 mm noise)
     prep.anchor_cache.clear()
-    assert AN.edges_outside_slip(prep, rp) == 2
+    given = prep
+    prep, moved = AN.edges_outside_slip(prep, rp)
+    assert moved == 2
+    assert len(given.windows) == 3 and inside() == []   # a new prepared run, the given one kept
     # (and a cut after the launch's slip, 0.1-0.65 s: four windows)
     assert len(prep.windows) == 4 and inside() == []
     assert rms(CH.channels(prep, rp.simulate_windows(prep, {}))) < 1.5e-3
@@ -168,7 +174,7 @@ def test_a_window_is_cut_after_a_slip(tmp_path, monkeypatch):
     prep = PI.prepare_timed(load_run(path))
     assert len(prep.windows) == 3
     rp = OL.OpenLoopReplay("duty")
-    AN.edges_outside_slip(prep, rp)
+    prep, _ = AN.edges_outside_slip(prep, rp)
     t = prep.run.telemetry["t_s"]
     mid = [(a, b) for a, b in prep.slip_episodes if 1.5 < a < 2.5]
     assert mid
@@ -210,9 +216,10 @@ def test_no_window_edge_is_left_in_a_slip():
                 if any(ea < t[a] and eb > t[a] - 0.5 for ea, eb in prep.slip_episodes)]
 
     i4, i10 = int(np.searchsorted(t, 4.0)), int(np.searchsorted(t, 10.0))
-    prep = SimpleNamespace(run=SimpleNamespace(telemetry={"t_s": t}), slip_episodes=[],
-                           windows=[(0, i4), (i4, i10), (i10, t.size)], anchor_cache={})
-    AN.edges_outside_slip(prep, Replay())
+    nothing = (np.zeros(0), np.zeros(0))
+    prep = PR.PreparedRun(SimpleNamespace(telemetry={"t_s": t}), t, t, nothing, nothing, t, {},
+                          {}, (0.0, 0.0, 0.0), 1, windows=[(0, i4), (i4, i10), (i10, t.size)])
+    prep, _ = AN.edges_outside_slip(prep, Replay())
     assert edge_in_slip(prep) == []
     assert [round(float(t[a]), 3) for a, _ in prep.windows] == [0.0, 10.0]
     assert prep.windows[-1][1] == t.size
