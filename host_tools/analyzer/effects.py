@@ -1,6 +1,7 @@
 """What the analyzer needs to know about each vocabulary effect in order to *fit* it:
 the neutral value (effect off) for a run's nominal parameters, search bounds, the
-smallest size worth reporting, and which measurement separates confusable effects.
+nominal model's own tolerance of that neutral value (params.json ``tol``: a fitted deviation
+within it is not evidence of the effect), and which measurement separates confusable effects.
 
 The physics of the effects is not here: it lives in lib/slipmodel and is reached
 through host_tools._native.  Effects the plant knows but this table does not get
@@ -11,6 +12,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
+from host_tools import params as _params
+
 
 @dataclass(frozen=True)
 class ParamSpec:
@@ -18,7 +21,12 @@ class ParamSpec:
     neutral: Callable[[Mapping[str, Any]], float]  # meta -> neutral value
     lo: Callable[[Mapping[str, Any]], float]
     hi: Callable[[Mapping[str, Any]], float]
-    floor: Callable[[Mapping[str, Any]], float]  # smallest |value - neutral| worth reporting
+    # the tolerance of the neutral value: where the neutral value is a nominal robot parameter,
+    # its params.json ``tol`` (the parameters the replay's tolerance ensemble draws, group
+    # ``robot``); 0 where params.json gives none (effect off = 0 or 1: the size is then judged by
+    # the fit's own uncertainty and the output change alone); None for a shape parameter, whose
+    # size and stability are judged through its partner
+    tol: Callable[[Mapping[str, Any]], float] | None
     unit: str = ""
     # A fitted coordinate that is not itself a vocabulary parameter: (vocabulary parameter it
     # sets, function of the effect's fitted coordinates).  Used to fit inside the physically
@@ -56,67 +64,82 @@ def _motor(key: str, scale: float = 1.0) -> Callable[[Mapping[str, Any]], float]
     return lambda meta: scale * float(meta["motor"][key])
 
 
+def _tol(key: str) -> Callable[[Mapping[str, Any]], float]:
+    """params.json's tolerance of the robot parameter ``key``."""
+    return lambda meta: float(_params.TOLERANCES[("robot", key)])
+
+
+def _ratio_tol(meta: Mapping[str, Any]) -> float:
+    """Tolerance of mu_k / mu_s from those of mu_k and mu_s (first-order propagation)."""
+    mu_s, mu_k = float(meta["robot"]["mu_s"]), float(meta["robot"]["mu_k"])
+    return (mu_k / mu_s) * math.hypot(_tol("mu_k")(meta) / mu_k, _tol("mu_s")(meta) / mu_s)
+
+
+_NO_TOL = _c(0.0)
+
+
 P = ParamSpec
 SPECS: dict[str, EffectSpec] = {s.name: s for s in [
     # mu_k is fitted as a fraction of mu_s in [0.5, 1]: kinetic friction never exceeds static
     EffectSpec("friction_coefficient", (
-        P("mu_s", _robot("mu_s"), _c(0.03), _c(1.2), _robot("mu_s", 0.05),
+        P("mu_s", _robot("mu_s"), _c(0.03), _c(1.2), _tol("mu_s"),
           given=("mu_k", "mu_k_over_mu_s", lambda mu_s, mu_k: mu_k / mu_s,
                  lambda mu_k, meta: (mu_k, min(mu_k / 0.5, 1.2)))),
         P("mu_k_over_mu_s", lambda m: float(m["robot"]["mu_k"]) / float(m["robot"]["mu_s"]),
-          _c(0.5), _c(1.0), _c(0.05),
+          _c(0.5), _c(1.0), _ratio_tol,
           sets=("mu_k", lambda d: d["mu_k_over_mu_s"] * d["mu_s"]))),
         "wheels spin up (slip) at a different torque; distance lost in slip changes"),
     EffectSpec("wheel_radius", (
-        P("r_eff", _robot("r"), _robot("r", 0.7), _robot("r", 1.3), _robot("r", 0.015), "m"),),
+        P("r_eff", _robot("r"), _robot("r", 0.7), _robot("r", 1.3), _tol("r"), "m"),),
         "ground-truth distance scales against encoder distance"),
     EffectSpec("track_width", (
-        P("b_eff", _robot("b"), _robot("b", 0.7), _robot("b", 1.4), _robot("b", 0.015), "m"),),
+        P("b_eff", _robot("b"), _robot("b", 0.7), _robot("b", 1.4), _tol("b"), "m"),),
         "ground-truth heading change scales against the encoder difference"),
     EffectSpec("motor_back_emf", (
-        P("ke_ratio", _c(1.0), _c(0.5), _c(2.0), _c(0.03)),),
+        P("ke_ratio", _c(1.0), _c(0.5), _c(2.0), _NO_TOL),),
         "torque shortfall growing with wheel speed"),
     EffectSpec("driver_voltage_drop", (
-        P("volts", _c(0.0), _c(0.0), _motor("supply_v", 0.4), _motor("supply_v", 0.015), "V"),),
+        P("volts", _c(0.0), _c(0.0), _motor("supply_v", 0.4), _NO_TOL, "V"),),
         "constant fraction of drive voltage missing"),
     EffectSpec("actuation_delay", (
-        P("delay_s", _c(0.0), _c(0.0), _c(0.1), _c(0.004), "s"),),
+        P("delay_s", _c(0.0), _c(0.0), _c(0.1), _NO_TOL, "s"),),
         "response shifted later in time"),
     EffectSpec("motor_lag", (
-        P("tau_s", _c(0.0), _c(0.0), _c(0.2), _c(0.005), "s"),),
+        P("tau_s", _c(0.0), _c(0.0), _c(0.2), _NO_TOL, "s"),),
         "torque rises slowly after a step of the command"),
     EffectSpec("axle_viscous", (
         # at most half the motor's own speed-torque slope stall_nm / no_load_rad_s
         P("c", _c(0.0), _c(0.0),
           lambda meta: 0.5 / float(meta["motor"]["no_load_rad_s"]) * float(meta["motor"]["stall_nm"]),
-          _c(3e-4), "N m s/rad"),),
+          _NO_TOL, "N m s/rad"),),
         "drag torque proportional to wheel speed"),
     EffectSpec("axle_coulomb", (
-        P("torque", _c(0.0), _c(0.0), _motor("stall_nm", 0.3), _motor("stall_nm", 0.006), "N m"),),
+        P("torque", _c(0.0), _c(0.0), _motor("stall_nm", 0.3), _NO_TOL, "N m"),),
         "constant drag torque while the wheel turns"),
     EffectSpec("caster_drag", (
-        P("mu", _c(0.0), _c(0.0), _c(0.5), _c(0.01)),),
+        P("mu", _c(0.0), _c(0.0), _c(0.5), _NO_TOL),),
         "constant drag force on the body while it moves"),
     EffectSpec("load_transfer", (
-        P("h", _c(0.0), _c(0.0), _c(0.25), _c(0.005), "m"),),
+        P("h", _c(0.0), _c(0.0), _c(0.25), _NO_TOL, "m"),),
         "normal forces shift during acceleration; slip threshold moves"),
     EffectSpec("stribeck", (
         # friction at zero slip speed is capped at mu_s by the plant: above it is unidentifiable
-        P("mu_k0", _robot("mu_k"), _c(0.03), _robot("mu_s"), _robot("mu_k", 0.05)),
-        P("v_s", _c(0.01), _c(0.001), _c(1.0), _c(0.0))),
+        P("mu_k0", _robot("mu_k"), _c(0.03), _robot("mu_s"), _tol("mu_k")),
+        P("v_s", _c(0.01), _c(0.001), _c(1.0), None)),
         "kinetic friction depends on slip speed"),
     EffectSpec("deadband", (
-        P("volts", _c(0.0), _c(0.0), _motor("supply_v", 0.3), _motor("supply_v", 0.01), "V"),),
+        P("volts", _c(0.0), _c(0.0), _motor("supply_v", 0.3), _NO_TOL, "V"),),
         "small duties give no torque"),
     EffectSpec("motor_gain_asymmetry", (
-        P("ratio", _c(1.0), _c(0.6), _c(1.6), _c(0.02)),),
+        P("ratio", _c(1.0), _c(0.6), _c(1.6), _NO_TOL),),
         "one wheel stronger than the other: the robot curves"),
     EffectSpec("floor_slope", (
-        P("rad", _c(0.0), _c(-0.2), _c(0.2), _c(0.004), "rad"),),
+        P("rad", _c(0.0), _c(-0.2), _c(0.2), _NO_TOL, "rad"),),
         "constant along-track gravity force"),
-    # up to the platform's own mass again; worth reporting from 2 % of it
+    # up to the platform's own mass again; extra mass within the tolerance of the platform's own
+    # mass m_r is not told apart from it
     EffectSpec("payload", (
-        P("mass_kg", _c(0.0), _c(0.0), _robot("m_r"), _robot("m_r", 0.02), "kg"),),
+        P("mass_kg", _c(0.0), _c(0.0), _robot("m_r"), _tol("m_r"), "kg"),),
         "extra mass on the chassis: slower accelerations, more normal force and tau_max"),
 ]}
 
@@ -279,7 +302,8 @@ def separator(a: str, b: str) -> str:
 
 def spec_for(name: str, defaults: Mapping[str, float]) -> EffectSpec:
     """The fitting spec of ``name``; an effect the table does not know gets bounds of
-    0.5x..1.5x around a non-zero default (or 0..1 around zero) and a 3 % floor."""
+    0.5x..1.5x around a non-zero default (or 0..1 around zero) and no tolerance (params.json
+    gives none for an effect it does not know)."""
     if name in SPECS:
         return SPECS[name]
     params = []
@@ -287,7 +311,7 @@ def spec_for(name: str, defaults: Mapping[str, float]) -> EffectSpec:
         d = float(d)
         if d != 0:
             lo, hi = sorted((0.5 * d, 1.5 * d))
-            params.append(P(p, _c(d), _c(lo), _c(hi), _c(0.03 * abs(d))))
+            params.append(P(p, _c(d), _c(lo), _c(hi), _NO_TOL))
         else:
-            params.append(P(p, _c(0.0), _c(0.0), _c(1.0), _c(0.01)))
+            params.append(P(p, _c(0.0), _c(0.0), _c(1.0), _NO_TOL))
     return EffectSpec(name, tuple(params), "effect unknown to the analyzer's table")

@@ -156,11 +156,11 @@ def _insignificant_partners(pair: Candidate, problem: Problem) -> list[tuple[str
     """Effects of a pair none of whose fitted parameters is significantly off nominal (|value -
     neutral| within HELDOUT_Z of its 1-sigma uncertainty, one-sided 1 %: the rate of the other
     tests): such a partner only bends the fit, and the pair is refused so its other effect
-    stands alone.  Shape parameters (no floor) and unidentified coordinates do not count."""
+    stands alone.  Shape parameters and unidentified coordinates do not count."""
     params = params_for(pair.effects, problem.meta, problem.vocab)
     best: dict[str, float] = {}
     for j, p in enumerate(params):
-        if (p.floor <= 0 or j >= len(pair.fit.std)
+        if (p.shape or j >= len(pair.fit.std)
                 or f"{p.effect}.{p.name}" in pair.fit.unidentified):
             continue
         sd = pair.fit.std[j]

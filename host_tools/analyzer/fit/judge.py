@@ -167,6 +167,28 @@ HELDOUT_RULE = (f"a channel that measures physics is worse after the update when
 
 BIC_MARGIN = -10.0
 
+# A fitted parameter is off its neutral value (SIZE_RULE) when the deviation exceeds SIZE_Z times
+# the combined standard uncertainty of the fit (its 1-sigma, autocorrelation-corrected) and of the
+# nominal model: params.json's ``tol`` of the neutral value (ParamSpec.tol) is a half-width, the
+# true value lies within value +- tol, uniformly as the replay's tolerance ensemble draws it, so
+# its standard uncertainty is tol / sqrt(3).  A deviation within what the nominal parameter's own
+# tolerance allows is not evidence of the effect.  SIZE_Z is the one-sided 1 % of the other tests
+# (HELDOUT_Z).  Without a tolerance (an effect whose neutral value is no nominal parameter) the
+# deviation must be significant against the fit's uncertainty, and the output change
+# (``min_output``) decides.
+SIZE_Z = HELDOUT_Z
+SIZE_RULE = (f"|value - nominal| > {SIZE_Z} x sqrt(sigma_fit^2 + tol^2 / 3), tol the nominal "
+             f"parameter's params.json tolerance (0 where it has none)")
+
+
+def significant_deviation(dev: float, sigma_fit: float, tol: float, z: float = SIZE_Z) -> bool:
+    """Is a fitted deviation ``dev`` from the neutral value beyond ``z`` times the combined
+    standard uncertainty of the fit (``sigma_fit``; a non-finite one counts as 0: a coordinate
+    whose uncertainty is unknown is judged on the tolerance and the output change) and the
+    nominal model (``tol``, the half-width of a uniform range: tol / sqrt(3))?"""
+    sd = sigma_fit if math.isfinite(sigma_fit) else 0.0
+    return abs(dev) > z * math.hypot(sd, tol / math.sqrt(3.0)) and dev != 0.0
+
 # Adoption asks the held-out data whether the update predicts them better: a paired test of the
 # held-out errors, sample by sample over the fit channels in noise floors (mean of
 # after^2 - before^2 below zero by more than HELDOUT_Z standard errors, one-sided 1 %, the sample
@@ -286,13 +308,14 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
     for j, p in enumerate(params):
         if only is not None and p.effect not in only:
             continue
+        if p.shape:
+            continue  # shape parameter (e.g. v_s): size and stability judged through its partner
         dev = cand.fit.values[j] - p.neutral
-        if p.floor > 0 and abs(dev) >= p.floor:
-            size_ok = True
-        if p.floor <= 0:
-            continue  # shape parameter (e.g. v_s): stability judged through its partner
+        sd = cand.fit.std[j] if j < len(cand.fit.std) else math.nan
+        counts = significant_deviation(dev, sd, p.tol)
+        size_ok = size_ok or counts
         folds = [fv[j] for fv in cand.fold_values]
-        if abs(dev) >= p.floor:
+        if counts:
             if any(np.sign(f - p.neutral) != np.sign(dev) for f in folds):
                 stable = False
                 cand.reasons.append(f"{p.effect}.{p.name}: held-out folds disagree in sign")
@@ -306,7 +329,8 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
                 cand.reasons.append(f"{p.effect}.{p.name}: uncertainty {cand.fit.std[j]:.3g} "
                                     f"> half its size")
     if not size_ok:
-        cand.reasons.append("fitted size below the floor")
+        cand.reasons.append(f"fitted deviation from nominal within {SIZE_Z} x sqrt(sigma_fit^2 + "
+                            f"tol^2 / 3) (tol: params.json tolerance)")
     if cand.output_size < min_output:
         size_ok = False
         cand.reasons.append(f"changes the outputs by only {cand.output_size:.2f} noise floors")

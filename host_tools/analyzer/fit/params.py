@@ -17,7 +17,8 @@ class Param:
     neutral: float
     lo: float
     hi: float
-    floor: float
+    tol: float                  # tolerance of ``neutral`` (ParamSpec.tol); 0 for a shape parameter
+    shape: bool = False         # a shape parameter (ParamSpec.tol None): judged through its partner
     given: tuple[Any, ...] | None = None   # ParamSpec.given
 
     def to_x(self, v: float) -> float:
@@ -36,7 +37,8 @@ def params_for(names: Sequence[str], meta: Mapping[str, Any], vocab: Mapping[str
             if n in vocab and (ps.sets[0] if ps.sets else ps.name) not in vocab[n]:
                 continue
             out.append(Param(n, ps.name, ps.neutral(meta), ps.lo(meta), ps.hi(meta),
-                             ps.floor(meta), ps.given))
+                             ps.tol(meta) if ps.tol is not None else 0.0,
+                             shape=ps.tol is None, given=ps.given))
     return out
 
 

@@ -167,4 +167,4 @@ def test_every_vocabulary_effect_has_a_fitting_spec_with_neutral_inside_bounds()
         assert sorted(p.sets[0] if p.sets else p.name for p in spec.params) == sorted(params)
         for p in spec.params:
             assert p.lo(meta) <= p.neutral(meta) <= p.hi(meta), (name, p.name)
-            assert p.floor(meta) >= 0
+            assert p.tol is None or p.tol(meta) >= 0

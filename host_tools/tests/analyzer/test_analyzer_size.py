@@ -1,0 +1,88 @@
+"""The size test of a fitted effect (judge.SIZE_RULE): a deviation from nominal counts when it
+exceeds SIZE_Z x sqrt(sigma_fit^2 + tol^2 / 3), tol the nominal parameter's params.json tolerance
+(a half-width: the standard uncertainty of a uniform range is tol / sqrt(3))."""
+import math
+from typing import Any
+
+import numpy as np
+
+from host_tools import params as P
+
+
+def _problem(effect: str, params: dict[str, float]) -> Any:
+    from host_tools.runfmt import validate_meta
+
+    class _P:
+        meta = validate_meta({})
+        vocab = {effect: params}
+        floors = {"omega_r": 0.1}
+    return _P()
+
+
+def _judge_radius(r_fit: float, sigma: float) -> Any:
+    from host_tools.analyzer.fit.judge import Candidate, judge
+    from host_tools.analyzer.fit.params import FitResult
+    prob = _problem("wheel_radius", {"r_eff": 0.0365})
+    fit = FitResult(["wheel_radius"], {"wheel_radius": {"r_eff": r_fit}}, [r_fit],
+                    np.array([0.5]), 10.0, 1000, [sigma], 10)
+    rng = np.random.default_rng(3)
+    before = rng.standard_normal(3000) + 0.3
+    after = rng.standard_normal(3000)
+    c = Candidate(["wheel_radius"], fit, -691.0, 1.30, 0.835, {"omega_r": 0.5}, {"omega_r": 0.5},
+                  [[r_fit + sigma], [r_fit - sigma]], 1.0, heldout_pooled=(before, after))
+    judge(prob, c)
+    return c
+
+
+def test_radius_far_beyond_tolerance_but_below_the_old_fixed_floor_is_accepted() -> None:
+    """heldback7's MuJoCo wheel: r 0.31 mm off nominal with sigma 5 um, 6x params.json's tol of
+    r; the fixed floor of 1.5 % of r (0.55 mm) refused it."""
+    r0 = 0.0365
+    c = _judge_radius(r0 - 0.00031, 5e-6)
+    assert 0.00031 < 0.015 * r0                       # below the old fixed floor
+    assert c.checks["size"] and c.checks["stable"], c.reasons
+    assert c.accepted, c.reasons
+
+
+def test_radius_within_the_tolerance_is_refused_however_precise_the_fit() -> None:
+    tol = P.TOLERANCES[("robot", "r")]
+    c = _judge_radius(0.0365 + 0.8 * tol, 1e-7)
+    assert not c.checks["size"]
+    assert any("tol" in r for r in c.reasons), c.reasons
+    # just beyond SIZE_Z x tol / sqrt(3) it counts, just within it not
+    from host_tools.analyzer.fit.judge import SIZE_Z
+    assert _judge_radius(0.0365 + 1.05 * SIZE_Z * tol / math.sqrt(3), 1e-7).checks["size"]
+    assert not _judge_radius(0.0365 + 0.95 * SIZE_Z * tol / math.sqrt(3), 1e-7).checks["size"]
+
+
+def test_significant_deviation_combines_fit_uncertainty_and_tolerance() -> None:
+    from host_tools.analyzer.fit.judge import SIZE_Z, significant_deviation
+    assert SIZE_Z == 2.33
+    assert significant_deviation(3.0, 1.0, 0.0)
+    assert not significant_deviation(2.0, 1.0, 0.0)
+    # sqrt(1 + 3 / 3) * 2.33 = 3.30
+    t = math.sqrt(3.0)
+    assert not significant_deviation(3.2, 1.0, t)
+    assert significant_deviation(3.4, 1.0, t)
+    assert not significant_deviation(-3.2, 1.0, t) and significant_deviation(-3.4, 1.0, t)
+    # unknown fit uncertainty: judged on the tolerance alone (2.33 / sqrt(3) = 1.345 tol)
+    assert significant_deviation(1.4, math.nan, 1.0) and not significant_deviation(1.3, math.inf, 1.0)
+    assert not significant_deviation(0.0, 0.0, 0.0)
+
+
+def test_tolerances_come_from_params_json() -> None:
+    from host_tools.analyzer import effects as fx
+    from host_tools.runfmt import validate_meta
+    meta = validate_meta({})
+    tol = {p.name: p.tol(meta) for s in fx.SPECS.values() for p in s.params if p.tol is not None}
+    assert tol["r_eff"] == P.TOLERANCES[("robot", "r")]
+    assert tol["b_eff"] == P.TOLERANCES[("robot", "b")]
+    assert tol["mu_s"] == P.TOLERANCES[("robot", "mu_s")]
+    assert tol["mu_k0"] == P.TOLERANCES[("robot", "mu_k")]
+    assert tol["mass_kg"] == P.TOLERANCES[("robot", "m_r")]
+    q = meta["robot"]["mu_k"] / meta["robot"]["mu_s"]
+    assert math.isclose(tol["mu_k_over_mu_s"], q * math.hypot(
+        P.TOLERANCES[("robot", "mu_k")] / meta["robot"]["mu_k"],
+        P.TOLERANCES[("robot", "mu_s")] / meta["robot"]["mu_s"]))
+    # neutral values that are no nominal parameter have no tolerance
+    assert tol["ke_ratio"] == 0.0 and tol["delay_s"] == 0.0 and tol["c"] == 0.0
