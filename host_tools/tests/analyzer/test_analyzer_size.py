@@ -8,6 +8,8 @@ import numpy as np
 
 from host_tools import params as P
 
+R0 = P.ROBOT["r"]  # the nominal wheel radius (params.json)
+
 
 def _problem(effect: str, params: dict[str, float]) -> Any:
     from host_tools.runfmt import validate_meta
@@ -22,7 +24,7 @@ def _problem(effect: str, params: dict[str, float]) -> Any:
 def _judge_radius(r_fit: float, sigma: float) -> Any:
     from host_tools.analyzer.fit.judge import Candidate, judge
     from host_tools.analyzer.fit.params import FitResult
-    prob = _problem("wheel_radius", {"r_eff": 0.0365})
+    prob = _problem("wheel_radius", {"r_eff": R0})
     fit = FitResult(["wheel_radius"], {"wheel_radius": {"r_eff": r_fit}}, [r_fit],
                     np.array([0.5]), 10.0, 1000, [sigma], 10)
     rng = np.random.default_rng(3)
@@ -37,7 +39,7 @@ def _judge_radius(r_fit: float, sigma: float) -> Any:
 def test_radius_far_beyond_tolerance_but_below_the_old_fixed_floor_is_accepted() -> None:
     """heldback7's MuJoCo wheel: r 0.31 mm off nominal with sigma 5 um, 6x params.json's tol of
     r; the fixed floor of 1.5 % of r (0.55 mm) refused it."""
-    r0 = 0.0365
+    r0 = R0
     c = _judge_radius(r0 - 0.00031, 5e-6)
     assert 0.00031 < 0.015 * r0                       # below the old fixed floor
     assert c.checks["size"] and c.checks["stable"], c.reasons
@@ -46,13 +48,13 @@ def test_radius_far_beyond_tolerance_but_below_the_old_fixed_floor_is_accepted()
 
 def test_radius_within_the_tolerance_is_refused_however_precise_the_fit() -> None:
     tol = P.TOLERANCES[("robot", "r")]
-    c = _judge_radius(0.0365 + 0.8 * tol, 1e-7)
+    c = _judge_radius(R0 + 0.8 * tol, 1e-7)
     assert not c.checks["size"]
     assert any("tol" in r for r in c.reasons), c.reasons
     # just beyond SIZE_Z x tol / sqrt(3) it counts, just within it not
     from host_tools.analyzer.fit.judge import SIZE_Z
-    assert _judge_radius(0.0365 + 1.05 * SIZE_Z * tol / math.sqrt(3), 1e-7).checks["size"]
-    assert not _judge_radius(0.0365 + 0.95 * SIZE_Z * tol / math.sqrt(3), 1e-7).checks["size"]
+    assert _judge_radius(R0 + 1.05 * SIZE_Z * tol / math.sqrt(3), 1e-7).checks["size"]
+    assert not _judge_radius(R0 + 0.95 * SIZE_Z * tol / math.sqrt(3), 1e-7).checks["size"]
 
 
 def test_significant_deviation_combines_fit_uncertainty_and_tolerance() -> None:
