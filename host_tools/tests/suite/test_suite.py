@@ -146,18 +146,19 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
     assert {c.length for c in hb2} == {"short", "20 s", "2 min", "10 min"}
     assert sum(c.expect == "no_mismatch" for c in hb2) == 8
     with pytest.raises(ValueError, match="set must be one of"):
-        cases.get(which="heldback9")
+        cases.get(which="heldback99")
 
 
 @pytest.mark.parametrize("which, size, n_nulls", [("heldback3", 20, 13), ("heldback4", 28, 18),
                                                     ("heldback5", 25, 16),
                                                     ("heldback6", 24, 11),
                                                     ("heldback7", 28, 12),
-                                                    ("heldback8", 26, 12)])
+                                                    ("heldback8", 26, 12),
+                                                    ("heldback9", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
-             "heldback6", "heldback7", "heldback8"]
+             "heldback6", "heldback7", "heldback8", "heldback9"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -191,6 +192,13 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
         r = cases.NEUTRAL["wheel_radius"]["r_eff"]
         assert any(abs(c.effects[e]["r_eff"] / r - 1) < 0.015 for c in new
                    for e in c.effects if e == "wheel_radius")
+    if which == "heldback9":  # both engines in every kind; asymmetry both ways; 20 s and 60 s
+        for expect in ("no_mismatch", "explained", "unexplained"):
+            assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
+        ratios = {c.effects["motor_gain_asymmetry"]["ratio"] for c in new
+                  if "motor_gain_asymmetry" in c.effects}
+        assert min(ratios) < 1 < max(ratios)
+        assert {c.length for c in new} == {"short", "20 s", "1 min"}
 
 
 def test_mujoco_tuning_group():
@@ -281,6 +289,7 @@ FROZEN_SETS = {
     "heldback6": "da69f94348397603530cf91320d65af3258d127e82544bb879a684479fca8267",
     "heldback7": "66ac3fcebea2c79d7632280fde5aef3685cebb45ecf4137beb0d50e0851dbe2f",
     "heldback8": "9feeefb399f681a4672f5b6156f1e371b9adc7f0a6e459d6f760711476b4bd3a",
+    "heldback9": "ac154af7cefc2a00ec8eda12f5cb92d71fb819169570029b88c3a999875526b8",
 }
 
 
