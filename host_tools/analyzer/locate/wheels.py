@@ -8,7 +8,7 @@ more current in it than the recording.  So the speeds' difference (r - l)/sqrt(2
 currents' difference of the residuals move with opposite signs, each by about 0.3-1 noise
 floor on a 10 % imbalance, and by how much follows the torque the wheels carry: large while
 they accelerate, small at cruise.  The block-mean test of a constant bias
-(``locate.bias_test``) takes that variation for noise (the block means of a 10 % imbalance
+(``bias.bias_test``) takes that variation for noise (the block means of a 10 % imbalance
 correlate at lag 1 by 0.8-0.9, against at most 0.2 on the nulls), so each difference on its
 own stays below its threshold.
 
@@ -16,7 +16,7 @@ The signature of the imbalance is the replay's own response to it: the nominal p
 once more with the vocabulary's per-wheel torque effect (``IMBALANCE_EFFECT``, a gain ratio
 ``IMBALANCE_STEP``) gives, per contrast and sample, the change s that effect makes; the
 residual's contrasts r are regressed on it, r = beta * s + e, by generalized least squares
-over the contrasts' block means (blocks of ``locate.PAIR_BLOCK_S`` within each replay
+over the contrasts' block means (blocks of ``bias.PAIR_BLOCK_S`` within each replay
 window, the covariance of e between the contrasts estimated from the blocks and iterated with
 beta), so the contrasts are combined with their correlation and weighted by what each carries.
 The standard error of beta counts the effective number of blocks (the lag-1 autocorrelation of
@@ -24,15 +24,19 @@ the blocks' score terms, as ``fit.problem.effective_n``) and adds the bias the m
 tolerance allows in the contrasts (the covariance over the tolerance draws of their whole-run
 means, ``tolerance_cov``; one set of parameters for all runs, so it does not average out).
 The test is two-sided at the consistent-bias test's false-alarm rate, counted in its
-Bonferroni share, and also asks the fitted change to move the contrasts by at least
-``locate.BIAS_MIN_FLOORS`` (RMS), the smallest output change an update may make."""
+Bonferroni share, and also asks the fitted imbalance to change the outputs by at least
+``bias.BIAS_MIN_FLOORS``, measured as the adoption measures an update's output change (RMS of
+the change of the fit's residual, ``fit.judge``): a smaller one could never be named."""
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from host_tools.analyzer.locate.bias import (BIAS_ALPHA, BIAS_MIN_FLOORS, PAIR_BLOCK_S, WHEEL_PAIRS,
+                                             pair_name)
+from host_tools.analyzer.locate.episodes import UNPINNED_UNC
 from host_tools.analyzer.replay.channels import Channel
 
 IMBALANCE_EFFECT = "motor_gain_asymmetry"
@@ -57,7 +61,7 @@ def _blocks(t: np.ndarray, seg: np.ndarray, ok: np.ndarray, block_s: float
             ) -> dict[tuple[int, int], np.ndarray]:
     """Sample indices of each block of ``block_s`` within each replay window, keyed (window,
     block) from the window's first sample; a short last block joins the one before it, and a
-    block with fewer than 3 usable samples is left out (``locate._block_means``' rule)."""
+    block with fewer than 3 usable samples is left out (``bias._block_means``' rule)."""
     out: dict[tuple[int, int], np.ndarray] = {}
     for s in np.unique(seg):
         idx = np.nonzero(seg == s)[0]
@@ -80,10 +84,10 @@ def block_contrasts(nominal: Mapping[str, Channel], stepped: Mapping[str, Channe
                     ) -> tuple[list[str], np.ndarray, np.ndarray, float, int]:
     """One run's blocks: (the pairs' names, the residual contrasts' block means R and the
     signature's S, blocks x pairs, NaN where a pair has no such block; the sum of the
-    signature's squares over the samples used and their number, for the output size).  Samples whose replay
-    uncertainty is ``no_evidence`` or more are left out (``locate.unpinned_episodes``); within a
-    slip the difference stays evidence, as in the bias test."""
-    from host_tools.analyzer.locate import pair_name
+    signature's squares over the samples used and their number, for the output size).
+    Samples whose replay
+    uncertainty is ``no_evidence`` or more are left out (``episodes.unpinned_episodes``);
+    within a slip the difference stays evidence, as in the bias test."""
     names: list[str] = []
     per: dict[tuple[int, int], dict[int, tuple[float, float]]] = {}
     ss = 0.0
@@ -120,13 +124,13 @@ def tolerance_cov(prep: Any, floors: Mapping[str, float], pairs: Sequence[tuple[
                   ) -> dict[tuple[str, str], float]:
     """The covariance over the tolerance draws (``prep.tolerance_draw_means``) of the pairs'
     whole-run contrasts (mean_r/floor_r - mean_l/floor_l)/sqrt(2), keyed by pair names."""
-    from host_tools.analyzer.locate import pair_name
     draws = getattr(prep, "tolerance_draw_means", None) or {}
     d: dict[str, np.ndarray] = {}
     for a, b in pairs:
         fa, fb = floors.get(a, 0.0), floors.get(b, 0.0)
         if a in draws and b in draws and fa > 0 and fb > 0 and len(draws[a]) == len(draws[b]) > 1:
-            d[pair_name(a, b)] = (np.asarray(draws[a]) / fa - np.asarray(draws[b]) / fb) / math.sqrt(2)
+            diff = np.asarray(draws[a]) / fa - np.asarray(draws[b]) / fb
+            d[pair_name(a, b)] = diff / math.sqrt(2)
     out = {}
     for p in d:
         for q in d:
@@ -204,24 +208,27 @@ def imbalance_test(nominal: Sequence[Mapping[str, Channel]],
                    min_floors: float | None = None,
                    allowed: Sequence[Mapping[tuple[str, str], float] | None] | None = None,
                    pairs: Sequence[tuple[str, str]] | None = None,
-                   step: float = IMBALANCE_STEP) -> dict[str, Any] | None:
+                   step: float = IMBALANCE_STEP,
+                   output_of: Callable[[float], float] | None = None
+                   ) -> dict[str, Any] | None:
     """The wheels' torque imbalance test (module docstring).  ``nominal``: per run, the nominal
     replay's channels; ``stepped``: per run, the replay with ``IMBALANCE_EFFECT`` at ``step``
     (None: that run is left out); ``n_tests``: the tests sharing the false-alarm rate
-    ``alpha`` (default ``locate.BIAS_ALPHA``) per analysis, this one included; ``allowed``: per
-    run, ``tolerance_cov``.  Returns None without two blocks to test, else the figures:
-    ``ratio`` (the gain ratio the regression puts on the imbalance), ``t``, ``t_threshold``,
-    ``blocks``, ``n_eff`` (blocks corrected for their autocorrelation), ``output_floors`` (RMS
-    change of the contrasts at the fitted beta), ``tolerance_se`` (the standard error the
+    ``alpha`` (default ``BIAS_ALPHA``) per analysis, this one included; ``allowed``: per
+    run, ``tolerance_cov``; ``output_of``: the output change (the adoption's output size,
+    ``fit.judge``) of the imbalance at a given ratio, default |beta| times the contrasts' RMS
+    change at the step.
+    Returns None without two blocks to test, else the figures: ``ratio`` (the gain ratio the
+    regression puts on the imbalance), ``t``, ``t_threshold``, ``blocks``, ``n_eff`` (blocks
+    corrected for their autocorrelation), ``output_floors`` (the output change of the fitted
+    imbalance, ``output_of``), ``tolerance_se`` (the standard error the
     tolerance adds to the ratio), ``correlation`` (of the
     contrasts' block errors), ``contrasts`` and ``significant``."""
     from scipy import stats
-
-    from host_tools.analyzer import locate as L
-    alpha = L.BIAS_ALPHA if alpha is None else alpha
-    min_floors = L.BIAS_MIN_FLOORS if min_floors is None else min_floors
-    pairs = L.WHEEL_PAIRS if pairs is None else pairs
-    names_all = [L.pair_name(a, b) for a, b in pairs]
+    alpha = BIAS_ALPHA if alpha is None else alpha
+    min_floors = BIAS_MIN_FLOORS if min_floors is None else min_floors
+    pairs = WHEEL_PAIRS if pairs is None else pairs
+    names_all = [pair_name(a, b) for a, b in pairs]
     rows_R: list[np.ndarray] = []
     rows_S: list[np.ndarray] = []
     run_of: list[int] = []
@@ -231,8 +238,8 @@ def imbalance_test(nominal: Sequence[Mapping[str, Channel]],
     for i, (nom, stp) in enumerate(zip(nominal, stepped)):
         if stp is None:
             continue
-        names, R, S, s2, cnt = block_contrasts(nom, stp, floors, pairs, L.PAIR_BLOCK_S,
-                                          L.UNPINNED_UNC)
+        names, R, S, s2, cnt = block_contrasts(nom, stp, floors, pairs, PAIR_BLOCK_S,
+                                               UNPINNED_UNC)
         if not names or R.shape[0] == 0:
             continue
         cols = [names_all.index(n) for n in names]
@@ -269,11 +276,16 @@ def imbalance_test(nominal: Sequence[Mapping[str, Channel]],
     se = math.sqrt(inflate / info + var_tol)
     tstat = beta / se if se > 0 else 0.0
     thr = float(stats.t.ppf(1 - alpha / (2 * max(n_tests, 1)), n_eff - 1))
-    # the contrasts' RMS change at the fitted beta, over the samples the blocks hold
-    out_rms = abs(beta) * math.sqrt(ss / max(n_samples, 1)) if n_samples else 0.0
+    # the output change at the fitted beta: by default the contrasts' RMS change over the
+    # samples the blocks hold
+    ratio = 1.0 + (step - 1.0) * beta
+    if output_of is not None:
+        out_rms = output_of(ratio)
+    else:
+        out_rms = abs(beta) * math.sqrt(ss / n_samples) if n_samples else 0.0
     corr = (float(cov[0, 1] / math.sqrt(cov[0, 0] * cov[1, 1])) if cov.shape[0] > 1 else 0.0)
-    return {"ratio": 1.0 + (step - 1.0) * beta, "t": tstat, "t_threshold": thr, "blocks": n,
-            "n_eff": n_eff, "block_s": L.PAIR_BLOCK_S, "output_floors": out_rms,
+    return {"ratio": ratio, "t": tstat, "t_threshold": thr, "blocks": n,
+            "n_eff": n_eff, "block_s": PAIR_BLOCK_S, "output_floors": out_rms,
             "tolerance_se": math.sqrt(var_tol) * (step - 1.0), "correlation": corr,
             "contrasts": [names_all[j] for j in used],
             "significant": bool(abs(tstat) > thr and out_rms >= min_floors)}
@@ -285,7 +297,6 @@ def imbalance_of(problem: Any, nominal: Sequence[Mapping[str, Channel]], n_tests
     every run (all its windows) with ``IMBALANCE_EFFECT`` at ``IMBALANCE_STEP`` (kept in the
     problem's replay cache, where the fits may ask for it again), the tolerance from each
     prepared run's draws.  None when the vocabulary has no such effect."""
-    from host_tools.analyzer.locate import WHEEL_PAIRS
     spec = problem.vocab.get(IMBALANCE_EFFECT)
     if not spec:
         return None
@@ -293,4 +304,16 @@ def imbalance_of(problem: Any, nominal: Sequence[Mapping[str, Channel]], n_tests
     runs = list(range(len(problem.preps)))
     stepped = problem.sim_channels({IMBALANCE_EFFECT: step}, runs, full=True, fit_only=True)
     allowed = [tolerance_cov(p, problem.floors, WHEEL_PAIRS) for p in problem.preps]
-    return imbalance_test(nominal, stepped, problem.floors, n_tests, allowed=allowed)
+    # the output change as the adoption measures it (``fit.judge``: RMS of the change of the
+    # fit's residual on the fitting windows), at the ratio found, so that what is detected can
+    # be adopted
+    name = next(iter(spec))
+    r0 = problem.residual({}, runs)
+
+    def output_of(ratio: float) -> float:
+        if not ratio > 0:
+            return 0.0
+        r1 = problem.residual({IMBALANCE_EFFECT: {name: ratio}}, runs)
+        return float(np.sqrt(np.mean((r1 - r0) ** 2))) if r0.size == r1.size and r0.size else 0.0
+    return imbalance_test(nominal, stepped, problem.floors, n_tests, allowed=allowed,
+                          output_of=output_of)
