@@ -77,8 +77,8 @@ def _block_means(ch: Channel, floor: float, block_s: float = BIAS_BLOCK_S,
 def bias_test(nominal: Sequence[Mapping[str, Channel]], floors: Mapping[str, float],
               channels_: Sequence[str], alpha: float = BIAS_ALPHA,
               min_floors: float = BIAS_MIN_FLOORS,
-              allowed: Sequence[Mapping[str, float] | None] | None = None
-              ) -> dict[str, dict[str, Any]]:
+              allowed: Sequence[Mapping[str, float] | None] | None = None,
+              extra_tests: int = 0) -> dict[str, dict[str, Any]]:
     """Per fit channel: the mean residual over all runs (in noise floors), the number of
     blocks (effective samples), the t statistic of the block means, the threshold for the
     false-alarm rate ``alpha`` per analysis (two-sided, Bonferroni over ``channels_``) and
@@ -87,7 +87,10 @@ def bias_test(nominal: Sequence[Mapping[str, Channel]], floors: Mapping[str, flo
     Bonferroni count includes them).  ``allowed`` (per run,
     channel -> std of the whole-run bias the model's tolerance allows, ``tolerance_bias``)
     joins the standard error: the tolerance is one set of parameters for all runs, so its
-    error does not average out over blocks; it is taken as fully shared by the runs."""
+    error does not average out over blocks; it is taken as fully shared by the runs.
+    ``extra_tests``: further tests of the analysis in the same Bonferroni share (the wheels'
+    torque imbalance, ``wheels.imbalance_test``); each entry gives the share's count
+    (``tests``)."""
     from scipy import stats
     from host_tools.analyzer.replay.channels import Channel
     out: dict[str, dict[str, Any]] = {}
@@ -117,7 +120,7 @@ def bias_test(nominal: Sequence[Mapping[str, Channel]], floors: Mapping[str, flo
             per_run.append((_block_means(d, 1.0, PAIR_BLOCK_S, UNPINNED_UNC),
                             (allowed[i] or {}).get(name, 0.0) if allowed else 0.0))
         tests.append((name, per_run, 1.0, PAIR_BLOCK_S))
-    m = max(len(tests), 1)
+    m = max(len(tests) + extra_tests, 1)
     for c, per_run, f, block_s in tests:
         means = [v for bm, _ in per_run for v in bm]
         n = len(means)
@@ -130,7 +133,7 @@ def bias_test(nominal: Sequence[Mapping[str, Channel]], floors: Mapping[str, flo
         tstat = mu / se if se > 0 else (math.inf if mu != 0 else 0.0)
         thr = float(stats.t.ppf(1 - alpha / (2 * m), n - 1))
         out[c] = {"bias_floors": mu, "blocks": n, "block_s": block_s, "t": tstat,
-                  "t_threshold": thr, "tolerance_floors": sys_,
+                  "t_threshold": thr, "tolerance_floors": sys_, "tests": m,
                   "significant": bool(abs(tstat) > thr and abs(mu) >= min_floors)}
     return out
 

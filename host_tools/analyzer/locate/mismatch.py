@@ -14,6 +14,7 @@ from host_tools.analyzer.fit.problem import Problem
 from host_tools.analyzer.locate.bias import allowed_bias, bias_test
 from host_tools.analyzer.locate.episodes import unpinned_episodes
 from host_tools.analyzer.locate.floors import closed_loop_floors, noise_floors
+from host_tools.analyzer.locate.wheels import imbalance_of
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import CHANNELS, FIT_CHANNELS, Channel
 from host_tools.analyzer.replay.closedloop import CLOSED_LOOP_CHANNELS
@@ -133,6 +134,7 @@ class Detection:
     strong_k: float         # noise floors that make one window a mismatch on its own
     mismatch_seen: bool
     bias: dict[str, dict[str, Any]] | None = None  # channel -> bias_test's figures
+    imbalance: dict[str, Any] | None = None  # wheels.imbalance_test's figures
 
 
 def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Channel]], loc: Located,
@@ -141,7 +143,9 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
     decide whether there is a mismatch at all: a strong window in a fit channel (``strong_k``
     floors, raised with the recording's length so the false-alarm rate per analysis stays
     what it is on 12 s), significant windows with an overall normalized RMS above
-    ``MISMATCH_RMS``, or a consistent bias over many samples (``bias_test``).  The torque
+    ``MISMATCH_RMS``, a consistent bias over many samples (``bias_test``) or the wheels'
+    differences following a per-wheel torque imbalance (``wheels.imbalance_of``, in the bias
+    test's Bonferroni share).  The torque
     replay does not decide; it adds a note on where the mismatch sits (between duty and
     torque, or not)."""
     floors = loc.floors
@@ -159,8 +163,18 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
     strong_k = strong_threshold(total_s)
     strong0 = [e for e in sig_fit if e["rms"] >= strong_k * e["noise_floor"]]
     bias = bias_test(nominal, floors, fit_chans,
-                     allowed=[allowed_bias(p, floors) for p in preps])
+                     allowed=[allowed_bias(p, floors) for p in preps], extra_tests=1)
     biased = [c for c, v in bias.items() if v["significant"]]
+    imb = imbalance_of(problem, nominal, next((v["tests"] for v in bias.values()),
+                                              len(fit_chans) + 1))
+    if imb is not None and imb["significant"]:
+        log(f"wheels' torque imbalance: t {imb['t']:.1f} > {imb['t_threshold']:.1f} "
+            f"({imb['blocks']} blocks), gain ratio {imb['ratio']:.3f}")
+        notes.append("the wheels' speed and current differences follow a per-wheel torque "
+                     f"imbalance: t {imb['t']:.1f} against {imb['t_threshold']:.1f} over "
+                     f"{imb['blocks']} blocks of {imb['block_s']:g} s ({imb['n_eff']:.0f} "
+                     f"effective), a gain ratio of {imb['ratio']:.3f} along the replay's "
+                     f"response, {imb['output_floors']:.2f} noise floors of output")
     if biased:
         log("consistent bias: " + ", ".join(
             f"{c} {bias[c]['bias_floors']:+.2f} floors (t {bias[c]['t']:.1f} > "
@@ -170,7 +184,7 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
                                                f"over {bias[c]['blocks']} blocks of "
                                                f"{bias[c]['block_s']:g} s" for c in biased))
     mismatch_seen = (bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
-                     or bool(biased))
+                     or bool(biased) or bool(imb and imb["significant"]))
     sig_t = [e for e in loc.entries_t if e["channel"] in fit_chans]
     if mismatch_seen and not sig_t:
         notes.append("the torque-driven replay agrees with the recording while the duty-driven "
@@ -181,7 +195,7 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
                      "separately (torque_replay_mismatch), not used to locate or decide")
     log(f"nominal replay: {len(loc.entries)} significant window(s) "
         f"({len(sig_fit)} in fit channels {', '.join(fit_chans)})")
-    return Detection(problem, rss0, nrms0, strong_k, mismatch_seen, bias)
+    return Detection(problem, rss0, nrms0, strong_k, mismatch_seen, bias, imb)
 
 
 def state_table(prep: PreparedRun) -> dict[str, np.ndarray]:
