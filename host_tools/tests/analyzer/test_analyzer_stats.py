@@ -182,18 +182,19 @@ def test_a_pair_partner_whose_parameter_is_insignificant_is_dropped():
 def _detect(paths, with_tolerance: bool, monkeypatch):
     from host_tools.analyzer import pipeline as P
     from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
+    from host_tools.analyzer.prepare.inputs import prepare_runs
+    from host_tools.analyzer.replay import nominal as N
     quiet = lambda m: None  # noqa: E731
     with monkeypatch.context() as mp:
         if not with_tolerance:
-            mp.setattr(P, "tolerance_uncertainty", lambda *a, **k: None)
+            mp.setattr(N, "tolerance_uncertainty", lambda *a, **k: None)
         runs = P._load_runs(paths, quiet)
         vocab, _ = P._vocabulary(None)
         notes: list[str] = []
-        duty, torque = P.OpenLoopReplay("duty"), P.OpenLoopReplay("torque")
-        preps = P._prepare(runs, quiet)
-        preps, cl = P._replay_closed_loop(preps, 5e-4, notes, quiet)
-        preps, nom, nomt = P._replay_nominal(preps, duty, torque)
-        preps, nom, loc = locate_mismatch(preps, nom, nomt, cl.nominal, quiet)
+        preps = prepare_runs(runs, quiet)
+        preps, cl = N.replay_closed_loop(preps, 5e-4, notes, quiet)
+        ol = N.replay_open_loop(preps, 5e-4)
+        preps, nom, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, quiet)
         return detect_mismatch(preps, nom, loc, vocab, 5e-4, notes, quiet).mismatch_seen
 
 
@@ -223,9 +224,10 @@ def test_the_camera_anchor_is_computed_once_per_window_and_slip_state(tmp_path):
     once, recomputed when the slip episodes change."""
     from host_tools.analyzer import pipeline as P
     from host_tools.analyzer import synth
+    from host_tools.analyzer.prepare.inputs import prepare_runs
     from host_tools.analyzer.replay import anchors
     paths = synth.make_case(tmp_path / "c", None, profiles=("turn",), seed=1, duration_s=2.0)
-    prep = P._prepare(P._load_runs(paths, lambda m: None), lambda m: None)[0]
+    prep = prepare_runs(P._load_runs(paths, lambda m: None), lambda m: None)[0]
     calls = []
     real = anchors._gt_anchor_of
 
