@@ -2,6 +2,7 @@
 stage that prepares every run of an analysis (:func:`prepare_runs`)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Callable, Sequence
 
@@ -138,13 +139,10 @@ def prepare_timed(run: Run) -> PreparedRun:
         phase = float((t[0] - 0.5 * period) % period)
         timing = "half a period before the frames (phase not identified)"
         unc = 0.5 * period
-    prep = prepare(run, 0.5, phase)
-    prep.timing = timing
-    prep.phase_uncertainty_s = unc
+    prep = dataclasses.replace(prepare(run, 0.5, phase), timing=timing, phase_uncertainty_s=unc)
     rec = recorder_odometry(prep)
-    prep.recorder_odometry = rec
-    prep.odo_schedule = rec.get("schedule", "ticks")
-    return prep
+    return dataclasses.replace(prep, recorder_odometry=rec,
+                               odo_schedule=rec.get("schedule", "ticks"))
 
 
 def prepare_runs(runs: Sequence[Run], log: Callable[[str], None]) -> list[PreparedRun]:

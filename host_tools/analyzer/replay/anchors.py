@@ -38,15 +38,16 @@ def slip_episodes_of(sims: "WindowSims") -> list[tuple[float, float]]:
 
 
 def _with_slip_episodes(prep: PreparedRun, replay: "OpenLoopReplay") -> PreparedRun:
-    """``prep`` with the slip episodes of its nominal replay in its windows."""
-    return dataclasses.replace(prep, slip_episodes=slip_episodes_of(
-        replay.simulate_windows(prep, {})))
+    """``prep`` with the slip episodes of its nominal replay in its windows (and the camera
+    anchors for them)."""
+    return with_anchors(dataclasses.replace(prep, slip_episodes=slip_episodes_of(
+        replay.simulate_windows(prep, {}))))
 
 
 def _with_windows(prep: PreparedRun, wins: list[list[int]]) -> PreparedRun:
-    """``prep`` with other windows (and an empty camera-anchor cache)."""
-    return dataclasses.replace(prep, windows=[(int(x[0]), int(x[1])) for x in wins],
-                               anchor_cache={})
+    """``prep`` with other windows (and the camera anchors for them)."""
+    return with_anchors(dataclasses.replace(
+        prep, windows=[(int(x[0]), int(x[1])) for x in wins]))
 
 
 MAX_EDGE_MOVES = 6
@@ -185,15 +186,38 @@ ANCHOR_HALF_S = 1.5
 MIN_SPREAD_M = 0.1
 
 
+def _anchor_key(prep: PreparedRun, at: float, half: float
+                ) -> tuple[float, float, tuple[tuple[float, ...], ...]]:
+    return (float(at), float(half), tuple(tuple(e) for e in prep.slip_episodes))
+
+
+def with_anchors(prep: PreparedRun) -> PreparedRun:
+    """``prep`` with the camera anchors of its windows (``PreparedRun.anchors``): at each
+    window's early start (:func:`window_start`) and at its first frame (the camera channels,
+    ``replay.channels``), for the run's slip episodes.  A fit evaluates them for every window
+    at every step (28 % of a 2 x 60 s analysis's time when each was computed there); they read
+    only the recording, the windows and the slip episodes, so they are computed here, whenever
+    those change (``_with_windows``, ``_with_slip_episodes``), and looked up after."""
+    t = prep.run.telemetry["t_s"]
+    found: dict[tuple[float, float, tuple[tuple[float, ...], ...]], dict[str, float] | None] = {}
+    for w, (i_a, _) in enumerate(prep.windows):
+        if w == 0 or i_a == 0:
+            continue
+        for i in (_early_start(t, i_a), i_a):
+            key = _anchor_key(prep, float(t[i]), ANCHOR_HALF_S)
+            if key not in found:
+                found[key] = _gt_anchor_of(prep, float(t[i]), ANCHOR_HALF_S)
+    return dataclasses.replace(prep, anchors=found)
+
+
 def _gt_anchor(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
                ) -> dict[str, float] | None:
-    """:func:`_gt_anchor_of` memoized per run: it reads only the recording and the run's slip
-    episodes, and a fit evaluates it for every window at every step (28 % of a 2 x 60 s
-    analysis's time before).  The returned dict is shared: read it, do not change it."""
-    key = (float(at), float(half), tuple(tuple(e) for e in prep.slip_episodes))
-    if key not in prep.anchor_cache:
-        prep.anchor_cache[key] = _gt_anchor_of(prep, at, half)
-    return prep.anchor_cache[key]
+    """The camera anchor at ``at``: the run's own (:func:`with_anchors`) when it has it, else
+    computed (:func:`_gt_anchor_of`).  The returned dict is shared: read it, do not change it."""
+    key = _anchor_key(prep, at, half)
+    if key in prep.anchors:
+        return prep.anchors[key]
+    return _gt_anchor_of(prep, at, half)
 
 
 def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
@@ -259,6 +283,15 @@ def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
     return out
 
 
+def _early_start(t: np.ndarray, i_a: int) -> int:
+    """The frame a window that begins at frame ``i_a`` starts its replay from: BURN_IN_S
+    earlier, not before a gap."""
+    first = i_a
+    while first > 0 and t[first] - t[first - 1] <= GAP_S and t[i_a] - t[first - 1] <= BURN_IN_S:
+        first -= 1
+    return first
+
+
 def window_start(prep: PreparedRun, w: int,
                  effects: Mapping[str, Mapping[str, float]] | None = None
                  ) -> tuple[float, tuple[float, float, float],
@@ -273,9 +306,7 @@ def window_start(prep: PreparedRun, w: int,
     i_a, _ = prep.windows[w]
     if w == 0 or i_a == 0:
         return float(prep.t_grid[0]), prep.start_pose, None
-    first = i_a
-    while first > 0 and t[first] - t[first - 1] <= GAP_S and t[i_a] - t[first - 1] <= BURN_IN_S:
-        first -= 1
+    first = _early_start(t, i_a)
     k = 2 * np.pi / prep.ppr
     j0, j1 = max(first - 2, 0), min(first + 2, t.size - 1)
     if first > 0 and t[first] - t[first - 1] > GAP_S:

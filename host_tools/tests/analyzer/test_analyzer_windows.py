@@ -155,7 +155,6 @@ def test_window_edges_leave_the_slip_of_a_reversal(tmp_path, monkeypatch):
     assert inside() == [1, 2]          # both edges fall in a reversal's slip
     fixed = rms(CH.channels(prep, rp.simulate_windows(prep, {})))
     assert fixed > 0.02                # centimetres off the camera (1 mm noise)
-    prep.anchor_cache.clear()
     given = prep
     prep, moved = AN.edges_outside_slip(prep, rp)
     assert moved == 2
@@ -217,8 +216,9 @@ def test_no_window_edge_is_left_in_a_slip():
 
     i4, i10 = int(np.searchsorted(t, 4.0)), int(np.searchsorted(t, 10.0))
     nothing = (np.zeros(0), np.zeros(0))
-    prep = PR.PreparedRun(SimpleNamespace(telemetry={"t_s": t}), t, t, nothing, nothing, t, {},
-                          {}, (0.0, 0.0, 0.0), 1, windows=[(0, i4), (i4, i10), (i10, t.size)])
+    prep = PR.PreparedRun(SimpleNamespace(telemetry={"t_s": t}, groundtruth=None), t, t, nothing,
+                          nothing, t, {}, {}, (0.0, 0.0, 0.0), 1,
+                          windows=[(0, i4), (i4, i10), (i10, t.size)])
     prep, _ = AN.edges_outside_slip(prep, Replay())
     assert edge_in_slip(prep) == []
     assert [round(float(t[a]), 3) for a, _ in prep.windows] == [0.0, 10.0]
