@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
 from host_tools.analyzer.prepare.run import PreparedRun
-from host_tools.analyzer.replay.anchors import edges_outside_slip
+from host_tools.analyzer.replay.edges import edges_outside_slip
 from host_tools.analyzer.replay.channels import Channel, channels
 from host_tools.analyzer.replay.closedloop import ClosedLoopReplay, closed_loop_channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
