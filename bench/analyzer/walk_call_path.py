@@ -2,9 +2,10 @@
 ``python bench/analyzer/walk_call_path.py RUN_DIR [RUN_DIR ...]``.
 
 Runs :func:`host_tools.analyzer.pipeline.analyze` on the run folders (one analysis, nothing
-written) under ``sys.setprofile`` and keeps, in call order, every call of a function defined in
-the analyzer package (``host_tools/analyzer``; comprehensions and lambdas belong to the
-function they are in) down to ``--depth`` such calls below ``analyze`` (0: all).  Consecutive
+written, its messages below warnings silenced) under ``sys.setprofile`` and keeps, in call
+order, every call of a function defined in the analyzer package (``host_tools/analyzer``;
+comprehensions and lambdas belong to the function they are in) down to ``--depth`` such calls
+below ``analyze`` (0: all).  Consecutive
 calls within one file are a *stay*; a stay in a file an earlier stay already visited is a
 *return*.  Prints the number of stays, files and returns, each file's visits (stays) and calls
 in the order of its first visit, and the sequence of stays.  A reader who follows the code from
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import sys
 from collections import Counter
@@ -97,11 +99,14 @@ def walk(run_dirs: Sequence[str], depth: int = 2, jobs: int = 2,
         # a forked fitting worker is not walked: it starts without the profiler
         os.register_at_fork(after_in_child=lambda: sys.setprofile(None))
         _CHILD_UNPROFILED.append(True)
+    log_level = pkg.log.level
+    pkg.log.setLevel(logging.WARNING)  # the fits' progress lines too (the package's logger)
     sys.setprofile(profile)
     try:
         analyze(list(run_dirs), jobs=jobs, log=quiet)
     finally:
         sys.setprofile(None)
+        pkg.log.setLevel(log_level)
     out = Walk()
     for f in calls:
         if out.stays and out.stays[-1][0] == f:
