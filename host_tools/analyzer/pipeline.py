@@ -5,6 +5,7 @@ them, select, decide the verdict, and assemble the :class:`Analysis` that ``repo
 writes.  Each stage lives in its own module, in the order :func:`analyze` calls them."""
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from typing import Callable, Sequence
@@ -68,13 +69,13 @@ def _load_runs(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run],
     """Load and validate the run folders.  Several runs must come from one robot
     (``runfmt.check_compatible``): the fits pool them under one set of parameters.  When two
     folders share a base name, the report's run list and the model's sources give full paths,
-    so that the two can be told apart."""
+    so that the two can be told apart (on new values: a loaded run passed in is left as it
+    is)."""
     runs = [runfmt.load_run(p) for p in run_dirs]
     runfmt.check_compatible(runs)
     names_seen = [r.name for r in runs]
     if len(set(names_seen)) != len(names_seen):
-        for r in runs:
-            r.path = os.path.abspath(r.path)
+        runs = [dataclasses.replace(r, path=os.path.abspath(r.path)) for r in runs]
     log(f"loaded {len(runs)} run(s): " + ", ".join(r.name for r in runs))
     return runs
 
