@@ -28,7 +28,9 @@ def analyze(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run], jobs: int =
             log: Callable[[str], None] = stage_log) -> Analysis:
     """Analyze the runs in ``run_dirs`` (one robot): the stages below, in this order.  Each
     stage's docstring says what it decides and why.  ``notes`` collects the report's notes in
-    the order the stages add them."""
+    the order the stages add them.  ``log`` gets each finished stage's message (default: the
+    package's stage line, ``host_tools.analyzer.stage_log``); the fits' progress goes to the
+    package's logger (``host_tools.analyzer.log``), which the logging configuration silences."""
     t_start = time.time()
     runs = _load_runs(run_dirs, log)
     vocab, vocab_fit = _vocabulary(effects)
