@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import time
 from typing import Any, Callable
 
 from host_tools._stdio import STATUS
@@ -146,6 +147,24 @@ def stage(tool: str, line: str, logger: logging.Logger,
     except (OSError, ValueError):
         end_stages(tool)
     logger.info("%s", line)
+
+
+def stamped(tool: str, logger: logging.Logger) -> Callable[[str], None]:
+    """``tool``'s one-line messages where no bar is drawn: STATUS messages of ``logger``,
+    ``[tool HH:MM:SS] line``."""
+    def emit(line: str) -> None:
+        logger.log(STATUS, "[%s %s] %s", tool, time.strftime("%H:%M:%S"), line)
+    return emit
+
+
+def stages(tool: str, logger: logging.Logger) -> Callable[[str], None]:
+    """``tool``'s finished stages as one callable: :func:`stage` with ``logger``, the lines
+    :func:`stamped` where no stage line is drawn."""
+    emit = stamped(tool, logger)
+
+    def log(line: str) -> None:
+        stage(tool, line, logger, emit=emit)
+    return log
 
 
 def end_stages(tool: str) -> None:

@@ -52,7 +52,8 @@ def correlate(t_tel: np.ndarray, x_odo: np.ndarray, y_odo: np.ndarray,
     """Normalised cross-correlation of the speed along the path from odometry with that from
     the tracker, at lags (s, t_board = t_tracker + lag) on a ``dt`` grid: (lags, scores), NaN
     where the two overlap too little."""
-    def speed(t, x, y, what):
+    def speed(t: np.ndarray, x: np.ndarray, y: np.ndarray, what: str
+              ) -> tuple[np.ndarray, np.ndarray]:
         n = (t[-1] - t[0]) / dt
         if not n <= MAX_GRID:  # a clock glitch (one stamp years off) must not allocate TiB
             k = int(np.argmax(np.diff(t)))
@@ -123,7 +124,8 @@ def fit_start(t_tel: np.ndarray, wheel_m: np.ndarray, t_trk: np.ndarray, x_trk: 
     template = PchipInterpolator(t_tel, wheel_m, extrapolate=False)
 
     def wheels(tb: np.ndarray) -> np.ndarray:
-        return np.nan_to_num(template(np.clip(tb, t_tel[0], t_tel[-1])))
+        at: np.ndarray = np.nan_to_num(template(np.clip(tb, t_tel[0], t_tel[-1])))
+        return at
 
     off = guess
     for _ in range(3):
@@ -268,11 +270,11 @@ def describe(info: dict[str, Any]) -> str:
 
 def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = None,
                        max_offset_s: float = 10.0, min_correlation: float = 0.5,
-                       overwrite: bool = False, set_start_pose: bool = False, unix_time: bool = False) -> dict:
+                       overwrite: bool = False, set_start_pose: bool = False, unix_time: bool = False
+                       ) -> dict[str, Any]:
     try:
         run = runfmt.load_run(run_dir, check_units=False)
-        trk = runfmt._read_csv(csv_path, runfmt.GROUNDTRUTH_REQUIRED, may_be_empty=("phi_rad",))
-        runfmt._check_time(trk["t_s"], csv_path)
+        trk = runfmt.read_groundtruth(csv_path)
     except runfmt.RunFormatError as exc:
         raise GroundTruthError(str(exc), 2) from None
     if offset_s is not None and not (math.isfinite(offset_s) and abs(offset_s) <= 1e10):
@@ -350,9 +352,9 @@ def attach_groundtruth(run_dir: str, csv_path: str, offset_s: float | None = Non
         tb = trk["t_s"] + shift
         if not tb[0] <= t0 <= tb[-1]:
             raise GroundTruthError(f"{csv_path}: the tracker does not cover the run start (board time {t0:.3f} s)", 1)
-        ok = np.isfinite(phi) if phi is not None else np.zeros(tb.shape, bool)
-        if ok.sum() < 2:
+        if phi is None or np.isfinite(phi).sum() < 2:
             raise GroundTruthError(f"{csv_path}: --gt-start-pose needs the phi_rad column", 2)
+        ok = np.isfinite(phi)
         ph = np.unwrap(phi[ok])
         start_pose = [float(np.interp(t0, tb, trk["x_m"])), float(np.interp(t0, tb, trk["y_m"])),
                       float(np.interp(t0, tb[ok], ph))]

@@ -65,7 +65,7 @@ def main() -> int:
                     shutil.move(str(out / "groundtruth.csv"), str(out.with_suffix(".truth.csv")))
                     meta = (out / "meta.json").read_text()
                     run = runfmt.load_run(out, check_units=False)
-                    cols = runfmt._read_csv(str(trk), runfmt.GROUNDTRUTH_REQUIRED, may_be_empty=("phi_rad",))
+                    cols = runfmt.read_groundtruth(str(trk))
                     try:
                         info = gt_align.estimate_run_offset(run, cols)
                     except gt_align.GroundTruthError as exc:

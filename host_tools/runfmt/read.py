@@ -183,6 +183,16 @@ def _open_regular(path: str, limit: int = _MAX_FILE_BYTES) -> IO[bytes]:
         raise
 
 
+def read_groundtruth(path: str) -> dict[str, np.ndarray]:
+    """A ground-truth CSV (``groundtruth.csv`` of a run, or a tracker's file in that layout:
+    t_s, x_m, y_m, optional phi_rad that may have empty cells) with strictly increasing time;
+    :class:`RunFormatError` naming the file, row and column otherwise.  No ``phi_rad`` column
+    is added when the file has none."""
+    gt = _read_csv(path, GROUNDTRUTH_REQUIRED, may_be_empty=("phi_rad",))
+    _check_time(gt["t_s"], path)
+    return gt
+
+
 def _read_csv(path: str, required: Iterable[str], may_be_empty: Iterable[str] = ()
               ) -> dict[str, np.ndarray]:
     required = list(required)
@@ -383,8 +393,7 @@ def load_run(path: str | os.PathLike | Run, check_units: bool = True,
     notes: list[str] = []
     gpath = os.path.join(path, "groundtruth.csv")
     if os.path.isfile(gpath):
-        gt = _read_csv(gpath, GROUNDTRUTH_REQUIRED, may_be_empty=("phi_rad",))
-        _check_time(gt["t_s"], gpath)
+        gt = read_groundtruth(gpath)
         if "phi_rad" not in gt:
             gt["phi_rad"] = np.full(gt["t_s"].shape, np.nan)
         if check_units:

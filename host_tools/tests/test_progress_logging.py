@@ -107,8 +107,8 @@ def test_the_library_default_shows_status_without_the_command_line(capsys):
     """A tool used as a library (no setup_logging) still shows its progress and errors."""
     code = textwrap.dedent("""
         import logging
-        from host_tools.analyzer.fit import workers
-        workers.log_stderr("loaded 1 run(s): r")
+        from host_tools.analyzer import stage_log
+        stage_log("loaded 1 run(s): r")
         logging.getLogger("host_tools.timing").error("bad --json")
         logging.getLogger("host_tools.timing").info("a detail")
     """)
@@ -130,25 +130,25 @@ def test_the_tools_messages_are_log_records(caught, tmp_path, monkeypatch):
     assert main(["drive", "--port", "loop://", "--out", str(tmp_path / "d"),
                  "--path", str(tmp_path / "no_path.csv")]) == 2
     assert main(["batch", str(tmp_path / "no_fleet"), "--out", str(tmp_path / "b")]) == 2
-    from host_tools.analyzer.fit import workers
-    workers.log_stderr("loaded 1 run(s): r")
+    from host_tools.analyzer import stage_log
+    stage_log("loaded 1 run(s): r")
     got = {(r.name, r.levelno) for r in caught.records}
     assert {("host_tools.analyzer.cli", logging.ERROR), ("host_tools.timing", logging.ERROR),
             ("host_tools.logger.cli", logging.ERROR),
             ("host_tools.suite", logging.ERROR), ("host_tools.robot", logging.ERROR),
             ("host_tools.batch.cli", logging.ERROR),
-            ("host_tools.analyzer.fit.workers", _stdio.STATUS)} <= got, got
+            ("host_tools.analyzer", _stdio.STATUS)} <= got, got
     bad = next(r for r in caught.records if r.name == "host_tools.analyzer.cli")
     assert bad.getMessage().startswith("bad input: ")
 
 
 def test_fitting_progress_is_a_bar_or_lines(caught):
     """run_tasks's per-candidate lines: STATUS records when no bar is drawn (not a terminal)."""
-    from host_tools.analyzer.fit import workers
-    bar = _progress.Progress(2, "fitting candidates", logger=workers.log, emit=workers._fitted)
+    from host_tools import analyzer
+    bar = _progress.Progress(2, "fitting candidates", logger=analyzer.log, emit=analyzer.lines)
     assert bar.bar is None  # pytest's stderr is not a terminal
     bar.step("candidate 1/2: wheel_radius fitted in 0.5 s")
-    rec = [r for r in caught.records if r.name == "host_tools.analyzer.fit.workers"]
+    rec = [r for r in caught.records if r.name == "host_tools.analyzer"]
     assert [r.levelno for r in rec] == [_stdio.STATUS]
     assert rec[0].getMessage().endswith("] candidate 1/2: wheel_radius fitted in 0.5 s")
 

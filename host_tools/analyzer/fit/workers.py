@@ -2,14 +2,13 @@
 problem."""
 from __future__ import annotations
 
-import logging
 import multiprocessing as mp
 import os
 import time
 from typing import TYPE_CHECKING, Mapping
 
 from host_tools import _progress
-from host_tools._stdio import STATUS
+from host_tools.analyzer import lines, log
 from host_tools.analyzer.fit.judge import Candidate, evaluate_candidate
 from host_tools.analyzer.fit.problem import Problem
 
@@ -20,19 +19,6 @@ if TYPE_CHECKING:
 
     # (effects to fit, start coordinates or None, effects the candidate is compared with)
     FitTask = tuple[list[str], np.ndarray | None, Mapping[str, Mapping[str, float]]]
-
-
-log = logging.getLogger(__name__)
-
-
-def log_stderr(msg: str) -> None:
-    """A stage of the analysis: the stage line on a terminal, else a STATUS message (a closed
-    pipe never ends the analysis: host_tools._stdio)."""
-    _progress.stage("analyze", msg, log, emit=_fitted)
-
-
-def _fitted(msg: str) -> None:
-    log.log(STATUS, "[analyze %s] %s", time.strftime('%H:%M:%S'), msg)
 
 
 _PROBLEM: Problem | None = None
@@ -97,7 +83,7 @@ def run_tasks(problem: Problem, tasks: list[FitTask], jobs: int, label: str) -> 
     here, in this process, one after the other, and the analysis goes on (a message on stderr
     says so) instead of waiting for ever for the dead worker's result."""
     with _progress.Progress(len(tasks), f"fitting {label}s", unit=label, logger=log,
-                            emit=_fitted, leave=False) as bar:
+                            emit=lines, leave=False) as bar:
         return _run_tasks(problem, tasks, jobs, label, bar)
 
 

@@ -21,8 +21,8 @@ from host_tools.analyzer.replay.channels import FIT_CHANNELS, Channel
 # MuJoCo tuning set's 60 s null: 6 camera floors of slip distance where the 8 draws spread by
 # 0.4, and 4-6 floors of current in a slipping reversal where they spread by 0.5).  So:
 # - the pose channels are no evidence from a slip's onset until the replay is re-anchored (the
-#   end of its window; a window is cut after each slip, ``anchors._edges_after_slip``): the pose
-#   integrates the slip's error;
+#   end of its window; a window is cut after each slip, ``replay.edges._edges_after_slip``):
+#   the pose integrates the slip's error;
 # - the wheel-speed and current channels are no evidence within a slip episode, and when the
 #   episode is unpinned — inside it the replay's own uncertainty of a pose channel (the tolerance
 #   ensemble and the input spread, ``Channel.unc``) exceeds that channel's noise floor: the model

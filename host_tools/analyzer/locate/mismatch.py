@@ -99,6 +99,7 @@ def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
     with that uncertainty, which every later stage uses; what was located)."""
     floors = noise_floors(preps, nominal)
     floors_t = noise_floors(preps, nominal_t)
+    cl_floors = closed_loop_floors(cl_nominal)
     log("noise floors: " + ", ".join(f"{c}={v:.3g}" for c, v in sorted(floors.items())))
     unpinned = unpinned_episodes(preps, nominal, floors)
     preps, nominal = unpinned.preps, unpinned.nominal
@@ -114,7 +115,6 @@ def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
     entries, wins = _window_entries(preps, nominal, floors, chan_names, "duty", states, tau_max)
     entries_t, _ = _window_entries(preps, nominal_t, floors_t, chan_names, "torque", states,
                                    tau_max)
-    cl_floors = closed_loop_floors(cl_nominal)
     cl_entries: list[dict[str, Any]] = []
     cl_wins: dict[tuple[int, str], list[sg.Window]] = {}
     if any(cl_nominal):

@@ -29,7 +29,7 @@ half-width of the d range within one residual variance of the minimum."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Sequence, cast
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence, cast
 
 import numpy as np
 
@@ -200,3 +200,29 @@ def command_lag(preps: Sequence[PreparedRun], d_max: float = D_MAX_S, d_step: fl
             "std_s": float(std), "F": float(F), "n": int(n), "n_eff": float(n_eff),
             "significant": significant,
             "grid": "ticks" if all(rl.T > 0 for rl in runs) else "frames"}
+
+
+def select_command_delay(preps: Sequence[PreparedRun], selected: list[dict[str, Any]],
+                         verdict: str, effects: Mapping[str, Mapping[str, float]],
+                         notes: list[str], log: Callable[[str], None]
+                         ) -> tuple[str, dict[str, Mapping[str, float]]]:
+    """The command-to-duty delay (:func:`command_lag`): where the recorded duty (the duty in
+    force) lags the torque command significantly, ``actuation_delay`` is selected with the lag
+    as ``delay_s`` (and its standard error), the updated model gets it, and a note says so.
+    The duty replay, driven by that duty in force, cannot see such a delay, so it is neither
+    fitted there nor added to the replays' effects; a run without the delay's signature leaves
+    the verdict as the replays decided it.  Returns (verdict, the updated model's effects)."""
+    lag = command_lag(preps)
+    if lag is None or not lag["significant"] or "actuation_delay" in effects:
+        return verdict, dict(effects)
+    d, sd = lag["delay_s"], lag["std_s"]
+    log(f"command-to-duty lag: {1e3 * d:.1f} +- {1e3 * sd:.1f} ms (F = {lag['F']:.3g})")
+    notes.append(f"the recorded duty lags the torque command by {1e3 * d:.1f} +- {1e3 * sd:.1f} ms "
+                 f"(F = {lag['F']:.3g} against no lag, {lag['n_eff']:.0f} effective samples): "
+                 "actuation_delay selected from the command-to-duty lag, which the duty replay "
+                 "(driven by the duty in force) cannot see")
+    selected.append({"effect": "actuation_delay", "params": {"delay_s": round(d, 4)},
+                     "std": {"delay_s": round(sd, 4)}, "unidentified": [], "equivalent": [],
+                     "separating_measurement": {}, "from": "command_lag"})
+    return ("explained" if verdict == "no_mismatch" else verdict,
+            {**effects, "actuation_delay": {"delay_s": d}})

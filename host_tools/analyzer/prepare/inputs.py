@@ -1,8 +1,10 @@
-"""The run with its input times reconstructed (:func:`prepare`, :func:`prepare_timed`)."""
+"""The run with its input times reconstructed (:func:`prepare`, :func:`prepare_timed`), and the
+stage that prepares every run of an analysis (:func:`prepare_runs`)."""
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -137,10 +139,19 @@ def prepare_timed(run: Run) -> PreparedRun:
         phase = float((t[0] - 0.5 * period) % period)
         timing = "half a period before the frames (phase not identified)"
         unc = 0.5 * period
-    prep = prepare(run, 0.5, phase)
-    prep.timing = timing
-    prep.phase_uncertainty_s = unc
+    prep = dataclasses.replace(prepare(run, 0.5, phase), timing=timing, phase_uncertainty_s=unc)
     rec = recorder_odometry(prep)
-    prep.recorder_odometry = rec
-    prep.odo_schedule = rec.get("schedule", "ticks")
-    return prep
+    return dataclasses.replace(prep, recorder_odometry=rec,
+                               odo_schedule=rec.get("schedule", "ticks"))
+
+
+def prepare_runs(runs: Sequence[Run], log: Callable[[str], None]) -> list[PreparedRun]:
+    """Input timing and preparation (:func:`prepare_timed`) of every run: when each recorded
+    duty and torque command took effect on the board, the replay grid, and the replay windows.
+    A long run is cut into windows re-anchored to the recording, so that the open-loop
+    replay's errors do not integrate over the whole run."""
+    preps = [prepare_timed(r) for r in runs]
+    n_win = sum(len(p.windows) for p in preps)
+    if n_win > len(preps):
+        log(f"long run(s): replayed in {n_win} windows re-anchored to the recording")
+    return preps

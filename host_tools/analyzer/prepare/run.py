@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -47,8 +47,10 @@ class PreparedRun:
     replay_unc: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
     tolerance_bias: dict[str, float] | None = None  # channel -> whole-run bias the model's tolerance allows
     tolerance_draw_means: dict[str, list[float]] | None = None  # channel -> each tolerance draw's mean residual
-    anchor_cache: dict[tuple[float, float, tuple[tuple[float, ...], ...]],  # replay.anchors.
-                       dict[str, float] | None] = field(default_factory=dict)  # _gt_anchor's
+    # the camera anchors of the windows as they are (replay.anchors.with_anchors): (board time,
+    # half span, slip episodes) -> pose, or None without camera samples there
+    anchors: Mapping[tuple[float, float, tuple[tuple[float, ...], ...]],
+                     dict[str, float] | None] = field(default_factory=dict)
 
     @property
     def name(self) -> str:

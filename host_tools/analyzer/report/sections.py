@@ -15,12 +15,13 @@ from host_tools.analyzer.fit.judge import (HELDOUT_RULE, Candidate, heldout_chan
 from host_tools.analyzer.locate.mismatch import Detection, Located
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import DERIVED, Channel
-from host_tools.analyzer.replay.closedloop import CLOSED_LOOP_CHANNELS
+from host_tools.analyzer.replay.closedloop import CLOSED_LOOP_CHANNELS, closed_loop_channels
+from host_tools.analyzer.replay.nominal import NominalClosedLoop, replay_channels
 from host_tools.analyzer.select import excess, Selection
 from host_tools.analyzer.signals import round_sig
 
 if TYPE_CHECKING:
-    from host_tools.analyzer.pipeline import NominalClosedLoop
+    from host_tools.analyzer.replay.openloop import OpenLoopReplay
 
 
 REPORT_FORMAT = "mismatch-report/1"
@@ -60,6 +61,21 @@ class Analysis:
     cl_updated: list[dict[str, Channel]] = field(default_factory=list)
     recorder: dict[str, Any] = field(default_factory=dict)     # findings about the recorder
     localization: list[dict[str, Any]] = field(default_factory=list)  # where the mismatch is
+
+
+def replay_updated(preps: Sequence[PreparedRun], duty: OpenLoopReplay, cl: NominalClosedLoop,
+                   final_effects: Mapping[str, Mapping[str, float]]
+                   ) -> tuple[list[dict[str, Channel]] | None, list[dict[str, Channel]]]:
+    """The replays with the selected effects that the report compares with the nominal ones:
+    the duty replay (None without an update) and the closed loop (a run without an update, or
+    not replayed, keeps its nominal channels)."""
+    updated = None
+    if final_effects:
+        updated = [replay_channels(p, duty, final_effects) for p in preps]
+    cl_updated = [closed_loop_channels(p, cl.replay.simulate(p, final_effects, cl.setups[i]))
+                  if (final_effects and cl.setups[i] is not None) else cl.nominal[i]
+                  for i, p in enumerate(preps)]
+    return updated, cl_updated
 
 
 def closed_loop_report(cl: NominalClosedLoop, cl_updated: Sequence[Mapping[str, Channel]],

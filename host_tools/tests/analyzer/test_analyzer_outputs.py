@@ -536,3 +536,19 @@ def test_report_json_is_the_same_whatever_the_hash_seed(tmp_path):
         text = (out / "report.json").read_text()
         got.append(re.sub(r'"elapsed_s": [0-9.eE+-]+', '"elapsed_s": 0', text))
     assert got[0] == got[1]
+
+
+def test_runs_that_share_a_folder_name_get_full_paths_and_the_given_runs_are_kept(tmp_path):
+    """Two run folders with one base name are told apart by their full paths in the report;
+    loaded runs passed to the analysis are not changed (a new value is made)."""
+    from host_tools import runfmt
+    from host_tools.analyzer import pipeline as P
+    from host_tools.analyzer import synth
+    given = [runfmt.load_run(synth.make_run(tmp_path / d / "run", "ramp", duration_s=0.5))
+             for d in ("a", "b")]
+    rel = [os.path.relpath(r.path) for r in given]
+    for r, p in zip(given, rel):
+        r.path = p
+    runs = P._load_runs(given, lambda m: None)
+    assert [r.path for r in runs] == [os.path.abspath(p) for p in rel]
+    assert [r.path for r in given] == rel

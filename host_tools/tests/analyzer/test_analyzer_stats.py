@@ -182,18 +182,19 @@ def test_a_pair_partner_whose_parameter_is_insignificant_is_dropped():
 def _detect(paths, with_tolerance: bool, monkeypatch):
     from host_tools.analyzer import pipeline as P
     from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
+    from host_tools.analyzer.prepare.inputs import prepare_runs
+    from host_tools.analyzer.replay import nominal as N
     quiet = lambda m: None  # noqa: E731
     with monkeypatch.context() as mp:
         if not with_tolerance:
-            mp.setattr(P, "tolerance_uncertainty", lambda *a, **k: None)
+            mp.setattr(N, "tolerance_uncertainty", lambda *a, **k: None)
         runs = P._load_runs(paths, quiet)
         vocab, _ = P._vocabulary(None)
         notes: list[str] = []
-        duty, torque = P.OpenLoopReplay("duty"), P.OpenLoopReplay("torque")
-        preps = P._prepare(runs, quiet)
-        preps, cl = P._replay_closed_loop(preps, 5e-4, notes, quiet)
-        preps, nom, nomt = P._replay_nominal(preps, duty, torque)
-        preps, nom, loc = locate_mismatch(preps, nom, nomt, cl.nominal, quiet)
+        preps = prepare_runs(runs, quiet)
+        preps, cl = N.replay_closed_loop(preps, 5e-4, notes, quiet)
+        ol = N.replay_open_loop(preps, 5e-4)
+        preps, nom, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, quiet)
         return detect_mismatch(preps, nom, loc, vocab, 5e-4, notes, quiet).mismatch_seen
 
 
@@ -217,15 +218,22 @@ def test_a_robot_within_its_tolerance_is_a_null_and_one_beyond_it_is_not(tmp_pat
     assert _detect(case(0.008), True, monkeypatch)
 
 
-def test_the_camera_anchor_is_computed_once_per_window_and_slip_state(tmp_path):
+def test_the_camera_anchors_are_computed_once_per_window_and_slip_state(tmp_path):
     """The fits evaluate every window's camera anchor at every step; it reads only the
-    recording and the slip episodes, so it is memoized per run: the same values, computed
-    once, recomputed when the slip episodes change."""
+    recording, the windows and the slip episodes, so a prepared run carries its anchors as a
+    value: computed when its windows or slip episodes are set, looked up after (the same
+    values, not computed again), new ones with new slip episodes, the given run unchanged."""
+    import dataclasses
+
     from host_tools.analyzer import pipeline as P
     from host_tools.analyzer import synth
+    from host_tools.analyzer.prepare.inputs import prepare_runs
     from host_tools.analyzer.replay import anchors
-    paths = synth.make_case(tmp_path / "c", None, profiles=("turn",), seed=1, duration_s=2.0)
-    prep = P._prepare(P._load_runs(paths, lambda m: None), lambda m: None)[0]
+    paths = synth.make_case(tmp_path / "c", None, profiles=("turn",), seed=1, duration_s=9.0)
+    prep = prepare_runs(P._load_runs(paths, lambda m: None), lambda m: None)[0]
+    assert len(prep.windows) > 1 and not prep.anchors
+    t = prep.run.telemetry["t_s"]
+    at = float(t[prep.windows[1][0]])
     calls = []
     real = anchors._gt_anchor_of
 
@@ -234,13 +242,18 @@ def test_the_camera_anchor_is_computed_once_per_window_and_slip_state(tmp_path):
         return real(*a, **k)
     anchors._gt_anchor_of = counted
     try:
-        first = anchors._gt_anchor(prep, 1.0)
-        again = anchors._gt_anchor(prep, 1.0)
-        assert first is again and calls == [1.0]
-        assert first == real(prep, 1.0)
-        prep.slip_episodes = [(0.2, 0.4)]
-        anchors._gt_anchor(prep, 1.0)
-        assert calls == [1.0, 1.0]
+        ready = anchors.with_anchors(prep)
+        n = len(calls)
+        assert n == 2 * (len(prep.windows) - 1) and at in calls and not prep.anchors
+        first = anchors._gt_anchor(ready, at)
+        again = anchors._gt_anchor(ready, at)
+        assert first is again and len(calls) == n
+        assert first == real(prep, at)
+        slipped = anchors.with_anchors(dataclasses.replace(ready, slip_episodes=[(0.2, 0.4)]))
+        assert len(calls) == 2 * n and anchors._gt_anchor(slipped, at) == real(slipped, at)
+        assert ready.slip_episodes == [] and anchors._gt_anchor(ready, at) is first
+        anchors._gt_anchor(prep, at)               # a run without its anchors computes it
+        assert len(calls) == 2 * n + 1
     finally:
         anchors._gt_anchor_of = real
 

@@ -16,6 +16,7 @@ from host_tools.analyzer.prepare import inputs as PI  # noqa: E402
 from host_tools.analyzer.prepare import run as PR  # noqa: E402
 from host_tools.analyzer.replay import anchors as AN  # noqa: E402
 from host_tools.analyzer.replay import channels as CH  # noqa: E402
+from host_tools.analyzer.replay import edges as ED  # noqa: E402
 from host_tools.analyzer.replay import openloop as OL  # noqa: E402
 from host_tools.analyzer import synth  # noqa: E402
 from host_tools.runfmt import load_run  # noqa: E402
@@ -146,7 +147,7 @@ def test_window_edges_leave_the_slip_of_a_reversal(tmp_path, monkeypatch):
     rp = OL.OpenLoopReplay("duty")
     rms = lambda ch: max(float(np.sqrt(np.mean(ch[c].resid ** 2)))  # noqa: E731
                          for c in ("x_m", "y_m"))
-    prep = dataclasses.replace(prep, slip_episodes=AN.slip_episodes_of(
+    prep = dataclasses.replace(prep, slip_episodes=ED.slip_episodes_of(
         rp.simulate_windows(prep, {})))
     t = prep.run.telemetry["t_s"]
     inside = lambda: [w for w, (i_a, _) in enumerate(prep.windows)  # noqa: E731
@@ -155,9 +156,8 @@ def test_window_edges_leave_the_slip_of_a_reversal(tmp_path, monkeypatch):
     assert inside() == [1, 2]          # both edges fall in a reversal's slip
     fixed = rms(CH.channels(prep, rp.simulate_windows(prep, {})))
     assert fixed > 0.02                # centimetres off the camera (1 mm noise)
-    prep.anchor_cache.clear()
     given = prep
-    prep, moved = AN.edges_outside_slip(prep, rp)
+    prep, moved = ED.edges_outside_slip(prep, rp)
     assert moved == 2
     assert len(given.windows) == 3 and inside() == []   # a new prepared run, the given one kept
     # (and a cut after the launch's slip, 0.1-0.65 s: four windows)
@@ -174,7 +174,7 @@ def test_a_window_is_cut_after_a_slip(tmp_path, monkeypatch):
     prep = PI.prepare_timed(load_run(path))
     assert len(prep.windows) == 3
     rp = OL.OpenLoopReplay("duty")
-    prep, _ = AN.edges_outside_slip(prep, rp)
+    prep, _ = ED.edges_outside_slip(prep, rp)
     t = prep.run.telemetry["t_s"]
     mid = [(a, b) for a, b in prep.slip_episodes if 1.5 < a < 2.5]
     assert mid
@@ -217,9 +217,10 @@ def test_no_window_edge_is_left_in_a_slip():
 
     i4, i10 = int(np.searchsorted(t, 4.0)), int(np.searchsorted(t, 10.0))
     nothing = (np.zeros(0), np.zeros(0))
-    prep = PR.PreparedRun(SimpleNamespace(telemetry={"t_s": t}), t, t, nothing, nothing, t, {},
-                          {}, (0.0, 0.0, 0.0), 1, windows=[(0, i4), (i4, i10), (i10, t.size)])
-    prep, _ = AN.edges_outside_slip(prep, Replay())
+    prep = PR.PreparedRun(SimpleNamespace(telemetry={"t_s": t}, groundtruth=None), t, t, nothing,
+                          nothing, t, {}, {}, (0.0, 0.0, 0.0), 1,
+                          windows=[(0, i4), (i4, i10), (i10, t.size)])
+    prep, _ = ED.edges_outside_slip(prep, Replay())
     assert edge_in_slip(prep) == []
     assert [round(float(t[a]), 3) for a, _ in prep.windows] == [0.0, 10.0]
     assert prep.windows[-1][1] == t.size

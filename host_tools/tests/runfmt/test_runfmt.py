@@ -143,6 +143,19 @@ def test_groundtruth_time_and_empty_phi(tmp_path):
         load_run(p)
 
 
+def test_a_trackers_csv_is_read_with_the_groundtruth_rules(tmp_path):
+    """runfmt.read_groundtruth (gt_align's reader of a tracker's file): time must increase
+    (row and column named), and a file without phi_rad gets none."""
+    trk = tmp_path / "tracker.csv"
+    trk.write_text("t_s,x_m,y_m\n0.0,0.0,0.0\n0.1,0.01,0.0\n0.1,0.02,0.0\n")
+    with pytest.raises(RunFormatError, match="time does not increase") as e:
+        runfmt.read_groundtruth(str(trk))
+    assert e.value.row == 3 and e.value.column == "t_s"
+    trk.write_text("t_s,x_m,y_m\n0.0,0.0,0.0\n0.1,0.01,0.0\n")
+    cols = runfmt.read_groundtruth(str(trk))
+    assert sorted(cols) == ["t_s", "x_m", "y_m"] and cols["x_m"][1] == 0.01
+
+
 def test_groundtruth_nan_position_refused(tmp_path):
     p = _make(tmp_path)
     _rewrite_csv(p / "groundtruth.csv",
