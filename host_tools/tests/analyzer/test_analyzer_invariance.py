@@ -35,7 +35,7 @@ def _problem(tmp_path, effects):
 @needs_native(truth=True)
 @pytest.mark.parametrize("effects, drift", [
     ({"driver_voltage_drop": {"volts": 1.2}}, False),
-    ({"battery_sag": {"r_int": 1.5, "v_per_as": 0.8}}, True)])
+    ({"battery_sag": {"r_int": 0.0, "v_per_as": 1.0}}, True)])
 def test_a_drifting_parameter_is_told_from_a_constant_one(tmp_path, effects, drift):
     from host_tools.analyzer.fit.invariance import invariance_check
     problem = _problem(tmp_path, effects)
@@ -46,5 +46,5 @@ def test_a_drifting_parameter_is_told_from_a_constant_one(tmp_path, effects, dri
     assert (c["effect"], c["param"]) == ("driver_voltage_drop", "volts")
     assert inv.drift is drift, inv.report()
     if drift:
-        assert abs(c["z"]) > 2 * inv.z_threshold
+        assert abs(c["z"]) > inv.z_threshold and c["drift"] < 0   # the drop grows with the charge
     assert problem.split_frac == 0.6     # the held-out split is left as it was
