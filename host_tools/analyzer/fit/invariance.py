@@ -27,13 +27,16 @@ import numpy as np
 from scipy import stats
 
 from host_tools.analyzer.fit.judge import Candidate
+from host_tools.analyzer.fit.params import FitResult, params_for
 from host_tools.analyzer.fit.problem import Problem
-from host_tools.analyzer.locate import BIAS_ALPHA
+from host_tools.analyzer.locate import BIAS_ALPHA, BIAS_MIN_FLOORS
 from host_tools.analyzer.signals import round_sig
 
 INVARIANCE_ALPHA = BIAS_ALPHA
 INVARIANCE_SPLIT = 0.5        # the time split of each run: first and second half
 INVARIANCE_NFEV = 30          # evaluations of each half's fit (started at the whole fit)
+NUMERICAL_ZERO = 1e-9         # of a coordinate's range: a sigma below it is round-off
+INVARIANCE_MIN_OUTPUT = BIAS_MIN_FLOORS   # judge's min_output: the smallest adoptable change
 
 
 @dataclass
@@ -41,12 +44,15 @@ class Invariance:
     """The early and late fits of the selected effects and their comparison."""
     coords: list[dict[str, Any]] = field(default_factory=list)  # one per compared coordinate
     z_threshold: float = math.inf
+    output_floors: float = 0.0    # the drifting model's output change (_split_output_change)
     drift: bool = False
 
     def report(self) -> dict[str, Any]:
         """report.json's ``fit.invariance`` (docs/analyzer.md)."""
         return {"split": "first and second half of each run", "alpha": INVARIANCE_ALPHA,
-                "z_threshold": round(self.z_threshold, 3), "drift": self.drift,
+                "z_threshold": round(self.z_threshold, 3),
+                "output_change_noise_floors": round_sig(self.output_floors, 3),
+                "min_output_noise_floors": INVARIANCE_MIN_OUTPUT, "drift": self.drift,
                 "params": self.coords}
 
     def note(self) -> str:
@@ -54,7 +60,8 @@ class Invariance:
         return (f"the selected model is not constant in time: {worst['effect']}.{worst['param']} "
                 f"fitted {worst['early']:.4g} on the first half of the runs and "
                 f"{worst['late']:.4g} on the second, a difference of {worst['drift']:.3g} +- "
-                f"{worst['drift_std']:.2g} (z {worst['z']:+.2f} beyond {self.z_threshold:.2f}): "
+                f"{worst['drift_std']:.2g} (z {worst['z']:+.2f} beyond {self.z_threshold:.2f}; "
+                f"the outputs move by {self.output_floors:.2f} noise floors with it): "
                 "a vocabulary effect's parameter is constant, so a drifting one stands for "
                 "physics outside the vocabulary")
 
@@ -76,7 +83,8 @@ def invariance_check(problem: Problem, chosen: Candidate,
     """Fit ``chosen``'s effects on the early and the late part of each run (before and after
     ``split`` of its duration) and compare each free coordinate, paired over the runs (module
     docstring).  Coordinates pinned in the whole fit stay pinned; a run whose coordinate has no
-    finite uncertainty in either half, or is pinned there, does not count for it."""
+    finite uncertainty above round-off in either half, or is pinned there, does not count for
+    it."""
     old = problem.split_frac
     problem.split_frac = split
     try:
@@ -86,14 +94,18 @@ def invariance_check(problem: Problem, chosen: Candidate,
     finally:
         problem.split_frac = old
     coords = []
+    params = params_for(chosen.effects, problem.meta, problem.vocab)
     for k, (effect, name) in enumerate(chosen.fit.coords):
         if k in chosen.fit.fixed:
             continue
+        # a sigma at the pseudo-inverse's round-off (a half that does not move the outputs
+        # with this coordinate: a track width on a straight half) is no estimate
+        tiny = NUMERICAL_ZERO * (params[k].hi - params[k].lo) if k < len(params) else 0.0
         d, s, e_v, e_s, l_v, l_s = [], [], [], [], [], []
         for early, late in per_run:
             se, sl = early.std[k], late.std[k]
             if (k in early.fixed or k in late.fixed or not (math.isfinite(se) and math.isfinite(sl))
-                    or not (se > 0 and sl > 0)):
+                    or not (se > tiny and sl > tiny)):
                 continue
             d.append(early.values[k] - late.values[k])
             s.append(math.sqrt(se ** 2 + sl ** 2))
@@ -114,4 +126,27 @@ def invariance_check(problem: Problem, chosen: Candidate,
     if not coords:
         return Invariance()
     zt = float(stats.norm.ppf(1.0 - INVARIANCE_ALPHA / (2 * len(coords))))
-    return Invariance(coords, zt, any(abs(c["z"]) > zt for c in coords))
+    size = _split_output_change(problem, chosen, per_run, split)
+    return Invariance(coords, zt, size,
+                      any(abs(c["z"]) > zt for c in coords) and size >= INVARIANCE_MIN_OUTPUT)
+
+
+def _split_output_change(problem: Problem, chosen: Candidate, per_run: list[list[FitResult]],
+                         split: float) -> float:
+    """RMS over the fit channels, in noise floors, of what the halves' own fits change in the
+    residual against the whole fit, each half with its own: the output change of a model whose
+    parameters drift, measured as a candidate's is (``judge``)."""
+    old = problem.split_frac
+    problem.split_frac = split
+    sq, n = 0.0, 0
+    try:
+        for i, halves in enumerate(per_run):
+            for part, own in zip(("early", "late"), halves):
+                r_own = problem.residual(own.params, [i], part)
+                r_whole = problem.residual(chosen.fit.params, [i], part)
+                if r_own.size == r_whole.size:
+                    sq += float(np.sum((r_own - r_whole) ** 2))
+                    n += r_own.size
+    finally:
+        problem.split_frac = old
+    return math.sqrt(sq / n) if n else 0.0
