@@ -34,7 +34,7 @@ SEED = 7300
 def _problem(paths: list[str]):
     """The fit problem of ``paths`` as :func:`host_tools.analyzer.pipeline.analyze` builds it."""
     from host_tools.analyzer import pipeline as pl
-    from host_tools.analyzer.locate import detect_mismatch, locate_mismatch
+    from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
     from host_tools.analyzer.replay.openloop import OpenLoopReplay
 
     quiet = lambda msg: None  # noqa: E731

@@ -13,7 +13,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from host_tools import runfmt
 from host_tools.analyzer.fit.workers import log_stderr
-from host_tools.analyzer.locate import detect_mismatch, locate_mismatch
+from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
 from host_tools.analyzer.prepare.command_lag import command_lag
 from host_tools.analyzer.prepare.inputs import prepare_timed
 from host_tools.analyzer.prepare.run import PreparedRun

@@ -14,9 +14,10 @@ from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit.invariance import Invariance, invariance_check
 from host_tools.analyzer.fit.judge import HELDOUT_Z, Candidate, delta_bic, judge, paired_better
 from host_tools.analyzer.fit.params import params_for
-from host_tools.analyzer.fit.problem import Problem, effective_n
+from host_tools.analyzer.fit.problem import Problem
+from host_tools.analyzer.fit.solver import effective_n
 from host_tools.analyzer.fit.workers import run_tasks
-from host_tools.analyzer.locate import STRONG_WINDOW, Detection, state_table
+from host_tools.analyzer.locate.mismatch import STRONG_WINDOW, Detection, state_table
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import Channel, channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay

@@ -10,7 +10,8 @@ import numpy as np
 
 from host_tools.analyzer import effects as fx
 from host_tools.analyzer.fit.params import FitResult, params_for
-from host_tools.analyzer.fit.problem import Problem, effective_n
+from host_tools.analyzer.fit.problem import Problem
+from host_tools.analyzer.fit.solver import effective_n
 from host_tools.analyzer.replay.channels import DERIVED
 
 

@@ -117,8 +117,8 @@ def _join_edges_in_slip(prep: PreparedRun, replay: "OpenLoopReplay") -> tuple[Pr
     land in the next such slip: on heldback6's MuJoCo 60 s run with a 40 ms actuation delay
     an edge ended the rounds 0.5 s into a slip and its window stayed 6 cm (59 camera floors)
     off the recording to its end.  The joined window integrates through the slip, where its
-    pose is no evidence (``locate.unpinned_episodes``).  Returns (the prepared run, whose
-    ``slip_episodes`` are those of the final windows; the number of edges removed)."""
+    pose is no evidence (``locate.episodes.unpinned_episodes``).  Returns (the prepared run,
+    whose ``slip_episodes`` are those of the final windows; the number of edges removed)."""
     t = prep.run.telemetry["t_s"]
     removed = 0
     while True:
@@ -148,8 +148,8 @@ def _edges_after_slip(prep: PreparedRun) -> tuple[PreparedRun, list[int]]:
     to the camera there: the slip distance is the contact's, which no plant reproduces in
     detail, and the pose after a slip carries its error to the end of the window (the pose
     channels are no evidence from a slip's onset to the window's end,
-    ``locate.unpinned_episodes``).  A cut needs ``MIN_REANCHOR_S`` without slip after it and
-    that much of the window on either side; it is not made across a telemetry gap.  Returns
+    ``locate.episodes.unpinned_episodes``).  A cut needs ``MIN_REANCHOR_S`` without slip after
+    it and that much of the window on either side; it is not made across a telemetry gap.  Returns
     (the prepared run with those windows, the frames of the edges added)."""
     t = prep.run.telemetry["t_s"]
     eps = prep.slip_episodes

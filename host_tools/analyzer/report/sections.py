@@ -12,7 +12,7 @@ from host_tools import runfmt
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit.judge import (HELDOUT_RULE, Candidate, heldout_channel_check,
                                            heldout_method)
-from host_tools.analyzer.locate import Detection, Located
+from host_tools.analyzer.locate.mismatch import Detection, Located
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import DERIVED, Channel
 from host_tools.analyzer.replay.closedloop import CLOSED_LOOP_CHANNELS

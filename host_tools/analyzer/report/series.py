@@ -13,7 +13,7 @@ from typing import Iterator
 
 import numpy as np
 
-from host_tools.analyzer.locate import SLIP_UNC
+from host_tools.analyzer.locate.episodes import SLIP_UNC
 from host_tools.analyzer.report.sections import Analysis
 
 # the analyzer's significance threshold in noise floors (signals.significant_windows' k)

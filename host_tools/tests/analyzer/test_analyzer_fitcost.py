@@ -13,7 +13,7 @@ from host_tools import _native  # noqa: E402
 from host_tools.analyzer import synth  # noqa: E402
 from host_tools.analyzer.fit import judge as JG  # noqa: E402
 from host_tools.analyzer.fit import problem as PB  # noqa: E402
-from host_tools.analyzer.locate import noise_floors  # noqa: E402
+from host_tools.analyzer.locate.floors import noise_floors  # noqa: E402
 from host_tools.analyzer.prepare import inputs as PI  # noqa: E402
 from host_tools.analyzer.replay import channels as CH  # noqa: E402
 from host_tools.analyzer.replay import openloop as OL  # noqa: E402
@@ -125,7 +125,7 @@ def test_the_fit_keeps_the_wheels_difference_where_single_wheels_are_no_evidence
     difference (r - l)/sqrt(2) in floors there, so a motor-gain asymmetry is fitted from it
     even when nothing else is evidence (the pose channels unpinned).  Without it the residual
     is nil (1e-9 floors: an unbounded uncertainty) and the update changes no output."""
-    from host_tools.analyzer.locate import SLIP_UNC, UNPINNED_UNC
+    from host_tools.analyzer.locate.episodes import SLIP_UNC, UNPINNED_UNC
     path = synth.make_run(tmp_path / "run", "turn", {"motor_gain_asymmetry": {"ratio": 1.15}},
                           duration_s=1.0, seed=71)
     prep = PI.prepare_timed(load_run(path))

@@ -123,7 +123,7 @@ def test_series_mark_the_reanchoring_edges(analysed):
 def test_series_leave_samples_that_are_no_evidence_without_a_band(analysed):
     """Samples of a slip that are no evidence (an unbounded replay uncertainty) have no band:
     empty in the CSV, undrawn, never outside it (a band of 3e9 had flattened every plot)."""
-    from host_tools.analyzer.locate import SLIP_UNC, UNPINNED_UNC
+    from host_tools.analyzer.locate.episodes import SLIP_UNC, UNPINNED_UNC
     from host_tools.analyzer.report.series import COLUMNS, run_series, to_csv
     d, runs, out, an = analysed
     a2 = copy.copy(an)

@@ -143,7 +143,7 @@ def test_current_floor_is_at_least_one_adc_count(tmp_path):
     reading two counts off at rest would stand out of it.  The count comes from meta.json's
     current sense, or from the column's quantization step when the meta does not say."""
     from host_tools import truth
-    from host_tools.analyzer import locate
+    from host_tools.analyzer.locate import floors as locate_floors
     from host_tools.analyzer.prepare import inputs as PI
     from host_tools.analyzer.replay import channels as CH, openloop as OL
     from host_tools.runfmt import load_run
@@ -160,6 +160,6 @@ def test_current_floor_is_at_least_one_adc_count(tmp_path):
     for meta_says in (True, False):
         if not meta_says:
             del run.meta["current_sense"]
-        floors = locate.noise_floors([prep], [ch])
+        floors = locate_floors.noise_floors([prep], [ch])
         assert floors["current_r_a"] >= count * (1 - 1e-3), meta_says
         assert floors["current_l_a"] >= count * (1 - 1e-3), meta_says

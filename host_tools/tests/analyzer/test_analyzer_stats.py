@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from host_tools.analyzer.locate import BIAS_ALPHA, bias_test
+from host_tools.analyzer.locate.bias import BIAS_ALPHA, bias_test
 from host_tools.analyzer.replay.channels import Channel
 
 FIT = ("omega_r", "omega_l", "x_m", "y_m", "phi_rad", "current_r_a", "current_l_a")
@@ -181,7 +181,7 @@ def test_a_pair_partner_whose_parameter_is_insignificant_is_dropped():
 
 def _detect(paths, with_tolerance: bool, monkeypatch):
     from host_tools.analyzer import pipeline as P
-    from host_tools.analyzer.locate import detect_mismatch, locate_mismatch
+    from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
     quiet = lambda m: None  # noqa: E731
     with monkeypatch.context() as mp:
         if not with_tolerance:
@@ -249,10 +249,10 @@ def test_grid_start_keeps_the_neutral_point_when_every_start_costs_infinity():
     """A replay that blows up at every start of the coarse grid (residuals so large that their
     squares overflow to inf) leaves the fit at its neutral point: no start was chosen before,
     and the two-parameter refinement failed on None (found by mypy)."""
-    from host_tools.analyzer.fit.problem import _grid_start
+    from host_tools.analyzer.fit.solver import grid_start
     base = np.array([0.5, 0.25])
     with np.errstate(over="ignore"):
-        x0, nfev = _grid_start(lambda x: np.full(4, 1e200), base.copy(), 3)
+        x0, nfev = grid_start(lambda x: np.full(4, 1e200), base.copy(), 3)
     assert isinstance(x0, np.ndarray) and np.array_equal(x0, base)
     assert nfev == 1 + 2 * 3 + 3
 def test_a_slip_in_a_windowed_replay_is_no_evidence():
@@ -262,7 +262,7 @@ def test_a_slip_in_a_windowed_replay_is_no_evidence():
     (unpinned), the wheels stay out until BURN_IN_S after it."""
     from types import SimpleNamespace
 
-    from host_tools.analyzer.locate import SLIP_UNC, UNPINNED_UNC, unpinned_episodes
+    from host_tools.analyzer.locate.episodes import SLIP_UNC, UNPINNED_UNC, unpinned_episodes
     from host_tools.analyzer.prepare.run import BURN_IN_S, PreparedRun
     t = np.arange(0.0, 8.0, 0.02)
     seg = (t >= 4.0).astype(int)                  # two replay windows, the edge at 4 s
@@ -336,7 +336,7 @@ def test_a_wheel_asymmetry_shows_in_the_wheels_difference():
     """Opposite biases of 0.6 floors in the two currents under a common wander (heldback6's
     MuJoCo 10 % asymmetry: -0.64 and +0.48 floors): neither wheel is significant on its own,
     their difference is; the same wander without the asymmetry is nothing."""
-    from host_tools.analyzer.locate import pair_name
+    from host_tools.analyzer.locate.bias import pair_name
     floors = {c: 1.0 for c in FIT}
     name = pair_name("current_r_a", "current_l_a")
     found = 0
@@ -357,7 +357,7 @@ def test_the_tolerance_allows_little_bias_in_the_wheels_difference():
     what differs, not the per-wheel one."""
     from types import SimpleNamespace
 
-    from host_tools.analyzer.locate import allowed_bias, pair_name
+    from host_tools.analyzer.locate.bias import allowed_bias, pair_name
     rng = np.random.default_rng(7)
     common = rng.normal(0.0, 0.3, 8)
     prep = SimpleNamespace(

@@ -63,7 +63,7 @@ def test_a_long_null_stays_a_null_in_windows(tmp_path):
 
 
 def test_fit_windows_hold_the_mismatch_and_a_spread(tmp_path):
-    from host_tools.analyzer.locate import noise_floors
+    from host_tools.analyzer.locate.floors import noise_floors
     from host_tools.analyzer.fit.problem import Problem
     path = synth.make_run(tmp_path / "emf", "turn", {"motor_back_emf": {"ke_ratio": 1.15}},
                           duration_s=60.0, seed=4)
