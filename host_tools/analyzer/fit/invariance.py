@@ -15,8 +15,15 @@ model that is not exact (another engine, a recorder's details, a parameter that 
 hardly constrains) lets a half's fit move with the run's regime by far more, differently from
 run to run, while a drifting supply moves every run alike.  z = d / se is significant at a
 false-alarm rate of INVARIANCE_ALPHA per analysis, two-sided, Bonferroni over the coordinates
-compared: the rate of the detection's bias test (``locate.BIAS_ALPHA``).  The nominal model's
-tolerance is one offset common to both halves and cancels in the difference."""
+compared: the rate of the detection's bias test (``locate.bias.BIAS_ALPHA``).  The nominal
+model's tolerance is one offset common to both halves and cancels in the difference.
+
+As every update, a drift must also change the outputs by at least INVARIANCE_MIN_OUTPUT noise
+floors (the halves' own fits against the whole fit, RMS over the fit channels, as a candidate's
+output change is measured): each run of the suites accelerates in its first half and cruises
+in its second, so time and regime go together, and a vocabulary effect on another engine moves
+alike in every run between the two regimes (heldback7's MuJoCo driver drop: 0.7175 V early,
+0.7037 V late, z 4.4, the outputs 0.14 noise floors apart)."""
 from __future__ import annotations
 
 import math
@@ -29,7 +36,7 @@ from scipy import stats
 from host_tools.analyzer.fit.judge import Candidate
 from host_tools.analyzer.fit.params import FitResult, params_for
 from host_tools.analyzer.fit.problem import Problem
-from host_tools.analyzer.locate import BIAS_ALPHA, BIAS_MIN_FLOORS
+from host_tools.analyzer.locate.bias import BIAS_ALPHA, BIAS_MIN_FLOORS
 from host_tools.analyzer.signals import round_sig
 
 INVARIANCE_ALPHA = BIAS_ALPHA

@@ -16,7 +16,7 @@ FIGURE_EIGHT = {"kind": "figure_eight", "accel": 0.6, "cruise": 0.5, "radius": 0
 
 def _nominal_current(tmp_path, effects, seed):
     from host_tools import truth
-    from host_tools.analyzer import locate
+    from host_tools.analyzer.locate import floors as locate
     from host_tools.analyzer.prepare import inputs as PI
     from host_tools.analyzer.replay import channels as CH, openloop as OL
     from host_tools.runfmt import load_run

@@ -17,7 +17,8 @@ REFS = ({"kind": "arc", "accel": 0.8, "cruise": 0.5, "radius": 0.6},) * 2
 
 def _problem(tmp_path, effects):
     from host_tools import truth
-    from host_tools.analyzer import locate, pipeline as PL
+    from host_tools.analyzer import pipeline as PL
+    from host_tools.analyzer.locate import mismatch as locate
     from host_tools.analyzer.replay.openloop import OpenLoopReplay
     from host_tools.runfmt import load_run
     runs = [load_run(truth.simulate_run(tmp_path / f"run-{i}", ref, effects, clamp=True,
