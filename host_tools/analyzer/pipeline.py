@@ -19,8 +19,8 @@ from host_tools.analyzer.replay.nominal import replay_closed_loop, replay_open_l
 from host_tools.analyzer.report.model import updated_model
 from host_tools.analyzer.report.sections import (Analysis, closed_loop_report, error_tables,
                                                  localize, recorder_findings, replay_updated)
-from host_tools.analyzer.select import (decide_verdict, fit_candidates, select_effects,
-                                         selected_entries)
+from host_tools.analyzer.select import (decide_verdict, fit_candidates, invariance_of,
+                                        select_effects, selected_entries)
 
 
 def analyze(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run], jobs: int = 2,
@@ -43,12 +43,15 @@ def analyze(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run], jobs: int =
     cands = fit_candidates(det, vocab_fit, jobs, notes, log)
     sel = select_effects(det, cands, jobs, pairs_top, log)
     selected = selected_entries(sel, det.rss0)
-    verdict, hint = decide_verdict(det, sel.effects, selected, preps, ol.duty, notes)
+    invariance = invariance_of(det, sel)
+    verdict, hint = decide_verdict(det, sel.effects, selected, preps, ol.duty, notes, invariance)
     verdict, model_effects = select_command_delay(preps, selected, verdict, sel.effects, notes,
                                                   log)
     updated, cl_updated = replay_updated(preps, ol.duty, cl, sel.effects)
     closed_loop = closed_loop_report(cl, cl_updated, loc, sel.effects)
     fit_table = error_tables(det, sel, loc.floors, closed_loop)
+    if invariance is not None:
+        fit_table["invariance"] = invariance.report()
     recorder = recorder_findings(preps, nominal, loc.floors, notes)
     localization = localize(preps, nominal, updated, loc.floors, det.problem.fit_channels,
                             det.strong_k)

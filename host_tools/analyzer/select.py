@@ -11,6 +11,7 @@ import numpy as np
 
 from host_tools.analyzer import effects as fx
 from host_tools.analyzer import signals as sg
+from host_tools.analyzer.fit.invariance import Invariance, invariance_check
 from host_tools.analyzer.fit.judge import HELDOUT_Z, Candidate, delta_bic, judge, paired_better
 from host_tools.analyzer.fit.params import params_for
 from host_tools.analyzer.fit.problem import Problem
@@ -229,19 +230,33 @@ def selected_entries(sel: Selection, rss0: float) -> list[dict[str, Any]]:
     return selected
 
 
+def invariance_of(det: Detection, sel: Selection) -> Invariance | None:
+    """The time-invariance check of the selected model (``fit.invariance``), run when it
+    would otherwise explain the mismatch (None: not run)."""
+    if (not det.mismatch_seen or sel.chosen is None
+            or math.sqrt(excess(det.problem, sel.effects)) > EXPLAINED_RMS):
+        return None
+    return invariance_check(det.problem, sel.chosen)
+
+
 def decide_verdict(det: Detection, final_effects: Mapping[str, Mapping[str, float]],
                    selected: Sequence[dict[str, Any]], preps: Sequence[PreparedRun],
-                   duty: OpenLoopReplay, notes: list[str]) -> tuple[str, dict[str, Any] | None]:
+                   duty: OpenLoopReplay, notes: list[str],
+                   invariance: Invariance | None = None) -> tuple[str, dict[str, Any] | None]:
     """(verdict, hint).  ``no_mismatch`` when detection saw none; ``explained`` when effects
-    were selected and their residual is back within the noise floor (normalized RMS at most
+    were selected, their residual is back within the noise floor (normalized RMS at most
     ``EXPLAINED_RMS``: a claim of explanation asks for noise level, not merely below the
-    detection threshold); otherwise ``unexplained``, with a sparse regression of what remains
+    detection threshold) and their parameters do not drift in time (``invariance``,
+    :func:`invariance_of`); otherwise ``unexplained``, with a sparse regression of what remains
     (``sparse_hint``) as a hint towards the missing physics."""
     if not det.mismatch_seen:
         return "no_mismatch", None
     nrms1 = math.sqrt(excess(det.problem, final_effects))
-    if selected and nrms1 <= EXPLAINED_RMS:
+    drift = invariance is not None and invariance.drift
+    if selected and nrms1 <= EXPLAINED_RMS and not drift:
         return "explained", None
+    if drift and invariance is not None:
+        notes.append(invariance.note())
     chans_after = [channels(p, duty.simulate_windows(p, final_effects), "duty") for p in preps]
     hint = sparse_hint(preps, chans_after)
     if selected:

@@ -96,6 +96,18 @@ class Channel:
     unit: str
     seg: np.ndarray | None = None   # replay window of each sample (None: one window)
     unc: np.ndarray | None = None   # the replay's own uncertainty per sample (input_uncertainty)
+    # the sampling band of this replay's own samples (current at a duty step, _sampling_band),
+    # joined to ``unc`` in quadrature; kept apart so that it is not carried into replay_unc
+    band: np.ndarray | None = None
+
+    @property
+    def total_unc(self) -> np.ndarray | None:
+        """``unc`` and ``band`` in quadrature (None when neither is set)."""
+        if self.band is None:
+            return self.unc
+        if self.unc is None:
+            return self.band
+        return cast(np.ndarray, np.sqrt(self.unc ** 2 + self.band ** 2))
 
     @property
     def resid(self) -> np.ndarray:
@@ -104,13 +116,15 @@ class Channel:
 
     def deflated(self, floor: float) -> np.ndarray:
         """The residual in units of the noise floor widened by the replay's uncertainty:
-        ``resid * floor / sqrt(floor^2 + unc^2)`` (the residual itself when ``unc`` is None),
+        ``resid * floor / sqrt(floor^2 + unc^2)`` with ``unc`` the replay's uncertainty and the
+        sampling band in quadrature (the residual itself when neither is set),
         so that anything that compares it with ``floor`` compares the residual with the two
         added in quadrature."""
         r = self.resid
-        if self.unc is None or floor <= 0:
+        unc = self.total_unc
+        if unc is None or floor <= 0:
             return r
-        return r * (floor / np.sqrt(floor ** 2 + self.unc ** 2))
+        return r * (floor / np.sqrt(floor ** 2 + unc ** 2))
 
     def spans(self) -> list[float]:
         """Range of the recorded values within each replay window."""
@@ -134,10 +148,13 @@ def channels(prep: PreparedRun, sim: Mapping[str, np.ndarray] | WindowSims, mode
         got = [c[name] for c in parts if name in c]
         if not got:
             continue
+        band = (None if all(c.band is None for c in got) else
+                np.concatenate([c.band if c.band is not None else np.zeros(c.t.size)
+                                for c in got]))
         out[name] = Channel(name, np.concatenate([c.t for c in got]),
                             np.concatenate([c.rec for c in got]),
                             np.concatenate([c.sim for c in got]), got[0].unit,
-                            np.concatenate([c.seg for c in got]))
+                            np.concatenate([c.seg for c in got]), band=band)
     return _with_uncertainty(prep, out)
 
 
@@ -258,9 +275,56 @@ def _current_channels(win: _Window) -> dict[str, Channel]:
                 keep &= (dt_in >= CURRENT_SETTLE_S + unc) & (nxt - t > unc)
             if keep.sum() < max(3, keep.size // 4):
                 continue   # the frames coincide with the loop's ticks: no settled sample
-            out[col] = Channel(col, t[keep], np.asarray(tel[col][win.i_a:win.i_b], float)[keep],
-                               np.abs(win.at(f"i_{side}_a", t[keep])), "A",
-                               None if w is None else win.seg(int(keep.sum())))
+            tk = t[keep]
+            out[col] = Channel(col, tk, np.asarray(tel[col][win.i_a:win.i_b], float)[keep],
+                               np.abs(win.at(f"i_{side}_a", tk)), "A",
+                               None if w is None else win.seg(int(keep.sum())),
+                               band=_sampling_band(win, side, tk))
+    return out
+
+
+def _sampling_band(win: _Window, side: str, t: np.ndarray) -> np.ndarray | None:
+    """Per current sample at ``t``: the band of where in its tick the recorder sampled.  A
+    recorder reads the current at some instant of the frame's tick that the analyzer does not
+    know (at the tick before the duty is written, at the frame, anywhere between); where the
+    duty stepped at that tick, what it reads lies anywhere between the replay's current just
+    before the step and at the frame.  Taken as uniform over that range, its RMS distance from
+    the replayed value is |I(t) - I(tick-)| / sqrt(3) (the convention of the input spread,
+    ``replay.unseen``); nil where the duty did not change at the tick.  The step's size is
+    this replay's own, so an effect that changes the current (back-EMF, driver drop, lag)
+    keeps the band of the replay that carries it.  None: no step at any sample.
+
+    The replay's rows are the frames and the input times, and its current at a row already
+    follows that row's input, so I(tick-) is the current of the rows before the tick under
+    the input held before it, carried on to the tick along the line through the last two of
+    them (the armature current runs nearly straight within a tick as the wheel's speed and
+    back-EMF change: on a 20 ms PI loop it fell by 5 noise floors within one tick); with one
+    such row, its value."""
+    prep = win.prep
+    t_in = np.asarray(prep.t_in, float)
+    duty = np.asarray(prep.duty[0 if side == "r" else 1], float)
+    g = win.g
+    if t_in.size < 2 or t.size == 0 or g.size < 2:
+        return None
+    steps = t_in if prep.t_steps is None else np.asarray(prep.t_steps, float)
+    j = np.searchsorted(steps, t, side="right") - 1
+    tick = steps[np.maximum(j, 0)]
+    i_now = np.searchsorted(t_in, t, side="right") - 1
+    i_before = np.searchsorted(t_in, tick, side="left") - 1   # the input held before the tick
+    r1 = np.searchsorted(g, tick, side="left") - 1            # the replay's last row before it
+    stepped = (j >= 0) & (i_before >= 0) & (i_now >= 0) & (r1 >= 0)
+    stepped &= duty[np.maximum(i_now, 0)] != duty[np.maximum(i_before, 0)]
+    if not stepped.any():
+        return None
+    cur = np.abs(np.asarray(win.sim[f"i_{side}_a"], float))
+    r1 = np.maximum(r1, 0)
+    r0 = np.maximum(r1 - 1, 0)
+    held_from = t_in[np.maximum(i_before, 0)]
+    line = (r0 < r1) & (g[r0] >= held_from - 1e-12)
+    slope = np.where(line, (cur[r1] - cur[r0]) / np.where(line, g[r1] - g[r0], 1.0), 0.0)
+    before = cur[r1] + slope * (tick - g[r1])
+    delta = np.abs(np.abs(win.at(f"i_{side}_a", t)) - before)
+    out: np.ndarray = np.where(stepped, delta / math.sqrt(3.0), 0.0)
     return out
 
 

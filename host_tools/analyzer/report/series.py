@@ -90,7 +90,7 @@ def run_series(an: Analysis, i: int) -> list[Series]:
             if u is not None and (u.t.size != ch.t.size):
                 u = None
             f = float(floors.get(c) or 0.0)
-            unc = (np.asarray(ch.unc, float) if ch.unc is not None
+            unc = (np.asarray(ch.total_unc, float) if ch.total_unc is not None
                    else np.zeros(ch.t.size))
             # a sample that is no evidence (a slip of a windowed replay) has no band: NaN,
             # written empty and left undrawn, never outside it

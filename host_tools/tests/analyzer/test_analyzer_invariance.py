@@ -1,0 +1,112 @@
+"""The time-invariance check of the selected model (fit/invariance.py): a vocabulary effect's
+parameter is constant; fitted on the first and the second half of each run it agrees within the
+fits' uncertainty and their outputs' noise, while a supply that sags with the charge drawn
+looks like a driver voltage drop that grows over the run."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+import pytest
+from _native_skip import needs_native
+
+# two runs of one experiment (other seeds): a drift with the charge drawn is alike in both
+REFS = ({"kind": "arc", "accel": 0.8, "cruise": 0.5, "radius": 0.6},) * 2
+
+
+def _problem(tmp_path, effects):
+    from host_tools import truth
+    from host_tools.analyzer import pipeline as PL
+    from host_tools.analyzer.locate import mismatch as locate
+    from host_tools.analyzer.replay.openloop import OpenLoopReplay
+    from host_tools.runfmt import load_run
+    runs = [load_run(truth.simulate_run(tmp_path / f"run-{i}", ref, effects, clamp=True,
+                                        duration_s=3.0, seed=60 + i))
+            for i, ref in enumerate(REFS)]
+    quiet = lambda s: None  # noqa: E731
+    preps = PL._prepare(runs, quiet)
+    preps, nominal, nominal_t = PL._replay_nominal(preps, OpenLoopReplay("duty"),
+                                                   OpenLoopReplay("torque"))
+    preps, nominal, loc = locate.locate_mismatch(preps, nominal, nominal_t,
+                                                 [{} for _ in preps], quiet)
+    det = locate.detect_mismatch(preps, nominal, loc, PL._vocabulary(None)[0], 5e-4, [], quiet)
+    assert det.mismatch_seen
+    return det.problem
+
+
+@needs_native(truth=True)
+@pytest.mark.parametrize("effects, drift", [
+    ({"driver_voltage_drop": {"volts": 1.2}}, False),
+    ({"battery_sag": {"r_int": 0.0, "v_per_as": 4.0}}, True)])
+def test_a_drifting_parameter_is_told_from_a_constant_one(tmp_path, effects, drift):
+    from host_tools.analyzer.fit.invariance import invariance_check
+    problem = _problem(tmp_path, effects)
+    names = ["driver_voltage_drop"]
+    whole = problem.fit(names, list(range(len(problem.preps))))
+    inv = invariance_check(problem, SimpleNamespace(effects=names, fit=whole))
+    (c,) = inv.coords
+    assert (c["effect"], c["param"]) == ("driver_voltage_drop", "volts")
+    assert inv.drift is drift, inv.report()
+    if drift:
+        assert abs(c["z"]) > inv.z_threshold and c["drift"] < 0   # the drop grows with the charge
+    assert problem.split_frac == 0.6     # the held-out split is left as it was
+
+
+class _Halves:
+    """A stand-in for the fit problem: each run's early and late fit of one coordinate, as
+    given (value, sigma)."""
+
+    def __init__(self, per_run):
+        from host_tools import params as P
+        self.per_run = per_run
+        self.preps = list(range(len(per_run)))
+        self.split_frac = 0.6
+        self.meta = {"robot": dict(P.ROBOT), "motor": dict(P.MOTOR),
+                     "encoder_ppr": P.ENCODER_PPR}
+        self.vocab: dict = {}
+
+    def fit(self, names, runs, part, **_):
+        from host_tools.analyzer.fit.params import FitResult
+        v, s = self.per_run[runs[0]][0 if part == "early" else 1]
+        return FitResult(list(names), {"driver_voltage_drop": {"volts": v}}, [v],
+                         np.array([0.5]), 0.0, 0, [s], 0, coords=[("driver_voltage_drop", "volts")])
+
+    def residual(self, effects, runs, part="all"):
+        # outputs that move by 10 noise floors per volt of the drop
+        return np.full(20, 10.0 * effects["driver_voltage_drop"]["volts"])
+
+
+def _check(per_run):
+    from host_tools.analyzer.fit.invariance import invariance_check
+    from host_tools.analyzer.fit.params import FitResult
+    whole = FitResult(["driver_voltage_drop"], {"driver_voltage_drop": {"volts": 1.0}}, [1.0],
+                      np.array([0.5]), 0.0, 0, [0.01], 0, coords=[("driver_voltage_drop", "volts")])
+    return invariance_check(_Halves(per_run), SimpleNamespace(effects=whole.effects, fit=whole))
+
+
+def test_runs_that_disagree_widen_the_drifts_error():
+    """Three runs whose halves differ by 0.1 V each (sigmas 0.01 V) drift; the same mean drift
+    from runs at +0.3, -0.1 and +0.1 V is the model moving with each run's regime: the runs'
+    scatter (Birge ratio 14) widens the error and the drift is not significant."""
+    alike = _check([((1.1, 0.007), (1.0, 0.007))] * 3)
+    assert alike.drift and alike.coords[0]["birge_ratio"] == 1.0
+    apart = _check([((1.3, 0.007), (1.0, 0.007)), ((0.9, 0.007), (1.0, 0.007)),
+                    ((1.1, 0.007), (1.0, 0.007))])
+    assert apart.coords[0]["drift"] == pytest.approx(0.1, rel=1e-3)
+    assert apart.coords[0]["birge_ratio"] > 10 and not apart.drift
+
+
+def test_a_sigma_at_round_off_is_no_estimate():
+    """A half that does not move the outputs with a coordinate gets a sigma at the
+    pseudo-inverse's round-off: that run is left out of the comparison, not taken as exact."""
+    inv = _check([((1.00001, 1e-15), (1.0, 1e-15)), ((1.0, 0.01), (1.0, 0.01))])
+    assert inv.coords[0]["runs"] == 1 and not inv.drift
+
+
+def test_a_drift_the_outputs_cannot_show_is_none():
+    """Halves 0.01 V apart at sigmas of 0.0007 V (z 10) move the outputs by 0.07 noise floors:
+    below the smallest output change an update may make (0.5 floors), no drift."""
+    inv = _check([((1.01, 0.0007), (1.0, 0.0007))] * 3)
+    assert abs(inv.coords[0]["z"]) > 2 * inv.z_threshold
+    assert inv.output_floors == pytest.approx(0.1 / np.sqrt(2), rel=0.01) and not inv.drift
