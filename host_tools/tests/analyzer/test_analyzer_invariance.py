@@ -19,17 +19,16 @@ def _problem(tmp_path, effects):
     from host_tools import truth
     from host_tools.analyzer import pipeline as PL
     from host_tools.analyzer.locate import mismatch as locate
-    from host_tools.analyzer.replay.openloop import OpenLoopReplay
+    from host_tools.analyzer.prepare.inputs import prepare_runs
+    from host_tools.analyzer.replay.nominal import replay_open_loop
     from host_tools.runfmt import load_run
     runs = [load_run(truth.simulate_run(tmp_path / f"run-{i}", ref, effects, clamp=True,
                                         duration_s=3.0, seed=60 + i))
             for i, ref in enumerate(REFS)]
     quiet = lambda s: None  # noqa: E731
-    preps = PL._prepare(runs, quiet)
-    preps, nominal, nominal_t = PL._replay_nominal(preps, OpenLoopReplay("duty"),
-                                                   OpenLoopReplay("torque"))
-    preps, nominal, loc = locate.locate_mismatch(preps, nominal, nominal_t,
-                                                 [{} for _ in preps], quiet)
+    ol = replay_open_loop(prepare_runs(runs, quiet), 5e-4)
+    preps, nominal, loc = locate.locate_mismatch(ol.preps, ol.nominal, ol.nominal_t,
+                                                 [{} for _ in ol.preps], quiet)
     det = locate.detect_mismatch(preps, nominal, loc, PL._vocabulary(None)[0], 5e-4, [], quiet)
     assert det.mismatch_seen
     return det.problem
