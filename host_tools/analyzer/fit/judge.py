@@ -169,25 +169,36 @@ BIC_MARGIN = -10.0
 
 # A fitted parameter is off its neutral value (SIZE_RULE) when the deviation exceeds SIZE_Z times
 # the combined standard uncertainty of the fit (its 1-sigma, autocorrelation-corrected) and of the
-# nominal model: params.json's ``tol`` of the neutral value (ParamSpec.tol) is a half-width, the
-# true value lies within value +- tol, uniformly as the replay's tolerance ensemble draws it, so
-# its standard uncertainty is tol / sqrt(3).  A deviation within what the nominal parameter's own
-# tolerance allows is not evidence of the effect.  SIZE_Z is the one-sided 1 % of the other tests
-# (HELDOUT_Z).  Without a tolerance (an effect whose neutral value is no nominal parameter) the
-# deviation must be significant against the fit's uncertainty, and the output change
-# (``min_output``) decides.
+# nominal model, about the nominal model's expected deviation.  The nominal model's part has two
+# terms, both uniform as the replay's tolerance ensemble draws them: params.json's ``tol`` of the
+# neutral value (ParamSpec.tol, a half-width about it: standard uncertainty tol / sqrt(3)), and
+# the range [lo, hi] by which the nominal model's left-out physics of the normal forces moves the
+# fitted value (ParamSpec.left_out, replay/tolerance.py: the wheels' mass on the axle, a centre
+# of mass above the ground; a friction coefficient up to (1 + mu_excess) times the nominal, a
+# load-transfer height up to Table II.2's h): mean (lo + hi) / 2, standard uncertainty
+# (hi - lo) / sqrt(12).  A deviation within what the nominal model allows is not evidence of the
+# effect.  SIZE_Z is the one-sided 1 % of the other tests (HELDOUT_Z).  Without a tolerance or a
+# left-out range (an effect whose neutral value is no nominal parameter) the deviation must be
+# significant against the fit's uncertainty, and the output change (``min_output``) decides.
 SIZE_Z = HELDOUT_Z
-SIZE_RULE = (f"|value - nominal| > {SIZE_Z} x sqrt(sigma_fit^2 + tol^2 / 3), tol the nominal "
-             f"parameter's params.json tolerance (0 where it has none)")
+SIZE_RULE = (f"|value - nominal - (lo + hi) / 2| > {SIZE_Z} x sqrt(sigma_fit^2 + tol^2 / 3 + "
+             f"(hi - lo)^2 / 12), tol the nominal parameter's params.json tolerance (0 where it "
+             f"has none), [lo, hi] the range the nominal model's left-out physics of the normal "
+             f"forces moves it by ((0, 0) where none)")
 
 
-def significant_deviation(dev: float, sigma_fit: float, tol: float, z: float = SIZE_Z) -> bool:
+def significant_deviation(dev: float, sigma_fit: float, tol: float, z: float = SIZE_Z,
+                          left_out: tuple[float, float] = (0.0, 0.0)) -> bool:
     """Is a fitted deviation ``dev`` from the neutral value beyond ``z`` times the combined
     standard uncertainty of the fit (``sigma_fit``; a non-finite one counts as 0: a coordinate
     whose uncertainty is unknown is judged on the tolerance and the output change) and the
-    nominal model (``tol``, the half-width of a uniform range: tol / sqrt(3))?"""
+    nominal model (``tol``, the half-width of a uniform range: tol / sqrt(3); ``left_out``, the
+    range (lo, hi) of the nominal model's left-out physics, uniform: (hi - lo) / sqrt(12)),
+    measured from the left-out range's middle?"""
     sd = sigma_fit if math.isfinite(sigma_fit) else 0.0
-    return abs(dev) > z * math.hypot(sd, tol / math.sqrt(3.0)) and dev != 0.0
+    lo, hi = float(left_out[0]), float(left_out[1])
+    u = math.sqrt(sd ** 2 + tol ** 2 / 3.0 + (hi - lo) ** 2 / 12.0)
+    return abs(dev - 0.5 * (lo + hi)) > z * u and dev != 0.0
 
 # Adoption asks the held-out data whether the update predicts them better: a paired test of the
 # held-out errors, sample by sample over the fit channels in noise floors (mean of
@@ -312,7 +323,8 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
             continue  # shape parameter (e.g. v_s): size and stability judged through its partner
         dev = cand.fit.values[j] - p.neutral
         sd = cand.fit.std[j] if j < len(cand.fit.std) else math.nan
-        counts = significant_deviation(dev, sd, p.tol)
+        counts = significant_deviation(dev, sd, p.tol,
+                                       left_out=fx.left_out_range(p.effect, p.name, problem.meta))
         size_ok = size_ok or counts
         folds = [fv[j] for fv in cand.fold_values]
         if counts:
@@ -329,8 +341,8 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
                 cand.reasons.append(f"{p.effect}.{p.name}: uncertainty {cand.fit.std[j]:.3g} "
                                     f"> half its size")
     if not size_ok:
-        cand.reasons.append(f"fitted deviation from nominal within {SIZE_Z} x sqrt(sigma_fit^2 + "
-                            f"tol^2 / 3) (tol: params.json tolerance)")
+        cand.reasons.append(f"fitted deviation from nominal within what the nominal model allows "
+                            f"({SIZE_RULE})")
     if cand.output_size < min_output:
         size_ok = False
         cand.reasons.append(f"changes the outputs by only {cand.output_size:.2f} noise floors")
