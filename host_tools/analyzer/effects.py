@@ -39,12 +39,13 @@ class ParamSpec:
     # while in the (mu_s, mu_k/mu_s) coordinates both move mu_k and look identified.
     given: tuple[str, str, Callable[[float, float], float],
                  Callable[[float, Mapping[str, Any]], tuple[float, float]]] | None = None
-    # The range (lower, upper offset from the neutral value; lower <= 0 <= upper) that the
-    # nominal model's own left-out physics of the normal forces moves this parameter's fitted
-    # value by (replay/tolerance.py, ``left_out_normal_forces``: the wheels' mass on the axle, a
-    # centre of mass above the ground); the replay's tolerance ensemble draws it, and a fitted
-    # deviation within it is not evidence of the effect.  None: no such physics.
-    left_out: Callable[[Mapping[str, Any]], tuple[float, float]] | None = None
+    # The ranges (lower, upper offset from the neutral value; lower <= 0 <= upper), one per
+    # independent part, by which the nominal model's own left-out physics of the normal forces
+    # moves this parameter's fitted value (replay/tolerance.py, ``left_out_normal_forces``: the
+    # wheels' mass on the axle, a centre of mass above the ground, the wheels' spin-up); the
+    # replay's tolerance ensemble draws each uniformly, and a fitted deviation within them is not
+    # evidence of the effect.  None: no such physics.
+    left_out: Callable[[Mapping[str, Any]], tuple[tuple[float, float], ...]] | None = None
 
 
 @dataclass(frozen=True)
@@ -84,31 +85,35 @@ def _ratio_tol(meta: Mapping[str, Any]) -> float:
 _NO_TOL = _c(0.0)
 
 
-def _friction_left_out(key: str) -> Callable[[Mapping[str, Any]], tuple[float, float]]:
-    """The left-out normal-force physics as a friction coefficient: wheels that carry up to
-    ``mu_excess`` more than the nominal model gives at their slip onset reach ``mu N`` where the
-    nominal model needs ``(1 + mu_excess) mu``; never less (``LeftOut.mu_excess``)."""
-    def f(meta: Mapping[str, Any]) -> tuple[float, float]:
+def _friction_left_out(key: str
+                       ) -> Callable[[Mapping[str, Any]], tuple[tuple[float, float], ...]]:
+    """The left-out normal-force physics as a friction coefficient: wheels that carry more than
+    the nominal model gives at their slip onset reach ``mu N`` where the nominal model needs
+    ``(1 + excess) mu``; never less (``LeftOut.excess``, one range per part)."""
+    def f(meta: Mapping[str, Any]) -> tuple[tuple[float, float], ...]:
         from host_tools.analyzer.replay.tolerance import left_out_normal_forces
         mu = float(meta["robot"][key])
-        return 0.0, mu * left_out_normal_forces(meta["robot"], mu).mu_excess
+        return tuple((0.0, mu * x) for x in left_out_normal_forces(meta["robot"], mu).excess)
     return f
 
 
-def _height_left_out(meta: Mapping[str, Any]) -> tuple[float, float]:
+def _height_left_out(meta: Mapping[str, Any]) -> tuple[tuple[float, float], ...]:
     """The left-out longitudinal load transfer: a centre of mass between the ground and Table
-    II.2's ``h`` (``LeftOut.h_max_m``)."""
+    II.2's ``h``, and a share of the wheels' spin-up reaction as a height (``LeftOut.h_max_m``,
+    ``LeftOut.spin_h_m``)."""
     from host_tools.analyzer.replay.tolerance import left_out_normal_forces
-    return 0.0, left_out_normal_forces(meta["robot"]).h_max_m
+    lo = left_out_normal_forces(meta["robot"])
+    return (0.0, lo.h_max_m), (0.0, lo.spin_h_m)
 
 
-def left_out_range(effect: str, name: str, meta: Mapping[str, Any]) -> tuple[float, float]:
-    """:attr:`ParamSpec.left_out` of ``effect``'s parameter ``name`` ((0, 0) where none)."""
+def left_out_ranges(effect: str, name: str, meta: Mapping[str, Any]
+                    ) -> tuple[tuple[float, float], ...]:
+    """:attr:`ParamSpec.left_out` of ``effect``'s parameter ``name`` (none: ``()``)."""
     spec = SPECS.get(effect)
     for ps in spec.params if spec is not None else ():
         if ps.name == name and ps.left_out is not None:
             return ps.left_out(meta)
-    return 0.0, 0.0
+    return ()
 
 
 P = ParamSpec

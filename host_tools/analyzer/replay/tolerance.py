@@ -34,7 +34,8 @@ TOLERANCE_GROUPS = ("robot",)
 @dataclass(frozen=True)
 class LeftOut:
     """The nominal model's left-out physics of the normal forces, at its derived size
-    (:func:`left_out_normal_forces`).
+    (:func:`left_out_normal_forces`); each part is drawn uniformly and independently between
+    none of it and all of it.
 
     ``wheel_shift_m``: how far the robot's centre of mass moves back towards the axle when the
     wheels' mass sits on the axle instead of at c (``2 m_w d / m_t``).  Table II.1 gives ``d``
@@ -47,44 +48,52 @@ class LeftOut:
     ``h_max_m``: the height of the centre of mass whose longitudinal load transfer the nominal
     model leaves out (the plant's ``load_transfer`` effect, ``N_c`` falls by ``m a h / (d +
     e)`` while accelerating): Table II.2's ``h`` (plus its tolerance), which II.28 uses only
-    laterally.  The draws take a height between 0 and it.
+    laterally.
 
-    ``mu_excess``: relative excess of a wheel's normal force at its slip onset over the nominal
-    model's, with both at their largest: ``2 m_w d / (m_t e)`` from the wheels' mass on the axle
-    (the caster's load falls by ``2 m_w g d / (d + e)``, shared by the two wheels against their
-    ``m_t g e / (2 (d + e))``) plus ``mu h / (d + e)`` from the transfer at the acceleration where
-    both wheels reach ``mu N`` (``a = 2 mu N / m_t``, so ``m_t a h / (2 (d + e) N) = mu h / (d +
-    e)``).  The traction limit is ``mu N``, so a recording with these normal forces replays as
-    one whose friction coefficient is up to ``(1 + mu_excess)`` times the nominal one; never
-    less.
+    ``spin_h_m``: the reaction of the wheels' spin-up as a load-transfer height.  The motors
+    spinning up ``I_wy`` pitch the body and unload the caster by ``2 I_wy theta'' / (d + e)``
+    more (moments about the centre of mass: the wheels' spin momentum changes at ``2 I_wy
+    theta''``); while the wheels roll ``theta'' = a / r``, which is ``m_t a h_s / (d + e)`` with
+    ``h_s = 2 I_wy / (m_t r)`` (39 mm at the table's values).  The plant has no pitch, so the
+    draws add ``k h_s`` to the load-transfer height, exact while the wheels roll (where a slip
+    onset is decided).  ``k`` is the share of ``I_wy`` that spins with the wheel: the table's
+    ``I_wy = 2 I_wz`` is a thin disc's, the wheel alone (k = 1), but its text counts the rotor
+    in, whose reaction is 1/gear of its share; k is drawn in [0, 1].
 
-    Not drawn: the reaction of the wheels' spin-up (the motors' torque spinning up ``I_wy``
-    pitches the body and unloads the caster by ``2 I_wy theta'' / (d + e)`` more).  The plant
-    has no pitch; the only way it could express it is as an extra load-transfer height ``k 2
-    I_wy / (m_t r)`` that holds while the wheels roll, with ``k`` the share of ``I_wy`` that
-    spins with the wheel (a geared rotor's reaction is 1/gear of its share) which the table
-    does not give.  At the table's values that height reaches 39 mm, the size of the
-    vocabulary's own load-transfer effect (35–60 mm): drawing it would make that effect
-    undetectable, so it is left to the fit's significance (judge.py)."""
+    ``excess``: relative excess of a wheel's normal force at its slip onset over the nominal
+    model's, from each part at its full size: ``2 m_w d / (m_t e)`` from the wheels' mass on the
+    axle (the caster's load falls by ``2 m_w g d / (d + e)``, shared by the two wheels against
+    their ``m_t g e / (2 (d + e))``), ``mu h / (d + e)`` from the transfer at the acceleration
+    where both wheels reach ``mu N`` (``a = 2 mu N / m_t``, so ``m_t a h / (2 (d + e) N) = mu h
+    / (d + e)``) and ``mu h_s / (d + e)`` from the spin-up.  The traction limit is ``mu N``, so
+    a recording with these normal forces replays as one whose friction coefficient is up to
+    ``(1 + mu_excess)`` times the nominal one (``mu_excess`` their sum); never less."""
     wheel_shift_m: float
     h_max_m: float
-    mu_excess: float
+    spin_h_m: float
+    excess: tuple[float, float, float]
+
+    @property
+    def mu_excess(self) -> float:
+        return float(sum(self.excess))
 
 
 def left_out_normal_forces(robot: Mapping[str, float], mu: float | None = None) -> LeftOut:
     """The derived size of the left-out normal-force physics (:class:`LeftOut`) for the robot
-    parameters ``robot`` (meta.json's); ``mu`` the friction coefficient of ``mu_excess``
+    parameters ``robot`` (meta.json's); ``mu`` the friction coefficient of ``excess``
     (default the robot's μs)."""
     m_r, m_w = float(robot["m_r"]), float(robot["m_w"])
     d, e = float(robot["d"]), float(robot["e"])
-    h = float(robot["h"]) + P.TOLERANCES.get(("robot", "h"), 0.0)
+    h = max(float(robot["h"]) + P.TOLERANCES.get(("robot", "h"), 0.0), 0.0)
     m_t = m_r + 2.0 * m_w
+    r = float(robot["r"])
     mu_v = float(robot["mu_s"]) if mu is None else float(mu)
+    spin = 2.0 * float(robot["I_wy"]) / (m_t * r) if m_t > 0 and r > 0 else 0.0
     if not (m_t > 0 and d + e > 0 and e > 0):
-        return LeftOut(0.0, max(h, 0.0), 0.0)
-    shift = 2.0 * m_w * max(d, 0.0) / m_t
-    excess = 2.0 * m_w * max(d, 0.0) / (m_t * e) + mu_v * max(h, 0.0) / (d + e)
-    return LeftOut(shift, max(h, 0.0), excess)
+        return LeftOut(0.0, h, spin, (0.0, 0.0, 0.0))
+    return LeftOut(2.0 * m_w * max(d, 0.0) / m_t, h, spin,
+                   (2.0 * m_w * max(d, 0.0) / (m_t * e), mu_v * h / (d + e),
+                    mu_v * spin / (d + e)))
 
 
 def wheels_on_axle(robot: Mapping[str, float], share: float) -> dict[str, float]:
@@ -134,15 +143,16 @@ def ensemble_draws(robot: Mapping[str, float], n: int, rng: np.random.Generator
                    ) -> list[EnsembleDraw]:
     """``n`` replays of the tolerance ensemble: the parameters within their tolerance
     (:func:`tolerance_draws`), then the left-out physics of the normal forces
-    (:func:`left_out_normal_forces`), each uniform over its range: the share of the wheels' mass
-    on the axle in [0, 1] (:func:`wheels_on_axle`, from the drawn d, e, I_rz) and a centre of
-    mass height in [0, ``h_max_m``] whose longitudinal load transfer the plant's
-    ``load_transfer`` effect applies."""
+    (:func:`left_out_normal_forces`), each part uniform over its range: the share of the wheels'
+    mass on the axle in [0, 1] (:func:`wheels_on_axle`, from the drawn d, e, I_rz), and a
+    load-transfer height (the plant's ``load_transfer`` effect) that is a centre of mass height
+    in [0, ``h_max_m``] plus a share in [0, 1] of the spin-up's ``spin_h_m``."""
     params = tolerance_draws(robot, n, rng)
     out = []
     for d in params:
+        lo = left_out_normal_forces({**robot, **d})
         share = float(rng.uniform(0.0, 1.0))
-        h = float(rng.uniform(0.0, 1.0)) * left_out_normal_forces({**robot, **d}).h_max_m
+        h = float(rng.uniform(0.0, 1.0)) * lo.h_max_m + float(rng.uniform(0.0, 1.0)) * lo.spin_h_m
         r = {**d, **wheels_on_axle({**robot, **d}, share)}
         out.append(EnsembleDraw(r, {"load_transfer": {"h": h}}))
     return out
