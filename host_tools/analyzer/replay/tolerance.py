@@ -5,9 +5,10 @@ stop or reversal, an arc over seconds) the recording may depart from the nominal
 much without any physics missing.
 
 Beside the parameters, the nominal model's own left-out physics of the normal forces is drawn at
-its derived size (:func:`left_out_normal_forces`): where the wheels' mass sits, and the
-longitudinal load transfer of a centre of mass above the ground.  A real robot and any 3-D
-engine have both; lib/slipmodel's II.27–II.29 leave them out."""
+its derived size (:func:`left_out_normal_forces`): where the wheels' mass sits, the
+longitudinal load transfer of a centre of mass above the ground, and the reaction of the
+wheels' spin-up.  A real robot and any 3-D engine have them; lib/slipmodel's II.27–II.29 leave
+them out."""
 from __future__ import annotations
 
 import math
