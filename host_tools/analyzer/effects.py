@@ -39,6 +39,13 @@ class ParamSpec:
     # while in the (mu_s, mu_k/mu_s) coordinates both move mu_k and look identified.
     given: tuple[str, str, Callable[[float, float], float],
                  Callable[[float, Mapping[str, Any]], tuple[float, float]]] | None = None
+    # The ranges (lower, upper offset from the neutral value; lower <= 0 <= upper), one per
+    # independent part, by which the nominal model's own left-out physics of the normal forces
+    # moves this parameter's fitted value (replay/tolerance.py, ``left_out_normal_forces``: the
+    # wheels' mass on the axle, a centre of mass above the ground, the wheels' spin-up); the
+    # replay's tolerance ensemble draws each uniformly, and a fitted deviation within them is not
+    # evidence of the effect.  None: no such physics.
+    left_out: Callable[[Mapping[str, Any]], tuple[tuple[float, float], ...]] | None = None
 
 
 @dataclass(frozen=True)
@@ -78,13 +85,45 @@ def _ratio_tol(meta: Mapping[str, Any]) -> float:
 _NO_TOL = _c(0.0)
 
 
+def _friction_left_out(key: str
+                       ) -> Callable[[Mapping[str, Any]], tuple[tuple[float, float], ...]]:
+    """The left-out normal-force physics as a friction coefficient: wheels that carry more than
+    the nominal model gives at their slip onset reach ``mu N`` where the nominal model needs
+    ``(1 + excess) mu``; never less (``LeftOut.excess``, one range per part)."""
+    def f(meta: Mapping[str, Any]) -> tuple[tuple[float, float], ...]:
+        from host_tools.analyzer.replay.tolerance import left_out_normal_forces
+        mu = float(meta["robot"][key])
+        return tuple((0.0, mu * x) for x in left_out_normal_forces(meta["robot"], mu).excess)
+    return f
+
+
+def _height_left_out(meta: Mapping[str, Any]) -> tuple[tuple[float, float], ...]:
+    """The left-out longitudinal load transfer: a centre of mass between the ground and Table
+    II.2's ``h``, and a share of the wheels' spin-up reaction as a height (``LeftOut.h_max_m``,
+    ``LeftOut.spin_h_m``)."""
+    from host_tools.analyzer.replay.tolerance import left_out_normal_forces
+    lo = left_out_normal_forces(meta["robot"])
+    return (0.0, lo.h_max_m), (0.0, lo.spin_h_m)
+
+
+def left_out_ranges(effect: str, name: str, meta: Mapping[str, Any]
+                    ) -> tuple[tuple[float, float], ...]:
+    """:attr:`ParamSpec.left_out` of ``effect``'s parameter ``name`` (none: ``()``)."""
+    spec = SPECS.get(effect)
+    for ps in spec.params if spec is not None else ():
+        if ps.name == name and ps.left_out is not None:
+            return ps.left_out(meta)
+    return ()
+
+
 P = ParamSpec
 SPECS: dict[str, EffectSpec] = {s.name: s for s in [
     # mu_k is fitted as a fraction of mu_s in [0.5, 1]: kinetic friction never exceeds static
     EffectSpec("friction_coefficient", (
         P("mu_s", _robot("mu_s"), _c(0.03), _c(1.2), _tol("mu_s"),
           given=("mu_k", "mu_k_over_mu_s", lambda mu_s, mu_k: mu_k / mu_s,
-                 lambda mu_k, meta: (mu_k, min(mu_k / 0.5, 1.2)))),
+                 lambda mu_k, meta: (mu_k, min(mu_k / 0.5, 1.2))),
+          left_out=_friction_left_out("mu_s")),
         P("mu_k_over_mu_s", lambda m: float(m["robot"]["mu_k"]) / float(m["robot"]["mu_s"]),
           _c(0.5), _c(1.0), _ratio_tol,
           sets=("mu_k", lambda d: d["mu_k_over_mu_s"] * d["mu_s"]))),
@@ -120,11 +159,12 @@ SPECS: dict[str, EffectSpec] = {s.name: s for s in [
         P("mu", _c(0.0), _c(0.0), _c(0.5), _NO_TOL),),
         "constant drag force on the body while it moves"),
     EffectSpec("load_transfer", (
-        P("h", _c(0.0), _c(0.0), _c(0.25), _NO_TOL, "m"),),
+        P("h", _c(0.0), _c(0.0), _c(0.25), _NO_TOL, "m", left_out=_height_left_out),),
         "normal forces shift during acceleration; slip threshold moves"),
     EffectSpec("stribeck", (
         # friction at zero slip speed is capped at mu_s by the plant: above it is unidentifiable
-        P("mu_k0", _robot("mu_k"), _c(0.03), _robot("mu_s"), _tol("mu_k")),
+        P("mu_k0", _robot("mu_k"), _c(0.03), _robot("mu_s"), _tol("mu_k"),
+          left_out=_friction_left_out("mu_k")),
         P("v_s", _c(0.01), _c(0.001), _c(1.0), None)),
         "kinetic friction depends on slip speed"),
     EffectSpec("deadband", (

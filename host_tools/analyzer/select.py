@@ -12,7 +12,8 @@ import numpy as np
 from host_tools.analyzer import effects as fx
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit.invariance import Invariance, invariance_check
-from host_tools.analyzer.fit.judge import HELDOUT_Z, Candidate, delta_bic, judge, paired_better
+from host_tools.analyzer.fit.judge import (HELDOUT_Z, Candidate, delta_bic, judge, paired_better,
+                                           significant_deviation)
 from host_tools.analyzer.fit.params import params_for
 from host_tools.analyzer.fit.problem import Problem
 from host_tools.analyzer.fit.solver import effective_n
@@ -140,7 +141,8 @@ def _fit_pairs(problem: Problem, cands: list[Candidate], best_single: Candidate 
         pc.checks["partners_significant"] = not weak
         for e, zs in weak:
             pc.reasons.append(f"{e} insignificant in the pair (its parameter {zs:.2f} sigma from "
-                              f"nominal <= {HELDOUT_Z}): dropped")
+                              f"nominal, within {HELDOUT_Z} sigma of what the nominal model "
+                              f"allows): dropped")
     pair_cands.sort(key=lambda c: c.delta_bic)
     return pair_cands
 
@@ -157,19 +159,25 @@ def _heldout_beats(pair: Candidate, single: Candidate) -> bool:
 def _insignificant_partners(pair: Candidate, problem: Problem) -> list[tuple[str, float]]:
     """Effects of a pair none of whose fitted parameters is significantly off nominal (|value -
     neutral| within HELDOUT_Z of its 1-sigma uncertainty, one-sided 1 %: the rate of the other
-    tests): such a partner only bends the fit, and the pair is refused so its other effect
-    stands alone.  Shape parameters and unidentified coordinates do not count."""
+    tests; within what the nominal model's left-out physics of the normal forces moves it by,
+    ``judge.significant_deviation``): such a partner only bends the fit, and the pair is refused
+    so its other effect stands alone.  Shape parameters and unidentified coordinates do not
+    count."""
     params = params_for(pair.effects, problem.meta, problem.vocab)
     best: dict[str, float] = {}
+    strong: set[str] = set()
     for j, p in enumerate(params):
         if (p.shape or j >= len(pair.fit.std)
                 or f"{p.effect}.{p.name}" in pair.fit.unidentified):
             continue
         sd = pair.fit.std[j]
-        dev = abs(pair.fit.values[j] - p.neutral)
-        zs = dev / sd if math.isfinite(sd) and sd > 0 else (math.inf if dev > 0 else 0.0)
+        dev = pair.fit.values[j] - p.neutral
+        zs = abs(dev) / sd if math.isfinite(sd) and sd > 0 else (math.inf if dev else 0.0)
         best[p.effect] = max(best.get(p.effect, 0.0), zs)
-    return [(e, zs) for e, zs in best.items() if zs <= HELDOUT_Z]
+        if significant_deviation(dev, sd, 0.0, HELDOUT_Z,
+                                 fx.left_out_ranges(p.effect, p.name, problem.meta)):
+            strong.add(p.effect)
+    return [(e, zs) for e, zs in best.items() if e not in strong]
 
 
 def _pair_bic(pair: Candidate, single: Candidate, problem: Problem) -> float:

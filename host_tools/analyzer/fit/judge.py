@@ -168,27 +168,41 @@ HELDOUT_RULE = (f"a channel that measures physics is worse after the update when
 
 BIC_MARGIN = -10.0
 
-# A fitted parameter is off its neutral value (SIZE_RULE) when the deviation exceeds SIZE_Z times
-# the combined standard uncertainty of the fit (its 1-sigma, autocorrelation-corrected) and of the
-# nominal model: params.json's ``tol`` of the neutral value (ParamSpec.tol) is a half-width, the
-# true value lies within value +- tol, uniformly as the replay's tolerance ensemble draws it, so
-# its standard uncertainty is tol / sqrt(3).  A deviation within what the nominal parameter's own
-# tolerance allows is not evidence of the effect.  SIZE_Z is the one-sided 1 % of the other tests
-# (HELDOUT_Z).  Without a tolerance (an effect whose neutral value is no nominal parameter) the
+# A fitted parameter is off its neutral value (SIZE_RULE) when the deviation lies beyond what the
+# nominal model allows by more than SIZE_Z times the combined standard uncertainty of the fit (its
+# 1-sigma, autocorrelation-corrected) and of the nominal parameter: params.json's ``tol`` of the
+# neutral value (ParamSpec.tol) is a half-width, the true value lies within value +- tol,
+# uniformly as the replay's tolerance ensemble draws it, so its standard uncertainty is tol /
+# sqrt(3).  What the nominal model allows is the neutral value itself, widened by the ranges
+# [lo, hi] by which the parts of its left-out physics of the normal forces move the fitted value
+# (ParamSpec.left_out, replay/tolerance.py: the wheels' mass on the axle, a centre of mass above
+# the ground, the wheels' spin-up; they raise a friction coefficient by up to mu_excess of it and
+# give a load-transfer height up to Table II.2's h plus the spin-up's equivalent height): any
+# value between sum(lo) and sum(hi) is a robot the ensemble draws, the nominal one included, so
+# none of them is evidence.  SIZE_Z is the one-sided 1 % of the other tests (HELDOUT_Z).  Without
+# a tolerance or a left-out range (an effect whose neutral value is no nominal parameter) the
 # deviation must be significant against the fit's uncertainty, and the output change
 # (``min_output``) decides.
 SIZE_Z = HELDOUT_Z
-SIZE_RULE = (f"|value - nominal| > {SIZE_Z} x sqrt(sigma_fit^2 + tol^2 / 3), tol the nominal "
-             f"parameter's params.json tolerance (0 where it has none)")
+SIZE_RULE = (f"value - nominal outside [sum lo, sum hi] by more than {SIZE_Z} x sqrt(sigma_fit^2 "
+             f"+ tol^2 / 3), tol the nominal parameter's params.json tolerance (0 where it has "
+             f"none), [lo, hi] each range by which a part of the nominal model's left-out physics "
+             f"of the normal forces moves it (none where it does not)")
 
 
-def significant_deviation(dev: float, sigma_fit: float, tol: float, z: float = SIZE_Z) -> bool:
-    """Is a fitted deviation ``dev`` from the neutral value beyond ``z`` times the combined
-    standard uncertainty of the fit (``sigma_fit``; a non-finite one counts as 0: a coordinate
-    whose uncertainty is unknown is judged on the tolerance and the output change) and the
-    nominal model (``tol``, the half-width of a uniform range: tol / sqrt(3))?"""
+def significant_deviation(dev: float, sigma_fit: float, tol: float, z: float = SIZE_Z,
+                          left_out: Sequence[tuple[float, float]] = ()) -> bool:
+    """Is a fitted deviation ``dev`` from the neutral value outside the range the nominal
+    model's left-out physics allows (``left_out``: the ranges (lo, hi) of its parts, summed;
+    none: the neutral value alone) by more than ``z`` times the combined standard uncertainty
+    of the fit (``sigma_fit``; a non-finite one counts as 0: a coordinate whose uncertainty is
+    unknown is judged on the tolerance and the output change) and the nominal parameter
+    (``tol``, the half-width of a uniform range: tol / sqrt(3))?"""
     sd = sigma_fit if math.isfinite(sigma_fit) else 0.0
-    return abs(dev) > z * math.hypot(sd, tol / math.sqrt(3.0)) and dev != 0.0
+    lo = sum(min(float(a), float(b)) for a, b in left_out)
+    hi = sum(max(float(a), float(b)) for a, b in left_out)
+    beyond = dev - hi if dev > hi else (lo - dev if dev < lo else 0.0)
+    return beyond > z * math.hypot(sd, tol / math.sqrt(3.0)) and dev != 0.0
 
 # Adoption asks the held-out data whether the update predicts them better: a paired test of the
 # held-out errors, sample by sample over the fit channels in noise floors (mean of
@@ -313,7 +327,8 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
             continue  # shape parameter (e.g. v_s): size and stability judged through its partner
         dev = cand.fit.values[j] - p.neutral
         sd = cand.fit.std[j] if j < len(cand.fit.std) else math.nan
-        counts = significant_deviation(dev, sd, p.tol)
+        counts = significant_deviation(dev, sd, p.tol,
+                                       left_out=fx.left_out_ranges(p.effect, p.name, problem.meta))
         size_ok = size_ok or counts
         folds = [fv[j] for fv in cand.fold_values]
         if counts:
@@ -330,8 +345,8 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
                 cand.reasons.append(f"{p.effect}.{p.name}: uncertainty {cand.fit.std[j]:.3g} "
                                     f"> half its size")
     if not size_ok:
-        cand.reasons.append(f"fitted deviation from nominal within {SIZE_Z} x sqrt(sigma_fit^2 + "
-                            f"tol^2 / 3) (tol: params.json tolerance)")
+        cand.reasons.append(f"fitted deviation from nominal within what the nominal model allows "
+                            f"({SIZE_RULE})")
     if cand.output_size < min_output:
         size_ok = False
         cand.reasons.append(f"changes the outputs by only {cand.output_size:.2f} noise floors")
