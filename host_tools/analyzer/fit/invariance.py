@@ -35,7 +35,7 @@ from scipy import stats
 
 from host_tools.analyzer.fit.judge import Candidate
 from host_tools.analyzer.fit.params import FitResult, params_for
-from host_tools.analyzer.fit.problem import Problem
+from host_tools.analyzer.fit.problem import Problem, largest_rms
 from host_tools.analyzer.locate.bias import BIAS_ALPHA, BIAS_MIN_FLOORS
 from host_tools.analyzer.signals import round_sig
 
@@ -140,20 +140,17 @@ def invariance_check(problem: Problem, chosen: Candidate,
 
 def _split_output_change(problem: Problem, chosen: Candidate, per_run: list[list[FitResult]],
                          split: float) -> float:
-    """RMS over the fit channels, in noise floors, of what the halves' own fits change in the
-    residual against the whole fit, each half with its own: the output change of a model whose
-    parameters drift, measured as a candidate's is (``judge``)."""
+    """In noise floors, what the halves' own fits change in the residual against the whole
+    fit, each half with its own, measured as a candidate's output change is
+    (``Problem.output_change``: per fit channel, the largest): the output change of a model
+    whose parameters drift."""
     old = problem.split_frac
     problem.split_frac = split
-    sq, n = 0.0, 0
+    sums: dict[str, list[float]] = {}
     try:
         for i, halves in enumerate(per_run):
             for part, own in zip(("early", "late"), halves):
-                r_own = problem.residual(own.params, [i], part)
-                r_whole = problem.residual(chosen.fit.params, [i], part)
-                if r_own.size == r_whole.size:
-                    sq += float(np.sum((r_own - r_whole) ** 2))
-                    n += r_own.size
+                problem.change_sums(chosen.fit.params, own.params, [i], part, into=sums)
     finally:
         problem.split_frac = old
-    return math.sqrt(sq / n) if n else 0.0
+    return largest_rms(sums)

@@ -133,8 +133,7 @@ def evaluate_candidate(problem: Problem, names: Sequence[str],
         pairs[c] = (vb, va)
     hb = math.sqrt(sq_b / max(cnt, 1))
     ha = math.sqrt(sq_a / max(cnt, 1))
-    rfit = problem.residual(full.params, runs)
-    size = float(np.sqrt(np.mean((rfit - r_ref) ** 2))) if r_ref.size == rfit.size else 0.0
+    size = problem.output_change(ref_effects, full.params, runs)
     rms: Callable[[Any], float] = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
     pooled = ((np.concatenate(pool_b), np.concatenate(pool_a))
               if pool_b and len(pool_b) == len(folds) else None)

@@ -27,6 +27,12 @@ FIT_BUDGET_S = 16.0
 CACHE_BYTES = 128 * 2 ** 20
 
 
+
+def largest_rms(sums: Mapping[str, Sequence[float]]) -> float:
+    """The largest per-channel RMS of :meth:`Problem.change_sums`' [sum of squares, count]
+    (0 without samples): an update's output change in noise floors."""
+    return max((math.sqrt(sq / n) for sq, n in sums.values() if n), default=0.0)
+
 class Problem:
     """The fitting problem over a set of runs; picklable (plants are made lazily)."""
 
@@ -171,6 +177,44 @@ class Problem:
             return np.zeros(0)
         r = np.concatenate(parts)
         return np.where(np.isfinite(r), r, 1e6)
+
+    def output_change(self, before: Mapping[str, Mapping[str, float]],
+                      after: Mapping[str, Mapping[str, float]], runs: Sequence[int]) -> float:
+        """How far an update moves the model's outputs, in noise floors: per fit channel, the
+        RMS over ``runs`` of the change of its normalized residual (the residual as the fit
+        weighs it: deflated by the replay's own uncertainty, over the floor) from the effects
+        ``before`` to ``after``; the largest over the channels.  Per channel, not pooled: an
+        effect moves the channels that measure it (a torque imbalance the wheels' speeds and
+        currents, a radius the camera), and pooling would dilute it by however many other
+        channels a recorder happens to log."""
+        return largest_rms(self.change_sums(before, after, runs))
+
+    def change_sums(self, before: Mapping[str, Mapping[str, float]],
+                    after: Mapping[str, Mapping[str, float]], runs: Sequence[int],
+                    part: str = "all", into: dict[str, list[float]] | None = None
+                    ) -> dict[str, list[float]]:
+        """Per fit channel [sum of squares, count] of the change of the normalized residual
+        from ``before`` to ``after`` over ``runs`` (``part`` as :meth:`residual`), added to
+        ``into`` when given (:meth:`output_change` and the invariance check's halves)."""
+        acc = {} if into is None else into
+        for i, ca, cb in zip(runs, self.sim_channels(before, runs, fit_only=True),
+                             self.sim_channels(after, runs, fit_only=True)):
+            ts = self._split_t(self.preps[i]) if part != "all" else 0.0
+            for c in self.fit_channels:
+                x, y = ca.get(c), cb.get(c)
+                if x is None or y is None or x.t.size != y.t.size or not x.t.size:
+                    continue
+                f = self.floors[c]
+                d = (y.deflated(f) - x.deflated(f)) / f
+                if part == "early":
+                    d = d[x.t <= ts]
+                elif part == "late":
+                    d = d[x.t > ts]
+                d = d[np.isfinite(d)]
+                s = acc.setdefault(c, [0.0, 0.0])
+                s[0] += float(np.sum(d ** 2))
+                s[1] += d.size
+        return acc
 
     def slip_differences(self, chans: Mapping[str, Channel]
                          ) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -304,16 +304,13 @@ def imbalance_of(problem: Any, nominal: Sequence[Mapping[str, Channel]], n_tests
     runs = list(range(len(problem.preps)))
     stepped = problem.sim_channels({IMBALANCE_EFFECT: step}, runs, full=True, fit_only=True)
     allowed = [tolerance_cov(p, problem.floors, WHEEL_PAIRS) for p in problem.preps]
-    # the output change as the adoption measures it (``fit.judge``: RMS of the change of the
-    # fit's residual on the fitting windows), at the ratio found, so that what is detected can
-    # be adopted
+    # the output change as the adoption measures it (``Problem.output_change``, ``fit.judge``),
+    # at the ratio found, so that what is detected can be adopted
     name = next(iter(spec))
-    r0 = problem.residual({}, runs)
 
     def output_of(ratio: float) -> float:
         if not ratio > 0:
             return 0.0
-        r1 = problem.residual({IMBALANCE_EFFECT: {name: ratio}}, runs)
-        return float(np.sqrt(np.mean((r1 - r0) ** 2))) if r0.size == r1.size and r0.size else 0.0
+        return float(problem.output_change({}, {IMBALANCE_EFFECT: {name: ratio}}, runs))
     return imbalance_test(nominal, stepped, problem.floors, n_tests, allowed=allowed,
                           output_of=output_of)

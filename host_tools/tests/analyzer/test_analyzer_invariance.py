@@ -71,9 +71,14 @@ class _Halves:
         return FitResult(list(names), {"driver_voltage_drop": {"volts": v}}, [v],
                          np.array([0.5]), 0.0, 0, [s], 0, coords=[("driver_voltage_drop", "volts")])
 
-    def residual(self, effects, runs, part="all"):
-        # outputs that move by 10 noise floors per volt of the drop
-        return np.full(20, 10.0 * effects["driver_voltage_drop"]["volts"])
+    def change_sums(self, before, after, runs, part="all", into=None):
+        # outputs that move by 10 noise floors per volt of the drop, in one channel
+        d = 10.0 * (after["driver_voltage_drop"]["volts"] - before["driver_voltage_drop"]["volts"])
+        acc = {} if into is None else into
+        s = acc.setdefault("current_r_a", [0.0, 0.0])
+        s[0] += 20 * d ** 2
+        s[1] += 20
+        return acc
 
 
 def _check(per_run):
