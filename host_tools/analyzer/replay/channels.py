@@ -2,6 +2,7 @@
 recording's own time base."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Collection, Mapping, cast
@@ -159,14 +160,14 @@ def channels(prep: PreparedRun, sim: Mapping[str, np.ndarray] | WindowSims, mode
 
 
 def _with_uncertainty(prep: PreparedRun, chans: dict[str, Channel]) -> dict[str, Channel]:
-    """Attach the run's replay uncertainty (``replay_unc``: channel -> (t, unc), from
-    :func:`input_uncertainty`) to its channels, at their sample times."""
+    """The channels with the run's replay uncertainty (``replay_unc``: channel -> (t, unc),
+    from :func:`input_uncertainty`) at their sample times; ``chans`` is left as it is."""
     unc = prep.replay_unc
-    if unc:
-        for name, ch in chans.items():
-            if name in unc and ch.t.size:
-                ch.unc = np.interp(ch.t, *unc[name])
-    return chans
+    if not unc:
+        return chans
+    return {name: (dataclasses.replace(ch, unc=np.interp(ch.t, *unc[name]))
+                   if name in unc and ch.t.size else ch)
+            for name, ch in chans.items()}
 
 
 @dataclass
