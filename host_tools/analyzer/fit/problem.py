@@ -11,7 +11,7 @@ import numpy as np
 from host_tools.analyzer.fit.params import FitResult, effects_dict, params_for
 from host_tools.analyzer.fit.solver import (UNIDENTIFIED, grid_start, param_std, solve,
                                             unidentified_given)
-from host_tools.analyzer.locate.bias import WHEEL_PAIRS
+from host_tools.analyzer.locate.bias import WHEEL_PAIRS, pair_name
 from host_tools.analyzer.locate.episodes import SLIP_UNC, UNPINNED_UNC
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import FIT_CHANNELS, Channel, channels
@@ -214,6 +214,21 @@ class Problem:
                 s = acc.setdefault(c, [0.0, 0.0])
                 s[0] += float(np.sum(d ** 2))
                 s[1] += d.size
+            # a wheel pair's difference where each wheel alone is no evidence (a slip), as
+            # the residual holds it
+            for (name, da, t), (_, db, _) in zip(self.named_slip_differences(ca),
+                                                 self.named_slip_differences(cb)):
+                if da.size != db.size:
+                    continue
+                d = db - da
+                if part == "early":
+                    d = d[t <= ts]
+                elif part == "late":
+                    d = d[t > ts]
+                d = d[np.isfinite(d)]
+                s = acc.setdefault(name, [0.0, 0.0])
+                s[0] += float(np.sum(d ** 2))
+                s[1] += d.size
         return acc
 
     def slip_differences(self, chans: Mapping[str, Channel]
@@ -226,7 +241,12 @@ class Problem:
         fit, and r^2 + l^2 already holds the difference's square; in such a slip the common
         part is dropped and the difference kept, as the detection's bias test keeps it
         (``locate.bias.bias_test``)."""
-        out: list[tuple[np.ndarray, np.ndarray]] = []
+        return [(d, t) for _, d, t in self.named_slip_differences(chans)]
+
+    def named_slip_differences(self, chans: Mapping[str, Channel]
+                               ) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """:meth:`slip_differences` with each pair's name (``locate.bias.pair_name``)."""
+        out: list[tuple[str, np.ndarray, np.ndarray]] = []
         for a, b in WHEEL_PAIRS:
             ca, cb = chans.get(a), chans.get(b)
             if (ca is None or cb is None or a not in self.fit_channels
@@ -240,7 +260,7 @@ class Problem:
             if not m.any():
                 continue
             d = (ca.resid[m] / self.floors[a] - cb.resid[m] / self.floors[b]) / math.sqrt(2)
-            out.append((d, ca.t[m]))
+            out.append((pair_name(a, b), d, ca.t[m]))
         return out
 
     def channel_resids(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int], part: str = "all",
