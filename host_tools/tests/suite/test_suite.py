@@ -154,11 +154,12 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback6", 24, 11),
                                                     ("heldback7", 28, 12),
                                                     ("heldback8", 26, 12),
-                                                    ("heldback9", 28, 12)])
+                                                    ("heldback9", 28, 12),
+                                                    ("heldback10", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
-             "heldback6", "heldback7", "heldback8", "heldback9"]
+             "heldback6", "heldback7", "heldback8", "heldback9", "heldback10"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -198,6 +199,11 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
         ratios = {c.effects["motor_gain_asymmetry"]["ratio"] for c in new
                   if "motor_gain_asymmetry" in c.effects}
         assert min(ratios) < 1 < max(ratios)
+        assert {c.length for c in new} == {"short", "20 s", "1 min"}
+    if which == "heldback10":  # both engines in every kind; a load transfer beyond the range
+        for expect in ("no_mismatch", "explained", "unexplained"):
+            assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
+        assert any(e == "load_transfer" for c in new for e in c.effects)
         assert {c.length for c in new} == {"short", "20 s", "1 min"}
 
 
@@ -290,6 +296,7 @@ FROZEN_SETS = {
     "heldback7": "66ac3fcebea2c79d7632280fde5aef3685cebb45ecf4137beb0d50e0851dbe2f",
     "heldback8": "9feeefb399f681a4672f5b6156f1e371b9adc7f0a6e459d6f760711476b4bd3a",
     "heldback9": "ac154af7cefc2a00ec8eda12f5cb92d71fb819169570029b88c3a999875526b8",
+    "heldback10": "d3b74497174d999fbdec61c0c193a5f1e9dea55d83bed57e8c3df081e009cf9d",
 }
 
 
