@@ -632,14 +632,19 @@ def _make_run(path, offset, noise=0.002, seed=0):
     return tt[keep] - offset, xt[keep], rng.normal(0, noise, keep.sum())
 
 
+def _write_tracker(path, t, x, y, phi=None):
+    """A tracker's CSV (t_s, x_m, y_m, phi_rad; phi empty when None); returns ``path``."""
+    with open(path, "w") as fh:
+        fh.write("t_s,x_m,y_m,phi_rad\n")
+        for a, b, c in zip(t, x, y):
+            fh.write(f"{a:.4f},{b:.5f},{c:.5f},{'' if phi is None else phi}\n")
+    return path
+
+
 def test_groundtruth_offset_is_estimated(tmp_path):
     run = tmp_path / "run"
     tt, xt, yt = _make_run(str(run), offset=2.37)
-    csv = tmp_path / "tracker.csv"
-    with open(csv, "w") as fh:
-        fh.write("t_s,x_m,y_m,phi_rad\n")
-        for a, b, c in zip(tt, xt, yt):
-            fh.write(f"{a:.4f},{b:.5f},{c:.5f},\n")
+    csv = _write_tracker(tmp_path / "tracker.csv", tt, xt, yt)
     rc = L.main(_args(["--out", str(run), "--attach-groundtruth", str(csv)]))
     assert rc == 0
     meta = json.load(open(run / "meta.json"))
@@ -792,12 +797,9 @@ def test_fuzz_logger_sequence_logic(tmp_path_factory, case):
 def test_groundtruth_start_pose_from_tracker(tmp_path, capsys):
     run = tmp_path / "run"
     tt, xt, yt = _make_run(str(run), offset=0.0)
-    csv = tmp_path / "tracker.csv"
     # room coordinates: the robot starts at (1.0, 2.0) heading 0.5 rad
-    with open(csv, "w") as fh:
-        fh.write("t_s,x_m,y_m,phi_rad\n")
-        for a, b, c in zip(tt, xt, yt):
-            fh.write(f"{a:.4f},{1.0 + b * math.cos(0.5):.5f},{2.0 + b * math.sin(0.5) + c:.5f},0.5\n")
+    csv = _write_tracker(tmp_path / "tracker.csv", tt, 1.0 + xt * math.cos(0.5),
+                         2.0 + xt * math.sin(0.5) + yt, phi=0.5)
     assert L.main(_args(["--out", str(run), "--attach-groundtruth", str(csv), "--gt-offset", "0",
                          "--gt-start-pose"])) == 0
     sp = json.load(open(run / "meta.json"))["start_pose"]

@@ -52,6 +52,19 @@ def _rewrite_csv(path, fn):
     open(path, "w").write("\n".join(lines) + "\n")
 
 
+def _map_column(path, column, fn):
+    """Rewrite one column of a CSV file, each value through ``fn`` (float in, float out)."""
+    def edit(L):
+        j = L[0].split(",").index(column)
+        out = [L[0]]
+        for line in L[1:]:
+            c = line.split(",")
+            c[j] = repr(fn(float(c[j])))
+            out.append(",".join(c))
+        return out
+    _rewrite_csv(path, edit)
+
+
 def test_roundtrip_exact_and_defaults(tmp_path):
     cols = _columns()
     p = tmp_path / "r"
@@ -168,16 +181,7 @@ def test_groundtruth_nan_position_refused(tmp_path):
 
 def test_phi_in_degrees_detected_in_odometry(tmp_path):
     p = _make(tmp_path, turn=4.0)
-    def edit(L):
-        h = L[0].split(",")
-        j = h.index("phi_odo_rad")
-        out = [L[0]]
-        for l in L[1:]:
-            c = l.split(",")
-            c[j] = repr(np.degrees(float(c[j])))
-            out.append(",".join(c))
-        return out
-    _rewrite_csv(p / "telemetry.csv", edit)
+    _map_column(p / "telemetry.csv", "phi_odo_rad", np.degrees)
     with pytest.raises(RunFormatError, match="degrees") as e:
         load_run(p)
     assert e.value.column == "phi_odo_rad"
@@ -219,15 +223,7 @@ def test_other_wrong_units(tmp_path):
         load_run(p)
     assert e.value.column == "pwm_r" and e.value.row == 1
     p = _make(tmp_path, name="rpm")
-    def rpm(L):
-        j = L[0].split(",").index("omega_l")
-        out = [L[0]]
-        for l in L[1:]:
-            c = l.split(",")
-            c[j] = repr(float(c[j]) * 60 / (2 * np.pi))
-            out.append(",".join(c))
-        return out
-    _rewrite_csv(p / "telemetry.csv", rpm)
+    _map_column(p / "telemetry.csv", "omega_l", lambda w: w * 60 / (2 * np.pi))
     with pytest.raises(RunFormatError, match="rpm") as e:
         load_run(p)
     assert e.value.column == "omega_l"
