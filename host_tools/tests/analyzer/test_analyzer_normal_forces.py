@@ -234,3 +234,33 @@ def test_a_pair_partner_within_the_left_out_physics_is_dropped() -> None:
     h = 0.059 - left_out_normal_forces(dict(P.ROBOT)).spin_h_m
     assert [e for e, _ in _insignificant_partners(pair(h), _Prob())] == ["load_transfer"]
     assert _insignificant_partners(pair(0.09), _Prob()) == []
+
+
+def test_mujocos_spin_up_share_is_inside_the_draws() -> None:
+    """MuJoCo's wheels spinning up on a floor of mu = 0.001 with the body at rest: the caster's
+    load falls by k I_wy (theta''_r + theta''_l) / (d + e) (lib/slipmodel/README.md, "Load
+    transfer and spin-up") with k = 1/2, its wheel body's I_wz of I_wy (the armature does not
+    react): inside the ensemble's k in [0, 1], and not the effect's own k = 1."""
+    pytest.importorskip("mujoco")
+    from host_tools.engines.mujoco_robot import MujocoRobot
+    R = dict(P.ROBOT)
+    m_t = R["m_r"] + 2 * R["m_w"]
+    rb = MujocoRobot({"friction_coefficient": {"mu_s": 1e-3, "mu_k": 1e-3}})
+    nc0 = rb.normal_forces()[2]
+    t = 0.0
+    for _ in range(100):
+        rb.step(t, 0.3, 0.3)
+        t += rb.dt
+    w0, v0 = rb.data.qvel[6:8].copy(), float(rb.data.qvel[0])
+    nc = []
+    for _ in range(50):
+        rb.step(t, 0.3, 0.3)
+        t += rb.dt
+        nc.append(rb.normal_forces()[2])
+    span = 50 * rb.dt
+    spin = float(np.sum(rb.data.qvel[6:8] - w0)) / span
+    a_x = (float(rb.data.qvel[0]) - v0) / span
+    assert abs(a_x) < 0.05 and spin > 100.0          # the body at rest, the wheels spinning up
+    k = -((float(np.mean(nc)) - nc0) * (R["d"] + R["e"]) + m_t * a_x * R["h"]) / (R["I_wy"] * spin)
+    assert abs(k - R["I_wz"] / R["I_wy"]) < 0.02
+    assert 0.0 <= k <= 1.0
