@@ -157,7 +157,8 @@ class Plant:
         return msg.decode() if msg else ""
 
     def set(self, key: str, value: float) -> None:
-        """Set ``robot.<p>``, ``motor.<p>``, ``<effect>.<param>`` or ``<effect>.enabled``."""
+        """Set ``robot.<p>``, ``motor.<p>``, ``<effect>.<param>``, ``<effect>.enabled`` or the
+        model setting ``plant.spin_share`` (lib/slipmodel/src/slipmodel/keys.h)."""
         try:
             v = float(value)
         except (TypeError, ValueError):

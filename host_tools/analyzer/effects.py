@@ -98,12 +98,13 @@ def _friction_left_out(key: str
 
 
 def _height_left_out(meta: Mapping[str, Any]) -> tuple[tuple[float, float], ...]:
-    """The left-out longitudinal load transfer: a centre of mass between the ground and Table
-    II.2's ``h``, and a share of the wheels' spin-up reaction as a height (``LeftOut.h_max_m``,
+    """The left-out longitudinal load transfer as the effect's ``h`` (which carries the whole
+    spin-up of ``I_wy``): a centre of mass between the ground and Table II.2's ``h``, and the
+    share of the spin-up a robot lacks, as a height down to ``-h_s`` (``LeftOut.h_max_m``,
     ``LeftOut.spin_h_m``)."""
     from host_tools.analyzer.replay.tolerance import left_out_normal_forces
     lo = left_out_normal_forces(meta["robot"])
-    return (0.0, lo.h_max_m), (0.0, lo.spin_h_m)
+    return (0.0, lo.h_max_m), (-lo.spin_h_m, 0.0)
 
 
 def left_out_ranges(effect: str, name: str, meta: Mapping[str, Any]

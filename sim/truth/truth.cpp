@@ -69,7 +69,7 @@ const KeyDef kKeys[] = {
     {"axle_viscous.c", 0.0, 0, 1},
     {"axle_coulomb.torque", 0.0, 0, 1},
     {"caster_drag.mu", 0.0, 0, 2},
-    {"load_transfer.h", 0.0, 0, 1},          // 0: no longitudinal load transfer
+    {"load_transfer.h", 0.0, 0, 1},          // 0: no pitch balance; > 0: CoM height, and the wheels' spin-up
     {"stribeck.mu_k0", -1.0, -1, 10},        // < 0: off
     {"stribeck.v_s", 0.01, 1e-5, 10},
     {"deadband.volts", 0.0, 0, 50},
@@ -530,6 +530,7 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   bool stuck_r = true, stuck_l = true;
   double tau_del_r = 0.0, tau_del_l = 0.0;  // delivered torques (after the lag)
   double lat_prev = 0.0, ax_prev = 0.0;     // body-frame lateral friction force, forward accel of c
+  double spin_prev = 0.0;                   // the wheels' summed spin acceleration, rad/s^2
   double charge_as = 0.0, v_batt = V0, N_r = 0, N_l = 0, N_c = 0;
   // command history for the actuation delay (commands change only at ticks): a ring of the
   // last kHist ticks (>= 4.096 s at the shortest inner period, 1 ms; the delay is <= 1 s)
@@ -705,7 +706,10 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
 
     // ---- normal forces: caster from pitch balance about the axle line, wheels from roll balance
     const double Wn = m * g * cos(slope);
-    N_c = fmax(0.0, (Wn * d - m * ax_prev * h_pitch) / (d + e));
+    // (moments about c: the ground's forward force at depth h_pitch and the rate of the wheels'
+    // spin momentum Iw (theta'_r + theta'_l), each rigid wheel spinning about the axle)
+    const double spin_moment = h_pitch > 0.0 ? Iw * spin_prev : 0.0;
+    N_c = fmax(0.0, (Wn * d - m * ax_prev * h_pitch - spin_moment) / (d + e));
     const double Nw = Wn - N_c;
     const double dN = h_lat * lat_prev / b;  // a left lateral force loads the right wheel
     N_r = fmax(0.0, 0.5 * (Nw + dN));
@@ -714,7 +718,7 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
     if (N_l == 0.0) N_r = Nw;
 
     // ---- free velocity update: gravity along the slope, motor torque, implicit axle viscous
-    const double q_old0 = q[0], q_old1 = q[1];
+    const double q_old0 = q[0], q_old1 = q[1], q_old34 = q[3] + q[4];
     q[0] += dt * (-m * g * sin(slope)) / m;
     q[3] = (Iw * q[3] + dt * tau_del_r) / (Iw + dt * c_visc);
     q[4] = (Iw * q[4] + dt * tau_del_l) / (Iw + dt * c_visc);
@@ -783,6 +787,7 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
     // lateral friction force (body frame) of both wheels, for the next step's roll balance
     lat_prev = ((cs[0].P[0] + cs[1].P[0]) * nx + (cs[0].P[1] + cs[1].P[1]) * ny) / dt;
     ax_prev = ((q[0] - q_old0) * ct + (q[1] - q_old1) * st) / dt;
+    spin_prev = (q[3] + q[4] - q_old34) / dt;
 
     // ---- positions (symplectic Euler: new velocities)
     X += dt * q[0];

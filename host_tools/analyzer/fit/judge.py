@@ -176,7 +176,8 @@ BIC_MARGIN = -10.0
 # [lo, hi] by which the parts of its left-out physics of the normal forces move the fitted value
 # (ParamSpec.left_out, replay/tolerance.py: the wheels' mass on the axle, a centre of mass above
 # the ground, the wheels' spin-up; they raise a friction coefficient by up to mu_excess of it and
-# give a load-transfer height up to Table II.2's h plus the spin-up's equivalent height): any
+# give a load-transfer height from minus the spin-up's equivalent height, the effect carrying the
+# whole spin-up, up to Table II.2's h): any
 # value between sum(lo) and sum(hi) is a robot the ensemble draws, the nominal one included, so
 # none of them is evidence.  SIZE_Z is the one-sided 1 % of the other tests (HELDOUT_Z).  Without
 # a tolerance or a left-out range (an effect whose neutral value is no nominal parameter) the

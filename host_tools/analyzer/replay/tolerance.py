@@ -52,14 +52,18 @@ class LeftOut:
     laterally.
 
     ``spin_h_m``: the reaction of the wheels' spin-up as a load-transfer height.  The motors
-    spinning up ``I_wy`` pitch the body and unload the caster by ``2 I_wy theta'' / (d + e)``
-    more (moments about the centre of mass: the wheels' spin momentum changes at ``2 I_wy
-    theta''``); while the wheels roll ``theta'' = a / r``, which is ``m_t a h_s / (d + e)`` with
-    ``h_s = 2 I_wy / (m_t r)`` (39 mm at the table's values).  The plant has no pitch, so the
-    draws add ``k h_s`` to the load-transfer height, exact while the wheels roll (where a slip
-    onset is decided).  ``k`` is the share of ``I_wy`` that spins with the wheel: the table's
-    ``I_wy = 2 I_wz`` is a thin disc's, the wheel alone (k = 1), but its text counts the rotor
-    in, whose reaction is 1/gear of its share; k is drawn in [0, 1].
+    spinning up the wheels pitch the body and unload the caster by ``I_wy (theta''_r +
+    theta''_l) / (d + e)`` (moments about the centre of mass: the wheels' spin momentum changes
+    at that rate); while the wheels roll ``theta'' = a / r``, which is ``m_t a h_s / (d + e)``
+    with ``h_s = 2 I_wy / (m_t r)`` (39 mm at the table's values).  The plant's
+    ``load_transfer`` effect carries this term itself (lib/slipmodel/README.md, "Load transfer
+    and spin-up"), with the share ``k`` of ``I_wy`` whose spin reacts (``plant.spin_share``;
+    the effect's own is 1, the table's wheel: ``I_wy = 2 I_wz`` is a thin disc's).  How much
+    of a real robot's ``I_wy`` spins with the wheel is not known: a gear-motor's rotor, which
+    the table's ``I_wy`` may count in, reacts with 1/gear of its share, and MuJoCo's wheel body
+    carries ``I_wz`` of it (k = 1/2, measured); the draws take k in [0, 1].  As a height of the
+    effect at its own k = 1, a robot with its centre of mass at ``H`` and the share ``k``
+    rolls like ``h = H - (1 - k) h_s``: between ``-h_s`` and ``h_max_m``.
 
     ``excess``: relative excess of a wheel's normal force at its slip onset over the nominal
     model's, from each part at its full size: ``2 m_w d / (m_t e)`` from the wheels' mass on the
@@ -135,9 +139,12 @@ def tolerance_draws(robot: Mapping[str, float], n: int, rng: np.random.Generator
 
 @dataclass(frozen=True)
 class EnsembleDraw:
-    """One replay of the tolerance ensemble: the plant's robot parameters and its effects."""
+    """One replay of the tolerance ensemble: the plant's robot parameters, its effects and the
+    share of ``I_wy`` whose spin-up reacts in the ``load_transfer`` effect (the plant's
+    ``plant.spin_share``)."""
     robot: dict[str, float]
     effects: dict[str, dict[str, float]]
+    spin_share: float = 1.0
 
 
 def ensemble_draws(robot: Mapping[str, float], n: int, rng: np.random.Generator
@@ -145,17 +152,21 @@ def ensemble_draws(robot: Mapping[str, float], n: int, rng: np.random.Generator
     """``n`` replays of the tolerance ensemble: the parameters within their tolerance
     (:func:`tolerance_draws`), then the left-out physics of the normal forces
     (:func:`left_out_normal_forces`), each part uniform over its range: the share of the wheels'
-    mass on the axle in [0, 1] (:func:`wheels_on_axle`, from the drawn d, e, I_rz), and a
-    load-transfer height (the plant's ``load_transfer`` effect) that is a centre of mass height
-    in [0, ``h_max_m``] plus a share in [0, 1] of the spin-up's ``spin_h_m``."""
+    mass on the axle in [0, 1] (:func:`wheels_on_axle`, from the drawn d, e, I_rz), and the
+    plant's ``load_transfer`` effect (the pitch balance: the longitudinal transfer and the
+    wheels' spin-up) with a centre of mass height in [0, ``h_max_m``] and a share in [0, 1] of
+    ``I_wy`` whose spin reacts (``EnsembleDraw.spin_share``).  A draw with neither is the
+    planar nominal model; while the wheels roll the transfer is that of a height in [0,
+    ``h_max_m + spin_h_m``]."""
     params = tolerance_draws(robot, n, rng)
     out = []
     for d in params:
         lo = left_out_normal_forces({**robot, **d})
         share = float(rng.uniform(0.0, 1.0))
-        h = float(rng.uniform(0.0, 1.0)) * lo.h_max_m + float(rng.uniform(0.0, 1.0)) * lo.spin_h_m
+        h = float(rng.uniform(0.0, 1.0)) * lo.h_max_m
+        spin = float(rng.uniform(0.0, 1.0))
         r = {**d, **wheels_on_axle({**robot, **d}, share)}
-        out.append(EnsembleDraw(r, {"load_transfer": {"h": h}}))
+        out.append(EnsembleDraw(r, {"load_transfer": {"h": h}}, spin))
     return out
 
 
@@ -198,9 +209,11 @@ def tolerance_uncertainty(prep: PreparedRun, replay: OpenLoopReplay, n: int = TO
     t_of: dict[str, np.ndarray] = {}
     nominal = channels(prep, replay.simulate_windows(prep, {}), replay.mode)
     for draw in ensemble_draws(prep.robot, n, rng):
-        def factory(robot: dict[str, Any], motor: dict[str, Any], _d: dict[str, float] = draw.robot
-                    ) -> Any:
-            return _native.Plant(robot={**robot, **_d}, motor=motor)
+        def factory(robot: dict[str, Any], motor: dict[str, Any], _d: dict[str, float] = draw.robot,
+                    _k: float = draw.spin_share) -> Any:
+            plant = _native.Plant(robot={**robot, **_d}, motor=motor)
+            plant.set("plant.spin_share", _k)
+            return plant
         rep = OpenLoopReplay(replay.mode, dt_s=replay.dt_s, plant_factory=factory)
         for name, ch in channels(prep, rep.simulate_windows(prep, draw.effects),
                                  replay.mode).items():

@@ -247,9 +247,10 @@ static void test_caster_drag(void) {
 }
 
 static void test_load_transfer(void) {
-  // Forward acceleration unloads the caster and loads the wheels by m_t a h / (d + e), which
-  // raises the wheels' traction: a ramp to 0.097 N m (above the static tau_max) then holds
-  // without slipping with h = 0.05 m, but slips without the effect.
+  // Forward acceleration unloads the caster and loads the wheels by m_t a (h + h_s) / (d + e),
+  // h_s = 2 I_wy / (m_t r) the wheels' spin-up while they roll (README, "Load transfer and
+  // spin-up"), which raises the wheels' traction: a ramp to 0.097 N m (above the static
+  // tau_max) then holds without slipping with h = 0.05 m, but slips without the effect.
   const RobotParams p;
   Plant with, without;
   with.set_effect(kLoadTransfer, true, 0.05);
@@ -264,8 +265,78 @@ static void test_load_transfer(void) {
   TEST_ASSERT_EQUAL_INT(0, slips_with);
   TEST_ASSERT_TRUE(slips_without > 0);
   const double a = 2 * 0.097 / (p.r * rolling_mass_kg(p));
-  EXPECT_NEAR(1e-6, normal_forces(p).N_c - p.m_t() * a * 0.05 / (p.d + p.e), with.state().N_c);
+  const double h_s = 2 * p.I_wy / (p.m_t() * p.r);
+  EXPECT_NEAR(1e-6, normal_forces(p).N_c - p.m_t() * a * (0.05 + h_s) / (p.d + p.e),
+              with.state().N_c);
   EXPECT_NEAR(1e-9, p.m_t() * p.g, with.state().N_r + with.state().N_l + with.state().N_c);
+}
+
+static double caster_after(Plant& pl, double tau_nm, int steps) {
+  for (int k = 0; k < steps; ++k) pl.step_torque(tau_nm, tau_nm, kDt);
+  return pl.state().N_c;
+}
+
+static void test_load_transfer_spin_up_of_wheels_on_a_body_at_rest(void) {
+  // Frictionless floor: the body stays at rest (a_x = 0, so h plays no part) while each wheel
+  // spins up at tau / I_wy. The motors' reaction pitches the body nose up: the pitch balance
+  // about c gives N_c (d + e) = m_t g d - s I_wy (theta''_r + theta''_l) = m_t g d - 2 s tau,
+  // s the share of I_wy whose spin reacts (1 by default; 0 leaves II.29's static N_c).
+  const RobotParams p;
+  const double tau = 0.05, Nc0 = normal_forces(p).N_c;
+  const double shares[] = {1.0, 0.5, 0.0};
+  for (double s : shares) {
+    Plant pl;
+    pl.set_effect(kFrictionCoefficient, true, 0.0, 0.0);
+    pl.set_effect(kLoadTransfer, true, 0.05);
+    TEST_ASSERT_TRUE(pl.set_spin_share(s));
+    const double Nc = caster_after(pl, tau, 10);
+    EXPECT_NEAR(1e-12, 0.0, pl.state().v_m_s);
+    EXPECT_NEAR(1e-9, 10 * kDt * tau / p.I_wy, pl.state().dtheta_r_rad_s);
+    EXPECT_NEAR(1e-9, Nc0 - 2 * s * tau / (p.d + p.e), Nc);
+    EXPECT_NEAR(1e-9, p.m_t() * p.g, pl.state().N_r + pl.state().N_l + Nc);
+  }
+  Plant off;  // the effect off: no pitch balance at all
+  off.set_effect(kFrictionCoefficient, true, 0.0, 0.0);
+  EXPECT_NEAR(1e-12, Nc0, caster_after(off, tau, 10));
+}
+
+static void test_load_transfer_pure_rolling_is_a_height_h_plus_h_s(void) {
+  // Rolling straight, theta'' = a / r on both wheels: the spin term I_wy 2 a / r is m_t a h_s,
+  // h_s = 2 I_wy / (m_t r). With h = 0 it is the only transfer; forward acceleration unloads the
+  // caster, braking (negative torque from rest: backward acceleration) loads it.
+  const RobotParams p;
+  const double h_s = 2 * p.I_wy / (p.m_t() * p.r), Nc0 = normal_forces(p).N_c;
+  const double hs[] = {0.0, 0.03};
+  const double taus[] = {0.05, -0.05};
+  for (double h : hs) {
+    for (double tau : taus) {
+      Plant pl;
+      pl.set_effect(kLoadTransfer, true, h);
+      const double Nc = caster_after(pl, tau, 20);
+      TEST_ASSERT_FALSE(pl.state().slipping_r || pl.state().slipping_l);
+      const double a = 2 * tau / (p.r * rolling_mass_kg(p));
+      EXPECT_NEAR(1e-9, Nc0 - p.m_t() * a * (h + h_s) / (p.d + p.e), Nc);
+      if (tau > 0) TEST_ASSERT_TRUE(Nc < Nc0 - 0.01);
+      else TEST_ASSERT_TRUE(Nc > Nc0 + 0.01);
+    }
+  }
+}
+
+static void test_spin_share_key(void) {
+  // "plant.spin_share": a model setting in [0, 1], outside the vocabulary; kept by clearing the
+  // effects and by reset.
+  Plant pl;
+  double v = -1.0;
+  TEST_ASSERT_EQUAL_INT(kKeyOk, plant_get(pl, "plant.spin_share", &v));
+  EXPECT_NEAR(0.0, 1.0, v);
+  TEST_ASSERT_EQUAL_INT(kKeyOk, plant_set(pl, "plant.spin_share", 0.25));
+  TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "plant.spin_share", 1.5));
+  TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "plant.spin_share", -0.1));
+  TEST_ASSERT_EQUAL_INT(kKeyBadValue, plant_set(pl, "plant.spin_share", NAN));
+  TEST_ASSERT_EQUAL_INT(kKeyUnknown, plant_set(pl, "load_transfer.spin_share", 0.5));
+  pl.effects().clear();
+  pl.reset(0, 0, 0);
+  EXPECT_NEAR(0.0, 0.25, pl.spin_share());
 }
 
 static void test_stribeck(void) {
@@ -374,6 +445,9 @@ int main(void) {
   RUN_TEST(test_axle_coulomb);
   RUN_TEST(test_caster_drag);
   RUN_TEST(test_load_transfer);
+  RUN_TEST(test_load_transfer_spin_up_of_wheels_on_a_body_at_rest);
+  RUN_TEST(test_load_transfer_pure_rolling_is_a_height_h_plus_h_s);
+  RUN_TEST(test_spin_share_key);
   RUN_TEST(test_stribeck);
   RUN_TEST(test_motor_gain_asymmetry);
   RUN_TEST(test_floor_slope);

@@ -42,6 +42,9 @@ bool parse_effect_key(const char* key, int* id, int* k) {
   return *k >= 0;
 }
 
+// The plant's model settings outside the robot table and the effects' vocabulary.
+const char kSpinShareKey[] = "plant.spin_share";
+
 }  // namespace
 
 int param_key_count() { return kKeyCount; }
@@ -58,6 +61,7 @@ int plant_set(Plant& plant, const char* key, double v) {
     else plant.motor().*pk.motor = v;
     return kKeyOk;
   }
+  if (strcmp(key, kSpinShareKey) == 0) return plant.set_spin_share(v) ? kKeyOk : kKeyBadValue;
   int id = -1, k = -1;
   if (!parse_effect_key(key, &id, &k)) return kKeyUnknown;
   if (k == -2) {
@@ -76,6 +80,10 @@ int plant_get(const Plant& plant, const char* key, double* out) {
     const ParamKey& pk = kKeys[i];
     if (strcmp(pk.key, key) != 0) continue;
     *out = pk.robot ? plant.robot().*pk.robot : plant.motor().*pk.motor;
+    return kKeyOk;
+  }
+  if (strcmp(key, kSpinShareKey) == 0) {
+    *out = plant.spin_share();
     return kKeyOk;
   }
   int id = -1, k = -1;

@@ -1,5 +1,6 @@
 // String keys for the plant's parameters and effects, the names meta.json and the analyzer use:
-// "robot.<Table II.2 name>", "motor.<name>", "<effect>.<param>", "<effect>.enabled".
+// "robot.<Table II.2 name>", "motor.<name>", "<effect>.<param>", "<effect>.enabled", and the
+// model setting "plant.spin_share" (Plant::set_spin_share, in [0, 1]; not a vocabulary name).
 // Host only. The C ABI (host_tools/native/slipmodel_capi.cpp) and C++ hosts (the
 // firmware-in-the-loop simulator) share this one table.
 #ifndef SLIPMODEL_KEYS_H

@@ -80,6 +80,7 @@ void Plant::reset(double x_m, double y_m, double phi_rad) {
   for (int i = 0; i < 2; ++i) { slip_dir_[i][0] = 1.0; slip_dir_[i][1] = 0.0; }
   lat_force_prev_n_ = 0.0;
   ax_prev_m_s2_ = 0.0;
+  spin_acc_prev_rad_s2_ = 0.0;
   tau_lag_[0] = tau_lag_[1] = 0.0;
   history_.clear();
   const NormalForces n = static_normal_forces();
@@ -111,6 +112,12 @@ void Plant::set_time(double t_s) {
   const double kBackJumpS = 1e-6;
   if (t_s < s_.t_s - kBackJumpS) history_.clear();
   s_.t_s = t_s;
+}
+
+bool Plant::set_spin_share(double share) {
+  if (!(share >= 0.0 && share <= 1.0)) return false;
+  spin_share_ = share;
+  return true;
 }
 
 void Plant::set_effect(EffectId id, bool on, double p0, double p1) {
@@ -214,7 +221,9 @@ void Plant::step(int mode, double in_r, double in_l, double dt) {
   const double slope = fx_.on(kFloorSlope) ? fx_.p[kFloorSlope][0] : 0.0;
   const double mg = m * p.g * cos(slope);
   double Nc = mg * d / (d + p.e);                                       // II.29
-  if (fx_.on(kLoadTransfer)) Nc -= m * ax_prev_m_s2_ * fx_.p[kLoadTransfer][0] / (d + p.e);
+  if (fx_.on(kLoadTransfer))  // pitch balance about c (README, "Load transfer and spin-up")
+    Nc -= (m * ax_prev_m_s2_ * fx_.p[kLoadTransfer][0] +
+           spin_share_ * p.I_wy * spin_acc_prev_rad_s2_) / (d + p.e);
   if (Nc < 0.0) Nc = 0.0;
   if (Nc > mg) Nc = mg;
   const double Nw = mg - Nc;                                             // II.27
@@ -458,6 +467,7 @@ void Plant::step(int mode, double in_r, double in_l, double dt) {
   s_.L_l_n = f[1][1];
   lat_force_prev_n_ = f[0][1] + f[1][1];
   ax_prev_m_s2_ = (f[0][0] + f[1][0] + Fcx + Fsx) / m;
+  spin_acc_prev_rad_s2_ = (u[kTr] - u0[kTr] + u[kTl] - u0[kTl]) / dt;
 }
 
 }  // namespace slip

@@ -71,6 +71,13 @@ class Plant {
   /// Switches one effect and sets its parameters (p1 ignored for one-parameter effects).
   void set_effect(EffectId id, bool on, double p0, double p1 = 0.0);
 
+  /// Share of I_wy whose spin momentum reacts on the body in load_transfer's pitch balance, in
+  /// [0, 1] (default 1: the wheel is a rigid body of spin inertia I_wy, the plant's model). A
+  /// setting of the model, outside the run-format vocabulary: kept by reset and by clearing the
+  /// effects. Returns false (and keeps the old value) outside [0, 1].
+  bool set_spin_share(double share);
+  double spin_share() const { return spin_share_; }
+
   /// Kinetic energy of body and wheels, J.
   double kinetic_energy_j() const;
   /// Static normal forces of the plant as configured (II.27-II.29, floor slope, no transfer).
@@ -89,6 +96,8 @@ class Plant {
   double slip_dir_[2][2];  // unit breakaway direction of the contact force, per wheel
   double lat_force_prev_n_;
   double ax_prev_m_s2_;
+  double spin_acc_prev_rad_s2_;  // theta''_r + theta''_l of the previous step
+  double spin_share_ = 1.0;
   double tau_lag_[2];
   struct Cmd { double t_s, r, l; };
   std::deque<Cmd> history_;
