@@ -65,8 +65,9 @@ class StateDependence:
     found: bool = False
 
     def report(self) -> dict[str, Any]:
-        return {"covariates": "total measured current |i_r|+|i_l| (A) and its integral (A s), "
-                              "each centred per run",
+        return {"covariates": "load_a: total measured current |i_r|+|i_l| (A); charge_as: its "
+                              "integral over the run (A s); each centred per run; slope: the "
+                              "parameter's change per unit of the covariate",
                 "z_threshold": round(self.z_threshold, 3),
                 "output_change_noise_floors": round_sig(self.output_floors, 3),
                 "found": self.found, "coefficients": self.coefs}
@@ -186,10 +187,11 @@ def state_dependence_check(problem: Problem, chosen: Candidate) -> StateDependen
     for j in range(nz * nk):
         mean, se_m, birge = weighted([float(b[j]) for b, _ in est], [float(e[j]) for _, e in est])
         effect, name = fit.coords[free[j % nk]]
+        span = params[free[j % nk]].hi - params[free[j % nk]].lo   # coordinate -> parameter
         coefs.append({"effect": effect, "param": name, "covariate": COVARIATES[j // nk],
-                      "runs": len(est), "coef_x": round_sig(mean, 4),
-                      "coef_x_std": round_sig(se_m * birge, 3), "birge_ratio": round(birge, 3),
-                      "z": round(mean / (se_m * birge), 3)})
+                      "runs": len(est), "slope": round_sig(mean * span, 4),
+                      "slope_std": round_sig(se_m * birge * span, 3),
+                      "birge_ratio": round(birge, 3), "z": round(mean / (se_m * birge), 3)})
     # the output change: the pooled regression's load and charge terms, per channel
     y, X, ch = np.concatenate(pooled_y), np.vstack(pooled_x), np.concatenate(pooled_c)
     beta, *_ = np.linalg.lstsq(X, y, rcond=None)
