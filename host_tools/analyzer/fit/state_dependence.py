@@ -8,8 +8,8 @@ constant stand-in fits the whole: the verdict is then ``unexplained``.
 
 The test is the linearized form of "fit the parameter on loaded and on unloaded samples apart"
 (a Chow test on the fit's Jacobian), which the split of each run into halves
-(:mod:`.invariance`) cannot make: each run of the suites accelerates (high current) and
-cruises (low current) in both halves.  At the whole fit's coordinates x the normalized residual
+(:mod:`.invariance`) hardly makes: a half holds loaded (accelerating) and unloaded (cruising)
+samples alike.  At the whole fit's coordinates x the normalized residual
 r of every fit channel (the fit's windows) and its sensitivity J_k = dr/dx_k to each free
 coordinate (a forward difference of STEP_X of the coordinate's range: one more replay each)
 are regressed per run as
