@@ -12,6 +12,7 @@ import numpy as np
 from host_tools.analyzer import effects as fx
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit.invariance import Invariance, invariance_check
+from host_tools.analyzer.fit.state_dependence import state_dependence_check
 from host_tools.analyzer.fit.judge import (HELDOUT_Z, Candidate, delta_bic, judge, paired_better,
                                            significant_deviation)
 from host_tools.analyzer.fit.params import params_for
@@ -239,12 +240,14 @@ def selected_entries(sel: Selection, rss0: float) -> list[dict[str, Any]]:
 
 
 def invariance_of(det: Detection, sel: Selection) -> Invariance | None:
-    """The time-invariance check of the selected model (``fit.invariance``), run when it
-    would otherwise explain the mismatch (None: not run)."""
+    """The time-invariance check of the selected model (``fit.invariance``) with its
+    dependence on the drive's load (``fit.state_dependence``), run when it would otherwise
+    explain the mismatch (None: not run)."""
     if (not det.mismatch_seen or sel.chosen is None
             or math.sqrt(excess(det.problem, sel.effects)) > EXPLAINED_RMS):
         return None
-    return invariance_check(det.problem, sel.chosen)
+    return invariance_check(det.problem, sel.chosen).with_state(
+        state_dependence_check(det.problem, sel.chosen))
 
 
 def decide_verdict(det: Detection, final_effects: Mapping[str, Mapping[str, float]],

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import stats
@@ -38,6 +38,9 @@ from host_tools.analyzer.fit.params import FitResult, params_for
 from host_tools.analyzer.fit.problem import Problem, largest_rms
 from host_tools.analyzer.locate.bias import BIAS_ALPHA, BIAS_MIN_FLOORS
 from host_tools.analyzer.signals import round_sig
+
+if TYPE_CHECKING:
+    from host_tools.analyzer.fit.state_dependence import StateDependence
 
 INVARIANCE_ALPHA = BIAS_ALPHA
 INVARIANCE_SPLIT = 0.5        # the time split of each run: first and second half
@@ -52,7 +55,20 @@ class Invariance:
     coords: list[dict[str, Any]] = field(default_factory=list)  # one per compared coordinate
     z_threshold: float = math.inf
     output_floors: float = 0.0    # the drifting model's output change (_split_output_change)
-    drift: bool = False
+    drift: bool = False           # in time, or (with_state) with the drive's load
+    state: StateDependence | None = None   # fit/state_dependence.py
+
+    def with_state(self, state: StateDependence | None) -> Invariance:
+        """This check with the state-dependence test's result joined: either finding makes
+        the selected model one that is not constant."""
+        self.state = state
+        self.drift = self.drift or (state is not None and state.found)
+        return self
+
+    def time_drift(self) -> bool:
+        """The halves' drift alone (significant and moving the outputs)."""
+        return (any(abs(c["z"]) > self.z_threshold for c in self.coords)
+                and self.output_floors >= INVARIANCE_MIN_OUTPUT)
 
     def report(self) -> dict[str, Any]:
         """report.json's ``fit.invariance`` (docs/analyzer.md)."""
@@ -60,9 +76,12 @@ class Invariance:
                 "z_threshold": round(self.z_threshold, 3),
                 "output_change_noise_floors": round_sig(self.output_floors, 3),
                 "min_output_noise_floors": INVARIANCE_MIN_OUTPUT, "drift": self.drift,
-                "params": self.coords}
+                "params": self.coords,
+                "state_dependence": None if self.state is None else self.state.report()}
 
     def note(self) -> str:
+        if self.state is not None and self.state.found and not self.time_drift():
+            return self.state.note()
         worst = max(self.coords, key=lambda c: abs(c["z"]))
         return (f"the selected model is not constant in time: {worst['effect']}.{worst['param']} "
                 f"fitted {worst['early']:.4g} on the first half of the runs and "

@@ -114,3 +114,42 @@ def test_a_drift_the_outputs_cannot_show_is_none():
     inv = _check([((1.01, 0.0007), (1.0, 0.0007))] * 3)
     assert abs(inv.coords[0]["z"]) > 2 * inv.z_threshold
     assert inv.output_floors == pytest.approx(0.1 / np.sqrt(2), rel=0.01) and not inv.drift
+
+
+@needs_native(truth=True)
+@pytest.mark.parametrize("effects, found", [
+    ({"driver_voltage_drop": {"volts": 1.2}}, False),
+    ({"battery_sag": {"r_int": 1.2, "v_per_as": 0.6}}, True)])
+def test_a_parameter_that_follows_the_load_is_told_from_a_constant_one(tmp_path, effects, found):
+    """A supply that falls with the total current (1.2 ohm) and the charge drawn (0.6 V/As),
+    fitted as a constant driver drop: the drop's dependence on the drive's total current is
+    significant in both runs alike and moves the outputs by more than 0.5 floors (1.16; the
+    halves' drift moves them by 0.48 only).  A true driver drop is constant under both
+    checks."""
+    from host_tools.analyzer.fit.invariance import invariance_check
+    from host_tools.analyzer.fit.state_dependence import STATE_MIN_OUTPUT, state_dependence_check
+    problem = _problem(tmp_path, effects)
+    names = ["driver_voltage_drop"]
+    chosen = SimpleNamespace(effects=names, fit=problem.fit(names, list(range(len(problem.preps)))))
+    halves = invariance_check(problem, chosen)
+    if not found:
+        assert not halves.drift, halves.report()
+    state = state_dependence_check(problem, chosen)
+    assert state is not None and state.found is found, state.report()
+    load = next(c for c in state.coefs if c["covariate"] == "load_a")
+    if found:
+        # the drop grows with the load: the drop's coordinate rises with the current
+        assert load["z"] < -state.z_threshold and load["runs"] == 2
+        assert state.output_floors >= STATE_MIN_OUTPUT
+    inv = halves.with_state(state)
+    assert inv.drift is found and inv.report()["state_dependence"]["found"] is found
+    if found:
+        assert "total current" in inv.note()
+
+
+def test_without_current_channels_the_load_is_not_known():
+    """The load comes from the recorded currents: a run without them is not tested."""
+    from host_tools.analyzer.fit.state_dependence import state_dependence_check
+    problem = SimpleNamespace(preps=[SimpleNamespace(run=SimpleNamespace(
+        telemetry={"t_s": np.arange(5.0), "omega_r": np.zeros(5)}))])
+    assert state_dependence_check(problem, SimpleNamespace(effects=[], fit=None)) is None

@@ -1,0 +1,202 @@
+"""State dependence of the selected model: a vocabulary effect's parameter is a constant of the
+robot, so after the update the residual must not follow the selected parameters' own output
+sensitivities scaled by how hard the drive is loaded or by how much charge it has drawn.  A
+parameter that moves with the load (a supply whose voltage falls with the total armature
+current through an internal resistance and with the charge drawn, standing in as a driver
+drop, a deadband or a back-EMF constant) is physics outside the vocabulary however well the
+constant stand-in fits the whole: the verdict is then ``unexplained``.
+
+The test is the linearized form of "fit the parameter on loaded and on unloaded samples apart"
+(a Chow test on the fit's Jacobian), which the split of each run into halves
+(:mod:`.invariance`) hardly makes: a half holds loaded (accelerating) and unloaded (cruising)
+samples alike.  At the whole fit's coordinates x the normalized residual
+r of every fit channel (the fit's windows) and its sensitivity J_k = dr/dx_k to each free
+coordinate (a forward difference of STEP_X of the coordinate's range: one more replay each)
+are regressed per run as
+
+    r = J a + (J * z_load) b + (J * z_charge) c + e,
+
+z_load the drive's total measured current |i_r| + |i_l| (A), z_charge its integral over the run
+(A s), each centred on the run; a parameter of the selected model that varies as
+p + b z_load + c z_charge leaves exactly this residual.  Each coefficient's standard error is
+Newey-West (the residual of a windowed replay is smooth: lags up to HAC_S seconds, per fit
+channel series).  The runs are replicates of one robot: per coefficient their weighted mean
+against its standard error, scaled up by the runs' scatter beyond their errors (Birge ratio,
+as the invariance check pairs its halves): an inexact model (another engine) lets the
+coefficient move with each run's regime, differently from run to run, while a sagging supply
+moves every run alike.  |z| is significant at STATE_ALPHA per analysis, two-sided,
+Bonferroni over the coefficients tested.  As every update, the state-dependent model must also
+change the outputs by at least STATE_MIN_OUTPUT noise floors (the pooled regression's
+b, c terms, RMS per fit channel, the largest).
+
+Only the recorded currents say how hard the supply is loaded: without ``current_r_a`` and
+``current_l_a`` in every run the check is not made (None)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Sequence
+
+import numpy as np
+from scipy import stats
+
+from host_tools.analyzer.fit.invariance import INVARIANCE_ALPHA, INVARIANCE_MIN_OUTPUT
+from host_tools.analyzer.fit.invariance import _weighted as weighted
+from host_tools.analyzer.fit.params import effects_dict, params_for
+from host_tools.analyzer.signals import round_sig
+
+if TYPE_CHECKING:
+    from host_tools.analyzer.fit.judge import Candidate
+    from host_tools.analyzer.fit.problem import Problem
+
+STEP_X = 1e-3            # forward-difference step of a fit coordinate (of its range)
+HAC_S = 0.5              # Newey-West lags, in seconds of each channel's samples
+COVARIATES = ("load_a", "charge_as")
+STATE_ALPHA = INVARIANCE_ALPHA            # the invariance check's rate
+STATE_MIN_OUTPUT = INVARIANCE_MIN_OUTPUT  # and its smallest output change of an update
+
+
+@dataclass
+class StateDependence:
+    """The selected parameters' dependence on the drive's load and charge drawn."""
+    coefs: list[dict[str, Any]] = field(default_factory=list)
+    z_threshold: float = math.inf
+    output_floors: float = 0.0
+    found: bool = False
+
+    def report(self) -> dict[str, Any]:
+        return {"covariates": "load_a: total measured current |i_r|+|i_l| (A); charge_as: its "
+                              "integral over the run (A s); each centred per run; slope: the "
+                              "parameter's change per unit of the covariate",
+                "z_threshold": round(self.z_threshold, 3),
+                "output_change_noise_floors": round_sig(self.output_floors, 3),
+                "found": self.found, "coefficients": self.coefs}
+
+    def note(self) -> str:
+        worst = max(self.coefs, key=lambda c: abs(c["z"]))
+        return (f"the selected model's {worst['effect']}.{worst['param']} varies with the "
+                f"drive's {'total current' if worst['covariate'] == 'load_a' else 'charge drawn'}"
+                f" (z {worst['z']:+.2f} beyond {self.z_threshold:.2f} over "
+                f"{worst['runs']} runs; the outputs move by {self.output_floors:.2f} noise "
+                "floors with it): a vocabulary effect's parameter is constant, so one that "
+                "follows the load stands for physics outside the vocabulary")
+
+
+def _covariates(prep: Any) -> np.ndarray | None:
+    """(t, load, charge) of a run from its recorded currents; None without them."""
+    tel = prep.run.telemetry
+    if "current_r_a" not in tel or "current_l_a" not in tel:
+        return None
+    t = np.asarray(tel["t_s"], float)
+    load = np.abs(np.asarray(tel["current_r_a"], float)) + np.abs(np.asarray(tel["current_l_a"],
+                                                                             float))
+    ok = np.isfinite(load)
+    if ok.sum() < 3:
+        return None
+    t, load = t[ok], load[ok]
+    charge = np.concatenate([[0.0], np.cumsum(0.5 * (load[1:] + load[:-1]) * np.diff(t))])
+    return np.vstack([t, load, charge])
+
+
+def _series(problem: Problem, effects: Any, runs: Sequence[int]
+            ) -> list[tuple[int, str, np.ndarray, np.ndarray]]:
+    """(run, channel, t, normalized residual) of every fit channel on the fit's windows."""
+    out = []
+    for i, chans in zip(runs, problem.sim_channels(effects, runs, fit_only=True)):
+        for c in problem.fit_channels:
+            ch = chans.get(c)
+            if ch is not None and ch.t.size:
+                out.append((i, c, ch.t, ch.deflated(problem.floors[c]) / problem.floors[c]))
+    return out
+
+
+def newey_west(X: np.ndarray, e: np.ndarray, groups: np.ndarray, lags: dict[int, int]
+               ) -> np.ndarray:
+    """Covariance of the OLS coefficients of ``X`` with residual ``e``: Newey-West (Bartlett
+    weights) within each group (a channel's series) up to ``lags[group]`` samples, groups
+    independent."""
+    bread = np.linalg.pinv(X.T @ X)
+    meat = np.zeros((X.shape[1], X.shape[1]))
+    for g in np.unique(groups):
+        s = X[groups == g] * e[groups == g][:, None]
+        meat += s.T @ s
+        L = min(lags.get(int(g), 0), s.shape[0] - 1)
+        for lag in range(1, L + 1):
+            G = s[lag:].T @ s[:-lag]
+            meat += (1.0 - lag / (L + 1.0)) * (G + G.T)
+    return bread @ meat @ bread
+
+
+def state_dependence_check(problem: Problem, chosen: Candidate) -> StateDependence | None:
+    """The test of the module docstring for the selected candidate ``chosen``; None when a run
+    has no current channels or no coordinate is free."""
+    runs = list(range(len(problem.preps)))
+    cov = [_covariates(p) for p in problem.preps]
+    if any(c is None for c in cov):
+        return None
+    fit = chosen.fit
+    params = params_for(chosen.effects, problem.meta, problem.vocab)
+    free = [k for k in range(len(params)) if k not in fit.fixed]
+    if not free:
+        return None
+    x0 = np.asarray(fit.x, float)
+    base = _series(problem, fit.params, runs)
+    sens = []
+    for k in free:
+        x = x0.copy()
+        x[k] = x[k] + STEP_X if x[k] + STEP_X <= 1.0 else x[k] - STEP_X
+        moved = _series(problem, effects_dict(params, [p.from_x(v) for p, v in zip(params, x)]),
+                        runs)
+        sens.append([(m[3] - b[3]) / (x[k] - x0[k]) for b, m in zip(base, moved)])
+    # per run: the stacked rows of all its channel series
+    rows: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, str, int]]] = {}
+    for gi, (i, c, t, r) in enumerate(base):
+        cv = cov[i]
+        assert cv is not None
+        z = np.column_stack([np.interp(t, cv[0], cv[1]), np.interp(t, cv[0], cv[2])])
+        J = np.column_stack([s[gi] for s in sens])
+        ok = np.isfinite(r) & np.all(np.isfinite(J), axis=1)
+        if ok.sum() >= 3:
+            rows.setdefault(i, []).append((r[ok], J[ok], z[ok], c, gi))
+    nk, nz = len(free), len(COVARIATES)
+    est: list[tuple[np.ndarray, np.ndarray]] = []
+    pooled_y, pooled_x, pooled_c = [], [], []
+    for i, parts in rows.items():
+        y = np.concatenate([p[0] for p in parts])
+        J = np.vstack([p[1] for p in parts])
+        z = np.vstack([p[2] for p in parts])
+        z = z - z.mean(axis=0)
+        X = np.column_stack([J] + [J * z[:, j:j + 1] for j in range(nz)])
+        if y.size <= 2 * X.shape[1]:
+            continue
+        groups = np.concatenate([np.full(p[0].size, p[4]) for p in parts])
+        lags = {p[4]: int(round(HAC_S / max(float(np.median(np.diff(base[p[4]][2]))), 1e-6)))
+                for p in parts}
+        beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+        V = newey_west(X, y - X @ beta, groups, lags)
+        se = np.sqrt(np.maximum(np.diag(V), 0.0))
+        if np.all(se[nk:] > 0):
+            est.append((beta[nk:], se[nk:]))
+        pooled_y.append(y)
+        pooled_x.append(X)
+        pooled_c.append(np.concatenate([np.full(p[0].size, p[3]) for p in parts]))
+
+    if not est:
+        return None
+    coefs: list[dict[str, Any]] = []
+    for j in range(nz * nk):
+        mean, se_m, birge = weighted([float(b[j]) for b, _ in est], [float(e[j]) for _, e in est])
+        effect, name = fit.coords[free[j % nk]]
+        span = params[free[j % nk]].hi - params[free[j % nk]].lo   # coordinate -> parameter
+        coefs.append({"effect": effect, "param": name, "covariate": COVARIATES[j // nk],
+                      "runs": len(est), "slope": round_sig(mean * span, 4),
+                      "slope_std": round_sig(se_m * birge * span, 3),
+                      "birge_ratio": round(birge, 3), "z": round(mean / (se_m * birge), 3)})
+    # the output change: the pooled regression's load and charge terms, per channel
+    y, X, ch = np.concatenate(pooled_y), np.vstack(pooled_x), np.concatenate(pooled_c)
+    beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    part = X[:, nk:] @ beta[nk:]
+    size = max(float(np.sqrt(np.mean(part[ch == c] ** 2))) for c in np.unique(ch))
+    zt = float(stats.norm.ppf(1.0 - STATE_ALPHA / (2 * len(coefs))))
+    found = any(abs(c["z"]) > zt for c in coefs) and size >= STATE_MIN_OUTPUT
+    return StateDependence(coefs, zt, size, found)
