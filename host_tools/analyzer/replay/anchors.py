@@ -271,7 +271,26 @@ class RollingTest:
         return bool(zh <= self.z_limit and zv <= self.z_limit)
 
 
+_ROLLING: list[tuple[Any, Any, tuple[float, float, int], RollingTest | None]] = []
+ROLLING_CACHE = 16
+
+
 def rolling_test(prep: PreparedRun) -> RollingTest | None:
+    """:func:`rolling_test_of` ``prep``, computed once per recording (it reads only the
+    recording and the nominal geometry, and the window rules ask for it in every round): the
+    last ROLLING_CACHE are kept, each known by its telemetry and camera tables themselves."""
+    tel, gt = prep.run.telemetry, prep.run.groundtruth
+    key = (float(prep.robot["r"]), float(prep.robot["b"]), int(prep.ppr))
+    for t_ref, g_ref, k, res in _ROLLING:
+        if t_ref is tel and g_ref is gt and k == key:
+            return res
+    res = rolling_test_of(prep)
+    _ROLLING.append((tel, gt, key, res))
+    del _ROLLING[:-ROLLING_CACHE]
+    return res
+
+
+def rolling_test_of(prep: PreparedRun) -> RollingTest | None:
     """Whether the recorded body rolls with its recorded wheels, in blocks of ROLL_BLOCK_S:
     the camera's heading rate and forward speed (its x, y velocity along its heading) against
     the counts' (lib/control's odometry: ``r (w_r - w_l) / 2b`` and ``r (w_r + w_l) / 2``),
