@@ -280,6 +280,8 @@ def rolling_test(prep: PreparedRun) -> RollingTest | None:
     recording and the nominal geometry, and the window rules ask for it in every round): the
     last ROLLING_CACHE are kept, each known by its telemetry and camera tables themselves."""
     tel, gt = prep.run.telemetry, prep.run.groundtruth
+    if gt is None:
+        return None
     key = (float(prep.robot["r"]), float(prep.robot["b"]), int(prep.ppr))
     for t_ref, g_ref, k, res in _ROLLING:
         if t_ref is tel and g_ref is gt and k == key:
