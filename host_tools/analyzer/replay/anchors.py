@@ -225,3 +225,177 @@ def _count_anchor_shift(prep: PreparedRun, sim: Mapping[str, np.ndarray], t: np.
     dphi = np.unwrap(np.asarray(ps, float)) - np.unwrap(np.asarray(pr, float))
     return {"x_m": np.interp(tg, t, xs - xr), "y_m": np.interp(tg, t, ys - yr),
             "phi_rad": np.interp(tg, t, dphi)}
+
+
+# The recording's own test of rolling (:func:`rolling_test`): blocks of ROLL_BLOCK_S, and a false
+# alarm per run at ROLL_ALPHA (Bonferroni over its blocks); the geometry's scale is fitted over
+# the blocks whose counts' rate is ROLL_SCALE_Z of its noise, when there are ROLL_SCALE_MIN.
+ROLL_BLOCK_S = 0.25
+ROLL_ALPHA = 0.01
+ROLL_MIN_FRAMES = 4
+ROLL_SCALE_Z = 10.0
+ROLL_SCALE_MIN = 8
+
+
+def _mad_step_sigma(v: np.ndarray) -> float:
+    """One sample's noise in the series ``v`` from its second differences (robust: 1.4826 MAD
+    / sqrt(6)); 0 without enough samples."""
+    if v.size < 5:
+        return 0.0
+    d2 = v[2:] - 2 * v[1:-1] + v[:-2]
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
+def _scale(cam: np.ndarray, cnt: np.ndarray, sd: np.ndarray) -> float:
+    """The median ratio of the camera's rate to the counts' over the blocks where the counts'
+    rate is ROLL_SCALE_Z of the noise ``sd`` (1 with fewer than ROLL_SCALE_MIN)."""
+    m = np.isfinite(cam) & np.isfinite(cnt) & (np.abs(cnt) > ROLL_SCALE_Z * sd)
+    return float(np.median(cam[m] / cnt[m])) if m.sum() >= ROLL_SCALE_MIN else 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class RollingTest:
+    """The recording's camera against its counts, block by block (:func:`rolling_test`)."""
+    t0: np.ndarray          # each block's start (board time)
+    t1: np.ndarray          # ... and end
+    z_heading: np.ndarray   # |camera minus counts heading rate| / its allowed spread (nan: no test)
+    z_speed: np.ndarray     # |camera minus counts forward speed| / its allowed spread
+    z_limit: float          # either above this: the body does not roll with its wheels there
+
+    def rolling(self, i: int) -> bool | None:
+        """Block ``i`` rolls (True), does not (False), or cannot be told (None: too few
+        camera frames)."""
+        zh, zv = self.z_heading[i], self.z_speed[i]
+        if not (np.isfinite(zh) and np.isfinite(zv)):
+            return None
+        return bool(zh <= self.z_limit and zv <= self.z_limit)
+
+
+_ROLLING: list[tuple[Any, Any, tuple[float, float, int], RollingTest | None]] = []
+ROLLING_CACHE = 16
+
+
+def rolling_test(prep: PreparedRun) -> RollingTest | None:
+    """:func:`rolling_test_of` ``prep``, computed once per recording (it reads only the
+    recording and the nominal geometry, and the window rules ask for it in every round): the
+    last ROLLING_CACHE are kept, each known by its telemetry and camera tables themselves."""
+    tel, gt = prep.run.telemetry, prep.run.groundtruth
+    if gt is None:
+        return None
+    key = (float(prep.robot["r"]), float(prep.robot["b"]), int(prep.ppr))
+    for t_ref, g_ref, k, res in _ROLLING:
+        if t_ref is tel and g_ref is gt and k == key:
+            return res
+    res = rolling_test_of(prep)
+    _ROLLING.append((tel, gt, key, res))
+    del _ROLLING[:-ROLLING_CACHE]
+    return res
+
+
+def rolling_test_of(prep: PreparedRun) -> RollingTest | None:
+    """Whether the recorded body rolls with its recorded wheels, in blocks of ROLL_BLOCK_S:
+    the camera's heading rate and forward speed (its x, y velocity along its heading) against
+    the counts' (lib/control's odometry: ``r (w_r - w_l) / 2b`` and ``r (w_r + w_l) / 2``),
+    each as the slope of a straight line fitted over the block's camera frames.  While the
+    wheels roll the two agree up to the camera's noise (a sample's, from the second differences
+    of the camera's own series) through the fit, and the geometry: the robot's wheel radius and
+    track width may be off the nominal ones (the vocabulary's ``wheel_radius`` and
+    ``track_width``), so the counts' rates are scaled by the camera's median ratio to them over
+    the run's blocks that move (a slip's blocks are few), and params.json's ``tol`` of ``r``
+    and ``b`` times the counts' rate joins the spread.  A block where either rate differs by
+    more than ``z_limit`` of that spread (a false alarm of ROLL_ALPHA per run, Bonferroni over
+    its blocks) is one where the body does not follow the wheels: a slip that the recording
+    shows.  The forward speed is used, not the sideways one, so that a camera marker off the
+    axle's centre (a sideways ``omega d`` in a turn) is no slip.  None without a camera (or
+    with too few frames)."""
+    from statistics import NormalDist
+    from host_tools import params as P
+    gt = prep.run.groundtruth
+    if gt is None or gt.get("phi_rad") is None:
+        return None
+    tel = prep.run.telemetry
+    t = np.asarray(tel["t_s"], float)
+    tg_all = np.asarray(gt["t_s"], float)
+    ph_all = np.asarray(gt["phi_rad"], float)
+    ok = (np.isfinite(ph_all) & np.isfinite(gt["x_m"]) & np.isfinite(gt["y_m"])
+          & (tg_all >= t[0]) & (tg_all <= t[-1]))
+    if ok.sum() < ROLL_MIN_FRAMES or t.size < 2:
+        return None
+    tg = tg_all[ok]
+    phc = np.unwrap(ph_all[ok])
+    xc, yc = np.asarray(gt["x_m"], float)[ok], np.asarray(gt["y_m"], float)[ok]
+    r, b = float(prep.robot["r"]), float(prep.robot["b"])
+    k = 2 * np.pi / prep.ppr
+    th_r = np.interp(tg, t, np.asarray(tel["enc_r"], float) * k)
+    th_l = np.interp(tg, t, np.asarray(tel["enc_l"], float) * k)
+    pho = r * (th_r - th_l) / (2 * b)
+    so = r * (th_r + th_l) / 2
+    rel_r = P.TOLERANCES.get(("robot", "r"), 0.0) / r
+    rel_h = math.hypot(rel_r, P.TOLERANCES.get(("robot", "b"), 0.0) / b)
+    s_ph = _mad_step_sigma(phc - pho)
+    s_xy = max(_mad_step_sigma(xc), _mad_step_sigma(yc))
+    edges = np.arange(float(t[0]), float(t[-1]), ROLL_BLOCK_S)
+    n = edges.size
+    w_c, w_o, v_c, v_o, sxx = (np.full(n, np.nan) for _ in range(5))
+    idx = np.searchsorted(tg, np.concatenate([edges, [edges[-1] + ROLL_BLOCK_S]]))
+    for i in range(n):
+        a, e = idx[i], idx[i + 1]
+        if e - a < ROLL_MIN_FRAMES:
+            continue
+        tt = tg[a:e] - tg[a:e].mean()
+        sxx[i] = float(np.sum(tt ** 2))
+        if not sxx[i] > 0:
+            continue
+
+        def slope(v: np.ndarray) -> float:
+            return float(np.sum(tt * (v - v.mean())) / sxx[i])
+        head = float(np.mean(phc[a:e]))
+        w_c[i], w_o[i] = slope(phc[a:e]), slope(pho[a:e])
+        v_c[i] = slope(xc[a:e]) * math.cos(head) + slope(yc[a:e]) * math.sin(head)
+        v_o[i] = slope(so[a:e])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        noise_h, noise_v = s_ph / np.sqrt(sxx), s_xy / np.sqrt(sxx)
+        k_h, k_v = _scale(w_c, w_o, noise_h), _scale(v_c, v_o, noise_v)
+        sd_h = np.hypot(noise_h, rel_h * np.abs(k_h * w_o))
+        sd_v = np.hypot(noise_v, rel_r * np.abs(k_v * v_o))
+        zh = np.abs(w_c - k_h * w_o) / sd_h
+        zv = np.abs(v_c - k_v * v_o) / sd_v
+    z_limit = NormalDist().inv_cdf(1 - ROLL_ALPHA / (2 * max(n, 1)))
+    return RollingTest(edges, edges + ROLL_BLOCK_S, zh, zv, z_limit)
+
+
+def with_recorded_slip(prep: PreparedRun, episodes: list[tuple[float, float]]
+                       ) -> list[tuple[float, float]]:
+    """The nominal replay's slip ``episodes`` (onset, end), each carried on while the recording
+    shows its body still not rolling with its wheels right after it (:func:`rolling_test`: from
+    the first block that starts at or after the episode's end, through the blocks that fail the
+    test, to the first that passes or cannot be told).
+
+    Where the duty saturates in a reversal, both wheels slip and the body's yaw is free: whether
+    it grips again at the episode's end or goes on spinning with its wheels slipping is a fork
+    that the nominal replay decides one way and the recording may take the other (the MuJoCo
+    tuning set's 60 s null: the replay gripped again at 47.45 s, the recording spun at up to
+    8.7 rad/s on wheels turning backwards at 34 rad/s, its camera still to 0.1 m/s, until the
+    wheels stopped at 54.0 s; the plant started in the spin the camera shows spins on, its wheels
+    within 0.2 rad/s of the recording's, while the window started rolling ran 2.6 rad/s and
+    1 m/s off).  A window started there from the rolling state is started in a state the robot
+    was not in, and the replay that gripped again is no evidence of where the recording goes:
+    the episode is the recording's, to where it rolls again, for every rule that follows the
+    slip episodes (edges out of slips, the cut after one, the anchors' slip-free spans, and
+    ``locate.episodes.unpinned_episodes``; an episode inside one carried on is left as it is,
+    the rules take the longer).  A slip only the recording shows, with no episode of the nominal
+    replay before it, is left as evidence (a lower friction shows there)."""
+    if not episodes:
+        return []
+    rt = rolling_test(prep)
+    if rt is None:
+        return sorted(episodes)
+    out: list[tuple[float, float]] = []
+    for a, b in sorted(episodes):
+        i = int(np.searchsorted(rt.t0, b - 1e-9))
+        end = b
+        while i < rt.t0.size and rt.rolling(i) is False:
+            end = float(rt.t1[i])
+            i += 1
+        out.append((a, end))
+    return out

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from host_tools.analyzer.prepare.run import BURN_IN_S, GAP_S, PreparedRun
-from host_tools.analyzer.replay.anchors import with_anchors
+from host_tools.analyzer.replay.anchors import with_anchors, with_recorded_slip
 
 if TYPE_CHECKING:
     from host_tools.analyzer.replay.openloop import OpenLoopReplay, WindowSims
@@ -36,10 +36,11 @@ def slip_episodes_of(sims: "WindowSims") -> list[tuple[float, float]]:
 
 
 def _with_slip_episodes(prep: PreparedRun, replay: "OpenLoopReplay") -> PreparedRun:
-    """``prep`` with the slip episodes of its nominal replay in its windows (and the camera
-    anchors for them)."""
-    return with_anchors(dataclasses.replace(prep, slip_episodes=slip_episodes_of(
-        replay.simulate_windows(prep, {}))))
+    """``prep`` with the slip episodes of its nominal replay in its windows, each carried on
+    while the recording goes on slipping after it (``anchors.with_recorded_slip``), and the
+    camera anchors for them."""
+    return with_anchors(dataclasses.replace(prep, slip_episodes=with_recorded_slip(
+        prep, slip_episodes_of(replay.simulate_windows(prep, {})))))
 
 
 def _with_windows(prep: PreparedRun, wins: list[list[int]]) -> PreparedRun:
