@@ -82,14 +82,14 @@ def test_the_ensemble_draws_span_the_left_out_normal_forces() -> None:
         share.append((f_nom - f) / (f_nom - f_axle))
     assert min(share) < 0.15 and max(share) > 0.85          # both readings reached
     assert min(share) > -0.2 and max(share) < 1.2           # and nothing beyond them
-    # the pitch balance: a centre of mass from the ground to Table II.2's h, and a share of
-    # I_wy's spin-up from none (the planar nominal model) to all (the effect's own)
+    # the pitch balance while rolling: a centre of mass from the ground to Table II.2's h plus a
+    # share of the spin-up's rolling height, from none (the planar nominal model) to all; the
+    # effect's own spin term (which follows a slipping wheel's acceleration) stays off
     h = np.array([d.effects["load_transfer"]["h"] for d in draws])
-    k = np.array([d.spin_share for d in draws])
     lo = left_out_normal_forces(R)
-    assert h.min() >= 0.0 and h.max() <= lo.h_max_m and h.min() < 0.1 * lo.h_max_m
-    assert h.max() > 0.9 * lo.h_max_m
-    assert k.min() >= 0.0 and k.max() <= 1.0 and k.min() < 0.1 and k.max() > 0.9
+    top = lo.h_max_m + lo.spin_h_m
+    assert h.min() >= 0.0 and h.max() <= top and h.min() < 0.1 * top and h.max() > 0.7 * top
+    assert all(d.spin_share == 0.0 for d in draws)
     for name in ("b", "mu_s", "m_r", "r"):
         vals = np.array([d.robot[name] for d in draws])
         assert np.all(np.abs(vals - R[name]) <= P.TOLERANCES[("robot", name)] + 1e-15)
