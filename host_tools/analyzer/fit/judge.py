@@ -38,6 +38,9 @@ class Candidate:
     heldout_per_channel: dict[str, dict[str, Any]] = field(default_factory=dict)
     # per channel: held-out residuals (unit of the channel) before and after, sample by sample
     heldout_pairs: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    # per channel: the reference replay's uncertainty (input spread and tolerance ensemble,
+    # ``Channel.unc``; unit of the channel) at the same held-out samples (HELDOUT_RULE)
+    heldout_spread: dict[str, np.ndarray] = field(default_factory=dict)
     recorder_notes: list[str] = field(default_factory=list)
     # all fit channels pooled, in noise floors: held-out residuals before and after, sample by
     # sample (the paired adoption test); None when not kept
@@ -109,6 +112,7 @@ def evaluate_candidate(problem: Problem, names: Sequence[str],
     pool_a: list[np.ndarray] = []
     res_b: dict[str, list[np.ndarray]] = {}
     res_a: dict[str, list[np.ndarray]] = {}
+    res_u: dict[str, list[np.ndarray]] = {}
     for train, test, ptrain, ptest in folds:
         f = problem.fit(names, train, part=ptrain, x0=full.x, max_nfev=25, fixed=full.fixed)
         fold_values.append(f.values)
@@ -122,15 +126,20 @@ def evaluate_candidate(problem: Problem, names: Sequence[str],
             pool_a.append(ra)
         cb = problem.channel_resids(ref_effects, test, ptest)
         ca = problem.channel_resids(f.params, test, ptest)
+        cu = problem.channel_resids(ref_effects, test, ptest, spread=True)
         for c in cb:
             if c in ca and ca[c].size == cb[c].size:
                 res_b.setdefault(c, []).append(cb[c])
                 res_a.setdefault(c, []).append(ca[c])
+                res_u.setdefault(c, []).append(cu[c] if c in cu and cu[c].size == cb[c].size
+                                               else np.zeros(cb[c].size))
+    spreads: dict[str, np.ndarray] = {}
     for c in res_b:
         vb, va = np.concatenate(res_b[c]), np.concatenate(res_a[c])
         ch_b[c] = [float(np.sqrt(np.mean(vb ** 2)))]
         ch_a[c] = [float(np.sqrt(np.mean(va ** 2)))]
         pairs[c] = (vb, va)
+        spreads[c] = np.concatenate(res_u[c])
     hb = math.sqrt(sq_b / max(cnt, 1))
     ha = math.sqrt(sq_a / max(cnt, 1))
     size = problem.output_change(ref_effects, full.params, runs)
@@ -139,30 +148,46 @@ def evaluate_candidate(problem: Problem, names: Sequence[str],
               if pool_b and len(pool_b) == len(folds) else None)
     return Candidate(list(names), full, dbic, hb, ha,
                      {c: rms(v) for c, v in ch_b.items()}, {c: rms(v) for c, v in ch_a.items()},
-                     fold_values, size, heldout_pairs=pairs, heldout_pooled=pooled)
+                     fold_values, size, heldout_pairs=pairs, heldout_spread=spreads,
+                     heldout_pooled=pooled)
 
 
 # The per-channel held-out rule (docs/analyzer.md, "The held-out rule"): an update is adopted
 # only if no channel that measures physics gets worse on the held-out data, judged against that
-# channel's noise: a channel is worse when its held-out RMS error grows by more than
-# HELDOUT_TOL noise floors AND the growth is significant in a paired test over the held-out
-# samples (mean of after^2 - before^2 above HELDOUT_Z standard errors, with the sample count
-# corrected for autocorrelation).  Differences far below the noise floor, or within what the
-# noise makes of a held-out RMS, are no evidence.  Derived channels (the recorder's odometry,
-# computed from the counts) are reported but veto nothing: recorders integrate odometry
-# differently (schedule, integration rule, geometry), and a physics update cannot be judged by
-# how well it reproduces another program's arithmetic.  The held-out data only accept or
-# reject an update; they fit nothing.
-HELDOUT_TOL = 0.1     # noise floors
+# channel's noise and against the nominal model's own tolerance on it: a channel is worse when
+# its held-out RMS error grows by more than HELDOUT_TOL of sqrt(floor^2 + spread^2) (spread: the
+# RMS over the held-out samples of the reference replay's uncertainty, ``Channel.unc``: the input
+# spread and the tolerance ensemble's spread in quadrature; not the current's sampling band,
+# which is a reading's own, sample by sample, as the noise is) AND the growth is
+# significant in a paired test over the held-out samples: the mean of after^2 - before^2 above
+# HELDOUT_Z standard errors.  The standard error has two independent parts.  The noise's: the
+# spread of the differences over the sample count corrected for autocorrelation.  The
+# tolerance's: the robot the recording was made with is one draw within the tolerance, and the
+# replay's departure e_i that it causes (RMS u_i at sample i) enters every sample's difference
+# as 2 D_i e_i (D_i = after_i - before_i, the update's change, the same whichever robot it is):
+# it moves the samples of a replay together (a slip onset the ensemble cannot pin shifts the
+# whole pose after it), so it does not average out over the samples; by Minkowski's inequality
+# the RMS of mean(2 D e) is at most mean(2 |D_i| u_i) whatever the correlation, and that bound
+# is its share.  A growth that a robot within the tolerance would give the nominal model is no
+# evidence that the update is worse; where the replay is pinned (spread 0) the rule is the noise
+# test alone.  Derived channels (the recorder's odometry, computed from the counts) are reported
+# but veto nothing: recorders integrate odometry differently (schedule, integration rule,
+# geometry), and a physics update cannot be judged by how well it reproduces another program's
+# arithmetic.  The held-out data only accept or reject an update; they fit nothing.
+HELDOUT_TOL = 0.1     # of sqrt(noise floor^2 + replay spread^2)
 
 HELDOUT_Z = 2.33      # one-sided 1 %
 
 HELDOUT_RULE = (f"a channel that measures physics is worse after the update when its held-out "
-                f"RMS error grows by more than {HELDOUT_TOL} noise floors and the growth is "
-                f"significant (paired test over the held-out samples, z > {HELDOUT_Z}, "
-                f"autocorrelation-corrected); an update that makes any such channel worse is "
-                f"not adopted. Derived channels ({', '.join(DERIVED)}) are reported, not used "
-                f"to veto. Held-out data only accept or reject an update, they fit nothing")
+                f"RMS error grows by more than {HELDOUT_TOL} of sqrt(noise floor^2 + replay "
+                f"spread^2) (the spread: the nominal model's tolerance ensemble and input spread "
+                f"on that channel) and the growth is significant (paired test over the held-out "
+                f"samples, z > {HELDOUT_Z}; its standard error the noise's, "
+                f"autocorrelation-corrected, and the tolerance's, bounded by mean(2 |change| x "
+                f"spread), which does not shrink with the sample count); an update that makes "
+                f"any such channel worse is not adopted. Derived channels "
+                f"({', '.join(DERIVED)}) are reported, not used to veto. Held-out data only "
+                f"accept or reject an update, they fit nothing")
 
 
 BIC_MARGIN = -10.0
@@ -232,43 +257,62 @@ def paired_better(before: np.ndarray, after: np.ndarray, z: float = HELDOUT_Z
 
 
 def paired_worse(before: np.ndarray, after: np.ndarray, floor: float,
-                 tol: float = HELDOUT_TOL, z: float = HELDOUT_Z) -> tuple[bool, float, float]:
+                 spread: np.ndarray | None = None, tol: float = HELDOUT_TOL,
+                 z: float = HELDOUT_Z) -> tuple[bool, float, float]:
     """(worse, increase in noise floors, z statistic) of held-out residuals ``before`` and
-    ``after`` of one channel, sample by sample (see HELDOUT_RULE)."""
+    ``after`` of one channel, sample by sample, with ``spread`` the reference replay's own
+    uncertainty at the same samples (None: none; see HELDOUT_RULE)."""
     b, a = np.asarray(before, float), np.asarray(after, float)
     if b.size == 0 or a.size != b.size or not floor > 0:
         return False, 0.0, 0.0
+    u = (np.zeros(b.size) if spread is None or np.size(spread) != b.size
+         else np.abs(np.asarray(spread, float)) / floor)
+    # a sample whose replay is not pinned at all (no finite spread) is no evidence either way
+    keep = np.isfinite(u)
+    if not keep.all():
+        a, b, u = a[keep], b[keep], u[keep]
+        if b.size == 0:
+            return False, 0.0, 0.0
     incr = (math.sqrt(float(np.mean(a ** 2))) - math.sqrt(float(np.mean(b ** 2)))) / floor
+    big = incr > tol * math.sqrt(1.0 + float(np.mean(u ** 2)))
     d = (a ** 2 - b ** 2) / floor ** 2
     if d.size < 3:
-        return incr > tol, incr, math.inf if incr > 0 else 0.0
+        return big, incr, math.inf if incr > 0 else 0.0
     sd = float(np.std(d, ddof=1))
-    se = sd / math.sqrt(effective_n(d)) if sd > 0 else 0.0
+    se_noise = sd / math.sqrt(effective_n(d)) if sd > 0 else 0.0
+    se_tol = 2.0 * float(np.mean(np.abs(a - b) / floor * u))
+    se = math.hypot(se_noise, se_tol)
     mean = float(np.mean(d))
     zstat = mean / se if se > 0 else (math.inf if mean > 0 else 0.0)
-    return bool(incr > tol and zstat > z), incr, zstat
+    return bool(big and zstat > z), incr, zstat
 
 
 def heldout_channel_check(before: Mapping[str, float], after: Mapping[str, float],
                           floors: Mapping[str, float],
-                          pairs: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None
+                          pairs: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
+                          spreads: Mapping[str, np.ndarray] | None = None
                           ) -> dict[str, dict[str, Any]]:
     """Per channel: held-out RMSE before and after the update, the increase in noise floors,
-    the paired test's z, whether the channel is derived, and whether it holds.  Channels
-    without a noise floor or without both values are left out."""
+    the replay's spread (RMS over the held-out samples of ``spreads[ch]``, the reference
+    replay's own uncertainty; 0 without it), the paired test's z, whether the channel is
+    derived, and whether it holds.  Channels without a noise floor or without both values are
+    left out."""
     out = {}
     for ch, b in before.items():
         a = after.get(ch)
         f = floors.get(ch)
         if a is None or f is None or not (math.isfinite(b) and math.isfinite(a)):
             continue
+        u = None if spreads is None else spreads.get(ch)
+        fin = None if u is None else np.asarray(u, float)[np.isfinite(u)]
+        spread = float(np.sqrt(np.mean(np.square(fin)))) if fin is not None and fin.size else 0.0
         if pairs is not None and ch in pairs:
-            worse, incr, zs = paired_worse(pairs[ch][0], pairs[ch][1], f)
+            worse, incr, zs = paired_worse(pairs[ch][0], pairs[ch][1], f, u)
         else:
             incr = (a - b) / f if f > 0 else 0.0
-            worse, zs = incr > HELDOUT_TOL, math.nan
+            worse, zs = incr > HELDOUT_TOL * math.hypot(1.0, spread / f if f > 0 else 0.0), math.nan
         derived = ch in DERIVED
-        out[ch] = {"before": b, "after": a, "noise_floor": f,
+        out[ch] = {"before": b, "after": a, "noise_floor": f, "replay_spread": spread,
                    "increase_noise_floors": incr, "z": zs, "derived": derived,
                    "worse": bool(worse), "ok": bool(derived or not worse)}
     return out
@@ -300,7 +344,7 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
     # channel by channel: no physics channel worse beyond its noise (HELDOUT_RULE)
     cand.heldout_per_channel = heldout_channel_check(cand.heldout_channels_before,
                                                      cand.heldout_channels_after, problem.floors,
-                                                     cand.heldout_pairs)
+                                                     cand.heldout_pairs, cand.heldout_spread)
     worse = [ch for ch, v in cand.heldout_per_channel.items() if not v["ok"]]
     c["heldout_channels"] = not worse
     if worse:
@@ -308,7 +352,8 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
                             ", ".join(f"{ch} ({cand.heldout_per_channel[ch]['before']:.4g} -> "
                                       f"{cand.heldout_per_channel[ch]['after']:.4g}, "
                                       f"+{cand.heldout_per_channel[ch]['increase_noise_floors']:.2f}"
-                                      f" floors)" for ch in worse))
+                                      f" floors, z {cand.heldout_per_channel[ch]['z']:.2f})"
+                                      for ch in worse))
     dworse = [ch for ch, v in cand.heldout_per_channel.items() if v["derived"] and v["worse"]]
     if dworse:
         cand.recorder_notes.append("derived channel(s) " + ", ".join(dworse) + " worse after the "

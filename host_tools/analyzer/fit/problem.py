@@ -264,13 +264,17 @@ class Problem:
         return out
 
     def channel_resids(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int], part: str = "all",
-                       full: bool = False) -> dict[str, np.ndarray]:
-        """Residual per channel in the channel's unit, concatenated over ``runs``."""
+                       full: bool = False, spread: bool = False) -> dict[str, np.ndarray]:
+        """Residual per channel in the channel's unit, concatenated over ``runs``; with
+        ``spread``, the replay's uncertainty at the same samples instead (``Channel.unc``: the
+        input spread and the tolerance ensemble's spread; zeros where it has none)."""
         acc: dict[str, list[np.ndarray]] = {}
         for i, chans in zip(runs, self.sim_channels(effects, runs, full)):
             ts = self._split_t(self.preps[i])
             for c, ch in chans.items():
                 r = ch.resid
+                if spread:
+                    r = np.zeros(r.size) if ch.unc is None else np.asarray(ch.unc, float)
                 if part == "early":
                     r = r[ch.t <= ts]
                 elif part == "late":

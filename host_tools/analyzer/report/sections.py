@@ -118,10 +118,10 @@ def error_tables(det: Detection, sel: Selection, floors: Mapping[str, float],
     runs_idx = list(range(len(problem.preps)))
     rb = problem.channel_rmse({}, runs_idx, full=True)
     ra = problem.channel_rmse(final_effects, runs_idx, full=True) if final_effects else dict(rb)
-    hpairs = None
+    hpairs = hspread = None
     if sel.chosen is not None:
         hb, ha = sel.chosen.heldout_channels_before, sel.chosen.heldout_channels_after
-        hpairs = sel.chosen.heldout_pairs
+        hpairs, hspread = sel.chosen.heldout_pairs, sel.chosen.heldout_spread
     else:
         # no update: held-out error equals the nominal one on the held-out parts
         c0 = sel.singles[0] if sel.singles else None
@@ -138,7 +138,7 @@ def error_tables(det: Detection, sel: Selection, floors: Mapping[str, float],
                                            else x)
                                        for q, x in v.items()}
                                    for k, v in heldout_channel_check(hb, ha, floors,
-                                                                     hpairs).items()},
+                                                                     hpairs, hspread).items()},
                  "derived_channels": list(DERIVED),
                  "normalized_rms_before": round_sig(det.nrms0),
                  "normalized_rms_after": round_sig(math.sqrt(excess(problem, final_effects)))}
