@@ -284,6 +284,10 @@ def _current_channels(win: _Window) -> dict[str, Channel]:
     return out
 
 
+# Two replay rows closer than this are the same instant (a frame at an input's time).
+MIN_ROW_GAP_S = 1e-6
+
+
 def _sampling_band(win: _Window, side: str, t: np.ndarray) -> np.ndarray | None:
     """Per current sample at ``t``: the band of where in its tick the recorder sampled.  A
     recorder reads the current at some instant of the frame's tick that the analyzer does not
@@ -321,7 +325,8 @@ def _sampling_band(win: _Window, side: str, t: np.ndarray) -> np.ndarray | None:
     r1 = np.maximum(r1, 0)
     r0 = np.maximum(r1 - 1, 0)
     held_from = t_in[np.maximum(i_before, 0)]
-    line = (r0 < r1) & (g[r0] >= held_from - 1e-12)
+    # rows closer than a microsecond are one instant (a frame at an input's time): no line
+    line = (r0 < r1) & (g[r0] >= held_from - 1e-12) & (g[r1] - g[r0] >= MIN_ROW_GAP_S)
     slope = np.where(line, (cur[r1] - cur[r0]) / np.where(line, g[r1] - g[r0], 1.0), 0.0)
     before = cur[r1] + slope * (tick - g[r1])
     delta = np.abs(np.abs(win.at(f"i_{side}_a", t)) - before)

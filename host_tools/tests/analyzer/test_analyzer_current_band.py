@@ -63,3 +63,35 @@ def test_a_current_effect_still_shows_through_the_band(tmp_path):
                        for c in ("current_r_a", "current_l_a")]
     assert all(abs(m) < 0.35 for m in means["null"]), means
     assert all(m < -0.7 for m in means["emf"]), means
+
+
+@needs_native(truth=True)
+def test_two_replay_rows_at_one_instant_give_no_line(tmp_path):
+    """A 12 ms loop whose frames fall on input times puts two replay rows at one instant
+    (5.6e-17 s apart on heldback10's `wrapped_both_loop12_dropout12`); the current's line
+    through them divided by that gap and gave bands of 1e14 noise floors, which made those
+    samples weightless.  The band is the distance between two of the replay's own currents:
+    never more than their range."""
+    import math
+
+    from host_tools import truth
+    from host_tools.analyzer.prepare import inputs as PI
+    from host_tools.analyzer.replay import channels as CH, openloop as OL
+    from host_tools.runfmt import load_run
+    rec = {"heading_tel": "wrapped", "heading_gt": "wrapped", "inner_s": 0.012,
+           "cam_dropout": 0.12}
+    run = load_run(truth.simulate_run(tmp_path / "r", FIGURE_EIGHT,
+                                      {"actuation_delay": {"delay_s": 0.035}}, clamp=True,
+                                      duration_s=1.5, seed=3, recorder=rec))
+    prep = PI.prepare_timed(run)
+    sims = OL.OpenLoopReplay("duty").simulate_windows(prep, {})
+    chans = CH.channels(prep, sims, "duty")
+    checked = 0
+    for side in ("r", "l"):
+        ch = chans[f"current_{side}_a"]
+        assert ch.band is not None
+        top = float(np.max(np.abs(ch.sim))) + float(np.max(np.abs(ch.rec)))
+        assert np.all(np.isfinite(ch.band))
+        assert float(np.max(ch.band)) <= 2.0 * top / math.sqrt(3.0)
+        checked += int(np.sum(ch.band > 0))
+    assert checked > 0
