@@ -156,11 +156,13 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback8", 26, 12),
                                                     ("heldback9", 28, 12),
                                                     ("heldback10", 28, 12),
-                                                    ("heldback11", 28, 12)])
+                                                    ("heldback11", 28, 12),
+                                                    ("heldback12", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
-             "heldback6", "heldback7", "heldback8", "heldback9", "heldback10", "heldback11"]
+             "heldback6", "heldback7", "heldback8", "heldback9", "heldback10", "heldback11",
+             "heldback12"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -206,8 +208,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         assert any(e == "load_transfer" for c in new for e in c.effects)
         assert {c.length for c in new} == {"short", "20 s", "1 min"}
-    if which == "heldback11":  # both engines in every kind and on 20 s and 60 s runs (hard ones
-        # with the clamp off); asymmetries both ways, one per engine; battery sag on both engines
+    if which in ("heldback11", "heldback12"):  # both engines in every kind and on 20 s and 60 s
+        # runs (hard ones with the clamp off); asymmetries both ways, one per engine
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -217,10 +219,17 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
         ratios = {c.engine: c.effects["motor_gain_asymmetry"]["ratio"] for c in new
                   if "motor_gain_asymmetry" in c.effects}
         assert len(ratios) == 2 and min(ratios.values()) < 1 < max(ratios.values())
+    if which == "heldback11":  # battery sag on both engines
         assert {c.engine for c in new if "battery_sag" in c.effects} == {"truth", "mujoco"}
         assert any(c.effects[e]["h"] >= 0.08 for c in new for e in c.effects
                    if e == "load_transfer")
-
+    if which == "heldback12":  # friction on both engines, one reached by ramped accelerations;
+        # a MuJoCo load transfer of at least 90 mm
+        friction = [c for c in new if "friction_coefficient" in c.effects]
+        assert {c.engine for c in friction} == {"truth", "mujoco"}
+        assert any(len({ref["accel"] for ref, _, _ in c.experiments}) >= 3 for c in friction)
+        assert any(c.engine == "mujoco" and c.effects[e]["h"] >= 0.09 for c in new
+                   for e in c.effects if e == "load_transfer")
 
 def test_mujoco_tuning_group():
     """The MuJoCo engine's tuning group: every vocabulary effect and payload, nulls and long
@@ -313,6 +322,7 @@ FROZEN_SETS = {
     "heldback9": "ac154af7cefc2a00ec8eda12f5cb92d71fb819169570029b88c3a999875526b8",
     "heldback10": "d3b74497174d999fbdec61c0c193a5f1e9dea55d83bed57e8c3df081e009cf9d",
     "heldback11": "241830b79879521fcaf9aecf681a8eadd0a64da42bee514626010a37fcffe666",
+    "heldback12": "cb2c98b4780bfd6d71bd6319813a05fd1d707e4cadf538e79c988dda5f34fe98",
 }
 
 
