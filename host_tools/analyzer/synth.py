@@ -58,7 +58,6 @@ def make_run(path: str | os.PathLike[str], profile: str, effects: Mapping[str, M
              gt_noise_m: float = 1e-3, gt_noise_rad: float = 0.01, gt_rate_hz: float = 30.0,
              dropout: float = 0.05, plant_factory: Callable[..., Any] | None = None,
              tick_phase: float | None = None) -> str:
-    from host_tools import _native
     rng = np.random.default_rng(seed)
     full = runfmt.validate_meta(dict(meta or {}, experiment=f"synthetic {profile}",
                                      source="synthetic (nominal plant + effects)"))
