@@ -8,6 +8,8 @@ ranges from here.
 
     ROBOT, MOTOR      defaults of meta.json's "robot" and "motor" (the run format's keys)
     ENCODER_PPR       encoder counts per wheel turn
+    MODEL             settings of the host's nominal model that no table gives (section "model":
+                      not in meta.json nor the protocol)
     RANGES            {(group, name): (min, max)} of every value meta.json holds
     TOLERANCES        {(group, name): tol}: the true value lies within value +- tol
 """
@@ -50,6 +52,7 @@ class Table:
     doc: str
     params: tuple[Param, ...]   # robot and motor, in table order
     encoder: Param
+    model: tuple[Param, ...] = ()  # the nominal model's settings (section "model")
 
     def group(self, group: str, run_format_only: bool = False) -> tuple[Param, ...]:
         return tuple(p for p in self.params
@@ -110,7 +113,17 @@ def parse(spec: Any) -> Table:
     if dup:
         raise TableError(f"parameters named twice: {dup}")
     encoder = _param("encoder", spec.get("encoder"), integer=True)
-    return Table(str(spec.get("doc", "")), tuple(params), encoder)
+    model: list[Param] = []
+    if "model" in spec:
+        entries = spec["model"].get("params") if isinstance(spec["model"], dict) else None
+        if not isinstance(entries, list):
+            raise TableError("model: 'params' must be a list")
+        model = [_param("model", dict(e, run_format=False) if isinstance(e, dict) else e)
+                 for e in entries]
+        model_names = [p.name for p in model]
+        if len(set(model_names)) != len(model_names):
+            raise TableError(f"model: parameters named twice: {model_names}")
+    return Table(str(spec.get("doc", "")), tuple(params), encoder, tuple(model))
 
 
 def load(path: Path | str = TABLE_PATH) -> Table:
@@ -139,7 +152,9 @@ ENCODER_PPR: int = int(TABLE.encoder.value)  # parsed as an integer (_param)
 RANGES: dict[tuple[str, str], tuple[float, float]] = {
     (p.group, p.name): (p.min, p.max) for p in TABLE.params if p.run_format}
 ENCODER_PPR_RANGE: tuple[int, int] = (int(TABLE.encoder.min), int(TABLE.encoder.max))
-TOLERANCES: dict[tuple[str, str], float] = {(p.group, p.name): p.tol for p in TABLE.params}
+TOLERANCES: dict[tuple[str, str], float] = {(p.group, p.name): p.tol
+                                             for p in TABLE.params + TABLE.model}
+MODEL: dict[str, float] = {p.name: p.value for p in TABLE.model}
 
 
 def resolve_param_ranges(protocol_spec: dict[str, Any]) -> dict[str, Any]:

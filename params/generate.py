@@ -74,7 +74,7 @@ def render_table_md(t: P.Table) -> str:
     L = [f"<!-- {BANNER} -->", "", "# Robot parameters", "", t.doc, "",
          "| group | name | value | unit | range | source | tolerance (±) | its source | meaning |",
          "|---|---|---|---|---|---|---|---|---|"]
-    for p in t.params + (t.encoder,):
+    for p in t.params + (t.encoder,) + t.model:
         flag = "" if p.run_format else " (host model only)"
         L.append(f"| {p.group} | `{p.name}` | {p.value:g} | {p.unit} | [{p.min:g}, {p.max:g}] | "
                  f"{p.ref} | {p.tol:g} | {p.tol_ref} | {p.doc}{flag} |")

@@ -40,11 +40,11 @@ class ParamSpec:
     given: tuple[str, str, Callable[[float, float], float],
                  Callable[[float, Mapping[str, Any]], tuple[float, float]]] | None = None
     # The ranges (lower, upper offset from the neutral value; lower <= 0 <= upper), one per
-    # independent part, by which the nominal model's own left-out physics of the normal forces
-    # moves this parameter's fitted value (replay/tolerance.py, ``left_out_normal_forces``: the
-    # wheels' mass on the axle, a centre of mass above the ground, the wheels' spin-up); the
-    # replay's tolerance ensemble draws each uniformly, and a fitted deviation within them is not
-    # evidence of the effect.  None: no such physics.
+    # independent part, by which the normal forces' physics that the nominal model carries only
+    # at a guess moves this parameter's fitted value (replay/tolerance.py,
+    # ``left_out_normal_forces``: where the wheels' mass sits, the centre of mass's height, the
+    # share of the wheels' spin-up); the replay's tolerance ensemble draws each uniformly, and a
+    # fitted deviation within them is not evidence of the effect.  None: no such physics.
     left_out: Callable[[Mapping[str, Any]], tuple[tuple[float, float], ...]] | None = None
 
 
@@ -87,24 +87,31 @@ _NO_TOL = _c(0.0)
 
 def _friction_left_out(key: str
                        ) -> Callable[[Mapping[str, Any]], tuple[tuple[float, float], ...]]:
-    """The left-out normal-force physics as a friction coefficient: wheels that carry more than
-    the nominal model gives at their slip onset reach ``mu N`` where the nominal model needs
-    ``(1 + excess) mu``; never less (``LeftOut.excess``, one range per part)."""
+    """The normal forces' physics that the nominal model carries at a guess, as a friction
+    coefficient: wheels that carry more (less) than the nominal model gives at their slip onset
+    reach ``mu N`` where the nominal model needs a larger (smaller) ``mu``; the nominal model
+    lies inside each part's range, so either way (``LeftOut.mu_ranges``, one range per
+    part)."""
     def f(meta: Mapping[str, Any]) -> tuple[tuple[float, float], ...]:
         from host_tools.analyzer.replay.tolerance import left_out_normal_forces
         mu = float(meta["robot"][key])
-        return tuple((0.0, mu * x) for x in left_out_normal_forces(meta["robot"], mu).excess)
+        return tuple((mu * lo, mu * hi)
+                     for lo, hi in left_out_normal_forces(meta["robot"], mu).mu_ranges)
     return f
 
 
 def _height_left_out(meta: Mapping[str, Any]) -> tuple[tuple[float, float], ...]:
-    """The left-out longitudinal load transfer as the effect's ``h`` (which carries the whole
-    spin-up of ``I_wy``): a centre of mass between the ground and Table II.2's ``h``, and the
-    share of the spin-up a robot lacks, as a height down to ``-h_s`` (``LeftOut.h_max_m``,
-    ``LeftOut.spin_h_m``)."""
+    """The normal forces' physics that the nominal model carries at a guess, as the
+    ``load_transfer`` effect's centre-of-mass ``h`` (about its neutral value, Table II.2's
+    ``h``): a centre of mass between the ground and ``h`` plus its tolerance, and a share k of
+    the spin-up other than the nominal k^, which rolls like a height ``(k - k^) h_s``
+    (``LeftOut``)."""
+    from host_tools.analyzer.replay.normal_forces import spin_range
     from host_tools.analyzer.replay.tolerance import left_out_normal_forces
     lo = left_out_normal_forces(meta["robot"])
-    return (0.0, lo.h_max_m), (-lo.spin_h_m, 0.0)
+    k_lo, k_hi = spin_range()
+    return ((-lo.com_h_m, lo.h_max_m - lo.com_h_m),
+            ((k_lo - lo.spin_share) * lo.spin_h_m, (k_hi - lo.spin_share) * lo.spin_h_m))
 
 
 def left_out_ranges(effect: str, name: str, meta: Mapping[str, Any]
@@ -159,8 +166,10 @@ SPECS: dict[str, EffectSpec] = {s.name: s for s in [
     EffectSpec("caster_drag", (
         P("mu", _c(0.0), _c(0.0), _c(0.5), _NO_TOL),),
         "constant drag force on the body while it moves"),
+    # h: the centre-of-mass height, Table II.2's in the nominal model (replay/normal_forces.py,
+    # which adds the spin-up's rolling height k^ h_s to it); its tolerance is in the left-out range
     EffectSpec("load_transfer", (
-        P("h", _c(0.0), _c(0.0), _c(0.25), _NO_TOL, "m", left_out=_height_left_out),),
+        P("h", _robot("h"), _c(0.0), _c(0.25), _NO_TOL, "m", left_out=_height_left_out),),
         "normal forces shift during acceleration; slip threshold moves"),
     EffectSpec("stribeck", (
         # friction at zero slip speed is capped at mu_s by the plant: above it is unidentifiable
@@ -262,9 +271,10 @@ def folded_robot(robot: Mapping[str, float],
 
 def plant_setup(robot: Mapping[str, float], effects: Mapping[str, Mapping[str, float]]
                 ) -> tuple[dict[str, float], dict[str, dict[str, float]]]:
-    """(robot parameters, plant effects) of the nominal plant with ``effects``: the effects the
+    """(robot parameters, plant effects) of ``effects`` on the robot ``robot``: the effects the
     plant does not have (:data:`ADDED_PARAMETER_EFFECTS`) as changed parameters, the others as
-    its effects."""
+    its effects.  The nominal model's normal-force physics comes on top
+    (``replay.normal_forces.plant_config``, which every replay's plant is built with)."""
     added = {n: p for n, p in effects.items() if n in ADDED_PARAMETER_EFFECTS}
     rest = {n: dict(p) for n, p in effects.items() if n not in ADDED_PARAMETER_EFFECTS}
     r = dict(robot)

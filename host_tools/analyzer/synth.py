@@ -1,7 +1,7 @@
 """Synthetic runs for developing and testing the analyzer.
 
-The "truth" here is the nominal plant itself (lib/slipmodel via host_tools._native) with an
-effect switched on.  That is NOT a proof of the analyzer -- the fitting model and the data
+The "truth" here is the nominal plant itself (lib/slipmodel via host_tools._native, with the
+nominal model's normal forces, replay/normal_forces.py) with an effect switched on.  That is NOT a proof of the analyzer -- the fitting model and the data
 come from the same code.  The real proof is the independent truth simulator's suite (host_tools.suite).
 
 Each run: duty commands set by a 25 ms inner loop, 50 Hz telemetry with quantized encoders,
@@ -37,12 +37,27 @@ def _odometry(counts_r: np.ndarray, counts_l: np.ndarray, t: np.ndarray, r: floa
     return odo(counts_r, counts_l, t, r, b, ppr, (0.0, 0.0, 0.0))
 
 
+def nominal_plant(meta: Mapping[str, Any],
+                  effects: Mapping[str, Mapping[str, float]] | None = None) -> Any:
+    """lib/slipmodel's plant of the nominal model for a run's meta.json (its robot and motor),
+    with its normal forces (replay/normal_forces.py ``plant_config``) and ``effects``: the
+    synthetic runs' "truth" by default, and the base of a test's own variant of it."""
+    from host_tools import _native
+    from host_tools.analyzer.replay.normal_forces import plant_config
+    cfg = plant_config(meta["robot"], effects or {})
+    plant = _native.Plant(robot=cfg.robot, motor=meta["motor"])
+    for key, value in cfg.keys.items():
+        plant.set(key, value)
+    for name, params in cfg.effects.items():
+        plant.set_effect(name, **params)
+    return plant
+
+
 def make_run(path: str | os.PathLike[str], profile: str, effects: Mapping[str, Mapping[str, float]]
              | None = None, duration_s: float = 1.5, seed: int = 0, meta: Mapping[str, Any] | None = None,
              gt_noise_m: float = 1e-3, gt_noise_rad: float = 0.01, gt_rate_hz: float = 30.0,
              dropout: float = 0.05, plant_factory: Callable[..., Any] | None = None,
              tick_phase: float | None = None) -> str:
-    from host_tools import _native
     rng = np.random.default_rng(seed)
     full = runfmt.validate_meta(dict(meta or {}, experiment=f"synthetic {profile}",
                                      source="synthetic (nominal plant + effects)"))
@@ -59,10 +74,14 @@ def make_run(path: str | os.PathLike[str], profile: str, effects: Mapping[str, M
     idx = np.searchsorted(ticks, grid, side="right") - 1
     u_r = np.where(idx >= 0, u_r_t[np.maximum(idx, 0)], 0.0)
     u_l = np.where(idx >= 0, u_l_t[np.maximum(idx, 0)], 0.0)
-    factory = plant_factory or _native.Plant.from_meta
-    truth = factory(full)
-    for name, params in (effects or {}).items():
-        truth.set_effect(name, **params)
+    if plant_factory is None:  # the nominal model's plant with the effects
+        factory = nominal_plant
+        truth = nominal_plant(full, effects or {})
+    else:
+        factory = plant_factory
+        truth = factory(full)
+        for name, params in (effects or {}).items():
+            truth.set_effect(name, **params)
     out = truth.simulate(grid, u_r, u_l, mode="duty", start_pose=(0.0, 0.0, 0.0))
     nominal = factory(full)
     nom = nominal.simulate(grid, u_r, u_l, mode="duty")

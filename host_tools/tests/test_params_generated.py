@@ -70,6 +70,8 @@ def test_a_changed_table_changes_the_header():
     (lambda d: d["groups"]["robot"]["params"][0].__setitem__("tol", -0.01), "tol must be"),
     (lambda d: d["groups"]["robot"]["params"][2].__setitem__("tol", 2.0), "leaves the range"),
     (lambda d: d["groups"]["motor"]["params"][1].__setitem__("tol_ref", " "), "tol_ref"),
+    (lambda d: d["model"]["params"][0].__setitem__("value", 1.5), "outside its range"),
+    (lambda d: d["model"].__setitem__("params", {}), "model: 'params' must be a list"),
 ])
 def test_table_errors_are_refused(mutate, message):
     d = copy.deepcopy(_spec())
@@ -81,9 +83,14 @@ def test_table_errors_are_refused(mutate, message):
 def test_every_parameter_has_a_tolerance_and_its_source():
     """Each nominal value is known to a tolerance, with where it comes from; params.md shows it."""
     md = (ROOT / "params" / "params.md").read_text(encoding="utf-8")
-    for p in params.TABLE.params + (params.TABLE.encoder,):
+    for p in params.TABLE.params + (params.TABLE.encoder,) + params.TABLE.model:
         assert p.tol >= 0 and p.tol_ref.strip(), p.name
         assert p.tol_ref in md, p.name
+    # the nominal model's settings that no table gives (section "model"): with their tolerance,
+    # outside meta.json and the protocol
+    assert set(params.MODEL) == {"spin_share"}
+    assert params.TOLERANCES[("model", "spin_share")] > 0
+    assert not any(p.run_format for p in params.TABLE.model)
     assert params.TOLERANCES[("robot", "b")] == 0.0025          # 2b = 0.21 m to its last digit
     assert params.TOLERANCES[("motor", "no_load_rad_s")] == pytest.approx(0.1 * 36.65)
 

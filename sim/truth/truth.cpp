@@ -69,7 +69,8 @@ const KeyDef kKeys[] = {
     {"axle_viscous.c", 0.0, 0, 1},
     {"axle_coulomb.torque", 0.0, 0, 1},
     {"caster_drag.mu", 0.0, 0, 2},
-    {"load_transfer.h", 0.0, 0, 1},          // 0: no pitch balance; > 0: CoM height, and the wheels' spin-up
+    {"load_transfer.h", -1.0, -1, 1},        // the robot's centre-of-mass height, m (< 0: robot.h)
+    {"sim.spin_share", 1.0, 0, 1},           // share of I_wy whose spin-up reacts on the body
     {"stribeck.mu_k0", -1.0, -1, 10},        // < 0: off
     {"stribeck.v_s", 0.01, 1e-5, 10},
     {"deadband.volts", 0.0, 0, 50},
@@ -433,10 +434,20 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   Handle& H = *static_cast<Handle*>(p);
   // ---- true parameters
   const double mu_s = H("robot.mu_s"), mu_k = fmin(H("robot.mu_k"), mu_s);
-  const double b = H("robot.b"), e = H("robot.e"), d = H("robot.d"), g = H("robot.g");
-  const double h_lat = H("robot.h");
-  const double m = H("robot.m_r") + H("payload.mass_kg") + 2.0 * H("robot.m_w");
-  const double Ic = H("robot.I_rz") + 2.0 * (H("robot.I_wz") + H("robot.m_w") * b * b);
+  // Mass layout: the platform (m_r, with a payload at its centre of mass) has its centre of
+  // mass d ahead of the axle centre o and its yaw inertia I_rz about it; each wheel (m_w, I_wz
+  // about the vertical) sits on the axle, b to the side. The robot's centre of mass c is then
+  // d_c = m_p d / m ahead of o; the caster contact stays d + e ahead of o, e_c = d + e - d_c
+  // ahead of c; the yaw inertia about c is that of the masses where they sit.
+  const double b = H("robot.b"), e0 = H("robot.e"), d0 = H("robot.d"), g = H("robot.g");
+  const double m_p = H("robot.m_r") + H("payload.mass_kg"), m_w = H("robot.m_w");
+  const double m = m_p + 2.0 * m_w;
+  const double d = m_p * d0 / m, e = d0 + e0 - d;
+  const double Ic = H("robot.I_rz") + m_p * (d0 - d) * (d0 - d) +
+                    2.0 * (H("robot.I_wz") + m_w * (b * b + d * d));
+  // the centre of mass's height: robot.h, or load_transfer.h where set; both balances use it
+  const double h_com = H("load_transfer.h") >= 0.0 ? H("load_transfer.h") : H("robot.h");
+  const double spin_share = H("sim.spin_share");
   const double Iw = H("robot.I_wy"), r0 = H("robot.r");
   const double V0 = H("motor.supply_v"), w0 = H("motor.no_load_rad_s"), stall = H("motor.stall_nm");
   const double k_t = V0 / w0;  // SI motor constant (torque per ampere = volts per rad/s)
@@ -444,7 +455,7 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
   const double ke_ratio = H("motor_back_emf.ke_ratio"), v_drop = H("driver_voltage_drop.volts");
   const double delay = H("actuation_delay.delay_s"), lag = H("motor_lag.tau_s");
   const double c_visc = H("axle_viscous.c"), T_coul = H("axle_coulomb.torque");
-  const double mu_caster = H("caster_drag.mu"), h_pitch = H("load_transfer.h");
+  const double mu_caster = H("caster_drag.mu");
   const double mu_k0 = H("stribeck.mu_k0"), v_s = H("stribeck.v_s");
   const double v_dead = H("deadband.volts"), asym = H("motor_gain_asymmetry.ratio");
   const double slope = H("floor_slope.rad");
@@ -704,14 +715,16 @@ int tr_run(void* p, int max_tel, double* tel, int* n_tel, int max_cam, double* c
     last_tau_r = tau_del_r;
     last_tau_l = tau_del_l;
 
-    // ---- normal forces: caster from pitch balance about the axle line, wheels from roll balance
+    // ---- normal forces: caster from the pitch balance about c, wheels from the roll balance.
+    // Pitch moments about c (the body does not pitch; every part translates with c): the
+    // wheels' loads d behind c, the caster's e ahead, the ground's forward forces at depth
+    // h_com; they change the wheels' spin momentum spin_share Iw (theta'_r + theta'_l), the
+    // share of the wheels' spin inertia that turns with them about the axle:
+    //   d (N_r + N_l) - e N_c - h_com m a_x = spin_share Iw (theta''_r + theta''_l)
     const double Wn = m * g * cos(slope);
-    // (moments about c: the ground's forward force at depth h_pitch and the rate of the wheels'
-    // spin momentum Iw (theta'_r + theta'_l), each rigid wheel spinning about the axle)
-    const double spin_moment = h_pitch > 0.0 ? Iw * spin_prev : 0.0;
-    N_c = fmax(0.0, (Wn * d - m * ax_prev * h_pitch - spin_moment) / (d + e));
+    N_c = fmin(Wn, fmax(0.0, (Wn * d - m * ax_prev * h_com - spin_share * Iw * spin_prev) / (d + e)));
     const double Nw = Wn - N_c;
-    const double dN = h_lat * lat_prev / b;  // a left lateral force loads the right wheel
+    const double dN = h_com * lat_prev / b;  // a left lateral force loads the right wheel
     N_r = fmax(0.0, 0.5 * (Nw + dN));
     N_l = fmax(0.0, 0.5 * (Nw - dN));
     if (N_r == 0.0) N_l = Nw;

@@ -15,6 +15,13 @@
 //     explicit force law with a direct stick solve and a breakaway rule;
 //   * its own integrator (symplectic Euler on the impulse-corrected velocities) and step size
 //     (0.2 ms by default; the nominal plant uses 0.5 ms); axle viscous friction implicit.
+//   * the normal forces of a real robot's mass layout: the platform's mass (m_r, and a payload)
+//     at its centre of mass d ahead of the axle, the wheels' mass on the axle; the caster's
+//     load from the pitch balance about the robot's centre of mass at height robot.h (or
+//     load_transfer.h), with the ground's forward forces and the reaction of the wheels'
+//     spin-up (share sim.spin_share of I_wy, 1 by default: the table's I_wy = 2 I_wz is a thin
+//     disc's, all of it spinning with the wheel) — lib/slipmodel's II.27-II.29 put the whole
+//     mass at c and leave the pitch balance to its load_transfer effect;
 //   * effects beyond the run-format vocabulary: an eccentric wheel (rolling radius varying with
 //     the wheel angle), battery sag (supply voltage falling with the current and the charge
 //     drawn), and a floor patch of different friction.

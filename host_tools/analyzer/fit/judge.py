@@ -198,11 +198,12 @@ BIC_MARGIN = -10.0
 # neutral value (ParamSpec.tol) is a half-width, the true value lies within value +- tol,
 # uniformly as the replay's tolerance ensemble draws it, so its standard uncertainty is tol /
 # sqrt(3).  What the nominal model allows is the neutral value itself, widened by the ranges
-# [lo, hi] by which the parts of its left-out physics of the normal forces move the fitted value
-# (ParamSpec.left_out, replay/tolerance.py: the wheels' mass on the axle, a centre of mass above
-# the ground, the wheels' spin-up; they raise a friction coefficient by up to mu_excess of it and
-# give a load-transfer height from minus the spin-up's equivalent height, the effect carrying the
-# whole spin-up, up to Table II.2's h): any
+# [lo, hi] by which the parts of the normal forces' physics that the nominal model carries only at
+# a guess move the fitted value (ParamSpec.left_out, replay/tolerance.py: where the wheels' mass
+# sits, the centre of mass's height, the share of the wheels' spin-up; the nominal model lies
+# inside each part's range, so they move a friction coefficient either way, by LeftOut.mu_ranges
+# of it, and a load-transfer height from the ground up to Table II.2's h plus its tolerance, and
+# by the spin share's range times h_s): any
 # value between sum(lo) and sum(hi) is a robot the ensemble draws, the nominal one included, so
 # none of them is evidence.  SIZE_Z is the one-sided 1 % of the other tests (HELDOUT_Z).  Without
 # a tolerance or a left-out range (an effect whose neutral value is no nominal parameter) the

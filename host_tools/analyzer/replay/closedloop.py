@@ -8,9 +8,9 @@ import numpy as np
 
 from host_tools import params as param_table
 from host_tools import protocol as P
-from host_tools.analyzer.effects import plant_setup
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import Channel
+from host_tools.analyzer.replay.normal_forces import plant_config
 from host_tools.control import REF_KINDS as PROFILE_KINDS
 
 
@@ -194,16 +194,18 @@ class ClosedLoopReplay:
         T, t0 = setup["inner_s"], setup["t0_s"]
         t_end = float(prep.run.telemetry["t_s"][-1])
         n = int(math.floor((t_end - t0) / T + 1e-9)) + 1
-        plant_robot, plant_effects = plant_setup(prep.robot, effects)
+        cfg = plant_config(prep.robot, effects)  # the nominal model's normal forces
         loop = ClosedLoop(setup["kind"], setup["accel"], setup["cruise"], setup["radius"],
                           fixed_point=True, clamp=setup["clamp"], ctl_robot=ctl["robot"],
-                          ctl_motor=ctl["motor"], plant_robot=plant_robot, plant_motor=prep.motor,
-                          effects=plant_effects, t0_s=t0, inner_s=T, outer_every=setup["outer_every"],
+                          ctl_motor=ctl["motor"], plant_robot=cfg.robot, plant_motor=prep.motor,
+                          effects=cfg.effects, t0_s=t0, inner_s=T, outer_every=setup["outer_every"],
                           ppr=prep.ppr, plant_dt_s=self.dt_s, start_pose=prep.start_pose,
                           ctl_params={"controller": setup["controller"]},
                           # the firmware's 1 kHz duty ramp, where the recorder says it ramps
                           duty_ramp=bool(prep.run.meta.get("duty_ramp", False)),
                           drive=setup.get("drive"))
+        for key, value in cfg.keys.items():
+            loop.set(key, value)
         return cast("dict[str, np.ndarray]", loop.run(n))
 
 

@@ -5,9 +5,9 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from host_tools.analyzer.effects import plant_setup
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay import anchors
+from host_tools.analyzer.replay.normal_forces import NOMINAL, NormalForces, plant_config
 
 _NEEDED = {"x_m", "y_m", "phi_rad", "theta_r_rad", "theta_l_rad", "dtheta_r_rad_s",
            "dtheta_l_rad_s", "tau_r_nm", "tau_l_nm", "v_m_s", "omega_rad_s", "slip_r", "slip_l",
@@ -23,14 +23,20 @@ def _zoh(t_in: np.ndarray, v: np.ndarray, grid: np.ndarray) -> np.ndarray:
 
 
 class OpenLoopReplay:
-    """Drive the plant with the recorded duty ("duty") or torque command ("torque")."""
+    """Drive the plant with the recorded duty ("duty") or torque command ("torque").  The
+    plant is the nominal model's (``normal_forces.plant_config``): the normal-force physics
+    ``forces`` (default the nominal model's) and the run's robot parameters with ``params``
+    over them (the tolerance ensemble's draws)."""
 
-    def __init__(self, mode: str = "duty", dt_s: float = 5e-4, plant_factory: Any = None):
+    def __init__(self, mode: str = "duty", dt_s: float = 5e-4, plant_factory: Any = None,
+                 forces: NormalForces = NOMINAL, params: Mapping[str, float] | None = None):
         if mode not in ("duty", "torque"):
             raise ValueError(f"mode must be 'duty' or 'torque', not {mode!r}")
         self.mode = mode
         self.name = f"open-loop {mode}"
         self.dt_s = dt_s
+        self.forces = forces
+        self.params = dict(params or {})
         self._factory = plant_factory
         self._plants: dict[tuple[tuple[tuple[str, Any], ...], tuple[tuple[str, Any], ...]], Any] = {}
 
@@ -49,10 +55,12 @@ class OpenLoopReplay:
     def _ready(self, prep: PreparedRun, effects: Mapping[str, Mapping[str, float]]
                ) -> tuple[Any, tuple[np.ndarray, np.ndarray], np.ndarray]:
         """(plant with ``effects`` switched on, the replayed inputs, their times)."""
-        robot, plant_effects = plant_setup(prep.robot, effects)
-        plant = self._plant(robot, prep.motor)
+        cfg = plant_config({**prep.robot, **self.params}, effects, self.forces)
+        plant = self._plant(cfg.robot, prep.motor)
+        for key, value in cfg.keys.items():
+            plant.set(key, value)
         plant.clear_effects()
-        for name, params in plant_effects.items():
+        for name, params in cfg.effects.items():
             plant.set_effect(name, **{k: float(v) for k, v in params.items()})
         if self.mode == "duty":
             return plant, prep.duty, prep.t_in

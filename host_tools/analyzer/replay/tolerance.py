@@ -4,21 +4,26 @@ spring-scale division), and where the replay is sensitive to them (a slip onset,
 stop or reversal, an arc over seconds) the recording may depart from the nominal replay by that
 much without any physics missing.
 
-Beside the parameters, the nominal model's own left-out physics of the normal forces is drawn at
-its derived size (:func:`left_out_normal_forces`): where the wheels' mass sits, the
-longitudinal load transfer of a centre of mass above the ground, and the reaction of the
-wheels' spin-up.  A real robot and any 3-D engine have them; lib/slipmodel's II.27–II.29 leave
-them out."""
+Beside the parameters, the normal forces' physics that the nominal model carries only at a guess
+(replay/normal_forces.py) is drawn over its possible range (:func:`left_out_normal_forces`):
+where the wheels' mass sits, the height of the centre of mass, and the share of the wheels'
+spin-up that reacts on the body.  The nominal model lies inside each range."""
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
 from host_tools import params as P
 from host_tools.analyzer.prepare.run import PreparedRun
+from host_tools.analyzer.replay.normal_forces import (SPIN_SHARE, NormalForces, spin_height,
+                                                      spin_range, wheels_on_axle)
+
+__all__ = ["EnsembleDraw", "LeftOut", "ToleranceUncertainty", "ensemble_draws",
+           "left_out_normal_forces", "tolerance_draws", "tolerance_uncertainty",
+           "wheels_on_axle"]
 
 if TYPE_CHECKING:
     from host_tools.analyzer.replay.openloop import OpenLoopReplay
@@ -34,87 +39,79 @@ TOLERANCE_GROUPS = ("robot",)
 
 @dataclass(frozen=True)
 class LeftOut:
-    """The nominal model's left-out physics of the normal forces, at its derived size
-    (:func:`left_out_normal_forces`); each part is drawn uniformly and independently between
-    none of it and all of it.
+    """The normal forces' physics that the nominal model (:data:`normal_forces.NOMINAL`: the
+    wheels' mass on the axle, the centre of mass at Table II.2's ``h``, the spin-up's share
+    ``k^``) can only carry at a guess, at its derived size (:func:`left_out_normal_forces`);
+    each part is drawn uniformly and independently over its possible range, the nominal model
+    inside it.
 
-    ``wheel_shift_m``: how far the robot's centre of mass moves back towards the axle when the
-    wheels' mass sits on the axle instead of at c (``2 m_w d / m_t``).  Table II.1 gives ``d``
-    only as the "distance from wheel's axis to center of mass" and II.29 puts the total mass
-    m_t at c; with the platform's mass m_r at c and each wheel's m_w on the axle, the robot's
-    centre of mass is at ``m_r d / m_t`` and the caster, still ``d + e`` ahead of o, carries
-    ``m_r g d / (d + e)`` instead of ``m_t g d / (d + e)``: the wheels carry more.  Both
-    readings are possible; the draws take one between them.
+    ``wheel_shift_m``: how far the robot's centre of mass lies behind the platform's c when
+    the wheels' mass sits on the axle (``2 m_w d / m_t``).  Table II.1 gives ``d`` only as the
+    "distance from wheel's axis to center of mass" and II.29 puts the total mass m_t at c;
+    params.json reads ``m_r``, ``d`` and ``I_rz`` as the platform's, so the nominal model has
+    the wheels on the axle and the caster carrying ``m_r g d / (d + e)``.  The planar reading
+    (``m_t g d / (d + e)``) is still possible; the draws take a share in [0, 1].
 
-    ``h_max_m``: the height of the centre of mass whose longitudinal load transfer the nominal
-    model leaves out (the plant's ``load_transfer`` effect, ``N_c`` falls by ``m a h / (d +
-    e)`` while accelerating): Table II.2's ``h`` (plus its tolerance), which II.28 uses only
-    laterally.
+    ``h_max_m``: the highest centre of mass, Table II.2's ``h`` plus its tolerance;
+    ``com_h_m``: the nominal one (``h``); the draws take one in [0, ``h_max_m``].
 
     ``spin_h_m``: the reaction of the wheels' spin-up as a load-transfer height.  The motors
-    spinning up the wheels pitch the body and unload the caster by ``I_wy (theta''_r +
+    spinning up the wheels pitch the body and unload the caster by ``k I_wy (theta''_r +
     theta''_l) / (d + e)`` (moments about the centre of mass: the wheels' spin momentum changes
-    at that rate); while the wheels roll ``theta'' = a / r``, which is ``m_t a h_s / (d + e)``
-    with ``h_s = 2 I_wy / (m_t r)`` (39 mm at the table's values).  The plant's
-    ``load_transfer`` effect carries this term itself (lib/slipmodel/README.md, "Load transfer
-    and spin-up"), with the share ``k`` of ``I_wy`` whose spin reacts (``plant.spin_share``;
-    the effect's own is 1, the table's wheel: ``I_wy = 2 I_wz`` is a thin disc's).  How much
-    of a real robot's ``I_wy`` spins with the wheel is not known: a gear-motor's rotor, which
-    the table's ``I_wy`` may count in, reacts with 1/gear of its share, and MuJoCo's wheel body
-    carries ``I_wz`` of it (k = 1/2, measured); the draws take k in [0, 1].  As a height of the
-    effect at its own k = 1, a robot with its centre of mass at ``H`` and the share ``k``
-    rolls like ``h = H - (1 - k) h_s``: between ``-h_s`` and ``h_max_m``.
+    at that rate; lib/slipmodel/README.md, "Load transfer and spin-up"); while the wheels roll
+    ``theta'' = a / r``, which is ``m_t a k h_s / (d + e)`` with ``h_s = 2 I_wy / (m_t r)``
+    (39 mm at the table's values).  ``spin_share``: the nominal model's ``k^``
+    (params.json ``model.spin_share``); the draws take k in ``k^ +- tol``, i.e. [0, 1].
 
-    ``excess``: relative excess of a wheel's normal force at its slip onset over the nominal
-    model's, from each part at its full size: ``2 m_w d / (m_t e)`` from the wheels' mass on the
-    axle (the caster's load falls by ``2 m_w g d / (d + e)``, shared by the two wheels against
-    their ``m_t g e / (2 (d + e))``), ``mu h / (d + e)`` from the transfer at the acceleration
-    where both wheels reach ``mu N`` (``a = 2 mu N / m_t``, so ``m_t a h / (2 (d + e) N) = mu h
-    / (d + e)``) and ``mu h_s / (d + e)`` from the spin-up.  The traction limit is ``mu N``, so
-    a recording with these normal forces replays as one whose friction coefficient is up to
-    ``(1 + mu_excess)`` times the nominal one (``mu_excess`` their sum); never less."""
+    ``mu_ranges``: relative ranges (lo <= 0 <= hi), one per part, by which a robot inside these
+    ranges moves a wheel's normal force at its slip onset from the nominal model's.  The
+    traction limit is ``mu N``, so such a recording replays as one whose friction coefficient
+    is that much off the nominal one, either way:
+
+    * the wheels' mass: the nominal wheels carry ``N0 = N_p (1 + x)``, ``x = 2 m_w d /
+      (m_t e)`` over the planar ``N_p = m_t g e / (2 (d + e))``; a robot with its wheels' mass
+      at c carries ``N_p``: ``[-x / (1 + x), 0]``;
+    * the height: at the acceleration where both wheels reach ``mu N`` (``a = 2 mu N /
+      m_t``) a transfer at H moves ``m_t a H / (2 (d + e)) = mu N H / (d + e)``, so a centre of
+      mass at H against the nominal h moves N by ``mu (H - h) / (d + e)`` of it: ``[-mu h /
+      (d + e), mu (h_max - h) / (d + e)]``;
+    * the spin-up: the same with the rolling height ``(k - k^) h_s``: ``[-mu k^ h_s / (d + e),
+      mu (1 - k^) h_s / (d + e)]``."""
     wheel_shift_m: float
     h_max_m: float
+    com_h_m: float
     spin_h_m: float
-    excess: tuple[float, float, float]
+    spin_share: float
+    mu_ranges: tuple[tuple[float, float], ...]
 
     @property
-    def mu_excess(self) -> float:
-        return float(sum(self.excess))
+    def mu_range(self) -> tuple[float, float]:
+        """(lowest, highest) relative departure of the fitted friction coefficient, all parts
+        together."""
+        return (float(sum(lo for lo, _ in self.mu_ranges)),
+                float(sum(hi for _, hi in self.mu_ranges)))
 
 
 def left_out_normal_forces(robot: Mapping[str, float], mu: float | None = None) -> LeftOut:
-    """The derived size of the left-out normal-force physics (:class:`LeftOut`) for the robot
-    parameters ``robot`` (meta.json's); ``mu`` the friction coefficient of ``excess``
-    (default the robot's μs)."""
+    """The derived size of the normal forces' physics that the nominal model carries at a guess
+    (:class:`LeftOut`) for the robot parameters ``robot`` (meta.json's); ``mu`` the friction
+    coefficient of ``mu_ranges`` (default the robot's μs)."""
     m_r, m_w = float(robot["m_r"]), float(robot["m_w"])
     d, e = float(robot["d"]), float(robot["e"])
-    h = max(float(robot["h"]) + P.TOLERANCES.get(("robot", "h"), 0.0), 0.0)
+    h = max(float(robot["h"]), 0.0)
+    h_max = max(h + P.TOLERANCES.get(("robot", "h"), 0.0), 0.0)
     m_t = m_r + 2.0 * m_w
-    r = float(robot["r"])
     mu_v = float(robot["mu_s"]) if mu is None else float(mu)
-    spin = 2.0 * float(robot["I_wy"]) / (m_t * r) if m_t > 0 and r > 0 else 0.0
+    spin = spin_height(robot)
+    k_lo, k_hi = spin_range()
+    k = SPIN_SHARE
     if not (m_t > 0 and d + e > 0 and e > 0):
-        return LeftOut(0.0, h, spin, (0.0, 0.0, 0.0))
-    return LeftOut(2.0 * m_w * max(d, 0.0) / m_t, h, spin,
-                   (2.0 * m_w * max(d, 0.0) / (m_t * e), mu_v * h / (d + e),
-                    mu_v * spin / (d + e)))
-
-
-def wheels_on_axle(robot: Mapping[str, float], share: float) -> dict[str, float]:
-    """The lumped plant's ``d``, ``e`` and ``I_rz`` for a robot whose wheels' mass sits the
-    fraction ``share`` (0: at c, the nominal II.29; 1: on the axle) on the axle: the robot's
-    centre of mass ``d_c = d - share 2 m_w d / m_t`` ahead of o, the caster where it was
-    (``d_c + e_c = d + e``), and ``I_rz`` such that the plant's yaw inertia about the new centre
-    of mass, ``I_rz + 2 (I_wz + m_w b^2)``, is that of the masses where they now sit."""
-    m_r, m_w = float(robot["m_r"]), float(robot["m_w"])
-    d, e = float(robot["d"]), float(robot["e"])
-    m_t = m_r + 2.0 * m_w
-    s = min(max(float(share), 0.0), 1.0)
-    d_c = d - s * 2.0 * m_w * d / m_t
-    i_rz = (float(robot["I_rz"]) + (m_r + (1.0 - s) * 2.0 * m_w) * (d - d_c) ** 2
-            + s * 2.0 * m_w * d_c ** 2)
-    return {"d": d_c, "e": e + (d - d_c), "I_rz": i_rz}
+        return LeftOut(0.0, h_max, h, spin, k, ((0.0, 0.0), (0.0, 0.0), (0.0, 0.0)))
+    x = 2.0 * m_w * max(d, 0.0) / (m_t * e)
+    c = mu_v / (d + e)
+    return LeftOut(2.0 * m_w * max(d, 0.0) / m_t, h_max, h, spin, k,
+                   ((-x / (1.0 + x), 0.0), (-c * h, c * (h_max - h)),
+                    (c * (k_lo - k) * spin, c * (k_hi - k) * spin)))
 
 
 def tolerance_draws(robot: Mapping[str, float], n: int, rng: np.random.Generator
@@ -139,37 +136,37 @@ def tolerance_draws(robot: Mapping[str, float], n: int, rng: np.random.Generator
 
 @dataclass(frozen=True)
 class EnsembleDraw:
-    """One replay of the tolerance ensemble: the plant's robot parameters, its effects and the
-    share of ``I_wy`` whose spin-up reacts in the ``load_transfer`` effect (the plant's
-    ``plant.spin_share``)."""
-    robot: dict[str, float]
-    effects: dict[str, dict[str, float]]
-    spin_share: float = 1.0
+    """One replay of the tolerance ensemble: the robot parameters drawn within their tolerance
+    (``params``, over the run's own) and the normal forces' physics drawn over its range
+    (``forces``)."""
+    params: dict[str, float]
+    forces: NormalForces
 
 
 def ensemble_draws(robot: Mapping[str, float], n: int, rng: np.random.Generator
                    ) -> list[EnsembleDraw]:
     """``n`` replays of the tolerance ensemble: the parameters within their tolerance
-    (:func:`tolerance_draws`), then the left-out physics of the normal forces
-    (:func:`left_out_normal_forces`), each part uniform over its range: the share of the wheels'
-    mass on the axle in [0, 1] (:func:`wheels_on_axle`, from the drawn d, e, I_rz), and the
-    plant's ``load_transfer`` effect at a height that is a centre of mass in [0, ``h_max_m``]
-    plus a share k in [0, 1] of the spin-up's rolling height ``spin_h_m``, with the effect's own
-    spin-up off (``spin_share`` 0).  While the wheels roll (θ̈ = a/r, where a slip onset is
-    decided) that is exactly the pitch balance with a share k of ``I_wy`` reacting; inside a
-    slip the balance's spin term follows the slipping wheel's θ̈, which the motor's whole
-    torque drives (its stall torque is some twenty times what the contact passes), and drawn
-    there it would spread every slip episode of the ensemble by normal forces that no slip
-    onset decides; a 7 % larger wheel in a braking run then hid inside that spread
-    (``test_analyzer_e2e``).  A draw with neither part is the planar nominal model."""
+    (:func:`tolerance_draws`), then the normal forces' physics (:func:`left_out_normal_forces`),
+    each part uniform over its range: the share of the wheels' mass on the axle in [0, 1]
+    (:func:`wheels_on_axle`, from the drawn d, e, I_rz), a centre of mass in [0,
+    ``h_max_m``], and a share k of the spin-up in ``k^ +- tol`` ([0, 1]) as the rolling height
+    ``k h_s``, with the plant's own spin term off (``normal_forces.plant_config``).  While the
+    wheels roll (θ̈ = a/r, where a slip onset is decided) that is exactly the pitch balance with
+    a share k of ``I_wy`` reacting; inside a slip the balance's spin term follows the slipping
+    wheel's θ̈, which the motor's whole torque drives (its stall torque is some twenty times
+    what the contact passes), and drawn there it would spread every slip episode of the
+    ensemble by normal forces that no slip onset decides; a 7 % larger wheel in a braking run
+    then hid inside that spread (``test_analyzer_e2e``).  The nominal model (share 1, the
+    table's h, k^) lies inside every range, so the draws fall on both sides of it."""
     params = tolerance_draws(robot, n, rng)
+    k_lo, k_hi = spin_range()
     out = []
     for d in params:
         lo = left_out_normal_forces({**robot, **d})
         share = float(rng.uniform(0.0, 1.0))
-        h = float(rng.uniform(0.0, 1.0)) * lo.h_max_m + float(rng.uniform(0.0, 1.0)) * lo.spin_h_m
-        r = {**d, **wheels_on_axle({**robot, **d}, share)}
-        out.append(EnsembleDraw(r, {"load_transfer": {"h": h}}, spin_share=0.0))
+        h = float(rng.uniform(0.0, 1.0)) * lo.h_max_m
+        k = k_lo + float(rng.uniform(0.0, 1.0)) * (k_hi - k_lo)
+        out.append(EnsembleDraw(d, NormalForces(share, h, k)))
     return out
 
 
@@ -200,7 +197,6 @@ def tolerance_uncertainty(prep: PreparedRun, replay: OpenLoopReplay, n: int = TO
     ``tolerance_draw_means`` (channel -> each draw's mean residual, from which
     ``locate.allowed_bias`` gets the bias allowed in the wheels' difference); the pipeline puts
     them in the prepared run.  ``prep`` is left as it is."""
-    from host_tools import _native
     from host_tools.analyzer.replay.channels import channels
     from host_tools.analyzer.replay.openloop import OpenLoopReplay
     if n < 2:
@@ -212,13 +208,9 @@ def tolerance_uncertainty(prep: PreparedRun, replay: OpenLoopReplay, n: int = TO
     t_of: dict[str, np.ndarray] = {}
     nominal = channels(prep, replay.simulate_windows(prep, {}), replay.mode)
     for draw in ensemble_draws(prep.robot, n, rng):
-        def factory(robot: dict[str, Any], motor: dict[str, Any], _d: dict[str, float] = draw.robot,
-                    _k: float = draw.spin_share) -> Any:
-            plant = _native.Plant(robot={**robot, **_d}, motor=motor)
-            plant.set("plant.spin_share", _k)
-            return plant
-        rep = OpenLoopReplay(replay.mode, dt_s=replay.dt_s, plant_factory=factory)
-        for name, ch in channels(prep, rep.simulate_windows(prep, draw.effects),
+        rep = OpenLoopReplay(replay.mode, dt_s=replay.dt_s, forces=draw.forces,
+                             params=draw.params)
+        for name, ch in channels(prep, rep.simulate_windows(prep, {}),
                                  replay.mode).items():
             acc.setdefault(name, []).append(ch.resid)
             t_of[name] = ch.t

@@ -29,11 +29,11 @@ def _nominal_current(tmp_path, effects, seed):
 
 @needs_native(truth=True)
 def test_a_current_read_before_its_ticks_duty_step_stays_within_the_band(tmp_path):
-    """Seed 14: the tick phase comes out 1.2 ms after the true ticks, so three frames that
-    fall on a true tick are kept as settled; the right wheel's current there was read before
-    the tick's duty step, 5.3 noise floors below the replay (heldback7's null was flagged by
-    such a frame).  Within the band, every such sample is within 3 floors."""
-    prep, chans, floors = _nominal_current(tmp_path, None, 14)
+    """Seed 11: the tick phase comes out after the true ticks, so three frames that fall on a
+    true tick are kept as settled; the right wheel's current there was read before the tick's
+    duty step, 5.7 noise floors off the replay (heldback7's null was flagged by such a frame).
+    Within the band, every such sample is within 3 floors."""
+    prep, chans, floors = _nominal_current(tmp_path, None, 11)
     worst_raw, worst = 0.0, 0.0
     for c in ("current_r_a", "current_l_a"):
         ch, f = chans[c], floors[c]

@@ -3,6 +3,7 @@ of the independent truth simulator (its own physics, the firmware's controller),
 open-loop replay of an actuation delay on the plain replay grid."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -35,22 +36,40 @@ def _rms(x):
     return float(np.sqrt(np.mean(np.square(x))))
 
 
-def _replay(path, effects=None):
+def _truths_normal_forces(robot, effects, forces=None):
+    """The truth simulator's normal forces in the replay's plant: the nominal model's wheels on
+    the axle and transfer at h, with the whole spin-up through the plant's own spin term (the
+    truth's sim.spin_share 1) instead of the nominal k^ h_s."""
+    from host_tools.analyzer.replay.normal_forces import NormalForces, plant_config
+    cfg = plant_config(robot, effects, NormalForces(spin_share=0.0))
+    return dataclasses.replace(cfg, keys={"plant.spin_share": 1.0})
+
+
+def _replay(path, effects=None, truth_forces=False, monkeypatch=None):
     from host_tools.analyzer.prepare.inputs import prepare
+    from host_tools.analyzer.replay import closedloop
     from host_tools.analyzer.replay.closedloop import ClosedLoopReplay, closed_loop_channels
     prep = prepare(load_run(path))
     cl = ClosedLoopReplay()
     setup, problems, assumptions = cl.setup(prep)
     assert setup is not None, problems
+    if truth_forces:
+        monkeypatch.setattr(closedloop, "plant_config", _truths_normal_forces)
     return closed_loop_channels(prep, cl.simulate(prep, effects or {}, setup))
 
 
 @pytest.mark.parametrize("ref,clamp", [(LINE, True), (ARC, True),
                                        ({"kind": "line", "accel": 72 * WHEEL_R_M,
                                          "cruise": 36 * WHEEL_R_M}, False)])
-def test_closed_loop_replay_reproduces_the_recorded_torque_without_effect(tmp_path, ref, clamp):
+def test_closed_loop_replay_reproduces_the_recorded_torque_without_effect(tmp_path, ref, clamp,
+                                                                          monkeypatch):
+    """The bounds below hold where the replay's plant has the recording robot's physics.  The
+    nominal model's normal forces are the truth's while the wheels roll but for the spin-up's
+    share (k^ h_s against the truth's whole spin-up), and a slipping wheel's spin-up is not
+    rolling at all: the run that slips from the start (72 rad/s^2, clamp off) is replayed with
+    the truth's normal forces (the plant's own spin term at k = 1)."""
     path = truth.simulate_run(tmp_path / "run", ref, None, clamp=clamp, duration_s=2.5, seed=2)
-    ch = _replay(path)
+    ch = _replay(path, truth_forces=not clamp, monkeypatch=monkeypatch)
     for side in ("r", "l"):
         tau = ch[f"tau_cmd_{side}"]
         assert tau.t.size > 100

@@ -202,12 +202,11 @@ def test_a_robot_within_its_tolerance_is_a_null_and_one_beyond_it_is_not(tmp_pat
     """A track width 2 mm wider than Table II.2's (within its ±2.5 mm): arcs drift the camera
     pose tens of floors from the nominal replay, a mismatch without the tolerance ensemble and
     a null with it; 8 mm wider (three tolerances) still shows."""
-    from host_tools import _native
     from host_tools.analyzer import synth
 
     def case(db):
         def factory(meta):
-            pl = _native.Plant.from_meta(meta)
+            pl = synth.nominal_plant(meta)  # the nominal robot but for its track width
             pl.set("robot.b", meta["robot"]["b"] + db)
             return pl
         return synth.make_case(tmp_path / f"b{db}", None, profiles=("turn", "turn", "ramp"),

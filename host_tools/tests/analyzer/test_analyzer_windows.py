@@ -37,11 +37,12 @@ def test_windows_cover_the_run_and_split_at_gaps():
 
 
 class _SlightlyNarrow:
-    """The nominal plant with a track width 0.05 % narrower (50 um): far below the effect's floor,
-    the kind of difference two integrations of one robot always have."""
+    """The nominal plant (with the nominal model's normal forces) with a track width 0.05 %
+    narrower (50 um): far below the effect's floor, the kind of difference two integrations of
+    one robot always have."""
 
     def __new__(cls, meta):
-        p = _native.Plant.from_meta(meta)
+        p = synth.nominal_plant(meta)
         p.set("robot.b", float(meta["robot"]["b"]) * 0.9995)
         return p
 

@@ -11,6 +11,26 @@ from host_tools import _native, params, runfmt, truth
 ROBOT, MOTOR, PPR = params.ROBOT, params.MOTOR, params.ENCODER_PPR  # the table's values
 
 
+def _truth_like_plant(effects=None, spin_share=1.0):
+    """lib/slipmodel's plant with the truth simulator's normal forces, derived here by hand: the
+    wheels' mass on the axle (the robot's centre of mass d_c = m_r d / m_t ahead of o, the
+    caster where it was, the yaw inertia of the masses where they sit: the plant adds
+    2 (I_wz + m_w b^2) to I_rz) and the pitch balance at the centre of mass's height with the
+    share ``spin_share`` of the wheels' spin-up (the plant's load_transfer effect)."""
+    R, fx = dict(ROBOT), {k: dict(v) for k, v in (effects or {}).items()}
+    m_t = R["m_r"] + 2 * R["m_w"]
+    d_c = R["m_r"] * R["d"] / m_t
+    h = fx.pop("load_transfer", {}).get("h", R["h"])
+    robot = {**R, "d": d_c, "e": R["d"] + R["e"] - d_c, "h": h,
+             "I_rz": R["I_rz"] + R["m_r"] * (R["d"] - d_c) ** 2 + 2 * R["m_w"] * d_c ** 2}
+    p = _native.Plant(robot=robot)
+    p.set("plant.spin_share", spin_share)
+    p.set_effect("load_transfer", h=h)
+    for name, q in fx.items():
+        p.set_effect(name, **q)
+    return p
+
+
 def _open_loop(u_r, u_l, T=2.0, **keys):
     s = truth.TruthSim()
     for k, v in {"sim.open_loop": 1, "sim.u_r": u_r, "sim.u_l": u_l, "sim.duration": T,
@@ -25,7 +45,7 @@ def test_agrees_with_nominal_plant_rolling_and_slipping(u_r, u_l):
     # of the same Coulomb physics must agree to well below the camera noise.
     tel, _ = _open_loop(u_r, u_l)
     t = tel["t_s"]
-    o = _native.Plant().simulate(t, np.full(t.size, u_r), np.full(t.size, u_l), "duty")
+    o = _truth_like_plant().simulate(t, np.full(t.size, u_r), np.full(t.size, u_l), "duty")
     assert np.abs(o["x_m"] - tel["true_x_m"]).max() < 1e-3
     assert np.abs(o["y_m"] - tel["true_y_m"]).max() < 1e-3
     assert np.abs(o["dtheta_r_rad_s"] - tel["true_dtheta_r"]).max() < 0.05
@@ -39,7 +59,8 @@ def test_closed_loop_matches_nominal_closed_loop_at_72():
                  "sim.tel_phase": 0.0, "sim.tel_period": 0.025}.items():
         s.set(k, v)
     tel, _ = s.run()
-    n = truth.nominal_closed_loop("line", a, a / 2, clamp=False, T_s=3.0)
+    n = truth.nominal_closed_loop("line", a, a / 2, clamp=False, T_s=3.0,
+                                  plant=_truth_like_plant())
     assert tel["true_slip_r"].sum() > 0
     assert np.abs(n["x_m"] - tel["true_x_m"][: n["x_m"].size]).max() < 2e-3
 
@@ -125,8 +146,7 @@ def test_each_vocabulary_effect_agrees_with_slipmodel(name):
         s.set_effect(name, **params)
         eff, _ = s.run()
         t = np.arange(0, 97) / 64.0
-        p = _native.Plant()
-        p.set_effect(name, **params)
+        p = _truth_like_plant({name: params})
         o = p.simulate(t, np.full(t.size, u_r), np.full(t.size, u_l), "duty", 1.0 / 2048)
         xt, yt = np.interp(t, eff["t_s"], eff["true_x_m"]), np.interp(t, eff["t_s"], eff["true_y_m"])
         x0, y0 = np.interp(t, tel["t_s"], tel["true_x_m"]), np.interp(t, tel["t_s"], tel["true_y_m"])
@@ -396,15 +416,18 @@ def test_telemetry_period_option(tmp_path):
 
 
 def test_payload_is_mass_at_c():
-    """payload.mass_kg: m_r + mass_kg at c, I_rz unchanged: the normal forces carry it (the
-    caster m g d/(d+e)), and the same duties accelerate the robot less."""
+    """payload.mass_kg: m_r + mass_kg at the platform's c, I_rz unchanged; the wheels' mass on
+    the axle: at rest the caster carries only the platform's share, (m_r + mass_kg) g d/(d+e)
+    (II.29 with the whole mass at c would give m_t g d/(d+e)), and the same duties accelerate
+    the robot less."""
     m0 = ROBOT["m_r"] + 2 * ROBOT["m_w"]
     for extra in (0.0, 0.6):
         tel, _ = _open_loop(0.0, 0.0, T=0.1, **{"payload.mass_kg": extra})
         W = (m0 + extra) * ROBOT["g"]
         n = tel["true_N_r"][-1] + tel["true_N_l"][-1] + tel["true_N_c"][-1]
         assert n == pytest.approx(W, rel=1e-9)
-        assert tel["true_N_c"][-1] == pytest.approx(W * ROBOT["d"] / (ROBOT["d"] + ROBOT["e"]))
+        assert tel["true_N_c"][-1] == pytest.approx(
+            (ROBOT["m_r"] + extra) * ROBOT["g"] * ROBOT["d"] / (ROBOT["d"] + ROBOT["e"]), rel=1e-9)
     light, _ = _open_loop(0.2, 0.2, T=0.3)
     heavy, _ = _open_loop(0.2, 0.2, T=0.3, **{"payload.mass_kg": 0.6})
     k = np.searchsorted(light["t_s"], 0.1)  # still accelerating: 4.4 against 3.9 rad/s
@@ -495,3 +518,41 @@ def test_pwm_in_force_reports_the_delayed_duty(tmp_path):
     assert np.array_equal(force["pwm_r"][lag:], cmd["pwm_r"][:-lag])
     assert np.array_equal(force["pwm_l"][lag:], cmd["pwm_l"][:-lag])
     assert not np.array_equal(force["pwm_r"], cmd["pwm_r"])
+
+
+@pytest.mark.parametrize("k", [1.0, 0.5, 0.0])
+def test_spin_up_with_the_body_at_rest_unloads_the_caster(k):
+    """Wheels spinning up on a floor without grip (the body stays at rest, a_x = 0): each
+    wheel's theta'' = tau / I_wy, so the pitch balance gives N_c (d + e) = m_r g d - k (tau_r +
+    tau_l) (sim.spin_share k; the wheels on the axle; the centre of mass on the ground, so that
+    the floor's 0.001 m g of drag has no moment)."""
+    keys = {"robot.mu_s": 0.001, "robot.mu_k": 0.001, "sim.spin_share": k,
+            "load_transfer.h": 0.0}
+    tel, _ = _open_loop(0.3, 0.3, T=0.2, **keys)
+    R = ROBOT
+    # late enough that the torque changes slowly (the balance uses the previous step's theta'')
+    i = np.searchsorted(tel["t_s"], 0.1)
+    tau = tel["true_tau_r_nm"][i] + tel["true_tau_l_nm"][i]
+    assert tau > 0.05 and tel["true_slip_r"][i] == 1
+    want = (R["m_r"] * R["g"] * R["d"] - k * tau) / (R["d"] + R["e"])
+    assert tel["true_N_c"][i] == pytest.approx(want, abs=3e-3)  # k tau/(d+e): 0.5 N at k = 1
+
+
+@pytest.mark.parametrize("h,k", [(None, 1.0), (0.0, 1.0), (None, 0.0), (0.08, 0.5)])
+def test_pure_rolling_transfer_is_the_height_plus_the_spin_share(h, k):
+    """While the wheels roll (theta'' = a / r) the pitch balance is a transfer at the height
+    h + k h_s, h_s = 2 I_wy / (m_t r): N_c (d + e) = m_t g d_c - m_t a (h + k h_s), d_c = m_r d
+    / m_t (load_transfer.h, default robot.h; sim.spin_share k)."""
+    R = ROBOT
+    m_t = R["m_r"] + 2 * R["m_w"]
+    keys = {"sim.spin_share": k, **({} if h is None else {"load_transfer.h": h})}
+    tel, _ = _open_loop(0.1, 0.1, T=0.6, **keys)  # 0.077 N m per wheel, under tau_max
+    assert not tel["true_slip_r"].any()
+    t, w = tel["t_s"], tel["true_dtheta_r"]
+    i = np.searchsorted(t, 0.1)
+    a = R["r"] * (w[i + 1] - w[i - 1]) / (t[i + 1] - t[i - 1])
+    assert a > 0.3
+    height = (m_t * R["g"] * R["m_r"] * R["d"] / m_t - tel["true_N_c"][i] * (R["d"] + R["e"])) / (m_t * a)
+    h_s = 2 * R["I_wy"] / (m_t * R["r"])
+    want = (R["h"] if h is None else h) + k * h_s
+    assert height == pytest.approx(want, rel=0.02, abs=5e-4)
