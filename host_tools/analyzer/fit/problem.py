@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from host_tools.analyzer.fit.params import FitResult, effects_dict, params_for
-from host_tools.analyzer.fit.solver import (UNIDENTIFIED, grid_start, param_std, solve,
-                                            unidentified_given)
+from host_tools.analyzer.fit.params import (FitResult, Param, ProfileInterval, effects_dict,
+                                            params_for)
+from host_tools.analyzer.fit.solver import (PROFILE_LEVEL, UNIDENTIFIED, effective_n,
+                                            flat_minimum, given_line, grid_start, param_std,
+                                            profile_interval, profile_scan, profile_steps,
+                                            solve, unidentified_given)
 from host_tools.analyzer.locate.bias import WHEEL_PAIRS, pair_name
 from host_tools.analyzer.locate.episodes import SLIP_UNC, UNPINNED_UNC
 from host_tools.analyzer.prepare.run import PreparedRun
@@ -297,7 +300,14 @@ class Problem:
         coordinates (index -> value in [0, 1]).  Without ``fixed``, a coordinate that the data
         do not identify (1-sigma uncertainty above UNIDENTIFIED of its search range) while
         another one is identified is pinned at its neutral value and the rest refitted; the
-        result names it in ``unidentified``."""
+        result names it in ``unidentified``.
+
+        On a fit of every run (the analysis' fit of a candidate set, not the held-out folds'
+        and halves' refits that start from it), a coordinate with a ``given`` spec (mu_s with
+        mu_k held) is profiled (:meth:`_profile`): its staircase cost is scanned along the line
+        that keeps the held quantity, before the gradient solve (the scan's minimum is the
+        solve's start) and at the solution (its profile set, ``FitResult.intervals``, and the
+        1-sigma that set implies, in place of a finite difference across a step)."""
         params = params_for(names, self.meta, self.vocab)
         k_all = len(params)
         fixed = dict(fixed or {})
@@ -317,28 +327,53 @@ class Problem:
             return self.residual(effects_dict(params, [p.from_x(v) for p, v in zip(params, x)]),
                                  runs, part)
 
+        whole = part == "all" and sorted(set(runs)) == list(range(len(self.preps)))
+        profiled = [i for i in free if params[i].given is not None] if whole else []
         nfev = 0
         if x0 is not None:
             x0 = np.asarray(x0, float)
             x0 = x0[free] if x0.size == k_all else x0
         else:
             x0, nfev = grid_start(fun, full0[free].copy(), grid)
+            for i in profiled:   # the solve starts on the profile's minimum
+                x0, _, n_p = self._profile(params, free, i, x0, fun, expand)
+                nfev += n_p
         x0 = np.clip(np.asarray(x0, float), 1e-6, 1 - 1e-6)
         x, r, J, ok, msg, n_solve = solve(fun, x0, grid, max_nfev)
         nfev += n_solve
+        intervals: dict[int, ProfileInterval] = {}
+        for i in profiled:   # the profile at the solution: its set, and its minimum if lower
+            x1, prof, n_p = self._profile(params, free, i, x, fun, expand, interval=True)
+            nfev += n_p
+            if prof is None:
+                continue
+            intervals[i] = prof
+            if not np.array_equal(x1, x):
+                r1 = fun(x1)
+                if float(np.sum(r1 ** 2)) < float(np.sum(r ** 2)):
+                    x, r = x1, r1
         xfull = expand(x)
         values = [p.from_x(v) for p, v in zip(params, xfull)]
         std = param_std(J, r, params, free)
+        for i, prof in intervals.items():
+            std[i] = prof.sigma
         out = FitResult(list(names), effects_dict(params, values), values, np.asarray(xfull),
                         float(np.sum(r ** 2)), int(r.size), std, nfev, ok, msg,
-                        [(p.effect, p.name) for p in params], fixed=fixed)
+                        [(p.effect, p.name) for p in params], fixed=fixed,
+                        intervals={f"{params[i].effect}.{params[i].name}": v
+                                   for i, v in intervals.items()})
         out.unidentified = [f"{params[i].effect}.{params[i].name}" for i in fixed]
         if not fixed and k >= 2 and ok:
             unid = [i for i in free if not (std[i] <= UNIDENTIFIED * (params[i].hi - params[i].lo))]
-            pins = {i: float(full0[i]) for i in unid}
+            # a profiled coordinate is pinned at its neutral value where the data allow it,
+            # else at the nearest value they allow (its profile set)
+            allowed = {i: (p.lo, p.hi) for i, p in intervals.items()}
+            pins = {i: float(np.clip(params[i].to_x(min(max(params[i].neutral, allowed[i][0]),
+                                                        allowed[i][1])), 0, 1))
+                    if i in allowed else float(full0[i]) for i in unid}
             if len(unid) < k:
                 for i, pin in unidentified_given(params, free, xfull, values, r, expand, fun,
-                                                 self.meta).items():
+                                                 self.meta, allowed).items():
                     if i not in pins:
                         unid.append(i)
                         pins[i] = pin
@@ -346,8 +381,54 @@ class Problem:
                 re = self.fit(names, runs, part, x0=None, max_nfev=max_nfev, grid=grid,
                               fixed=pins)
                 re.nfev += out.nfev
+                re.intervals = {**out.intervals, **re.intervals}
                 return re
         return out
+
+    def _profile(self, params: Sequence[Param], free: Sequence[int], i: int, xf: np.ndarray,
+                 fun: Callable[[np.ndarray], np.ndarray],
+                 expand: Callable[[np.ndarray], np.ndarray], interval: bool = False
+                 ) -> tuple[np.ndarray, ProfileInterval | None, int]:
+        """Profile of coordinate ``i`` (a ``given`` spec) through the free coordinates ``xf``:
+        its cost along the line that holds the given quantity (``solver.given_line``; the
+        other coordinates held: mu_k barely moves along mu_s's profile), scanned over its
+        possible range (``solver.profile_scan``).  Returns (the point moved to the profile's
+        minimum — a flat minimum's centre: the likelihood does not prefer any point of it —,
+        the profile set when ``interval``, evaluations).  The point is unchanged where the
+        coordinate has no such line."""
+        x = expand(xf)
+        values = [p.from_x(v) for p, v in zip(params, x)]
+        line = given_line(params, free, i, values, self.meta)
+        if line is None:
+            return xf, None, 0
+        j, _, lo, hi, coords = line
+        fi, fj = list(free).index(i), list(free).index(j)
+
+        def at(v: float) -> np.ndarray:
+            y = np.array(xf, float)
+            y[fi], y[fj] = coords(v)
+            out: np.ndarray = np.clip(y, 0.0, 1.0)
+            return out
+
+        def cost(v: float) -> float:
+            return float(np.sum(fun(at(v)) ** 2))
+
+        coarse, fine = profile_steps(params[i].tol, lo, hi)
+        pts = profile_scan(cost, lo, hi, coarse, fine)
+        a, b = flat_minimum(pts)
+        best = 0.5 * (a + b)
+        n0 = len(pts)
+        if not interval:
+            return at(best), None, n0
+        vmin = min(pts, key=lambda v: pts[v])
+        rmin = fun(at(vmin))
+        n = rmin.size
+        s2 = float(np.sum(rmin ** 2)) / max(n - len(free), 1)
+        scale = s2 * n / max(effective_n(rmin), 1.0)
+        e_lo, e_hi, kind, sigma = profile_interval(cost, pts, lo, hi, fine, scale)
+        prof = ProfileInterval(e_lo, e_hi, kind, PROFILE_LEVEL, sigma, best, (a, b), (lo, hi),
+                               fine, len(pts) + 1)
+        return at(best), prof, len(pts) + 1
 
 
 def _effects_key(effects: Mapping[str, Mapping[str, float]]
