@@ -7,13 +7,14 @@ from collections import OrderedDict
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
+from scipy.stats import chi2
 
 from host_tools.analyzer.fit.params import (FitResult, Param, ProfileInterval, effects_dict,
                                             params_for)
 from host_tools.analyzer.fit.solver import (PROFILE_LEVEL, UNIDENTIFIED, effective_n,
                                             flat_minimum, given_line, grid_start, param_std,
                                             profile_interval, profile_scan, profile_steps,
-                                            solve, unidentified_given)
+                                            profile_walk, solve, unidentified_given)
 from host_tools.analyzer.locate.bias import WHEEL_PAIRS, pair_name
 from host_tools.analyzer.locate.episodes import SLIP_UNC, UNPINNED_UNC
 from host_tools.analyzer.prepare.run import PreparedRun
@@ -302,19 +303,27 @@ class Problem:
         another one is identified is pinned at its neutral value and the rest refitted; the
         result names it in ``unidentified``.
 
-        On a fit of every run (the analysis' fit of a candidate set, not the held-out folds'
-        and halves' refits that start from it), a coordinate with a ``given`` spec (mu_s with
-        mu_k held) is profiled (:meth:`_profile`): its staircase cost is scanned along the line
-        that keeps the held quantity, before the gradient solve (the scan's minimum is the
-        solve's start) and at the solution (its profile set, ``FitResult.intervals``, and the
-        1-sigma that set implies, in place of a finite difference across a step)."""
+        A coordinate with a ``given`` spec (mu_s with mu_k held) is profiled, since its cost
+        is a staircase that neither a gradient nor a finite difference sees: on a fit of every
+        run (the analysis' fit of a candidate set) its scan's minimum is the gradient solve's
+        start when no start is given (:meth:`_profile_start`), and its profile set at the
+        solution (:meth:`_profile_set`) gives its 1-sigma and ``FitResult.intervals``; the
+        held-out folds' and halves' refits, which start from such a fit, hold it at its
+        start (its uncertainty is the set) and refit the rest."""
         params = params_for(names, self.meta, self.vocab)
         k_all = len(params)
         fixed = dict(fixed or {})
-        free = [i for i in range(k_all) if i not in fixed]
+        whole = part == "all" and sorted(set(runs)) == list(range(len(self.preps)))
+        profiled = [i for i in range(k_all) if i not in fixed and params[i].given is not None]
+        held: dict[int, float] = {}
+        if not whole and x0 is not None and profiled:
+            xa = np.asarray(x0, float)
+            if xa.size == k_all:
+                held = {i: float(np.clip(xa[i], 0, 1)) for i in profiled}
+        free = [i for i in range(k_all) if i not in fixed and i not in held]
         k = len(free)
         full0 = np.array([np.clip(p.to_x(p.neutral), 0, 1) for p in params])
-        for i, v in fixed.items():
+        for i, v in {**fixed, **held}.items():
             full0[i] = v
 
         def expand(xf: np.ndarray) -> np.ndarray:
@@ -327,29 +336,48 @@ class Problem:
             return self.residual(effects_dict(params, [p.from_x(v) for p, v in zip(params, x)]),
                                  runs, part)
 
-        whole = part == "all" and sorted(set(runs)) == list(range(len(self.preps)))
-        profiled = [i for i in free if params[i].given is not None] if whole else []
+        profiled = [i for i in profiled if whole and i in free]
         nfev = 0
         if x0 is not None:
             x0 = np.asarray(x0, float)
             x0 = x0[free] if x0.size == k_all else x0
         else:
-            x0, nfev = grid_start(fun, full0[free].copy(), grid)
+            x0, nfev = grid_start(fun, full0[free].copy(), grid,
+                                  [free.index(i) for i in profiled])
             for i in profiled:   # the solve starts on the profile's minimum
-                x0, _, n_p = self._profile(params, free, i, x0, fun, expand)
+                x0, n_p = self._profile_start(params, free, i, x0, expand, fun)
                 nfev += n_p
         x0 = np.clip(np.asarray(x0, float), 1e-6, 1 - 1e-6)
-        x, r, J, ok, msg, n_solve = solve(fun, x0, grid, max_nfev)
+        rest = [fi for fi, i in enumerate(free) if i not in profiled]
+        if profiled and rest:
+            # the gradient solve fits the other coordinates with the profiled ones held: it
+            # cannot see a staircase, and its finite differences would move them across steps
+            x_start = x0
+
+            def fun_rest(xs: np.ndarray) -> np.ndarray:
+                y = x_start.copy()
+                y[rest] = xs
+                return fun(y)
+            xs, r, Js, ok, msg, n_solve = solve(fun_rest, x0[rest], grid, max_nfev)
+            x = x0.copy()
+            x[rest] = xs
+            J = None
+            if Js is not None:
+                J = np.zeros((Js.shape[0], len(free)))
+                J[:, rest] = Js
+        else:
+            x, r, J, ok, msg, n_solve = solve(fun, x0, grid, max_nfev)
         nfev += n_solve
         intervals: dict[int, ProfileInterval] = {}
-        for i in profiled:   # the profile at the solution: its set, and its minimum if lower
-            x1, prof, n_p = self._profile(params, free, i, x, fun, expand, interval=True)
+        for i in profiled:   # the profile set at the solution, and its minimum if lower
+            prof, x1, n_p = self._profile_set(params, free, i, x, r, expand, fun)
             nfev += n_p
             if prof is None:
                 continue
             intervals[i] = prof
             if not np.array_equal(x1, x):
                 r1 = fun(x1)
+                nfev += 1
                 if float(np.sum(r1 ** 2)) < float(np.sum(r ** 2)):
                     x, r = x1, r1
         xfull = expand(x)
@@ -385,22 +413,20 @@ class Problem:
                 return re
         return out
 
-    def _profile(self, params: Sequence[Param], free: Sequence[int], i: int, xf: np.ndarray,
-                 fun: Callable[[np.ndarray], np.ndarray],
-                 expand: Callable[[np.ndarray], np.ndarray], interval: bool = False
-                 ) -> tuple[np.ndarray, ProfileInterval | None, int]:
-        """Profile of coordinate ``i`` (a ``given`` spec) through the free coordinates ``xf``:
-        its cost along the line that holds the given quantity (``solver.given_line``; the
-        other coordinates held: mu_k barely moves along mu_s's profile), scanned over its
-        possible range (``solver.profile_scan``).  Returns (the point moved to the profile's
-        minimum — a flat minimum's centre: the likelihood does not prefer any point of it —,
-        the profile set when ``interval``, evaluations).  The point is unchanged where the
-        coordinate has no such line."""
+    def _given_cost(self, params: Sequence[Param], free: Sequence[int], i: int,
+                    xf: np.ndarray, expand: Callable[[np.ndarray], np.ndarray],
+                    fun: Callable[[np.ndarray], np.ndarray]
+                    ) -> tuple[Callable[[float], np.ndarray], Callable[[float], float], float,
+                               float, float] | None:
+        """Along the line through ``xf`` that holds coordinate ``i``'s given quantity
+        (``solver.given_line``; the other coordinates held: mu_k barely moves along mu_s's
+        profile): (value -> free coordinates, value -> cost, the possible range's ends, the
+        current value); None without such a line."""
         x = expand(xf)
         values = [p.from_x(v) for p, v in zip(params, x)]
         line = given_line(params, free, i, values, self.meta)
         if line is None:
-            return xf, None, 0
+            return None
         j, _, lo, hi, coords = line
         fi, fj = list(free).index(i), list(free).index(j)
 
@@ -413,22 +439,49 @@ class Problem:
         def cost(v: float) -> float:
             return float(np.sum(fun(at(v)) ** 2))
 
+        return at, cost, lo, hi, min(max(values[i], lo), hi)
+
+    def _profile_start(self, params: Sequence[Param], free: Sequence[int], i: int,
+                       xf: np.ndarray, expand: Callable[[np.ndarray], np.ndarray],
+                       fun: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, int]:
+        """(``xf`` moved to the minimum of coordinate ``i``'s profile scan over its possible
+        range (``solver.profile_scan``) — a flat minimum's centre: the likelihood prefers no
+        point of it —, evaluations)."""
+        g = self._given_cost(params, free, i, xf, expand, fun)
+        if g is None:
+            return xf, 0
+        at, cost, lo, hi, _ = g
         coarse, fine = profile_steps(params[i].tol, lo, hi)
         pts = profile_scan(cost, lo, hi, coarse, fine)
         a, b = flat_minimum(pts)
-        best = 0.5 * (a + b)
-        n0 = len(pts)
-        if not interval:
-            return at(best), None, n0
-        vmin = min(pts, key=lambda v: pts[v])
-        rmin = fun(at(vmin))
-        n = rmin.size
-        s2 = float(np.sum(rmin ** 2)) / max(n - len(free), 1)
-        scale = s2 * n / max(effective_n(rmin), 1.0)
+        return at(0.5 * (a + b)), len(pts)
+
+    def _profile_set(self, params: Sequence[Param], free: Sequence[int], i: int,
+                     xf: np.ndarray, r: np.ndarray, expand: Callable[[np.ndarray], np.ndarray],
+                     fun: Callable[[np.ndarray], np.ndarray]
+                     ) -> tuple[ProfileInterval | None, np.ndarray, int]:
+        """Coordinate ``i``'s profile set around the solution ``xf`` (residual ``r``): the cost
+        walked outwards from it in coarse steps until it leaves the two-sided threshold
+        (``solver.profile_walk``), the edges then located to the fine step
+        (``solver.profile_interval``; the threshold's scale s^2 n/n_eff from ``r``).  Returns
+        (the set, ``xf`` moved to the lowest point seen — a flat minimum's centre —,
+        evaluations)."""
+        g = self._given_cost(params, free, i, xf, expand, fun)
+        if g is None:
+            return None, xf, 0
+        at, cost, lo, hi, v0 = g
+        coarse, fine = profile_steps(params[i].tol, lo, hi)
+        n = r.size
+        c0 = float(np.sum(r ** 2))
+        scale = c0 / max(n - len(free), 1) * n / max(effective_n(r), 1.0)
+        pts = profile_walk(cost, v0, c0, lo, hi, coarse, float(chi2.ppf(PROFILE_LEVEL, 1)) * scale)
+        n0 = len(pts) - 1
         e_lo, e_hi, kind, sigma = profile_interval(cost, pts, lo, hi, fine, scale)
-        prof = ProfileInterval(e_lo, e_hi, kind, PROFILE_LEVEL, sigma, best, (a, b), (lo, hi),
-                               fine, len(pts) + 1)
-        return at(best), prof, len(pts) + 1
+        a, b = flat_minimum(pts)
+        prof = ProfileInterval(e_lo, e_hi, kind, PROFILE_LEVEL, sigma, 0.5 * (a + b), (a, b),
+                               (lo, hi), fine, len(pts) - 1)
+        best = v0 if pts[v0] <= min(pts.values()) else 0.5 * (a + b)
+        return prof, at(best), max(n0, len(pts) - 1)
 
 
 def _effects_key(effects: Mapping[str, Mapping[str, float]]

@@ -101,42 +101,63 @@ def unidentified_given(params: Sequence[Param], free: Sequence[int], x: np.ndarr
 # The profile of a coordinate with a ``given`` spec (mu_s with mu_k held).  With the plant's
 # stick/slip its cost is a staircase: exactly flat between steps, each step a breakaway moving
 # by one plant time step, so neither a gradient nor a finite difference sees it.  It is scanned
-# on a grid over the coordinate's possible range: a coarse step of the nominal parameter's
-# tolerance (the resolution to which the nominal value is known), then a fine step of a fifth
-# of it around the coarse minimum and at the set's edges, where the grid's own quantization
-# (standard deviation step/sqrt(12)) is a tenth of the tolerance's standard uncertainty
-# tol/sqrt(3) (for mu_s, 0.0012: about the one-tick quantum of a breakaway under a 0.1 s torque
-# ramp to the slip limit).
-PROFILE_FINE = 5
+# on a grid over the coordinate's possible range at the nominal parameter's full tolerance
+# width 2 tol (one point in every range of values the nominal model's own knowledge does not
+# tell apart), the best point then refined by halving the step down to a fine step of a tenth of
+# that, tol/5, where the grid's own quantization (standard deviation step/sqrt(12)) is a tenth
+# of the tolerance's standard uncertainty tol/sqrt(3) (for mu_s, 0.0012: about the one-tick
+# quantum of a breakaway under a 0.1 s torque ramp to the slip limit); the set's edges are
+# located to the fine step too.
+PROFILE_FINE = 10
 # Confidence level of the reported profile set: two-sided where the set has two edges inside
 # the possible range, one-sided where it reaches an end of it.
 PROFILE_LEVEL = 0.95
 
 
 def profile_steps(tol: float, lo: float, hi: float) -> tuple[float, float]:
-    """(coarse, fine) grid steps of a profile over [lo, hi] (PROFILE_FINE); without a
-    tolerance, a twenty-fourth of the range (the grid start's resolution, four times over)."""
-    coarse = tol if tol > 0 else (hi - lo) / 24.0
+    """(coarse, fine) grid steps of a profile over [lo, hi] (PROFILE_FINE): 2 tol and tol/5;
+    without a tolerance, a twelfth of the range (the grid start's resolution, twice over)."""
+    coarse = 2.0 * tol if tol > 0 else (hi - lo) / 12.0
     coarse = min(coarse, hi - lo)
     return coarse, coarse / PROFILE_FINE
 
 
 def profile_scan(cost: Callable[[float], float], lo: float, hi: float, coarse: float,
                  fine: float, pts: dict[float, float] | None = None) -> dict[float, float]:
-    """The cost at every point of a coarse grid over [lo, hi] and of a fine grid over the
-    coarse cells either side of its minimum (value -> cost; ``pts`` already evaluated)."""
+    """The cost at every point of a coarse grid over [lo, hi], then at the midpoints either
+    side of the best point so far with the step halved each time, down to ``fine`` (value ->
+    cost; ``pts`` already evaluated)."""
     pts = {} if pts is None else pts
+
+    def ev(v: float) -> None:
+        v = float(min(max(v, lo), hi))
+        if v not in pts:
+            pts[v] = cost(v)
     n = max(2, int(math.ceil((hi - lo) / coarse - 1e-9)) + 1)
     for v in np.linspace(lo, hi, n):
-        if float(v) not in pts:
-            pts[float(v)] = cost(float(v))
-    best = min(pts, key=lambda v: pts[v])
+        ev(float(v))
     step = (hi - lo) / (n - 1)
-    a, b = max(lo, best - step), min(hi, best + step)
-    m = max(1, int(math.ceil((b - a) / fine - 1e-9)))
-    for v in np.linspace(a, b, m + 1):
-        if float(v) not in pts:
-            pts[float(v)] = cost(float(v))
+    while step > fine:
+        step *= 0.5
+        best = min(pts, key=lambda v: pts[v])
+        ev(best - step)
+        ev(best + step)
+    return pts
+
+
+def profile_walk(cost: Callable[[float], float], v0: float, c0: float, lo: float, hi: float,
+                 coarse: float, limit: float) -> dict[float, float]:
+    """The cost from ``v0`` (cost ``c0``, a fit's solution) outwards in coarse steps on each
+    side until it exceeds the lowest cost seen by ``limit`` or the range [lo, hi] ends (value
+    -> cost): the profile set around a solution that a scan already placed on its minimum."""
+    pts = {float(v0): float(c0)}
+    for sign in (-1.0, 1.0):
+        v = float(v0)
+        while (v > lo) if sign < 0 else (v < hi):
+            v = min(max(v + sign * coarse, lo), hi)
+            pts[v] = cost(v)
+            if pts[v] - min(pts.values()) > limit:
+                break
     return pts
 
 
@@ -208,16 +229,19 @@ def profile_interval(cost: Callable[[float], float], pts: dict[float, float], lo
     return e_lo, e_hi, kind, sigma
 
 
-def grid_start(fun: Callable[[np.ndarray], np.ndarray], base: np.ndarray, grid: int
-               ) -> tuple[np.ndarray, int]:
-    """Coarse multi-start: the neutral point ``base`` and a grid along each parameter; for
-    2-parameter effects the second coordinate refined around the best first one.  Returns the
+def grid_start(fun: Callable[[np.ndarray], np.ndarray], base: np.ndarray, grid: int,
+               skip: Sequence[int] = ()) -> tuple[np.ndarray, int]:
+    """Coarse multi-start: the neutral point ``base`` and a grid along each parameter but
+    those of ``skip`` (profiled afterwards, and held at ``base`` here); for 2-parameter effects
+    without ``skip`` the second coordinate refined around the best first one.  Returns the
     best start and the number of residual evaluations."""
     k = base.size
     nfev = 0
     starts = [base]
     levels = np.linspace(0.0, 1.0, grid)
     for j in range(k):
+        if j in skip:
+            continue
         for lv in levels:
             s_ = base.copy()
             s_[j] = lv
@@ -229,7 +253,7 @@ def grid_start(fun: Callable[[np.ndarray], np.ndarray], base: np.ndarray, grid: 
         if c < best_c:
             best, best_c = s_, c
     x0 = best
-    if k == 2:
+    if k == 2 and not skip:
         for lv in levels:
             s_ = x0.copy()
             s_[1] = lv
