@@ -9,6 +9,7 @@ import pytest
 from scipy.stats import chi2
 
 from _native_skip import needs_native
+from host_tools import params
 from host_tools.analyzer.fit.solver import (flat_minimum, profile_interval, profile_scan,
                                             profile_steps)
 
@@ -92,7 +93,7 @@ GRIP_THEN_SLIP = {"friction_coefficient": {"mu_s": 0.19, "mu_k": 0.17}}
 def test_mu_s_fitted_on_its_profile_where_the_wheels_grip_then_slip(tmp_path, cli):
     """Truth-engine runs whose wheels stick, break away and re-stick (clamped ramps on the
     nominal mu, one harder unclamped start): the cost in mu_s is a staircase, and a gradient
-    solve from the nominal 0.241 stayed on the nominal's flat step (mu_s 0.254, verdict
+    solve from the nominal mu_s stayed on the nominal's flat step (mu_s 0.254, verdict
     unexplained).  The profile scan finds the step of the true 0.19, the report gives its
     profile set, which holds the fitted value and the truth and not the nominal."""
     from host_tools import truth
@@ -115,7 +116,7 @@ def test_mu_s_fitted_on_its_profile_where_the_wheels_grip_then_slip(tmp_path, cl
     lo = iv["lo"] if iv["lo"] is not None else iv["possible"][0]
     assert iv["hi"] is not None
     assert lo <= mu_s <= iv["hi"]
-    assert lo <= 0.19 <= iv["hi"] < 0.241
+    assert lo <= 0.19 <= iv["hi"] < params.ROBOT["mu_s"]
     cand = next(c for c in rep["candidates"] if c["effect"] == "friction_coefficient")
     assert cand["param_interval"]["mu_s"] == iv
     # the 1-sigma of mu_s is the set's, not a finite difference across one step
