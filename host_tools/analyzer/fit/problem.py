@@ -342,8 +342,9 @@ class Problem:
             x0 = np.asarray(x0, float)
             x0 = x0[free] if x0.size == k_all else x0
         else:
-            x0, nfev = grid_start(fun, full0[free].copy(), grid,
-                                  [free.index(i) for i in profiled])
+            # the grid start keeps its levels of mu_s (at mu_k ~ mu_s: the only start with
+            # mu_k above the nominal mu_s); the profile then scans mu_s at its mu_k
+            x0, nfev = grid_start(fun, full0[free].copy(), grid)
             for i in profiled:   # the solve starts on the profile's minimum
                 x0, n_p = self._profile_start(params, free, i, x0, expand, fun)
                 nfev += n_p

@@ -229,19 +229,16 @@ def profile_interval(cost: Callable[[float], float], pts: dict[float, float], lo
     return e_lo, e_hi, kind, sigma
 
 
-def grid_start(fun: Callable[[np.ndarray], np.ndarray], base: np.ndarray, grid: int,
-               skip: Sequence[int] = ()) -> tuple[np.ndarray, int]:
-    """Coarse multi-start: the neutral point ``base`` and a grid along each parameter but
-    those of ``skip`` (profiled afterwards, and held at ``base`` here); for 2-parameter effects
-    without ``skip`` the second coordinate refined around the best first one.  Returns the
+def grid_start(fun: Callable[[np.ndarray], np.ndarray], base: np.ndarray, grid: int
+               ) -> tuple[np.ndarray, int]:
+    """Coarse multi-start: the neutral point ``base`` and a grid along each parameter; for
+    2-parameter effects the second coordinate refined around the best first one.  Returns the
     best start and the number of residual evaluations."""
     k = base.size
     nfev = 0
     starts = [base]
     levels = np.linspace(0.0, 1.0, grid)
     for j in range(k):
-        if j in skip:
-            continue
         for lv in levels:
             s_ = base.copy()
             s_[j] = lv
@@ -253,7 +250,7 @@ def grid_start(fun: Callable[[np.ndarray], np.ndarray], base: np.ndarray, grid: 
         if c < best_c:
             best, best_c = s_, c
     x0 = best
-    if k == 2 and not skip:
+    if k == 2:
         for lv in levels:
             s_ = x0.copy()
             s_[1] = lv

@@ -122,3 +122,34 @@ def test_mu_s_fitted_on_its_profile_where_the_wheels_grip_then_slip(tmp_path, cl
     # the 1-sigma of mu_s is the set's, not a finite difference across one step
     width = iv["hi"] - lo
     assert cand["param_std"]["mu_s"] > 0.1 * width
+
+
+HIGH = {"friction_coefficient": {"mu_s": 0.40, "mu_k": 0.36}}
+
+
+def test_mu_s_bounded_on_one_side_where_every_run_slips_from_the_first_tick(tmp_path, cli):
+    """A grippy floor (mu_k above the nominal mu_s) and hard unclamped starts: the wheels slip
+    from the first tick, so the cost is flat in mu_s from mu_k up to the lowest commanded
+    traction, here inside mu_s's possible range [mu_k, 2 mu_k].  mu_k is fitted (the grid
+    start's levels of mu_s at mu_k ~ mu_s reach above the nominal), mu_s stays unidentified,
+    and the report gives the one-sided bound the data do support: mu_s <= hi, truth inside."""
+    from host_tools import truth
+    runs = [truth.simulate_run(tmp_path / f"run{i}", {"kind": "line", "accel": a, "cruise": 1.2},
+                               HIGH, clamp=False, duration_s=1.5, seed=80 + i)
+            for i, a in enumerate([4.0, 3.5])]
+    out = tmp_path / "out"
+    assert cli(["analyze", *runs, "--out", str(out), "--jobs", "1", "--no-plots",
+                "--effects", "friction_coefficient"]) == 0
+    rep = json.load(open(out / "report.json"))
+    assert rep["verdict"] == "explained"
+    fc = {s["effect"]: s for s in rep["selected"]}["friction_coefficient"]
+    mu_s, mu_k = fc["params"]["mu_s"], fc["params"]["mu_k"]
+    assert abs(mu_k - 0.36) < 0.02 * 0.36
+    assert "mu_s" in fc["unidentified"]
+    iv = fc["interval"]["mu_s"]
+    assert iv["kind"] == "upper_bound" and iv["lo"] is None
+    assert abs(iv["possible"][0] - mu_k) < 1e-3 * mu_k
+    assert 0.40 <= iv["hi"] < iv["possible"][1]
+    assert iv["flat"][0] == iv["possible"][0]          # flat from mu_k
+    assert mu_k <= mu_s <= iv["hi"]
+    assert "mu_s ≤" in open(out / "report.md").read()
