@@ -87,6 +87,17 @@ def cli():
     return main
 
 
+def _friction_analysis(tmp_path, runs, cli):
+    """(report.json, its selected friction entry, report.md) of ``runs`` analyzed for
+    friction alone."""
+    out = tmp_path / "out"
+    assert cli(["analyze", *runs, "--out", str(out), "--jobs", "1", "--no-plots",
+                "--effects", "friction_coefficient"]) == 0
+    rep = json.load(open(out / "report.json"))
+    fc = {s["effect"]: s for s in rep["selected"]}.get("friction_coefficient", {})
+    return rep, fc, open(out / "report.md").read()
+
+
 GRIP_THEN_SLIP = {"friction_coefficient": {"mu_s": 0.19, "mu_k": 0.17}}
 
 
@@ -103,12 +114,8 @@ def test_mu_s_fitted_on_its_profile_where_the_wheels_grip_then_slip(tmp_path, cl
     runs = [truth.simulate_run(tmp_path / f"run{i}", ref, GRIP_THEN_SLIP, clamp=clamp,
                                duration_s=1.5, seed=50 + i)
             for i, (ref, clamp) in enumerate(exps)]
-    out = tmp_path / "out"
-    assert cli(["analyze", *runs, "--out", str(out), "--jobs", "1", "--no-plots",
-                "--effects", "friction_coefficient"]) == 0
-    rep = json.load(open(out / "report.json"))
+    rep, fc, md = _friction_analysis(tmp_path, runs, cli)
     assert rep["verdict"] == "explained"
-    fc = {s["effect"]: s for s in rep["selected"]}["friction_coefficient"]
     mu_s, mu_k = fc["params"]["mu_s"], fc["params"]["mu_k"]
     assert abs(mu_s - 0.19) < 0.1 * 0.19
     assert abs(mu_k - 0.17) < 0.02 * 0.17
@@ -137,12 +144,8 @@ def test_mu_s_bounded_on_one_side_where_every_run_slips_from_the_first_tick(tmp_
     runs = [truth.simulate_run(tmp_path / f"run{i}", {"kind": "line", "accel": a, "cruise": 1.2},
                                HIGH, clamp=False, duration_s=1.5, seed=80 + i)
             for i, a in enumerate([4.0, 3.5])]
-    out = tmp_path / "out"
-    assert cli(["analyze", *runs, "--out", str(out), "--jobs", "1", "--no-plots",
-                "--effects", "friction_coefficient"]) == 0
-    rep = json.load(open(out / "report.json"))
+    rep, fc, md = _friction_analysis(tmp_path, runs, cli)
     assert rep["verdict"] == "explained"
-    fc = {s["effect"]: s for s in rep["selected"]}["friction_coefficient"]
     mu_s, mu_k = fc["params"]["mu_s"], fc["params"]["mu_k"]
     assert abs(mu_k - 0.36) < 0.02 * 0.36
     assert "mu_s" in fc["unidentified"]
@@ -152,4 +155,4 @@ def test_mu_s_bounded_on_one_side_where_every_run_slips_from_the_first_tick(tmp_
     assert 0.40 <= iv["hi"] < iv["possible"][1]
     assert iv["flat"][0] == iv["possible"][0]          # flat from mu_k
     assert mu_k <= mu_s <= iv["hi"]
-    assert "mu_s ≤" in open(out / "report.md").read()
+    assert "mu_s ≤" in md
