@@ -65,7 +65,28 @@ class FitResult:
     coords: list[tuple[str, str]] = field(default_factory=list)  # (effect, fitted coordinate)
     fixed: dict[int, float] = field(default_factory=dict)  # coordinate index -> pinned value in [0, 1]
     unidentified: list[str] = field(default_factory=list)   # "effect.coordinate" pinned
+    # "effect.coordinate" -> its profile set (coordinates with a ``given`` spec, on fits of
+    # every run: Problem.fit)
+    intervals: dict[str, "ProfileInterval"] = field(default_factory=dict)
 
     @property
     def n_free(self) -> int:
         return len(self.values) - len(self.fixed)
+
+
+@dataclass
+class ProfileInterval:
+    """The profile-likelihood set of a coordinate with a ``given`` spec (mu_s with mu_k held):
+    the values whose cost is within the chi-square threshold of the profile's minimum
+    (:func:`host_tools.analyzer.fit.solver.profile_interval`)."""
+    lo: float                  # lower edge (the possible range's bottom for an upper bound)
+    hi: float                  # upper edge (the possible range's top for a lower bound)
+    kind: str                  # "two_sided", "upper_bound" (lo is the bound's floor, e.g. mu_k),
+                               # "lower_bound" (hi is the range's top) or "unbounded"
+    level: float               # confidence level of the set (0.95)
+    sigma: float               # the standard deviation it implies (half the 95 % width / 1.96)
+    best: float                # the profile's minimum (a flat minimum's centre)
+    flat: tuple[float, float]  # the stretch over which the cost equals its minimum
+    possible: tuple[float, float]   # the range scanned: the coordinate's possible range
+    step: float                # the finest grid step of the scan
+    evaluations: int           # residual evaluations the scan took

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
+from scipy.stats import chi2
 
-from host_tools.analyzer.fit.params import FitResult, effects_dict, params_for
-from host_tools.analyzer.fit.solver import (UNIDENTIFIED, grid_start, param_std, solve,
-                                            unidentified_given)
+from host_tools.analyzer.fit.params import (FitResult, Param, ProfileInterval, effects_dict,
+                                            params_for)
+from host_tools.analyzer.fit.solver import (PROFILE_LEVEL, UNIDENTIFIED, effective_n,
+                                            flat_minimum, given_line, grid_start, param_std,
+                                            profile_interval, profile_scan, profile_steps,
+                                            profile_walk, solve, unidentified_given)
 from host_tools.analyzer.locate.bias import WHEEL_PAIRS, pair_name
 from host_tools.analyzer.locate.episodes import SLIP_UNC, UNPINNED_UNC
 from host_tools.analyzer.prepare.run import PreparedRun
@@ -297,14 +301,29 @@ class Problem:
         coordinates (index -> value in [0, 1]).  Without ``fixed``, a coordinate that the data
         do not identify (1-sigma uncertainty above UNIDENTIFIED of its search range) while
         another one is identified is pinned at its neutral value and the rest refitted; the
-        result names it in ``unidentified``."""
+        result names it in ``unidentified``.
+
+        A coordinate with a ``given`` spec (mu_s with mu_k held) is profiled, since its cost
+        is a staircase that neither a gradient nor a finite difference sees: on a fit of every
+        run (the analysis' fit of a candidate set) its scan's minimum is the gradient solve's
+        start when no start is given (:meth:`_profile_start`), and its profile set at the
+        solution (:meth:`_profile_set`) gives its 1-sigma and ``FitResult.intervals``; the
+        held-out folds' and halves' refits, which start from such a fit, hold it at its
+        start (its uncertainty is the set) and refit the rest."""
         params = params_for(names, self.meta, self.vocab)
         k_all = len(params)
         fixed = dict(fixed or {})
-        free = [i for i in range(k_all) if i not in fixed]
+        whole = part == "all" and sorted(set(runs)) == list(range(len(self.preps)))
+        profiled = [i for i in range(k_all) if i not in fixed and params[i].given is not None]
+        held: dict[int, float] = {}
+        if not whole and x0 is not None and profiled:
+            xa = np.asarray(x0, float)
+            if xa.size == k_all:
+                held = {i: float(np.clip(xa[i], 0, 1)) for i in profiled}
+        free = [i for i in range(k_all) if i not in fixed and i not in held]
         k = len(free)
         full0 = np.array([np.clip(p.to_x(p.neutral), 0, 1) for p in params])
-        for i, v in fixed.items():
+        for i, v in {**fixed, **held}.items():
             full0[i] = v
 
         def expand(xf: np.ndarray) -> np.ndarray:
@@ -317,28 +336,73 @@ class Problem:
             return self.residual(effects_dict(params, [p.from_x(v) for p, v in zip(params, x)]),
                                  runs, part)
 
+        profiled = [i for i in profiled if whole and i in free]
         nfev = 0
         if x0 is not None:
             x0 = np.asarray(x0, float)
             x0 = x0[free] if x0.size == k_all else x0
         else:
+            # the grid start keeps its levels of mu_s (at mu_k ~ mu_s: the only start with
+            # mu_k above the nominal mu_s); the profile then scans mu_s at its mu_k
             x0, nfev = grid_start(fun, full0[free].copy(), grid)
+            for i in profiled:   # the solve starts on the profile's minimum
+                x0, n_p = self._profile_start(params, free, i, x0, expand, fun)
+                nfev += n_p
         x0 = np.clip(np.asarray(x0, float), 1e-6, 1 - 1e-6)
-        x, r, J, ok, msg, n_solve = solve(fun, x0, grid, max_nfev)
+        rest = [fi for fi, i in enumerate(free) if i not in profiled]
+        if profiled and rest:
+            # the gradient solve fits the other coordinates with the profiled ones held: it
+            # cannot see a staircase, and its finite differences would move them across steps
+            x_start = x0
+
+            def fun_rest(xs: np.ndarray) -> np.ndarray:
+                y = x_start.copy()
+                y[rest] = xs
+                return fun(y)
+            xs, r, Js, ok, msg, n_solve = solve(fun_rest, x0[rest], grid, max_nfev)
+            x = x0.copy()
+            x[rest] = xs
+            J = None
+            if Js is not None:
+                J = np.zeros((Js.shape[0], len(free)))
+                J[:, rest] = Js
+        else:
+            x, r, J, ok, msg, n_solve = solve(fun, x0, grid, max_nfev)
         nfev += n_solve
+        intervals: dict[int, ProfileInterval] = {}
+        for i in profiled:   # the profile set at the solution, and its minimum if lower
+            prof, x1, n_p = self._profile_set(params, free, i, x, r, expand, fun)
+            nfev += n_p
+            if prof is None:
+                continue
+            intervals[i] = prof
+            if not np.array_equal(x1, x):
+                r1 = fun(x1)
+                nfev += 1
+                if float(np.sum(r1 ** 2)) < float(np.sum(r ** 2)):
+                    x, r = x1, r1
         xfull = expand(x)
         values = [p.from_x(v) for p, v in zip(params, xfull)]
         std = param_std(J, r, params, free)
+        for i, prof in intervals.items():
+            std[i] = prof.sigma
         out = FitResult(list(names), effects_dict(params, values), values, np.asarray(xfull),
                         float(np.sum(r ** 2)), int(r.size), std, nfev, ok, msg,
-                        [(p.effect, p.name) for p in params], fixed=fixed)
+                        [(p.effect, p.name) for p in params], fixed=fixed,
+                        intervals={f"{params[i].effect}.{params[i].name}": v
+                                   for i, v in intervals.items()})
         out.unidentified = [f"{params[i].effect}.{params[i].name}" for i in fixed]
         if not fixed and k >= 2 and ok:
             unid = [i for i in free if not (std[i] <= UNIDENTIFIED * (params[i].hi - params[i].lo))]
-            pins = {i: float(full0[i]) for i in unid}
+            # a profiled coordinate is pinned at its neutral value where the data allow it,
+            # else at the nearest value they allow (its profile set)
+            allowed = {i: (p.lo, p.hi) for i, p in intervals.items()}
+            pins = {i: float(np.clip(params[i].to_x(min(max(params[i].neutral, allowed[i][0]),
+                                                        allowed[i][1])), 0, 1))
+                    if i in allowed else float(full0[i]) for i in unid}
             if len(unid) < k:
                 for i, pin in unidentified_given(params, free, xfull, values, r, expand, fun,
-                                                 self.meta).items():
+                                                 self.meta, allowed).items():
                     if i not in pins:
                         unid.append(i)
                         pins[i] = pin
@@ -346,8 +410,79 @@ class Problem:
                 re = self.fit(names, runs, part, x0=None, max_nfev=max_nfev, grid=grid,
                               fixed=pins)
                 re.nfev += out.nfev
+                re.intervals = {**out.intervals, **re.intervals}
                 return re
         return out
+
+    def _given_cost(self, params: Sequence[Param], free: Sequence[int], i: int,
+                    xf: np.ndarray, expand: Callable[[np.ndarray], np.ndarray],
+                    fun: Callable[[np.ndarray], np.ndarray]
+                    ) -> tuple[Callable[[float], np.ndarray], Callable[[float], float], float,
+                               float, float] | None:
+        """Along the line through ``xf`` that holds coordinate ``i``'s given quantity
+        (``solver.given_line``; the other coordinates held: mu_k barely moves along mu_s's
+        profile): (value -> free coordinates, value -> cost, the possible range's ends, the
+        current value); None without such a line."""
+        x = expand(xf)
+        values = [p.from_x(v) for p, v in zip(params, x)]
+        line = given_line(params, free, i, values, self.meta)
+        if line is None:
+            return None
+        j, _, lo, hi, coords = line
+        fi, fj = list(free).index(i), list(free).index(j)
+
+        def at(v: float) -> np.ndarray:
+            y = np.array(xf, float)
+            y[fi], y[fj] = coords(v)
+            out: np.ndarray = np.clip(y, 0.0, 1.0)
+            return out
+
+        def cost(v: float) -> float:
+            return float(np.sum(fun(at(v)) ** 2))
+
+        return at, cost, lo, hi, min(max(values[i], lo), hi)
+
+    def _profile_start(self, params: Sequence[Param], free: Sequence[int], i: int,
+                       xf: np.ndarray, expand: Callable[[np.ndarray], np.ndarray],
+                       fun: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, int]:
+        """(``xf`` moved to the minimum of coordinate ``i``'s profile scan over its possible
+        range (``solver.profile_scan``) — a flat minimum's centre: the likelihood prefers no
+        point of it —, evaluations)."""
+        g = self._given_cost(params, free, i, xf, expand, fun)
+        if g is None:
+            return xf, 0
+        at, cost, lo, hi, _ = g
+        coarse, fine = profile_steps(params[i].tol, lo, hi)
+        pts = profile_scan(cost, lo, hi, coarse, fine)
+        a, b = flat_minimum(pts)
+        return at(0.5 * (a + b)), len(pts)
+
+    def _profile_set(self, params: Sequence[Param], free: Sequence[int], i: int,
+                     xf: np.ndarray, r: np.ndarray, expand: Callable[[np.ndarray], np.ndarray],
+                     fun: Callable[[np.ndarray], np.ndarray]
+                     ) -> tuple[ProfileInterval | None, np.ndarray, int]:
+        """Coordinate ``i``'s profile set around the solution ``xf`` (residual ``r``): the cost
+        walked outwards from it in coarse steps until it leaves the two-sided threshold
+        (``solver.profile_walk``), the edges then located to the fine step
+        (``solver.profile_interval``; the threshold's scale s^2 n/n_eff from ``r``).  Returns
+        (the set, ``xf`` moved to the lowest point seen — a flat minimum's centre —,
+        evaluations)."""
+        g = self._given_cost(params, free, i, xf, expand, fun)
+        if g is None:
+            return None, xf, 0
+        at, cost, lo, hi, v0 = g
+        coarse, fine = profile_steps(params[i].tol, lo, hi)
+        n = r.size
+        c0 = float(np.sum(r ** 2))
+        scale = c0 / max(n - len(free), 1) * n / max(effective_n(r), 1.0)
+        pts = profile_walk(cost, v0, c0, lo, hi, coarse, float(chi2.ppf(PROFILE_LEVEL, 1)) * scale)
+        n0 = len(pts) - 1
+        e_lo, e_hi, kind, sigma = profile_interval(cost, pts, lo, hi, fine, scale)
+        a, b = flat_minimum(pts)
+        prof = ProfileInterval(e_lo, e_hi, kind, PROFILE_LEVEL, sigma, 0.5 * (a + b), (a, b),
+                               (lo, hi), fine, len(pts) - 1)
+        best = v0 if pts[v0] <= min(pts.values()) else 0.5 * (a + b)
+        return prof, at(best), max(n0, len(pts) - 1)
 
 
 def _effects_key(effects: Mapping[str, Mapping[str, float]]

@@ -29,43 +29,61 @@ def effective_n(r: np.ndarray) -> float:
     return max(r.size * (1 - rho) / (1 + rho), 2.0)
 
 
+def given_line(params: Sequence[Param], free: Sequence[int], i: int, values: Sequence[float],
+               meta: Mapping[str, Any]
+               ) -> tuple[int, float, float, float, Callable[[float], tuple[float, float]]] | None:
+    """The line through the fitted point along which coordinate ``i`` (with a ``given`` spec,
+    ``effects.ParamSpec.given``) moves while the held quantity keeps its value: (index of the
+    keeper coordinate, the held value, the lowest and highest possible value of ``i`` there,
+    value -> (x_i, x_keeper) in [0, 1] coordinates).  None when ``i`` has no such line among
+    the free coordinates (no spec, the keeper pinned or absent, an empty possible range)."""
+    g = params[i].given
+    if g is None or i not in free:
+        return None
+    held, keeper, keeper_value, possible = g
+    names = [(p.effect, p.name) for p in params]
+    try:
+        j = names.index((params[i].effect, keeper))
+    except ValueError:
+        return None
+    if j not in free or keeper != f"{held}_over_{params[i].name}":
+        return None
+    held_v = float(values[i]) * float(values[j])
+    lo, hi = possible(held_v, meta)
+    lo, hi = max(lo, params[i].lo), min(hi, params[i].hi)
+    if not hi > lo:
+        return None
+    pi, pj = params[i], params[j]
+    return j, held_v, float(lo), float(hi), \
+        lambda v: (pi.to_x(v), pj.to_x(keeper_value(v, held_v)))
+
+
 def unidentified_given(params: Sequence[Param], free: Sequence[int], x: np.ndarray,
                        values: Sequence[float], r: np.ndarray,
                        expand: Callable[[np.ndarray], np.ndarray],
-                       fun: Callable[[np.ndarray], np.ndarray], meta: Mapping[str, Any]
+                       fun: Callable[[np.ndarray], np.ndarray], meta: Mapping[str, Any],
+                       allowed: Mapping[int, tuple[float, float]] | None = None
                        ) -> dict[int, float]:
     """Coordinates with a ``given`` spec (effects.ParamSpec.given) that the data do not
     identify with the held quantity at its fitted value: their 1-sigma uncertainty along the
-    line that keeps it (from the residual's change over a tenth of the possible range, with the
-    same autocorrelation inflation as :func:`param_std`) above UNIDENTIFIED of their possible
-    range there.  Returns index -> the coordinate to pin it at: its neutral value, or the
-    nearest possible value given the held one."""
+    line that keeps it (:func:`given_line`; from the residual's change over a tenth of the
+    possible range, with the same autocorrelation inflation as :func:`param_std`) above
+    UNIDENTIFIED of their possible range there.  Returns index -> the coordinate to pin it at:
+    its neutral value, or the nearest value the data allow (``allowed``: index -> its
+    profile set, :func:`profile_interval`) or, without one, the nearest possible value given
+    the held one."""
     out: dict[int, float] = {}
-    names = [(p.effect, p.name) for p in params]
     for i in free:
-        g = params[i].given
-        if g is None:
+        line = given_line(params, free, i, values, meta)
+        if line is None:
             continue
-        held, keeper, keeper_value, possible = g
-        try:
-            j = names.index((params[i].effect, keeper))
-        except ValueError:
-            continue
-        if j not in free:
-            continue
-        v_i, v_j = float(values[i]), float(values[j])
-        held_v = v_i * v_j if keeper == f"{held}_over_{params[i].name}" else None
-        if held_v is None:
-            continue
-        lo, hi = possible(held_v, meta)
+        j, _, lo, hi, coords = line
+        v_i = float(values[i])
         width = hi - lo
-        if not width > 0:
-            continue
         h = 0.1 * width
         v2 = v_i + h if v_i + h <= hi else v_i - h
         x2 = x.copy()
-        x2[i] = params[i].to_x(v2)
-        x2[j] = params[j].to_x(keeper_value(v2, held_v))
+        x2[i], x2[j] = coords(v2)
         if not (0 <= x2[j] <= 1):
             continue
         d = (fun(x2[list(free)]) - r) / (v2 - v_i)
@@ -74,9 +92,141 @@ def unidentified_given(params: Sequence[Param], free: Sequence[int], x: np.ndarr
         infl = r.size / max(effective_n(r), 1.0)
         std = math.sqrt(s2 * infl / dd) if dd > 0 else math.inf
         if std > UNIDENTIFIED * width:
-            pin = min(max(params[i].neutral, lo), hi)
+            a, b = (allowed or {}).get(i, (lo, hi))
+            pin = min(max(params[i].neutral, a), b)
             out[i] = float(np.clip(params[i].to_x(pin), 0, 1))
     return out
+
+
+# The profile of a coordinate with a ``given`` spec (mu_s with mu_k held).  With the plant's
+# stick/slip its cost is a staircase: exactly flat between steps, each step a breakaway moving
+# by one plant time step, so neither a gradient nor a finite difference sees it.  It is scanned
+# on a grid over the coordinate's possible range at the nominal parameter's full tolerance
+# width 2 tol (one point in every range of values the nominal model's own knowledge does not
+# tell apart), the best point then refined by halving the step down to a fine step of a tenth of
+# that, tol/5, where the grid's own quantization (standard deviation step/sqrt(12)) is a tenth
+# of the tolerance's standard uncertainty tol/sqrt(3) (for mu_s, 0.0012: about the one-tick
+# quantum of a breakaway under a 0.1 s torque ramp to the slip limit); the set's edges are
+# located to the fine step too.
+PROFILE_FINE = 10
+# Confidence level of the reported profile set: two-sided where the set has two edges inside
+# the possible range, one-sided where it reaches an end of it.
+PROFILE_LEVEL = 0.95
+
+
+def profile_steps(tol: float, lo: float, hi: float) -> tuple[float, float]:
+    """(coarse, fine) grid steps of a profile over [lo, hi] (PROFILE_FINE): 2 tol and tol/5;
+    without a tolerance, a twelfth of the range (the grid start's resolution, twice over)."""
+    coarse = 2.0 * tol if tol > 0 else (hi - lo) / 12.0
+    coarse = min(coarse, hi - lo)
+    return coarse, coarse / PROFILE_FINE
+
+
+def profile_scan(cost: Callable[[float], float], lo: float, hi: float, coarse: float,
+                 fine: float, pts: dict[float, float] | None = None) -> dict[float, float]:
+    """The cost at every point of a coarse grid over [lo, hi], then at the midpoints either
+    side of the best point so far with the step halved each time, down to ``fine`` (value ->
+    cost; ``pts`` already evaluated)."""
+    pts = {} if pts is None else pts
+
+    def ev(v: float) -> None:
+        v = float(min(max(v, lo), hi))
+        if v not in pts:
+            pts[v] = cost(v)
+    n = max(2, int(math.ceil((hi - lo) / coarse - 1e-9)) + 1)
+    for v in np.linspace(lo, hi, n):
+        ev(float(v))
+    step = (hi - lo) / (n - 1)
+    while step > fine:
+        step *= 0.5
+        best = min(pts, key=lambda v: pts[v])
+        ev(best - step)
+        ev(best + step)
+    return pts
+
+
+def profile_walk(cost: Callable[[float], float], v0: float, c0: float, lo: float, hi: float,
+                 coarse: float, limit: float) -> dict[float, float]:
+    """The cost from ``v0`` (cost ``c0``, a fit's solution) outwards in coarse steps on each
+    side until it exceeds the lowest cost seen by ``limit`` or the range [lo, hi] ends (value
+    -> cost): the profile set around a solution that a scan already placed on its minimum."""
+    pts = {float(v0): float(c0)}
+    for sign in (-1.0, 1.0):
+        v = float(v0)
+        while (v > lo) if sign < 0 else (v < hi):
+            v = min(max(v + sign * coarse, lo), hi)
+            pts[v] = cost(v)
+            if pts[v] - min(pts.values()) > limit:
+                break
+    return pts
+
+
+def flat_minimum(pts: Mapping[float, float]) -> tuple[float, float]:
+    """The stretch of scanned values, around the lowest cost, whose cost equals it (to
+    rounding): the flat step of a staircase that holds the minimum."""
+    xs = sorted(pts)
+    cs = np.array([pts[v] for v in xs])
+    k = int(np.argmin(cs))
+    eps = 1e-9 * max(1.0, abs(float(cs[k])))
+    a = b = k
+    while a > 0 and cs[a - 1] - cs[k] <= eps:
+        a -= 1
+    while b < len(xs) - 1 and cs[b + 1] - cs[k] <= eps:
+        b += 1
+    return xs[a], xs[b]
+
+
+def profile_interval(cost: Callable[[float], float], pts: dict[float, float], lo: float,
+                     hi: float, fine: float, scale: float, level: float = PROFILE_LEVEL
+                     ) -> tuple[float, float, str, float]:
+    """(lower edge, upper edge, kind, sigma) of the profile set {v : cost(v) - min <= q scale}
+    of scanned points ``pts`` over the possible range [lo, hi], each edge located to ``fine``
+    by bisection (evaluations added to ``pts``) and put midway between the last point inside
+    and the first outside.  ``scale``: the residual variance times
+    n/n_eff at the minimum (:func:`param_std`'s inflation), so q is chi-square with one degree
+    of freedom: two-sided ``level`` (3.84 at 95 %) where the set has two edges inside the
+    range; where it reaches an end of the range the data bound the value on one side only,
+    and that edge is the one-sided ``level`` bound (2.71): kind ``upper_bound`` (the set
+    starts at ``lo``), ``lower_bound`` (it ends at ``hi``), ``unbounded`` (both; sigma inf).
+    Sigma: the set's half-width over the normal quantile of its level, at least the fine
+    grid's quantization fine/sqrt(12)."""
+    from scipy.stats import chi2, norm
+    q2 = float(chi2.ppf(level, 1))
+    q1 = float(chi2.ppf(2 * level - 1, 1))
+    cmin = min(pts.values())
+
+    def hull(q: float) -> tuple[float, float]:
+        ins = [v for v, c in pts.items() if c - cmin <= q * scale]
+        return min(ins), max(ins)
+
+    def edge(q: float, upper: bool) -> float:
+        a, b = hull(q)
+        inner = b if upper else a
+        outer_c = [v for v in pts if (v > inner if upper else v < inner)]
+        if not outer_c:
+            return inner
+        outer = min(outer_c) if upper else max(outer_c)
+        while abs(outer - inner) > fine:
+            m = 0.5 * (inner + outer)
+            pts[m] = cost(m)
+            if pts[m] - cmin <= q * scale:
+                inner = m
+            else:
+                outer = m
+        return 0.5 * (inner + outer)   # the crossing is somewhere between: its middle
+
+    a, b = hull(q2)
+    at_lo, at_hi = a <= lo + 1e-12, b >= hi - 1e-12
+    if at_lo and at_hi:
+        return lo, hi, "unbounded", math.inf
+    if at_lo:
+        e_lo, e_hi, kind, z = lo, edge(q1, True), "upper_bound", float(norm.ppf(level))
+    elif at_hi:
+        e_lo, e_hi, kind, z = edge(q1, False), hi, "lower_bound", float(norm.ppf(level))
+    else:
+        e_lo, e_hi, kind, z = edge(q2, False), edge(q2, True), "two_sided", math.sqrt(q2)
+    sigma = max((e_hi - e_lo) / (2 * z), fine / math.sqrt(12.0))
+    return e_lo, e_hi, kind, sigma
 
 
 def grid_start(fun: Callable[[np.ndarray], np.ndarray], base: np.ndarray, grid: int

@@ -54,12 +54,21 @@ def report_dict(an: Analysis) -> dict[str, Any]:
         for (e, k), sd in zip(c.fit.coords, c.fit.std):
             key = k if len(c.effects) == 1 else f"{e}.{k}"
             entry["param_std"][key] = round_sig(sd)
+        # the profile set of a coordinate profiled by the fit (mu_s), beside its value
+        entry["param_interval"] = {(k if len(c.effects) == 1 else f"{e}.{k}"): interval_entry(iv)
+                                   for (e, k), iv in _intervals(c).items()}
         cands.append(entry)
+    selected = [dict(s) for s in an.selected]
+    chosen = _chosen_intervals(an)
+    for s in selected:
+        ivs = {k: interval_entry(iv) for (e, k), iv in chosen.items() if e == s["effect"]}
+        if ivs:
+            s["interval"] = ivs
     rep: dict[str, Any] = _finite({
         "format": REPORT_FORMAT,
         "verdict": an.verdict,
         "mismatch": an.mismatch,
-        "selected": an.selected,
+        "selected": selected,
         "candidates": cands,
         "fit": an.fit_table,
         "hint": an.hint,
@@ -180,6 +189,49 @@ VERDICT_MEANS = {
 }
 
 
+def _intervals(c: Any) -> dict[tuple[str, str], Any]:
+    """(effect, parameter) -> the fit's profile set (``FitResult.intervals``) of candidate
+    ``c``."""
+    return {(key.split(".", 1)[0], key.split(".", 1)[1]): iv
+            for key, iv in getattr(c.fit, "intervals", {}).items()}
+
+
+def _chosen_intervals(an: Analysis) -> dict[tuple[str, str], Any]:
+    """The profile sets of the candidate whose effects are the selected ones."""
+    want = {s["effect"] for s in an.selected}
+    for c in an.candidates:
+        if set(c.effects) == want:
+            return _intervals(c)
+    return {}
+
+
+def interval_entry(iv: Any) -> dict[str, Any]:
+    """report.json's form of a profile set (``fit.params.ProfileInterval``): ``lo``/``hi`` its
+    edges (null on the side the data do not bound: ``upper_bound`` gives ``hi`` only, the
+    value at most ``hi``; ``lower_bound`` ``lo`` only; ``unbounded`` neither), ``kind``,
+    ``level`` (two-sided for ``two_sided``, one-sided for a bound), ``flat`` (the stretch over
+    which the cost equals its minimum) and ``possible`` (the range scanned)."""
+    lo = None if iv.kind in ("upper_bound", "unbounded") else round_sig(iv.lo, 5)
+    hi = None if iv.kind in ("lower_bound", "unbounded") else round_sig(iv.hi, 5)
+    return {"lo": lo, "hi": hi, "kind": iv.kind, "level": iv.level,
+            "flat": [round_sig(iv.flat[0], 5), round_sig(iv.flat[1], 5)],
+            "possible": [round_sig(iv.possible[0], 5), round_sig(iv.possible[1], 5)]}
+
+
+def interval_text(name: str, e: dict[str, Any]) -> str:
+    """report.md's words for :func:`interval_entry`."""
+    from host_tools import humanize
+    pct = f"{e['level']:.0%}"
+    if e["kind"] == "two_sided":
+        return f"{humanize.number(e['lo'])} ≤ {name} ≤ {humanize.number(e['hi'])} ({pct})"
+    if e["kind"] == "upper_bound":
+        return f"{name} ≤ {humanize.number(e['hi'])} ({pct} one-sided)"
+    if e["kind"] == "lower_bound":
+        return f"{name} ≥ {humanize.number(e['lo'])} ({pct} one-sided)"
+    return f"{name} not bounded within {humanize.number(e['possible'][0])}–" \
+           f"{humanize.number(e['possible'][1])}"
+
+
 def _chosen_std(an: Analysis) -> dict[tuple[str, str], float]:
     """1-sigma uncertainty of each selected parameter (the fit's ``param_std``), by (effect,
     parameter), from the candidate whose effects are the selected ones."""
@@ -225,7 +277,11 @@ def summary_lines(an: Analysis) -> list[str]:
                 ps += f" (uncertainty of {', '.join(extra)})"
             if s.get("unidentified"):
                 ps += (f"; {', '.join(s['unidentified'])} not identified by these data, kept "
-                       "nominal")
+                       "nominal (or the nearest value the data allow)")
+            ivs = {k: interval_entry(iv) for (e, k), iv in _chosen_intervals(an).items()
+                   if e == s["effect"]}
+            if ivs:
+                ps += "; profile set: " + ", ".join(interval_text(k, v) for k, v in ivs.items())
             L.append(f"- **{s['effect']}**: {ps or 'no parameter'}")
             for q in s.get("equivalent") or []:
                 sep = (s.get("separating_measurement") or {}).get(q) or "not known"

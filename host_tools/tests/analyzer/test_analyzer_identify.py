@@ -44,7 +44,9 @@ def test_mu_s_unidentified_when_the_wheels_slip_all_run(tmp_path):
     first moments to the end, which pins mu_k and says nothing about mu_s.  In the fit's
     coordinates (mu_s, mu_k/mu_s) both move mu_k, so mu_s had looked identified (std 0.0012)
     and was kept at its nominal value without a word; it is now reported as unidentified,
-    with mu_k fitted and the verdict explained."""
+    with mu_k fitted and the verdict explained.  The cost is flat in mu_s from mu_k up to the
+    lowest commanded traction, beyond mu_s's possible range [mu_k, 2 mu_k] here: the report's
+    profile set says so (`unbounded`, both edges null)."""
     runs = [truth.simulate_run(tmp_path / f"run{i}", {"kind": "line", "accel": a, "cruise": v},
                                SLIPPING, clamp=False, duration_s=1.5, seed=40 + i,
                                hidden_dir=tmp_path / "hidden")
@@ -63,3 +65,8 @@ def test_mu_s_unidentified_when_the_wheels_slip_all_run(tmp_path):
     assert abs(fc["params"]["mu_k"] - want) < want * 0.02
     assert "mu_s" in fc["unidentified"]
     assert fc["params"]["mu_s"] >= fc["params"]["mu_k"]
+    iv = fc["interval"]["mu_s"]
+    assert iv["kind"] == "unbounded" and iv["lo"] is None and iv["hi"] is None
+    assert abs(iv["possible"][0] - fc["params"]["mu_k"]) < 1e-3 * fc["params"]["mu_k"]
+    assert iv["flat"] == iv["possible"]
+    assert "mu_s not bounded within" in open(out / "report.md").read()
