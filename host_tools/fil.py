@@ -99,6 +99,28 @@ def build_firmware() -> Path:
     return dst
 
 
+def nominal_plant_keys() -> dict[str, float]:
+    """The simulator's plant keys that make lib/slipmodel's plant the nominal model's robot: the
+    table's parameters with the nominal normal forces (the wheels' mass on the axle, the load
+    transfer at the table's h plus the spin-up's share k^; one definition,
+    ``host_tools.analyzer.replay.normal_forces.plant_config``).  They come first on the command
+    line, so a ``--set`` of the caller's overrides them."""
+    from host_tools.analyzer.replay.normal_forces import plant_config
+    from host_tools.params import ROBOT
+    cfg = plant_config(ROBOT, {})
+    keys = {f"robot.{k}": float(v) for k, v in cfg.robot.items() if float(v) != float(ROBOT[k])}
+    for name, params in cfg.effects.items():
+        keys[f"{name}.enabled"] = 1.0
+        keys.update({f"{name}.{p}": float(v) for p, v in params.items()})
+    keys.update(cfg.keys)
+    return keys
+
+
+def nominal_plant_args() -> list[str]:
+    """``--set K=V`` options of :func:`nominal_plant_keys`."""
+    return sim_args(nominal_plant_keys())
+
+
 class Sim:
     """One simulator process. ``args``: extra command-line options of .build/fil/fil."""
 
@@ -108,7 +130,8 @@ class Sim:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.log_path = self.run_dir / "fil.log"
         self._log = open(self.log_path, "w")
-        self.cmd = [str(sim), str(elf), "--run-dir", str(self.run_dir)] + [str(a) for a in (args or [])]
+        self.cmd = ([str(sim), str(elf), "--run-dir", str(self.run_dir)] + nominal_plant_args()
+                    + [str(a) for a in (args or [])])
         self.proc = subprocess.Popen(self.cmd, stdout=subprocess.PIPE, stderr=self._log, text=True)
         self.pty = self._read_pty(start_timeout_s)
 

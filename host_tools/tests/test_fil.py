@@ -244,7 +244,8 @@ def test_plant_effects_reach_the_plant_slippery_floor_defeats_the_nominal_clamp(
     keys = {"friction_coefficient.enabled": 1, "friction_coefficient.mu_s": 0.12, "friction_coefficient.mu_k": 0.11}
     code, lg, s = fil.record(out, elf, straight(48.0, 1.0), clamp=True, args=fil.sim_args(keys))
     assert code == 0, lg.end_reason
-    assert s["plant_keys"] == {k: float(v) for k, v in keys.items()}
+    # the caller's keys over the nominal model's normal forces (the simulator's default plant)
+    assert s["plant_keys"] == {**fil.nominal_plant_keys(), **{k: float(v) for k, v in keys.items()}}
     meta = json.loads((out / "meta.json").read_text())
     assert meta["torque_clamp"] is True and "--set" in meta["fil"]["command"]
     assert s["slip"]["steps_slipping_r"] > 100 and s["slip"]["max_slip_speed_m_s"] > 0.05
