@@ -10,33 +10,9 @@ pytestmark = needs_native(truth=True)
 
 from host_tools import truth  # noqa: E402
 from host_tools.__main__ import main as cli  # noqa: E402
+from _truth_loads import slip_load_ratio  # noqa: E402
 
 SLIPPING = {"friction_coefficient": {"mu_s": 0.17, "mu_k": 0.16}}
-
-
-def _slip_load_ratio(hidden) -> float:
-    """Over the truth runs' slipping samples (their hidden ``true_*`` columns): the wheels' true
-    load against what the nominal model's normal forces give for the same motion
-    (replay/normal_forces.py: N_c (d_c + e_c) = m_t g d_c - m_t a_x (h + k^ h_s), a_x the true
-    forward acceleration)."""
-    import numpy as np
-
-    from host_tools import params
-    from host_tools.analyzer.replay.normal_forces import plant_config
-    cfg = plant_config(params.ROBOT, {})
-    R = cfg.robot
-    m, H = R["m_r"] + 2 * R["m_w"], cfg.effects["load_transfer"]["h"]
-    true_load = nominal_load = 0.0
-    for f in sorted(hidden.glob("*.truth.csv")):
-        tab = np.genfromtxt(f, delimiter=",", names=True)
-        t, ph = tab["t_s"], tab["true_phi_rad"]
-        v = (np.gradient(tab["true_x_m"], t) * np.cos(ph) + np.gradient(tab["true_y_m"], t) * np.sin(ph))
-        a_x = np.gradient(v, t)
-        n_c = np.clip((m * R["g"] * R["d"] - m * a_x * H) / (R["d"] + R["e"]), 0.0, m * R["g"])
-        slip = (tab["true_slip_r"] > 0) | (tab["true_slip_l"] > 0)
-        true_load += float(np.sum((tab["true_N_r"] + tab["true_N_l"])[slip]))
-        nominal_load += float(np.sum((m * R["g"] - n_c)[slip]))
-    return true_load / nominal_load
 
 
 def test_mu_s_unidentified_when_the_wheels_slip_all_run(tmp_path):
@@ -61,7 +37,7 @@ def test_mu_s_unidentified_when_the_wheels_slip_all_run(tmp_path):
     # the truth's wheels carry more while they slip than the nominal model's law gives for the
     # same motion (their whole spin-up reacts, k = 1 against the nominal k^ h_s): the fitted
     # mu_k is the true one times that ratio of the loads, to 2 %
-    want = SLIPPING["friction_coefficient"]["mu_k"] * _slip_load_ratio(tmp_path / "hidden")
+    want = SLIPPING["friction_coefficient"]["mu_k"] * slip_load_ratio(tmp_path / "hidden")
     assert abs(fc["params"]["mu_k"] - want) < want * 0.02
     assert "mu_s" in fc["unidentified"]
     assert fc["params"]["mu_s"] >= fc["params"]["mu_k"]
