@@ -298,6 +298,13 @@ def solve(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, grid: int, ma
     return x, r, J, ok, msg, nfev
 
 
+# A direction of J^T J with an eigenvalue at or below NULL_RCOND of the largest (numpy's pinv
+# cut-off) is one the data do not see; a coordinate with more than NULL_SHARE of its unit vector
+# in such a direction has no estimate.
+NULL_RCOND = 1e-15
+NULL_SHARE = 1e-6
+
+
 def param_std(J: np.ndarray | None, r: np.ndarray, params: Sequence[Param], free: Sequence[int]) -> list[float]:
     """1-sigma uncertainty of each parameter (nan: pinned; inf: not estimated), from the
     parameter covariance inflated for correlated residuals."""
@@ -309,8 +316,16 @@ def param_std(J: np.ndarray | None, r: np.ndarray, params: Sequence[Param], free
         n_eff = effective_n(r)
         s2 = float(np.sum(r ** 2)) / max(r.size - k, 1)
         try:
-            cov = np.linalg.pinv(J.T @ J) * s2 * (r.size / max(n_eff, 1.0))
+            jtj = J.T @ J
+            cov = np.linalg.pinv(jtj) * s2 * (r.size / max(n_eff, 1.0))
+            # the pseudo-inverse gives a direction the data do not see (a coordinate whose
+            # replay does not change at all, e.g. a delay below the replay's time step) zero
+            # variance; the data say nothing there: not estimated (inf), as without J
+            lam, vec = np.linalg.eigh(jtj)
+            blind = np.abs(vec[:, lam <= NULL_RCOND * max(float(lam.max()), 0.0)])
             for jj, i in enumerate(free):
+                if blind.size and float(blind[jj].max()) > NULL_SHARE:
+                    continue
                 std[i] = float(np.sqrt(max(cov[jj, jj], 0.0))) * (params[i].hi - params[i].lo)
         except np.linalg.LinAlgError:
             pass
