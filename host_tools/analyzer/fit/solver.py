@@ -322,7 +322,8 @@ def param_std(J: np.ndarray | None, r: np.ndarray, params: Sequence[Param], free
             # replay does not change at all, e.g. a delay below the replay's time step) zero
             # variance; the data say nothing there: not estimated (inf), as without J
             lam, vec = np.linalg.eigh(jtj)
-            blind = np.abs(vec[:, lam <= NULL_RCOND * max(float(lam.max()), 0.0)])
+            top = max(float(lam.max()), 0.0) if lam.size else 0.0
+            blind = np.abs(vec[:, lam <= NULL_RCOND * top])
             for jj, i in enumerate(free):
                 if blind.size and float(blind[jj].max()) > NULL_SHARE:
                     continue

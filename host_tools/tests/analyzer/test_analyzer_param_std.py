@@ -39,3 +39,11 @@ def test_a_seen_coordinate_keeps_its_sigma():
     cov = np.linalg.inv(J.T @ J) * s2 * (r.size / max(effective_n(r), 1.0))
     for i, p in enumerate(_params()):
         assert abs(std[i] - math.sqrt(cov[i, i]) * (p.hi - p.lo)) < 1e-9 * std[i]
+
+
+def test_no_free_coordinate():
+    """A held-out fold's refit with every coordinate pinned (an unidentified one held): no
+    column, nothing to estimate."""
+    r = np.random.default_rng(5).normal(0.0, 1.0, 50)
+    std = param_std(np.zeros((50, 0)), r, _params(), [])
+    assert all(math.isnan(s) for s in std)
