@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 from host_tools import params as _params
 
@@ -46,6 +46,11 @@ class ParamSpec:
     # share of the wheels' spin-up); the replay's tolerance ensemble draws each uniformly, and a
     # fitted deviation within them is not evidence of the effect.  None: no such physics.
     left_out: Callable[[Mapping[str, Any]], tuple[tuple[float, float], ...]] | None = None
+    # The vocabulary parameter this coordinate ``sets`` is itself a nominal robot parameter that
+    # the size test judges (mu_k, set by mu_k/mu_s with mu_s): (its neutral value, its
+    # tolerance, its left-out ranges as ``left_out``), all functions of meta.
+    sets_judged: tuple[Callable[[Mapping[str, Any]], float], Callable[[Mapping[str, Any]], float],
+                       Callable[[Mapping[str, Any]], tuple[tuple[float, float], ...]]] | None = None
 
 
 @dataclass(frozen=True)
@@ -124,6 +129,51 @@ def left_out_ranges(effect: str, name: str, meta: Mapping[str, Any]
     return ()
 
 
+@dataclass(frozen=True)
+class Judged:
+    """A vocabulary parameter that a fitted coordinate sets (``ParamSpec.sets_judged``), as the
+    size test judges it: its fitted value, deviation from its neutral value, 1-sigma, tolerance
+    and left-out ranges, and its value in each held-out fold."""
+    effect: str
+    name: str
+    value: float
+    dev: float
+    std: float
+    tol: float
+    left_out: tuple[tuple[float, float], ...]
+    folds: tuple[float, ...]
+
+
+def judged_sets(params: Sequence[Any], values: Sequence[float], std: Sequence[float],
+                fold_values: Sequence[Sequence[float]], meta: Mapping[str, Any]) -> list[Judged]:
+    """The set vocabulary parameters of the fitted coordinates ``params`` (fit.params.Param) at
+    ``values`` with 1-sigma ``std`` (one per coordinate) and the held-out folds' values.  The
+    sigma is the setting coordinate's times the set parameter's change with it, the effect's
+    other coordinates held: the fit's solve holds a profiled coordinate (mu_s) while it fits
+    the others (mu_k/mu_s), so that is mu_k's own uncertainty at the fitted mu_s."""
+    out: list[Judged] = []
+    for j, p in enumerate(params):
+        spec = next((ps for ps in SPECS[p.effect].params if ps.name == p.name), None) \
+            if p.effect in SPECS else None
+        if spec is None or spec.sets is None or spec.sets_judged is None:
+            continue
+        idx = [i for i, q in enumerate(params) if q.effect == p.effect]
+        name, fn = spec.sets
+
+        def at(vals: Sequence[float], dx: float = 0.0) -> float:
+            d = {params[i].name: float(vals[i]) + (dx if i == j else 0.0) for i in idx}
+            return float(fn(d))
+        v = at(values)
+        h = 1e-6 * max(abs(float(values[j])), 1e-6)
+        slope = (at(values, h) - v) / h
+        sd = abs(slope) * float(std[j]) if j < len(std) and math.isfinite(std[j]) else math.inf
+        neutral, tol, left = spec.sets_judged
+        out.append(Judged(p.effect, name, v, v - float(neutral(meta)), sd,
+                          float(tol(meta)), tuple(left(meta)),
+                          tuple(at(fv) for fv in fold_values if len(fv) == len(values))))
+    return out
+
+
 P = ParamSpec
 SPECS: dict[str, EffectSpec] = {s.name: s for s in [
     # mu_k is fitted as a fraction of mu_s in [0.5, 1]: kinetic friction never exceeds static
@@ -134,7 +184,8 @@ SPECS: dict[str, EffectSpec] = {s.name: s for s in [
           left_out=_friction_left_out("mu_s")),
         P("mu_k_over_mu_s", lambda m: float(m["robot"]["mu_k"]) / float(m["robot"]["mu_s"]),
           _c(0.5), _c(1.0), _ratio_tol,
-          sets=("mu_k", lambda d: d["mu_k_over_mu_s"] * d["mu_s"]))),
+          sets=("mu_k", lambda d: d["mu_k_over_mu_s"] * d["mu_s"]),
+          sets_judged=(_robot("mu_k"), _tol("mu_k"), _friction_left_out("mu_k")))),
         "wheels spin up (slip) at a different torque; distance lost in slip changes"),
     EffectSpec("wheel_radius", (
         P("r_eff", _robot("r"), _robot("r", 0.7), _robot("r", 1.3), _tol("r"), "m"),),

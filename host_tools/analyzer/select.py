@@ -178,6 +178,11 @@ def _insignificant_partners(pair: Candidate, problem: Problem) -> list[tuple[str
         if significant_deviation(dev, sd, 0.0, HELDOUT_Z,
                                  fx.left_out_ranges(p.effect, p.name, problem.meta)):
             strong.add(p.effect)
+    for jd in fx.judged_sets(params, pair.fit.values, pair.fit.std, [], problem.meta):
+        zs = abs(jd.dev) / jd.std if math.isfinite(jd.std) and jd.std > 0 else math.inf
+        best[jd.effect] = max(best.get(jd.effect, 0.0), zs)
+        if significant_deviation(jd.dev, jd.std, 0.0, HELDOUT_Z, jd.left_out):
+            strong.add(jd.effect)
     return [(e, zs) for e, zs in best.items() if e not in strong]
 
 

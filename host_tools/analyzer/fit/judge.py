@@ -390,6 +390,25 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
                 stable = False
                 cand.reasons.append(f"{p.effect}.{p.name}: uncertainty {cand.fit.std[j]:.3g} "
                                     f"> half its size")
+    # a vocabulary parameter a coordinate sets (mu_k = mu_k/mu_s x mu_s) is a nominal robot
+    # parameter too, judged alike: the best-identified of the coefficients where mu_s is known
+    # only to its profile set
+    for jd in fx.judged_sets(params, cand.fit.values, cand.fit.std, cand.fold_values,
+                             problem.meta):
+        if only is not None and jd.effect not in only:
+            continue
+        counts = significant_deviation(jd.dev, jd.std, jd.tol, left_out=jd.left_out)
+        size_ok = size_ok or counts
+        if counts:
+            neutral = jd.value - jd.dev
+            if any(np.sign(f - neutral) != np.sign(jd.dev) for f in jd.folds):
+                stable = False
+                cand.reasons.append(f"{jd.effect}.{jd.name}: held-out folds disagree in sign")
+            spread = max(jd.folds + (jd.value,)) - min(jd.folds + (jd.value,))
+            if spread > stability * abs(jd.dev):
+                stable = False
+                cand.reasons.append(f"{jd.effect}.{jd.name}: spread over folds {spread:.3g} "
+                                    f"> {stability:.0%} of its size {abs(jd.dev):.3g}")
     if not size_ok:
         cand.reasons.append(f"fitted deviation from nominal within what the nominal model allows "
                             f"({SIZE_RULE})")

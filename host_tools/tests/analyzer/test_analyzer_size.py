@@ -88,3 +88,46 @@ def test_tolerances_come_from_params_json() -> None:
         P.TOLERANCES[("robot", "mu_s")] / meta["robot"]["mu_s"]))
     # neutral values that are no nominal parameter have no tolerance
     assert tol["ke_ratio"] == 0.0 and tol["delay_s"] == 0.0 and tol["c"] == 0.0
+
+
+def _judge_friction(mu_s: float, mu_k: float, sd_mu_s: float, sd_ratio: float) -> Any:
+    from host_tools.analyzer.fit.judge import Candidate, judge
+    from host_tools.analyzer.fit.params import FitResult
+    prob = _problem("friction_coefficient", {"mu_s": P.ROBOT["mu_s"], "mu_k": P.ROBOT["mu_k"]})
+    ratio = mu_k / mu_s
+    fit = FitResult(["friction_coefficient"], {"friction_coefficient": {"mu_s": mu_s, "mu_k": mu_k}},
+                    [mu_s, ratio], np.array([0.15, 0.9]), 10.0, 1000, [sd_mu_s, sd_ratio], 10)
+    rng = np.random.default_rng(3)
+    before = rng.standard_normal(3000) + 0.3
+    after = rng.standard_normal(3000)
+    c = Candidate(["friction_coefficient"], fit, -691.0, 1.30, 0.835, {"omega_r": 0.5},
+                  {"omega_r": 0.5}, [[mu_s, ratio * 1.001], [mu_s, ratio * 0.999]], 1.0,
+                  heldout_pooled=(before, after))
+    judge(prob, c)
+    return c
+
+
+def test_friction_judged_on_mu_k_where_mu_s_is_known_only_to_its_profile_set() -> None:
+    """heldback11's MuJoCo friction (mu_s 0.20, mu_k 0.19): mu_s fitted 0.2012 with only an
+    upper bound of its profile set (sigma 0.006 from the set), mu_k/mu_s 0.949 +- 0.0013.  Neither
+    coordinate is beyond the nominal model's tolerance and left-out physics by 2.33 sigma, but
+    mu_k (0.1909 +- 0.0003, 20 % below the table's) is: the effect counts."""
+    c = _judge_friction(0.2012, 0.19089, 0.006, 0.0013)
+    assert c.checks["size"], c.reasons
+    # mu_k within its tolerance: the same mu_s uncertainty gives no size
+    near = P.ROBOT["mu_k"] - 0.5 * P.TOLERANCES[("robot", "mu_k")]
+    c2 = _judge_friction(P.ROBOT["mu_s"] - 0.002, near, 0.006, 0.0013)
+    assert not c2.checks["size"], c2.reasons
+
+
+def test_judged_mu_k_sigma_is_the_ratio_sigma_at_the_held_mu_s() -> None:
+    from host_tools.analyzer import effects as fx
+    from host_tools.analyzer.fit.params import params_for
+    from host_tools.runfmt import validate_meta
+    meta = validate_meta({})
+    ps = params_for(["friction_coefficient"], meta, {"friction_coefficient": {"mu_s": 0.0, "mu_k": 0.0}})
+    (jd,) = fx.judged_sets(ps, [0.2, 0.95], [0.01, 0.002], [[0.2, 0.9]], meta)
+    assert jd.name == "mu_k" and abs(jd.value - 0.19) < 1e-12
+    assert abs(jd.std - 0.2 * 0.002) < 1e-9
+    assert abs(jd.dev - (0.19 - P.ROBOT["mu_k"])) < 1e-12
+    assert abs(jd.folds[0] - 0.18) < 1e-12
