@@ -116,6 +116,29 @@ def nominal_plant_keys() -> dict[str, float]:
     return keys
 
 
+def model_plant_keys(model: dict[str, Any]) -> dict[str, float]:
+    """The simulator's plant keys of an analyzer model (model.json, ``host_tools.model``): its
+    parameters and effects with the nominal normal forces on top, the plant the analyzer
+    replayed it with (``plant_config``: a fitted ``load_transfer`` h is a centre-of-mass height,
+    k^ h_s added; the wheels' mass on the axle of the model's robot).  Every robot key is
+    given, so they override :func:`nominal_plant_keys`."""
+    from host_tools import model as M
+    from host_tools.analyzer.effects import ADDED_PARAMETER_EFFECTS
+    from host_tools.analyzer.replay.normal_forces import plant_config
+    from host_tools.params import ROBOT
+    keys = M.plant_keys(model)
+    robot = {**ROBOT, **{k: float(v) for k, v in model.get("robot", {}).items()}}
+    effects = {e: p for e, p in model.get("effects", {}).items()
+               if e not in ADDED_PARAMETER_EFFECTS}   # folded into "robot" already
+    cfg = plant_config(robot, effects)
+    keys.update({f"robot.{k}": float(v) for k, v in cfg.robot.items()})
+    for name, params in cfg.effects.items():
+        keys[f"{name}.enabled"] = 1.0
+        keys.update({f"{name}.{p}": float(v) for p, v in params.items()})
+    keys.update(cfg.keys)
+    return keys
+
+
 def nominal_plant_args() -> list[str]:
     """``--set K=V`` options of :func:`nominal_plant_keys`."""
     return sim_args(nominal_plant_keys())
@@ -404,7 +427,7 @@ def main(a: argparse.Namespace) -> int:
                     raise P.ProtocolError("--model and --mu-s/--mu-k exclude each other")
                 m = M.load_model(a.model)
                 mu, fw_model = M.firmware_commands(m, a.model)
-                opts = sim_args(M.plant_keys(m)) + opts
+                opts = sim_args(model_plant_keys(m)) + opts
             clamp = None if a.clamp is None else a.clamp == "on"
             on_row, bar = _record_progress(exp, a.record_s, pub)
             with bar:

@@ -157,6 +157,8 @@ def judged_sets(params: Sequence[Any], values: Sequence[float], std: Sequence[fl
             if p.effect in SPECS else None
         if spec is None or spec.sets is None or spec.sets_judged is None:
             continue
+        if j >= len(std) or not math.isfinite(std[j]):
+            continue   # pinned (unidentified) or not seen by the data: the set value is no estimate
         idx = [i for i, q in enumerate(params) if q.effect == p.effect]
         name, fn = spec.sets
 
@@ -166,7 +168,7 @@ def judged_sets(params: Sequence[Any], values: Sequence[float], std: Sequence[fl
         v = at(values)
         h = 1e-6 * max(abs(float(values[j])), 1e-6)
         slope = (at(values, h) - v) / h
-        sd = abs(slope) * float(std[j]) if j < len(std) and math.isfinite(std[j]) else math.inf
+        sd = abs(slope) * float(std[j])
         neutral, tol, left = spec.sets_judged
         out.append(Judged(p.effect, name, v, v - float(neutral(meta)), sd,
                           float(tol(meta)), tuple(left(meta)),

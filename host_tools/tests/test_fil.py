@@ -675,3 +675,24 @@ def test_missing_elf_is_refused_clearly(sim, tmp_path):
     r = subprocess.run([str(sim), str(tmp_path / "none.elf"), "--run-dir", str(tmp_path / "x")],
                        capture_output=True, text=True, timeout=30)
     assert r.returncode == 2 and "cannot read" in r.stderr
+
+
+def test_a_model_sent_to_the_simulator_is_the_plant_the_analyzer_replayed():
+    """``fil record --model``: the model's keys with the nominal normal forces on top
+    (``plant_config``), every robot key given so that none of the nominal's stays behind: a
+    fitted load transfer's h is a centre-of-mass height (k^ h_s added), the wheels' mass sits on
+    the axle of the model's robot (its payload included)."""
+    from host_tools.analyzer.replay.normal_forces import plant_config
+    from host_tools.params import ROBOT
+    model = {"format": "ddmodel/1", "robot": {"m_r": ROBOT["m_r"] + 0.4},
+             "effects": {"load_transfer": {"h": 0.09}, "payload": {"mass_kg": 0.4}}}
+    keys = fil.model_plant_keys(model)
+    want = plant_config({**ROBOT, "m_r": ROBOT["m_r"] + 0.4}, {"load_transfer": {"h": 0.09}})
+    assert keys["load_transfer.h"] == pytest.approx(want.effects["load_transfer"]["h"])
+    assert keys["load_transfer.h"] > 0.09                      # k^ h_s added
+    assert keys["robot.d"] == pytest.approx(want.robot["d"]) and keys["robot.d"] < ROBOT["d"]
+    assert keys["robot.m_r"] == pytest.approx(ROBOT["m_r"] + 0.4)
+    assert keys["plant.spin_share"] == 0.0
+    assert not any(k.startswith("payload.") for k in keys)   # folded into robot.m_r once
+    # every key the nominal sets is overridden by the model's
+    assert set(fil.nominal_plant_keys()) <= set(keys)

@@ -131,3 +131,15 @@ def test_judged_mu_k_sigma_is_the_ratio_sigma_at_the_held_mu_s() -> None:
     assert abs(jd.std - 0.2 * 0.002) < 1e-9
     assert abs(jd.dev - (0.19 - P.ROBOT["mu_k"])) < 1e-12
     assert abs(jd.folds[0] - 0.18) < 1e-12
+
+
+def test_no_judged_mu_k_where_its_ratio_is_pinned_or_unseen() -> None:
+    """mu_k/mu_s pinned (unidentified: sigma nan) or not seen by the data (inf): mu_k is then
+    no estimate and is not judged (the judge counts a non-finite sigma as 0)."""
+    from host_tools.analyzer import effects as fx
+    from host_tools.analyzer.fit.params import params_for
+    from host_tools.runfmt import validate_meta
+    meta = validate_meta({})
+    ps = params_for(["friction_coefficient"], meta, {"friction_coefficient": {"mu_s": 0.0, "mu_k": 0.0}})
+    for bad in (math.nan, math.inf):
+        assert fx.judged_sets(ps, [0.2, 0.95], [0.01, bad], [], meta) == []
