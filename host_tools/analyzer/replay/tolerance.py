@@ -107,9 +107,10 @@ def left_out_normal_forces(robot: Mapping[str, float], mu: float | None = None) 
     k = SPIN_SHARE
     if not (m_t > 0 and d + e > 0 and e > 0):
         return LeftOut(0.0, h_max, h, spin, k, ((0.0, 0.0), (0.0, 0.0), (0.0, 0.0)))
-    x = 2.0 * m_w * max(d, 0.0) / (m_t * e)
+    shift = max(d - wheels_on_axle(robot, 1.0)["d"], 0.0)   # c's move toward the axle
+    x = shift / e
     c = mu_v / (d + e)
-    return LeftOut(2.0 * m_w * max(d, 0.0) / m_t, h_max, h, spin, k,
+    return LeftOut(shift, h_max, h, spin, k,
                    ((-x / (1.0 + x), 0.0), (-c * h, c * (h_max - h)),
                     (c * (k_lo - k) * spin, c * (k_hi - k) * spin)))
 
