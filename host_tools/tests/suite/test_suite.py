@@ -157,12 +157,13 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback9", 28, 12),
                                                     ("heldback10", 28, 12),
                                                     ("heldback11", 28, 12),
-                                                    ("heldback12", 28, 12)])
+                                                    ("heldback12", 28, 12),
+                                                    ("heldback13", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
              "heldback6", "heldback7", "heldback8", "heldback9", "heldback10", "heldback11",
-             "heldback12"]
+             "heldback12", "heldback13"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -208,14 +209,15 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         assert any(e == "load_transfer" for c in new for e in c.effects)
         assert {c.length for c in new} == {"short", "20 s", "1 min"}
-    if which in ("heldback11", "heldback12"):  # both engines in every kind and on 20 s and 60 s
-        # runs (hard ones with the clamp off); asymmetries both ways, one per engine
+    if which in ("heldback11", "heldback12", "heldback13"):  # both engines in every kind and on
+        # 20 s and 60 s runs (hard ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
             assert {c.engine for c in new if c.length == length} == {"truth", "mujoco"}
         assert {c.engine for c in new if c.expect == "no_mismatch" and c.length == "1 min"
                 and not any(clamp for _, clamp, _ in c.experiments)} == {"truth", "mujoco"}
+    if which in ("heldback11", "heldback12"):  # asymmetries both ways, one per engine
         ratios = {c.engine: c.effects["motor_gain_asymmetry"]["ratio"] for c in new
                   if "motor_gain_asymmetry" in c.effects}
         assert len(ratios) == 2 and min(ratios.values()) < 1 < max(ratios.values())
@@ -230,6 +232,15 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
         assert any(len({ref["accel"] for ref, _, _ in c.experiments}) >= 3 for c in friction)
         assert any(c.engine == "mujoco" and c.effects[e]["h"] >= 0.09 for c in new
                    for e in c.effects if e == "load_transfer")
+    if which == "heldback13":  # friction on both engines, mu_s / mu_k drawn over [1, 1.15] (the
+        # earlier sets' all near 1.05); an effect over 60 s runs
+        friction = [c for c in new if "friction_coefficient" in c.effects]
+        assert {c.engine for c in friction} == {"truth", "mujoco"}
+        ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
+                  for c in friction]
+        assert all(1 <= r <= 1.15 for r in ratios) and max(ratios) - min(ratios) >= 0.1
+        assert any(c.expect == "explained" and c.length == "1 min" for c in new)
+
 
 def test_mujoco_tuning_group():
     """The MuJoCo engine's tuning group: every vocabulary effect and payload, nulls and long
@@ -323,6 +334,7 @@ FROZEN_SETS = {
     "heldback10": "d3b74497174d999fbdec61c0c193a5f1e9dea55d83bed57e8c3df081e009cf9d",
     "heldback11": "241830b79879521fcaf9aecf681a8eadd0a64da42bee514626010a37fcffe666",
     "heldback12": "cb2c98b4780bfd6d71bd6319813a05fd1d707e4cadf538e79c988dda5f34fe98",
+    "heldback13": "268afaf33888cc0fbfc5044d5c68c432ebc64c95a81a8c8cb901c43ae99e3dc0",
 }
 
 
