@@ -85,7 +85,8 @@ class ProfileInterval:
                                # "lower_bound" (hi is the range's top) or "unbounded"
     level: float               # confidence level of the set (0.95)
     sigma: float               # the standard deviation it implies (half the 95 % width / 1.96)
-    best: float                # the profile's minimum (a flat minimum's centre)
+    best: float                # the profile's minimum (on a flat minimum, its point nearest
+                               # the nominal model's point on the line: solver.given_neutral)
     flat: tuple[float, float]  # the stretch over which the cost equals its minimum
     possible: tuple[float, float]   # the range scanned: the coordinate's possible range
     step: float                # the finest grid step of the scan

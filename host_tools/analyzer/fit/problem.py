@@ -12,7 +12,7 @@ from scipy.stats import chi2
 from host_tools.analyzer.fit.params import (FitResult, Param, ProfileInterval, effects_dict,
                                             params_for)
 from host_tools.analyzer.fit.solver import (PROFILE_LEVEL, UNIDENTIFIED, effective_n,
-                                            flat_minimum, given_line, grid_start, param_std,
+                                            flat_minimum, given_line, given_neutral, grid_start, param_std,
                                             profile_interval, profile_scan, profile_steps,
                                             profile_walk, solve, unidentified_given)
 from host_tools.analyzer.locate.bias import WHEEL_PAIRS, pair_name
@@ -394,11 +394,12 @@ class Problem:
         out.unidentified = [f"{params[i].effect}.{params[i].name}" for i in fixed]
         if not fixed and k >= 2 and ok:
             unid = [i for i in free if not (std[i] <= UNIDENTIFIED * (params[i].hi - params[i].lo))]
-            # a profiled coordinate is pinned at its neutral value where the data allow it,
-            # else at the nearest value they allow (its profile set)
+            # a profiled coordinate is pinned at the nominal model's point on its line
+            # (solver.given_neutral) where the data allow it, else at the nearest value they
+            # allow (its profile set)
             allowed = {i: (p.lo, p.hi) for i, p in intervals.items()}
-            pins = {i: float(np.clip(params[i].to_x(min(max(params[i].neutral, allowed[i][0]),
-                                                        allowed[i][1])), 0, 1))
+            pins = {i: float(np.clip(params[i].to_x(min(max(self._line_neutral(
+                        params, free, i, values), allowed[i][0]), allowed[i][1])), 0, 1))
                     if i in allowed else float(full0[i]) for i in unid}
             if len(unid) < k:
                 for i, pin in unidentified_given(params, free, xfull, values, r, expand, fun,
@@ -414,21 +415,32 @@ class Problem:
                 return re
         return out
 
+    def _line_neutral(self, params: Sequence[Param], free: Sequence[int], i: int,
+                      values: Sequence[float]) -> float:
+        """The nominal model's point on coordinate ``i``'s given line through ``values``
+        (solver.given_neutral); its neutral value without such a line."""
+        line = given_line(params, free, i, values, self.meta)
+        if line is None:
+            return float(params[i].neutral)
+        j, held_v, lo, hi, _ = line
+        return given_neutral(params, i, j, held_v, lo, hi)
+
     def _given_cost(self, params: Sequence[Param], free: Sequence[int], i: int,
                     xf: np.ndarray, expand: Callable[[np.ndarray], np.ndarray],
                     fun: Callable[[np.ndarray], np.ndarray]
                     ) -> tuple[Callable[[float], np.ndarray], Callable[[float], float], float,
-                               float, float] | None:
+                               float, float, float] | None:
         """Along the line through ``xf`` that holds coordinate ``i``'s given quantity
         (``solver.given_line``; the other coordinates held: mu_k barely moves along mu_s's
         profile): (value -> free coordinates, value -> cost, the possible range's ends, the
-        current value); None without such a line."""
+        current value, the nominal model's point on the line: ``solver.given_neutral``); None
+        without such a line."""
         x = expand(xf)
         values = [p.from_x(v) for p, v in zip(params, x)]
         line = given_line(params, free, i, values, self.meta)
         if line is None:
             return None
-        j, _, lo, hi, coords = line
+        j, held_v, lo, hi, coords = line
         fi, fj = list(free).index(i), list(free).index(j)
 
         def at(v: float) -> np.ndarray:
@@ -440,22 +452,23 @@ class Problem:
         def cost(v: float) -> float:
             return float(np.sum(fun(at(v)) ** 2))
 
-        return at, cost, lo, hi, min(max(values[i], lo), hi)
+        return (at, cost, lo, hi, min(max(values[i], lo), hi),
+                given_neutral(params, i, j, held_v, lo, hi))
 
     def _profile_start(self, params: Sequence[Param], free: Sequence[int], i: int,
                        xf: np.ndarray, expand: Callable[[np.ndarray], np.ndarray],
                        fun: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, int]:
         """(``xf`` moved to the minimum of coordinate ``i``'s profile scan over its possible
-        range (``solver.profile_scan``) — a flat minimum's centre: the likelihood prefers no
-        point of it —, evaluations)."""
+        range (``solver.profile_scan``) — on a flat minimum, where the likelihood prefers no
+        point, its point nearest the nominal model's point on the line —, evaluations)."""
         g = self._given_cost(params, free, i, xf, expand, fun)
         if g is None:
             return xf, 0
-        at, cost, lo, hi, _ = g
+        at, cost, lo, hi, _, v_nom = g
         coarse, fine = profile_steps(params[i].tol, lo, hi)
         pts = profile_scan(cost, lo, hi, coarse, fine)
         a, b = flat_minimum(pts)
-        return at(0.5 * (a + b)), len(pts)
+        return at(min(max(v_nom, a), b)), len(pts)
 
     def _profile_set(self, params: Sequence[Param], free: Sequence[int], i: int,
                      xf: np.ndarray, r: np.ndarray, expand: Callable[[np.ndarray], np.ndarray],
@@ -465,12 +478,12 @@ class Problem:
         walked outwards from it in coarse steps until it leaves the two-sided threshold
         (``solver.profile_walk``), the edges then located to the fine step
         (``solver.profile_interval``; the threshold's scale s^2 n/n_eff from ``r``).  Returns
-        (the set, ``xf`` moved to the lowest point seen — a flat minimum's centre —,
-        evaluations)."""
+        (the set, ``xf`` moved to the lowest point seen — on a flat minimum, its point nearest
+        the nominal model's point on the line —, evaluations)."""
         g = self._given_cost(params, free, i, xf, expand, fun)
         if g is None:
             return None, xf, 0
-        at, cost, lo, hi, v0 = g
+        at, cost, lo, hi, v0, v_nom = g
         coarse, fine = profile_steps(params[i].tol, lo, hi)
         n = r.size
         c0 = float(np.sum(r ** 2))
@@ -479,9 +492,10 @@ class Problem:
         n0 = len(pts) - 1
         e_lo, e_hi, kind, sigma = profile_interval(cost, pts, lo, hi, fine, scale)
         a, b = flat_minimum(pts)
-        prof = ProfileInterval(e_lo, e_hi, kind, PROFILE_LEVEL, sigma, 0.5 * (a + b), (a, b),
+        flat_best = min(max(v_nom, a), b)
+        prof = ProfileInterval(e_lo, e_hi, kind, PROFILE_LEVEL, sigma, flat_best, (a, b),
                                (lo, hi), fine, len(pts) - 1)
-        best = v0 if pts[v0] <= min(pts.values()) else 0.5 * (a + b)
+        best = v0 if pts[v0] <= min(pts.values()) else flat_best
         return prof, at(best), max(n0, len(pts) - 1)
 
 

@@ -58,6 +58,37 @@ def given_line(params: Sequence[Param], free: Sequence[int], i: int, values: Seq
         lambda v: (pi.to_x(v), pj.to_x(keeper_value(v, held_v)))
 
 
+def given_neutral(params: Sequence[Param], i: int, j: int, held_v: float, lo: float,
+                  hi: float) -> float:
+    """The nominal model's point on coordinate ``i``'s given line (:func:`given_line`: the held
+    quantity at ``held_v``, keeper ``j``, possible range [lo, hi]): the value of ``i`` at which
+    the keeper takes its own neutral value, or the end of [lo, hi] nearest to it.  For mu_s
+    with mu_k held, mu_s = mu_k / (the nominal mu_k/mu_s): where the data pin mu_k and say
+    nothing of mu_s, the nominal's knowledge of mu_s is its relation to mu_k (the table's two
+    coefficients measured on one floor by one method), not its absolute value on a floor the
+    data have shown to be another; at the nominal mu_k it is the nominal mu_s."""
+    g = params[i].given
+    assert g is not None
+    keeper_value = g[2]
+    target = float(params[j].neutral)
+
+    def f(v: float) -> float:
+        return float(keeper_value(v, held_v)) - target
+    f_lo, f_hi = f(lo), f(hi)
+    if f_lo == 0.0:
+        return float(lo)
+    if f_lo * f_hi > 0 or f_hi == 0.0:
+        return float(lo if abs(f_lo) < abs(f_hi) else hi)
+    a, b = float(lo), float(hi)
+    for _ in range(60):            # bisection: the keeper is monotonic along the line
+        m = 0.5 * (a + b)
+        if f(m) * f_lo > 0:
+            a = m
+        else:
+            b = m
+    return 0.5 * (a + b)
+
+
 def unidentified_given(params: Sequence[Param], free: Sequence[int], x: np.ndarray,
                        values: Sequence[float], r: np.ndarray,
                        expand: Callable[[np.ndarray], np.ndarray],
@@ -69,15 +100,15 @@ def unidentified_given(params: Sequence[Param], free: Sequence[int], x: np.ndarr
     line that keeps it (:func:`given_line`; from the residual's change over a tenth of the
     possible range, with the same autocorrelation inflation as :func:`param_std`) above
     UNIDENTIFIED of their possible range there.  Returns index -> the coordinate to pin it at:
-    its neutral value, or the nearest value the data allow (``allowed``: index -> its
-    profile set, :func:`profile_interval`) or, without one, the nearest possible value given
-    the held one."""
+    the nominal model's point on the line (:func:`given_neutral`), or the nearest value the
+    data allow (``allowed``: index -> its profile set, :func:`profile_interval`) or, without
+    one, the nearest possible value given the held one."""
     out: dict[int, float] = {}
     for i in free:
         line = given_line(params, free, i, values, meta)
         if line is None:
             continue
-        j, _, lo, hi, coords = line
+        j, held_v, lo, hi, coords = line
         v_i = float(values[i])
         width = hi - lo
         h = 0.1 * width
@@ -93,7 +124,7 @@ def unidentified_given(params: Sequence[Param], free: Sequence[int], x: np.ndarr
         std = math.sqrt(s2 * infl / dd) if dd > 0 else math.inf
         if std > UNIDENTIFIED * width:
             a, b = (allowed or {}).get(i, (lo, hi))
-            pin = min(max(params[i].neutral, a), b)
+            pin = min(max(given_neutral(params, i, j, held_v, lo, hi), a), b)
             out[i] = float(np.clip(params[i].to_x(pin), 0, 1))
     return out
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from _native_skip import needs_native
 
 pytestmark = needs_native(truth=True)
@@ -11,6 +13,7 @@ pytestmark = needs_native(truth=True)
 from host_tools import truth  # noqa: E402
 from host_tools.__main__ import main as cli  # noqa: E402
 from _truth_loads import slip_load_ratio  # noqa: E402
+from host_tools import params  # noqa: E402
 
 SLIPPING = {"friction_coefficient": {"mu_s": 0.17, "mu_k": 0.16}}
 
@@ -43,6 +46,12 @@ def test_mu_s_unidentified_when_the_wheels_slip_all_run(tmp_path):
     assert fc["params"]["mu_s"] >= fc["params"]["mu_k"]
     iv = fc["interval"]["mu_s"]
     assert iv["kind"] == "unbounded" and iv["lo"] is None and iv["hi"] is None
-    assert abs(iv["possible"][0] - fc["params"]["mu_k"]) < 1e-3 * fc["params"]["mu_k"]
+    # the set was scanned along the line of the fit's mu_k; the refit with mu_s pinned at the
+    # nominal model's point on that line (mu_k times the nominal mu_s/mu_k, just above mu_k)
+    # refits mu_k, which the re-grips of wheels whose mu_s is that close to mu_k move by
+    # under 1 %
+    assert abs(iv["possible"][0] - fc["params"]["mu_k"]) < 1e-2 * fc["params"]["mu_k"]
+    ratio = params.ROBOT["mu_s"] / params.ROBOT["mu_k"]
+    assert fc["params"]["mu_s"] == pytest.approx(iv["possible"][0] * ratio, rel=1e-4)
     assert iv["flat"] == iv["possible"]
     assert "mu_s not bounded within" in open(out / "report.md").read()

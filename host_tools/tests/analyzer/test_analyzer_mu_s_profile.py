@@ -58,6 +58,32 @@ def test_a_cost_flat_from_the_bottom_gives_an_upper_bound():
     assert math.isfinite(sigma)
 
 
+def test_the_nominal_point_on_mu_s_line_keeps_the_nominal_ratio_to_mu_k():
+    """solver.given_neutral on the friction effect's mu_s (mu_k held): mu_s = mu_k / (the
+    nominal mu_k/mu_s), the nominal mu_s itself at the nominal mu_k, and the nearest end of
+    the possible range where that point lies outside it."""
+    from host_tools.analyzer.fit.params import params_for
+    from host_tools.analyzer.fit.solver import given_line, given_neutral
+    meta = {"robot": dict(params.ROBOT)}
+    ps = params_for(["friction_coefficient"], meta, {})
+    i, j = [p.name for p in ps].index("mu_s"), [p.name for p in ps].index("mu_k_over_mu_s")
+    ratio = params.ROBOT["mu_k"] / params.ROBOT["mu_s"]
+    for mu_k in (0.15, 0.187, params.ROBOT["mu_k"], 0.36):
+        values = [0.0, 0.0]
+        values[i], values[j] = 1.2 * mu_k, 1 / 1.2
+        line = given_line(ps, [0, 1], i, values, meta)
+        assert line is not None
+        _, held, lo, hi, _ = line
+        assert held == pytest.approx(mu_k)
+        v = given_neutral(ps, i, j, held, lo, hi)
+        assert v == pytest.approx(min(max(mu_k / ratio, lo), hi), rel=1e-9)
+        if mu_k == params.ROBOT["mu_k"]:
+            assert v == pytest.approx(params.ROBOT["mu_s"], rel=1e-9)
+    # a range that excludes it: its nearest end
+    assert given_neutral(ps, i, j, 0.2, 0.25, 0.3) == 0.25
+    assert given_neutral(ps, i, j, 0.2, 0.1, 0.15) == 0.15
+
+
 def test_a_cost_flat_everywhere_is_unbounded():
     pts, (lo, hi, kind, sigma), _ = _profile(lambda v: 800.0)
     assert (lo, hi, kind) == (LO, HI, "unbounded") and sigma == math.inf
@@ -161,4 +187,8 @@ def test_mu_s_bounded_on_one_side_where_every_run_slips_from_the_first_tick(tmp_
     assert 0.40 <= iv["hi"] < iv["possible"][1]
     assert iv["flat"][0] == iv["possible"][0]          # flat from mu_k
     assert mu_k <= mu_s <= iv["hi"]
+    # the point value: the nominal model's mu_s/mu_k at the fitted mu_k (inside the set), not
+    # the nominal's absolute mu_s clipped into it (which would be the set's floor, mu_k)
+    ratio = params.ROBOT["mu_s"] / params.ROBOT["mu_k"]
+    assert mu_s == pytest.approx(mu_k * ratio, rel=2e-4)
     assert "mu_s ≤" in md
