@@ -38,6 +38,9 @@ const char* const kCols[] = {"t_s",         "x_m",         "y_m",            "ph
                              "N_c",         "w_m_s",       "F_r_n",          "F_l_n",
                              "L_r_n",       "L_l_n",       "i_r_a",          "i_l_a"};
 const int kColCount = sizeof(kCols) / sizeof(kCols[0]);
+// The shortest span between two rows that the plant is stepped over (s): rows closer than a
+// nanosecond are one instant that two clocks rounded apart (no recorder resolves it).
+const double kMinSpan_s = 1e-9;
 
 Handle* H(void* p) { return static_cast<Handle*>(p); }
 
@@ -196,6 +199,14 @@ int sm_simulate(void* p, int mode, int n, const double* t_s, const double* in_r,
       break;
     }
     const double span = t_s[k + 1] - t_s[k];
+    if (span < kMinSpan_s) {
+      // two rows at one instant (a recorder's time and a tick time rounded apart): not
+      // stepped, since a step that short turns the stick constraint's impulse into a traction
+      // spike and can release a wheel that no torque released
+      fill_dynamic(pl, row);
+      pl.set_time(t_s[k + 1]);
+      continue;
+    }
     long steps = static_cast<long>(ceil(span / dt_s - 1e-9));
     if (steps < 1) steps = 1;
     const double hstep = span / static_cast<double>(steps);

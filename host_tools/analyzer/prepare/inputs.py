@@ -51,7 +51,10 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
     torque = (np.asarray(tel["tau_cmd_r"], float), np.asarray(tel["tau_cmd_l"], float))
     dt_tel = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     latency = compute_latency_s(run)
-    gappy = t.size > 1 and float(np.max(np.diff(t))) > max(period, dt_tel) * 1.5
+    # a frame gap longer than one tick can hold two ticks, the first of which no frame reports
+    # (a lost frame, or frames as fast as the loop with jitter: 28.8-30 ms gaps of 20 ms frames
+    # at +-5.5 ms against a 25 ms loop)
+    gappy = t.size > 1 and float(np.max(np.diff(t))) > period * 1.0001
     if phase is not None and period > 0 and (period < 0.999 * dt_tel or gappy):
         # A loop faster than the telemetry, or frames lost: a frame reports the value of the
         # latest tick before it, and the ticks between two frames went unseen.  Their values
