@@ -6,7 +6,8 @@ required traction ratios the cost does not depend on mu_s: it is a staircase, an
 taken on it is the stair (or stairs) within the threshold of the lowest one.  Each line gives
 the total cost, the cost per run and each run's replayed slip episodes (on the analyzer's grid).
 
-``--unseen-ticks`` runs the same with the experiment of a proposed change (not the analyzer's
+``--variant`` replays with another normal-force physics (bench/analyzer/nominal_normal_forces.py's
+variants: the nominal model's own tolerance).  ``--unseen-ticks`` runs the same with the experiment of a proposed change (not the analyzer's
 rule): ``prepare.inputs.prepare`` treats a run whose largest frame gap exceeds one inner period
 (rather than 1.5 of the larger of it and the frame interval) as one whose frames may leave ticks
 unreported, so that such ticks are filled between their reported neighbours.
@@ -22,6 +23,7 @@ import glob
 import inspect
 import os
 import sys
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
@@ -48,14 +50,23 @@ def main() -> None:
     ap.add_argument("--mu-k", type=float, required=True)
     ap.add_argument("--mu-s", required=True, help="comma-separated values")
     ap.add_argument("--unseen-ticks", action="store_true")
+    ap.add_argument("--variant", default="base",
+                    help="the replay plant's normal-force physics (nominal_normal_forces.VARIANTS)")
     a = ap.parse_args()
     if a.unseen_ticks:
         unseen_ticks_experiment()
     from bench_fit_scaling import _problem  # the fit problem as the pipeline builds it
+    from nominal_normal_forces import VARIANTS, nominal_plant
     from host_tools.analyzer.fit.solver import effective_n
     from host_tools.analyzer.replay.openloop import OpenLoopReplay
 
-    det = _problem(sorted(glob.glob(os.path.join(a.case_dir, "run-*"))))
+    with nominal_plant(VARIANTS[a.variant]):
+        staircase(a, _problem(sorted(glob.glob(os.path.join(a.case_dir, "run-*")))), effective_n,
+                  OpenLoopReplay)
+
+
+def staircase(a: argparse.Namespace, det: Any, effective_n: Any, OpenLoopReplay: Any) -> None:
+    """Print the cost per mu_s of the detection ``det``'s fit problem (see the module)."""
     pr = det.problem
     preps = pr.preps
     every = list(range(len(preps)))
