@@ -10,6 +10,7 @@ import numpy as np
 
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import channels
+from host_tools.analyzer.replay.closedloop import REPLAYABLE_CONTROLLERS
 from host_tools.analyzer.signals import robust_std
 
 if TYPE_CHECKING:
@@ -132,6 +133,58 @@ UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from the
 ReplayUnc = dict[str, tuple[np.ndarray, np.ndarray]]  # channel -> (t, std) (PreparedRun.replay_unc)
 
 
+def phase_term(prep: PreparedRun) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
+    """The unreported ticks' offset within a cascade's outer period that the straight-line fill
+    cannot see: (block of each unreported tick, per side the offset per unit draw), or None.
+
+    A cascade whose outer period spans ``m = periods_s.outer / periods_s.inner >= 2`` inner
+    ticks (meta.json) moves its command mostly at the outer tick (the torque) and a little at
+    every tick (the speed feed-forward): while the wheels accelerate the duty is a staircase of
+    ``m`` ticks.  A telemetry period that is not a whole number of outer periods reports one
+    phase of that staircase for a block of frames (a 29 ms loop seen every 55 ms: the reported
+    tick slides by 3 ms a frame, so for ~10 frames the same one of each pair is unreported),
+    and the unreported tick lies off the line through the reported ones by up to one tick's
+    change of the command, ``slope x inner period``, with a sign fixed by the phase: the same
+    for the whole block, and nothing recorded says which.  The term is taken from the
+    recording alone: the slope of the reported commands at each unreported tick times the inner
+    period, for one draw in [-1, 1] per block of unreported ticks whose preceding reported tick
+    keeps its phase within the outer period.  None when the recorder's controller is not a
+    cascade (meta.json ``controller``, absent: the cascade; a single wheel-speed loop such as
+    ``pi`` has no outer loop, whatever outer period meta.json gives), the outer period is a
+    single tick, every tick is reported, or the fill is no longer the straight line
+    (:func:`fill_unseen_from_controller` refined it with the controller's own staircase)."""
+    seen = prep.seen_ticks
+    ctl = prep.run.meta.get("controller")
+    if ctl is not None and ctl not in REPLAYABLE_CONTROLLERS:
+        return None
+    per = prep.run.meta.get("periods_s") or {}
+    inner, outer = float(per.get("inner", 0.0) or 0.0), float(per.get("outer", 0.0) or 0.0)
+    m = int(round(outer / inner)) if inner > 0 else 0
+    if seen is None or m < 2:
+        return None
+    seen = np.asarray(seen, bool)
+    i_seen, unseen = np.flatnonzero(seen), np.flatnonzero(~seen)
+    if unseen.size == 0 or i_seen.size < 3:
+        return None
+    t = np.asarray(prep.t_in, float)
+    if any(np.any(np.abs(np.asarray(u, float)[unseen]
+                         - np.interp(t[unseen], t[i_seen], np.asarray(u, float)[i_seen])) > 1e-12)
+           for u in prep.duty):
+        return None
+    # the ticks' index on the inner grid (its origin within the outer period is unknown and
+    # does not matter: only where the reported phase changes does)
+    k = np.round((t - (prep.tick_phase or 0.0)) / inner).astype(np.int64)
+    j = np.clip(np.searchsorted(i_seen, unseen) - 1, 0, i_seen.size - 1)
+    ph = k[i_seen[j]] % m
+    block = np.concatenate([[0], np.cumsum(np.diff(ph) != 0)])
+    off = []
+    for u in prep.duty:
+        us = np.asarray(u, float)[i_seen]
+        slope = np.gradient(us, t[i_seen])
+        off.append(np.interp(t[unseen], t[i_seen], slope) * inner)
+    return block, (off[0], off[1])
+
+
 def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
                       n: int = UNSEEN_ENSEMBLE) -> ReplayUnc | None:
     """The replay's uncertainty from the commands no frame reported (a loop faster than the
@@ -147,7 +200,11 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     taken as uniform between the line and that departure, std ``dev / sqrt(3)``, one draw
     shared by the ticks of a gap.  On a straight stretch ``dev`` vanishes and what remains is
     the tick-level scatter of the reported commands (robust std of their second differences,
-    / sqrt(1.5): the fill's own error for white scatter), drawn per tick.  The replay turns the
+    / sqrt(1.5): the fill's own error for white scatter), drawn per tick.  A cascade whose outer
+    period spans several inner ticks adds :func:`phase_term` where the fill is the straight
+    line: the staircase's unreported phase, one uniform draw in [-1, 1] per block of frames
+    that report the same phase, times that tick's change of the command (independent of the
+    other draws: the variances add).  The replay turns the
     draws into the output errors they cause, large
     where the output is sensitive to the input (a slipping wheel, a step) and small elsewhere.
     Returns it as channel -> (t, std over the draws), or None when no tick is unseen (no
@@ -184,15 +241,22 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
         bend.append(dev / math.sqrt(3.0))
     seed = int(np.uint32(int(np.sum(np.asarray(prep.run.telemetry["t_s"], float) * 1e3)) & 0xFFFFFFFF))
     rng = np.random.default_rng([seed, unseen.size])
+    phase = phase_term(prep)
+    # the phase term's draws from their own stream: the other draws stay as they are
+    rng_ph = np.random.default_rng([seed, unseen.size, 2])
     base = cast("tuple[np.ndarray, np.ndarray]", tuple(np.asarray(u, float) for u in prep.duty))
     acc: dict[str, list[np.ndarray]] = {}
     t_of: dict[str, np.ndarray] = {}
     for _ in range(n):
         draw = []
-        for u, w, bd in zip(base, white, bend):
+        # one draw per block, shared by both wheels (the frames report the same tick of each)
+        zp = None if phase is None else rng_ph.uniform(-1.0, 1.0, int(phase[0][-1]) + 1)
+        for side, (u, w, bd) in enumerate(zip(base, white, bend)):
             v = u.copy()
             z = rng.standard_normal(int(gap[-1]) + 1)
             v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
+            if phase is not None and zp is not None:
+                v[unseen] += zp[phase[0]] * phase[1][side]
             draw.append(np.clip(v, -1.0, 1.0))
         drawn = dataclasses.replace(prep, duty=cast("tuple[np.ndarray, np.ndarray]", tuple(draw)))
         for name, ch in channels(drawn, replay.simulate_windows(drawn, {}), "duty").items():
