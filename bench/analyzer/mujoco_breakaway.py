@@ -34,6 +34,12 @@ Sub-commands (nice them; one process each; seconds each, ``profile`` about ten):
       the analyzer's fit cost over mu_s at fixed mu_k, with lib/slipmodel's stick/slip law or
       with the drop to mu_k spread over slip speed by the plant's Stribeck law tied to mu_s.
 
+  gain CASE_DIR --effect EFFECT:KEY=VALUE,... [--after S]
+      where an effect improves the fit residual: the drop of the squared normalized residual
+      from the nominal replay per fit channel, summed over samples in (or --after s past) a
+      slip of the nominal replay, a saturated duty, a reversal of the wheels' mean speed, and
+      the rest.
+
   grid RUN_DIR ... [--mu-s MU_S --mu-k MU_K]
       runs whose replay grid has steps under 1 ns, and what merging those rows changes.
 
@@ -423,11 +429,9 @@ def cmd_compare(a: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_profile(a: argparse.Namespace) -> int:
-    """mu_s profile of the analyzer's fit cost (``Problem.residual`` over all runs, the
-    pipeline's own problem) at a fixed mu_k, with lib/slipmodel's stick/slip law (v_s 0) or with
-    the static-to-kinetic drop spread over slip speed by the plant's Stribeck law tied to mu_s
-    (mu_k0 = mu_s, v_s given): the nominal model with a breakaway like MuJoCo's."""
+def case_problem(case_dir: Path) -> tuple[Any, Any, Any]:
+    """(the prepared runs, the nominal open-loop replays, the fit problem) of the case's runs,
+    as the pipeline builds them."""
     from host_tools import runfmt
     from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
     from host_tools.analyzer.pipeline import _vocabulary
@@ -436,7 +440,7 @@ def cmd_profile(a: argparse.Namespace) -> int:
 
     def log(_m: str) -> None:
         return None
-    runs = [runfmt.load_run(str(p)) for p in sorted(a.case_dir.iterdir())
+    runs = [runfmt.load_run(str(p)) for p in sorted(case_dir.iterdir())
             if (p / "meta.json").is_file()]
     vocab, _ = _vocabulary(None)
     preps = prepare_runs(runs, log)
@@ -444,6 +448,15 @@ def cmd_profile(a: argparse.Namespace) -> int:
     ol = replay_open_loop(preps, 5e-4)
     preps, nominal, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, log)
     problem = detect_mismatch(preps, nominal, loc, vocab, 5e-4, [], log).problem
+    return preps, ol, problem
+
+
+def cmd_profile(a: argparse.Namespace) -> int:
+    """mu_s profile of the analyzer's fit cost (``Problem.residual`` over all runs, the
+    pipeline's own problem) at a fixed mu_k, with lib/slipmodel's stick/slip law (v_s 0) or with
+    the static-to-kinetic drop spread over slip speed by the plant's Stribeck law tied to mu_s
+    (mu_k0 = mu_s, v_s given): the nominal model with a breakaway like MuJoCo's."""
+    preps, ol, problem = case_problem(a.case_dir)
     grid = [float(x) for x in a.grid.split(",")]
     for vs in (float(x) for x in a.v_s.split(",")):
         row = []
@@ -455,6 +468,67 @@ def cmd_profile(a: argparse.Namespace) -> int:
         best = min(row, key=lambda r: r[1])
         print(f"v_s {1e3 * vs:g} mm/s: " + " ".join(f"{ms:.4f}:{c:.0f}" for ms, c in row)
               + f"  | lowest at mu_s {best[0]:.4f}")
+    return 0
+
+
+def cmd_gain(a: argparse.Namespace) -> int:
+    """Where an effect's fit improves the analyzer's fit residual: per fit channel, the drop
+    of the squared normalized residual (deflated, over the floor: what the fit weighs) from the
+    nominal replay to the replay with EFFECT, summed over the samples of each class: the
+    nominal duty replay slipping (either wheel) or within --after s of a slip, duty saturated
+    (|pwm| >= 0.99) within --after s, the wheels' mean recorded speed reversing within
+    --after s, and the rest; over the fit's windows, or every sample with --full."""
+    preps, ol, problem = case_problem(a.case_dir)
+    name, _, kv = a.effect.partition(":")
+    fx = {name: {k: float(v) for k, v in (p.split("=") for p in kv.split(",") if p)}}
+    idx = list(range(len(preps)))
+    nom = problem.sim_channels({}, idx, a.full, fit_only=True)
+    eff = problem.sim_channels(fx, idx, a.full, fit_only=True)
+    tot: dict[str, dict[str, float]] = {}
+    for i, (cn, ce) in enumerate(zip(nom, eff)):
+        prep = preps[i]
+        sims = ol.duty.simulate_windows(prep, {})
+        ts = np.concatenate([s["t_s"] for _, s in sims])
+        slip = np.concatenate([(s["slip_r"] > 0.5) | (s["slip_l"] > 0.5) for _, s in sims])
+        tel = prep.run.telemetry
+        tt = np.asarray(tel["t_s"], float)
+        sat = (np.abs(np.asarray(tel["pwm_r"], float)) >= 0.99) | \
+            (np.abs(np.asarray(tel["pwm_l"], float)) >= 0.99)
+        wm = 0.5 * (np.asarray(tel["omega_r"], float) + np.asarray(tel["omega_l"], float))
+        big = np.abs(wm) > 2.0
+        sgn = np.sign(wm[big])
+        rev_t = tt[big][1:][sgn[1:] != sgn[:-1]]
+
+        def near(t: np.ndarray, ev_t: np.ndarray) -> np.ndarray:
+            if not ev_t.size:
+                return np.zeros(t.size, bool)
+            j = np.searchsorted(ev_t, t, side="right") - 1
+            ok = j >= 0
+            out = np.zeros(t.size, bool)
+            out[ok] = t[ok] - ev_t[j[ok]] <= a.after
+            return out
+        slip_t = ts[slip]
+        sat_t = tt[sat]
+        for c in problem.fit_channels:
+            if c not in cn or c not in ce:
+                continue
+            f = problem.floors[c]
+            r0 = cn[c].deflated(f) / f
+            r1 = ce[c].deflated(f) / f
+            t = cn[c].t
+            d = r0 ** 2 - r1 ** 2
+            cls = np.where(near(t, slip_t), "slip", np.where(near(t, sat_t), "saturated",
+                           np.where(near(t, rev_t) | near(-t, -rev_t[::-1]), "reversal",
+                                    "rest")))
+            row = tot.setdefault(c, {})
+            for k in ("slip", "saturated", "reversal", "rest"):
+                m = cls == k
+                row[k] = row.get(k, 0.0) + float(np.sum(d[m]))
+                row["n_" + k] = row.get("n_" + k, 0.0) + float(np.sum(m))
+    print(f"drop of the squared normalized residual, nominal -> {a.effect} (samples in brackets)")
+    for c, row in tot.items():
+        print(f"{c:12s} " + "  ".join(f"{k} {row[k]:9.1f} [{int(row['n_' + k])}]"
+                                      for k in ("slip", "saturated", "reversal", "rest")))
     return 0
 
 
@@ -610,6 +684,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--mu-k", type=float, required=True)
     p.add_argument("--grid", required=True, help="mu_s values, comma-separated")
     p.add_argument("--v-s", default="0,0.005", help="Stribeck speeds (m/s), 0: none")
+    p = sub.add_parser("gain")
+    p.add_argument("case_dir", type=Path)
+    p.add_argument("--effect", required=True, help="EFFECT:KEY=VALUE,... e.g. motor_lag:tau_s=0.0022")
+    p.add_argument("--after", type=float, default=0.3, help="s after an event still its class")
+    p.add_argument("--full", action="store_true", help="every sample, not the fit's windows")
     p = sub.add_parser("grid")
     p.add_argument("runs", nargs="+", type=Path)
     p.add_argument("--mu-s", type=float, default=0.0)
@@ -644,6 +723,8 @@ def main(argv: list[str] | None = None) -> int:
         return cmd_profile(a)
     if a.cmd == "grid":
         return cmd_grid(a)
+    if a.cmd == "gain":
+        return cmd_gain(a)
     if a.cmd == "generate":
         for path in generate_variant(a.set, a.case, a.out, a.switch):
             print(path)
