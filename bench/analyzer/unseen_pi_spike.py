@@ -51,6 +51,11 @@ Sub-commands (nice them; one process each):
       reported commands bend); ``--pulse``: with the window prototype (prints each strong
       window's RMS before and after, and the tick).
 
+  strong CASE_DIR ...
+      the locate stage only, with the window prototype: per case the strong duty windows in
+      the fit channels before and after, and the window whose RMS one tick's move lowers most
+      (a case that keeps a strong window keeps its route to a mismatch).
+
 Commands used for the report (analyzer at d50386a + fill_spread split out of
 input_uncertainty, no change of behaviour):
 
@@ -64,6 +69,7 @@ input_uncertainty, no change of behaviour):
       --full /tmp/an-pi/mjfull/runs/hb15_mj_long_null_60s
   PYTHONPATH=. nice .venv/bin/python bench/analyzer/unseen_pi_spike.py analyze [--pulse] \\
       /work/wt/score-data/heldback15/runs/hb15_mj_long_null_60s
+  PYTHONPATH=. nice .venv/bin/python bench/analyzer/unseen_pi_spike.py strong CASE_DIR ...
   # the truth engine's twin (seed offsets 0-2), each with its every-tick recording:
   PYTHONPATH=. nice .venv/bin/python -m host_tools.suite generate --set heldback15 \\
       --cases hb15_mj_long_null_60s --engine truth --seed-offset S [--recorder tel_s=0.025] \\
@@ -447,10 +453,14 @@ def cmd_strong(a: argparse.Namespace) -> int:
         n0 = sum(e["rms"] >= thr * e["noise_floor"] for e in before if e["channel"] in FIT_CHANNELS)
         n1 = sum(e["rms"] >= thr * e["noise_floor"] for e in loc.entries
                  if e["channel"] in FIT_CHANNELS)
-        moved = [ln.strip() for ln in lines if "->" in ln and ln.split("->")[0].split()[-2] != ln.split("->")[1].split()[0]]
-        print(f"{Path(case).name}: strong at {thr:.2f}; strong duty windows in fit channels {n0} -> {n1}"
-              + ("  ALL GONE" if n0 and not n1 else "")
-              + (f"; moved: {'; '.join(moved[:4])}" if moved else ""), flush=True)
+        pairs = [(float(ln.split("->")[0].split()[-1]), float(ln.split("->")[1].split()[0]), ln)
+                 for ln in lines if "->" in ln]
+        low = min(pairs, key=lambda q: q[1] / max(q[0], 1e-9), default=None)
+        print(f"{Path(case).name}: strong at {thr:.2f}; strong duty windows in fit channels "
+              f"{n0} -> {n1}" + ("  ALL GONE" if n0 and not n1 else "")
+              + (f"; the largest share one tick explains: {low[0]:.2f} -> {low[1]:.2f} floors "
+                 f"(ratio {low[1] / max(low[0], 1e-9):.3f}): {low[2].strip()}" if low else ""),
+              flush=True)
     return 0
 
 
