@@ -185,6 +185,42 @@ def phase_term(prep: PreparedRun) -> tuple[np.ndarray, tuple[np.ndarray, np.ndar
     return block, (off[0], off[1])
 
 
+def fill_spread(prep: PreparedRun
+                ) -> tuple[np.ndarray, np.ndarray, list[float], list[np.ndarray]] | None:
+    """The spread of the straight-line fill of the ticks no frame reported, as
+    :func:`input_uncertainty` draws it: (the unseen ticks' indices, the gap of each (consecutive
+    unseen ticks share one), per side the tick-level scatter's std, per side the bend's std at
+    each unseen tick), or None when no tick is unseen or fewer than three are reported."""
+    seen = prep.seen_ticks
+    if seen is None:
+        return None
+    seen = np.asarray(seen, bool)
+    i_seen = np.flatnonzero(seen)
+    unseen = np.flatnonzero(~seen)
+    if unseen.size == 0 or i_seen.size < 3:
+        return None
+    j = np.searchsorted(i_seen, unseen)
+    a, b = np.clip(j - 1, 0, i_seen.size - 1), np.clip(j, 0, i_seen.size - 1)
+    ts, tk = np.asarray(prep.t_in, float)[i_seen], np.asarray(prep.t_in, float)[unseen]
+    # a gap: consecutive unseen ticks; its ticks share one draw of the bend (a ramp that went
+    # on into the gap, or stopped early, does so for all of them)
+    gap = np.concatenate([[0], np.cumsum(np.diff(unseen) > 1)])
+    white, bend = [], []
+    for u in prep.duty:
+        us = np.asarray(u, float)[i_seen]
+        dd = us[1:-1] - 0.5 * (us[:-2] + us[2:])
+        white.append(robust_std(dd) / math.sqrt(1.5) if dd.size > 4 else 0.0)
+        line = np.interp(tk, ts, us)
+        s_a = np.where(a >= 1, (us[a] - us[a - 1]) / np.maximum(ts[a] - ts[a - 1], 1e-9), 0.0)
+        s_b = np.where(b + 1 < us.size, (us[np.minimum(b + 1, us.size - 1)] - us[b])
+                       / np.maximum(ts[np.minimum(b + 1, us.size - 1)] - ts[b], 1e-9), 0.0)
+        fwd = us[a] + s_a * (tk - ts[a])
+        bwd = us[b] - s_b * (ts[b] - tk)
+        dev = np.minimum(np.maximum(np.abs(fwd - line), np.abs(bwd - line)), 1.0)
+        bend.append(dev / math.sqrt(3.0))
+    return unseen, gap, white, bend
+
+
 def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
                       n: int = UNSEEN_ENSEMBLE) -> ReplayUnc | None:
     """The replay's uncertainty from the commands no frame reported (a loop faster than the
@@ -212,33 +248,10 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     to the channels; decisions compare residuals with the noise floor and this uncertainty in
     quadrature (:meth:`Channel.deflated`).  Draws are seeded by the run's content, so an
     analysis is repeatable.  ``prep`` is left as it is."""
-    seen = prep.seen_ticks
-    if seen is None:
+    spread = fill_spread(prep)
+    if spread is None or n < 2:
         return None
-    seen = np.asarray(seen, bool)
-    i_seen = np.flatnonzero(seen)
-    unseen = np.flatnonzero(~seen)
-    if unseen.size == 0 or i_seen.size < 3 or n < 2:
-        return None
-    j = np.searchsorted(i_seen, unseen)
-    a, b = np.clip(j - 1, 0, i_seen.size - 1), np.clip(j, 0, i_seen.size - 1)
-    ts, tk = np.asarray(prep.t_in, float)[i_seen], np.asarray(prep.t_in, float)[unseen]
-    # a gap: consecutive unseen ticks; its ticks share one draw of the bend (a ramp that went
-    # on into the gap, or stopped early, does so for all of them)
-    gap = np.concatenate([[0], np.cumsum(np.diff(unseen) > 1)])
-    white, bend = [], []
-    for u in prep.duty:
-        us = np.asarray(u, float)[i_seen]
-        dd = us[1:-1] - 0.5 * (us[:-2] + us[2:])
-        white.append(robust_std(dd) / math.sqrt(1.5) if dd.size > 4 else 0.0)
-        line = np.interp(tk, ts, us)
-        s_a = np.where(a >= 1, (us[a] - us[a - 1]) / np.maximum(ts[a] - ts[a - 1], 1e-9), 0.0)
-        s_b = np.where(b + 1 < us.size, (us[np.minimum(b + 1, us.size - 1)] - us[b])
-                       / np.maximum(ts[np.minimum(b + 1, us.size - 1)] - ts[b], 1e-9), 0.0)
-        fwd = us[a] + s_a * (tk - ts[a])
-        bwd = us[b] - s_b * (ts[b] - tk)
-        dev = np.minimum(np.maximum(np.abs(fwd - line), np.abs(bwd - line)), 1.0)
-        bend.append(dev / math.sqrt(3.0))
+    unseen, gap, white, bend = spread
     seed = int(np.uint32(int(np.sum(np.asarray(prep.run.telemetry["t_s"], float) * 1e3)) & 0xFFFFFFFF))
     rng = np.random.default_rng([seed, unseen.size])
     phase = phase_term(prep)
