@@ -86,6 +86,11 @@ def significant_windows(t: np.ndarray, resid: np.ndarray, floor: float, k: float
                         ) -> tuple[list[Window], np.ndarray]:
     """Windows where the smoothed |residual| exceeds k * floor / sqrt(smooth_n) and the raw
     RMS over the window exceeds k * floor... in short: sustained, not single spikes.
+    Significant samples at most ``merge_gap_s`` apart are one window, and so are those no
+    further apart than one and a half of the channel's usual (median) sampling interval: its
+    neighbours, jitter included, short of a missing sample.  By ``merge_gap_s`` alone, each
+    significant sample of a channel sampled slower than it (65 ms telemetry, a 10 Hz camera)
+    would be a window of its own, too short to count, and nothing there could stand out.
 
     Returns the windows and the boolean significance mask (per sample)."""
     t = np.asarray(t, dtype=float)
@@ -100,10 +105,11 @@ def significant_windows(t: np.ndarray, resid: np.ndarray, floor: float, k: float
     idx = np.flatnonzero(mask)
     windows: list[Window] = []
     if idx.size:
+        gap_s = max(merge_gap_s, 1.5 * float(np.median(np.diff(t))))
         starts = [idx[0]]
         ends = []
         for a, b in zip(idx[:-1], idx[1:]):
-            if t[b] - t[a] > merge_gap_s:
+            if t[b] - t[a] > gap_s:
                 ends.append(a)
                 starts.append(b)
         ends.append(idx[-1])

@@ -31,9 +31,11 @@ def test_quantization_std():
 
 
 @pytest.mark.parametrize("seed", range(20))
-def test_no_window_on_pure_noise(seed):
+@pytest.mark.parametrize("dt_s,span_s", [(0.02, 1.5), (0.1, 3.0)])
+def test_no_window_on_pure_noise(seed, dt_s, span_s):
+    """Nor on a channel sampled slower than the merge gap (a 10 Hz camera)."""
     rng = np.random.default_rng(seed)
-    t = np.arange(0, 1.5, 0.02)
+    t = np.arange(0, span_s, dt_s)
     w, m = sg.significant_windows(t, rng.normal(0, 1.0, t.size), 1.0)
     assert w == [] and not m.any()
 
@@ -47,6 +49,24 @@ def test_window_found_where_the_bump_is():
     assert len(w) == 1
     assert 0.55 <= w[0].t_start_s <= 0.66 and 0.84 <= w[0].t_end_s <= 0.95
     assert w[0].rms > 3
+
+
+@pytest.mark.parametrize("dt_s", [0.065, 0.1, 0.15])
+def test_window_found_on_a_slowly_sampled_channel(dt_s):
+    """A channel sampled slower than the merge gap (65 ms telemetry, a 10 Hz camera): a
+    sustained offset of 5 floors is one window, not one window per sample, each too short to
+    count (heldback16's friction case with 65 ms telemetry and a 10 Hz camera: no window at
+    all where the camera's x stood 60 floors off)."""
+    rng = np.random.default_rng(2)
+    t = np.arange(0, 3.0, dt_s)
+    r = rng.normal(0, 1.0, t.size)
+    r[(t > 1.0) & (t < 2.0)] += 5.0
+    w, m = sg.significant_windows(t, r, 1.0)
+    assert len(w) == 1
+    # within the smoothing span (2 samples either side) of the offset's edges
+    assert abs(w[0].t_start_s - 1.0) <= 2 * dt_s + 1e-9
+    assert abs(w[0].t_end_s - 2.0) <= 2 * dt_s + 1e-9
+    assert w[0].rms > 3 and m.sum() >= 3
 
 
 def test_best_regime_finds_speed_threshold():
