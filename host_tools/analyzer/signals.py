@@ -81,6 +81,13 @@ class Window:
     rms: float
 
 
+def missing_sample_gap_s(t: np.ndarray) -> float:
+    """The longest interval between two neighbouring samples of the series sampled at ``t``
+    (sorted, at least two) that misses none: one and a half of its usual (median) interval,
+    jitter included, short of a missing sample."""
+    return 1.5 * float(np.median(np.diff(np.asarray(t, dtype=float))))
+
+
 def significant_windows(t: np.ndarray, resid: np.ndarray, floor: float, k: float = 3.0,
                         smooth_n: int = 5, min_len: int = 3, merge_gap_s: float = 0.06
                         ) -> tuple[list[Window], np.ndarray]:
@@ -105,7 +112,7 @@ def significant_windows(t: np.ndarray, resid: np.ndarray, floor: float, k: float
     idx = np.flatnonzero(mask)
     windows: list[Window] = []
     if idx.size:
-        gap_s = max(merge_gap_s, 1.5 * float(np.median(np.diff(t))))
+        gap_s = max(merge_gap_s, missing_sample_gap_s(t))
         starts = [idx[0]]
         ends = []
         for a, b in zip(idx[:-1], idx[1:]):

@@ -243,8 +243,8 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     other draws: the variances add).  The replay turns the
     draws into the output errors they cause, large
     where the output is sensitive to the input (a slipping wheel, a step) and small elsewhere.
-    Returns it as channel -> (t, std over the draws), or None when no tick is unseen (no
-    draw); the pipeline puts it in the run's ``replay_unc``, which :func:`channels` attaches
+    Returns it as channel -> (t, std over the draws, the draws matched by sample time:
+    :func:`_spread_over_draws`), or None when no tick is unseen (no draw); the pipeline puts it in the run's ``replay_unc``, which :func:`channels` attaches
     to the channels; decisions compare residuals with the noise floor and this uncertainty in
     quadrature (:meth:`Channel.deflated`).  Draws are seeded by the run's content, so an
     analysis is repeatable.  ``prep`` is left as it is."""
@@ -258,8 +258,7 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     # the phase term's draws from their own stream: the other draws stay as they are
     rng_ph = np.random.default_rng([seed, unseen.size, 2])
     base = cast("tuple[np.ndarray, np.ndarray]", tuple(np.asarray(u, float) for u in prep.duty))
-    acc: dict[str, list[np.ndarray]] = {}
-    t_of: dict[str, np.ndarray] = {}
+    acc: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
     for _ in range(n):
         draw = []
         # one draw per block, shared by both wheels (the frames report the same tick of each)
@@ -273,7 +272,27 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
             draw.append(np.clip(v, -1.0, 1.0))
         drawn = dataclasses.replace(prep, duty=cast("tuple[np.ndarray, np.ndarray]", tuple(draw)))
         for name, ch in channels(drawn, replay.simulate_windows(drawn, {}), "duty").items():
-            acc.setdefault(name, []).append(ch.resid)
-            t_of[name] = ch.t
-    return {name: (t_of[name], np.std(np.array(v), axis=0)) for name, v in acc.items()
-            if len({a.size for a in v}) == 1 and t_of[name].size}
+            acc.setdefault(name, []).append((ch.t, ch.resid))
+    return {name: sd for name, v in acc.items()
+            if (sd := _spread_over_draws(v)) is not None}
+
+
+def _spread_over_draws(draws: list[tuple[np.ndarray, np.ndarray]]
+                       ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(t, std over the draws) of one channel's residuals, drawn as (t, resid) per draw: at
+    every sample time that at least half of the draws have, over those that have it.  A
+    channel's samples may depend on the drawn commands (the current is compared only at
+    samples away from a change of the duty, and a drawn unseen tick changes it), so the draws
+    are matched by time, not by index; None without such a time."""
+    if len({t.size for t, _ in draws}) == 1 and all(np.array_equal(t, draws[0][0])
+                                                    for t, _ in draws):
+        t = draws[0][0]
+        return (t, np.std(np.array([r for _, r in draws]), axis=0)) if t.size else None
+    times = np.unique(np.concatenate([t for t, _ in draws]))
+    vals = np.full((len(draws), times.size), np.nan)
+    for k, (t, r) in enumerate(draws):
+        vals[k, np.searchsorted(times, t)] = r
+    enough = np.sum(np.isfinite(vals), axis=0) >= max(2, (len(draws) + 1) // 2)
+    if not enough.any():
+        return None
+    return times[enough], np.nanstd(vals[:, enough], axis=0)

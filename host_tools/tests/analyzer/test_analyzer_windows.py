@@ -225,3 +225,65 @@ def test_no_window_edge_is_left_in_a_slip():
     assert edge_in_slip(prep) == []
     assert [round(float(t[a]), 3) for a, _ in prep.windows] == [0.0, 10.0]
     assert prep.windows[-1][1] == t.size
+
+
+def test_the_camera_anchor_leaves_out_camera_samples_across_lost_frames():
+    """Between two telemetry frames with lost frames between them the recorded odometry is only
+    known at the two ends, and interpolated on a straight line in time while the robot
+    accelerates; the camera-minus-odometry offset fitted through camera samples there moves the
+    anchor.  A robot accelerating at 1.5 m/s^2 along x, its odometry exact at 65 ms frames but
+    for 9 frames lost just before the anchor's time, its camera at 10 Hz: the anchor is the true
+    pose (within the camera's noise fitted down), not the chord's centimetres off."""
+    from types import SimpleNamespace
+    rng = np.random.default_rng(3)
+    accel = 1.5
+    t = np.round(np.arange(0.0, 4.0, 0.065), 9)
+    at = float(t[31])                                       # the first frame after the gap
+    t = np.delete(t, np.arange(22, 31))                     # 9 frames lost before it
+    tg = np.round(np.arange(0.02, 4.0, 0.1), 9)
+
+    def pose(tt):
+        return 0.5 * accel * tt ** 2
+    tel = {"t_s": t, "x_odo_m": pose(t), "y_odo_m": np.zeros(t.size),
+           "phi_odo_rad": np.zeros(t.size)}
+    gt = {"t_s": tg, "x_m": pose(tg) + rng.normal(0, 1e-3, tg.size),
+          "y_m": rng.normal(0, 1e-3, tg.size), "phi_rad": rng.normal(0, 0.01, tg.size)}
+    prep = SimpleNamespace(run=SimpleNamespace(telemetry=tel, groundtruth=gt),
+                           slip_episodes=[], odo_schedule="frames")
+    an = AN._gt_anchor_of(prep, at)
+    assert an is not None
+    assert abs(an["x_m"] - pose(at)) < 1e-3 and abs(an["y_m"]) < 1e-3
+    # the same recording without lost frames is anchored as before: every camera sample used
+    full = np.round(np.arange(0.0, 4.0, 0.065), 9)
+    prep_full = SimpleNamespace(run=SimpleNamespace(
+        telemetry={"t_s": full, "x_odo_m": pose(full), "y_odo_m": np.zeros(full.size),
+                   "phi_odo_rad": np.zeros(full.size)}, groundtruth=gt),
+        slip_episodes=[], odo_schedule="frames")
+    an_full = AN._gt_anchor_of(prep_full, at)
+    assert an_full is not None and abs(an_full["x_m"] - pose(at)) < 1e-3
+
+
+def test_a_window_after_a_gap_starts_at_the_wheel_speed_of_its_first_frame():
+    """A window that starts right after a gap of lost frames has counts on one side of its
+    first frame only: their mean rate is the speed half their span later, off by the
+    acceleration times that (heldback16's truth 60 s null re-recorded at 65 ms with a cascade
+    loop: 27 wheel-speed floors at the first frame after a 0.65 s gap, 7 floors over the
+    window's first 0.13 s).  Wheels accelerating at 30 rad/s^2, frames every 65 ms, 9 lost
+    before the window: the start speed is that at the frame, to within the counts'
+    quantization, not 30 x 65 ms = 2 rad/s above it."""
+    from types import SimpleNamespace
+    from host_tools import params
+    accel, ppr = 30.0, params.ENCODER_PPR
+    k = 2 * np.pi / ppr
+    t = np.round(np.arange(0.0, 4.0, 0.065), 9)
+    t = np.delete(t, np.arange(22, 31))                      # 9 frames lost before frame 22
+    th_r, th_l = 0.5 * accel * t ** 2, 0.25 * accel * t ** 2
+    zero = np.zeros(t.size)
+    tel = {"t_s": t, "enc_r": np.floor(th_r / k).astype(int), "enc_l": np.floor(th_l / k).astype(int),
+           "x_odo_m": zero, "y_odo_m": zero, "phi_odo_rad": zero}
+    prep = SimpleNamespace(run=SimpleNamespace(telemetry=tel, groundtruth=None),
+                           windows=[(0, 22), (22, t.size)], ppr=ppr, robot=dict(params.ROBOT),
+                           slip_episodes=[], anchors={}, t_grid=t, start_pose=(0.0, 0.0, 0.0))
+    t0, _, vel = AN.window_start(prep, 1)
+    assert t0 == t[22] and vel is not None
+    assert abs(vel[3] - accel * t0) < 0.25 and abs(vel[4] - 0.5 * accel * t0) < 0.25, vel
