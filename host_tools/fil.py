@@ -163,6 +163,7 @@ class Sim:
         self.lockstep = "--lockstep" in self.cmd
         self.bytes_written = 0  # host bytes written to the pty through wrap_port's port
         self.stepping = False
+        self.held_at = -1.0  # board time of the last hold
         self.last_frame_t = -1.0  # at the last hold: the time stamp of the robot's last whole telemetry frame
         self._at: "queue.Queue[str]" = queue.Queue()
         self.proc = subprocess.Popen(self.cmd, stdout=subprocess.PIPE, stderr=self._log, text=True,
@@ -215,7 +216,8 @@ class Sim:
             try:
                 at = self._at.get(timeout=0.1).split()
                 self.last_frame_t = float(at[3])
-                return float(at[1])
+                self.held_at = float(at[1])
+                return self.held_at
             except queue.Empty:
                 if self.proc.poll() is not None or time.monotonic() > t_end:
                     raise FilError(f"the simulator did not hold ({line!r})\n{self.log()}") from None
