@@ -18,6 +18,7 @@ import fcntl
 import json
 import logging
 import os
+import queue
 import shutil
 import subprocess
 import sys
@@ -145,7 +146,11 @@ def nominal_plant_args() -> list[str]:
 
 
 class Sim:
-    """One simulator process. ``args``: extra command-line options of .build/fil/fil."""
+    """One simulator process. ``args``: extra command-line options of .build/fil/fil.
+
+    With ``--lockstep`` among them the host holds the board clock (:meth:`hold`,
+    :meth:`run_to`, :meth:`release`; sim/fil/lockstep.cpp): the port of :meth:`wrap_port`
+    counts the host's bytes, so that each grant waits for all of them."""
 
     def __init__(self, elf: str | Path, run_dir: str | Path, args: list[str] | None = None,
                  sim: str | Path = SIM, start_timeout_s: float = 10.0):
@@ -155,7 +160,14 @@ class Sim:
         self._log = open(self.log_path, "w")
         self.cmd = ([str(sim), str(elf), "--run-dir", str(self.run_dir)] + nominal_plant_args()
                     + [str(a) for a in (args or [])])
-        self.proc = subprocess.Popen(self.cmd, stdout=subprocess.PIPE, stderr=self._log, text=True)
+        self.lockstep = "--lockstep" in self.cmd
+        self.bytes_written = 0  # host bytes written to the pty through wrap_port's port
+        self.stepping = False
+        self.held_at = -1.0  # board time of the last hold
+        self.last_frame_t = -1.0  # at the last hold: the time stamp of the robot's last whole telemetry frame
+        self._at: "queue.Queue[str]" = queue.Queue()
+        self.proc = subprocess.Popen(self.cmd, stdout=subprocess.PIPE, stderr=self._log, text=True,
+                                     stdin=subprocess.PIPE if self.lockstep else None)
         self.pty = self._read_pty(start_timeout_s)
 
     def _read_pty(self, timeout: float) -> str:
@@ -173,9 +185,62 @@ class Sim:
         if not found:
             self.kill()
             raise FilError(f"simulator did not report its pty; {self.cmd}\n{self.log()}")
-        # keep draining stdout (simavr prints to it) so the process never blocks on a full pipe
-        threading.Thread(target=lambda: [None for _ in self.proc.stdout], daemon=True).start()
+
+        # keep draining stdout (simavr prints to it) so the process never blocks on a full pipe;
+        # the lockstep holds ("AT <board time> <host bytes>") go to the queue
+        def drain():
+            for line in self.proc.stdout:
+                if line.startswith("AT "):
+                    self._at.put(line)
+        threading.Thread(target=drain, daemon=True).start()
         return found[0]
+
+    # ---- lockstep (--lockstep)
+    def wrap_port(self, port: Any) -> Any:
+        """The host's port to the pty, counting the bytes written (every grant names them)."""
+        return _CountingPort(port, self)
+
+    def _control(self, line: str, wait: bool = True, timeout_s: float = 30.0) -> float | None:
+        if not self.lockstep:
+            raise FilError("the simulator runs without --lockstep: no holds")
+        try:
+            assert self.proc.stdin is not None
+            self.proc.stdin.write(line + "\n")
+            self.proc.stdin.flush()
+        except (BrokenPipeError, ValueError, OSError):
+            raise FilError(f"the simulator has ended\n{self.log()}") from None
+        if not wait:
+            return None
+        t_end = time.monotonic() + timeout_s
+        while True:
+            try:
+                at = self._at.get(timeout=0.1).split()
+                self.last_frame_t = float(at[3])
+                self.held_at = float(at[1])
+                return self.held_at
+            except queue.Empty:
+                if self.proc.poll() is not None or time.monotonic() > t_end:
+                    raise FilError(f"the simulator did not hold ({line!r})\n{self.log()}") from None
+
+    def hold(self, grid_s: float) -> float:
+        """Stop the board clock at its next multiple of ``grid_s``; returns that board time."""
+        t = self._control(f"hold {grid_s:.7f}")
+        self.stepping = True
+        assert t is not None
+        return t
+
+    def run_to(self, t_s: float) -> float:
+        """While held: deliver every byte written so far at this board time, run to board time
+        ``t_s`` and hold there; returns the board time of the hold."""
+        got = self._control(f"run {t_s:.7f} {self.bytes_written}")
+        assert got is not None
+        return got
+
+    def release(self) -> None:
+        """While held: run on, paced by --realtime."""
+        if self.stepping and self.proc.poll() is None:
+            self._control("free", wait=False)
+        self.stepping = False
 
     def log(self) -> str:
         self._log.flush()
@@ -200,6 +265,21 @@ class Sim:
     def summary(self) -> dict:
         with open(self.run_dir / "fil.json") as fh:
             return json.load(fh)
+
+
+class _CountingPort:
+    """A pyserial-like port that counts the bytes written into ``sim.bytes_written``."""
+
+    def __init__(self, port: Any, sim: Sim):
+        self._port, self._sim = port, sim
+
+    def write(self, data: bytes) -> int | None:
+        n = self._port.write(data)
+        self._sim.bytes_written += len(data)  # pyserial writes all of it or raises
+        return n
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._port, name)
 
 
 class FilLogger(L.Logger):

@@ -17,7 +17,9 @@ keeps the link alive (heartbeats).  ``drive(v, w)`` sends a Drive command and re
 ``repeat_s`` (the firmware's command timeout, protocol.json ``drive.cmd_timeout``, would
 otherwise ramp the robot to rest); ``stop()`` sends Stop (brake, drive mode ends);
 ``set_model(model)`` sends an analyzer model.json to the firmware (SetMu + SetModel; only while
-stopped); ``drive_path(rows)`` drives a scripted path of (t, v, w) rows on the board clock.
+stopped); ``drive_path(rows)`` drives a scripted path of (t, v, w) rows on the board clock (in
+the firmware in the loop the host holds the simulator's board clock for it, so the drive is the
+same whatever the host's speed: docs/fil.md, "Lockstep with the host").
 ``close()`` (or leaving the ``with`` block) stops the robot, ends the recording and returns the
 logger's exit code.
 
@@ -40,10 +42,14 @@ from host_tools import logger as L
 from host_tools import model as M
 from host_tools import protocol as P
 from host_tools._stdio import STATUS
+from host_tools.logger.reference import _U32_S
 
 log = logging.getLogger(__name__)
 
 REPEAT_S = 0.05  # Drive commands per second: 20, as a ROS teleop node publishes cmd_vel
+LOCKSTEP_PROBE_S = 0.02  # lockstep: board time between looks for the drive's first frame
+QUIET_GRIDS = 3  # lockstep: grid periods without host bytes before a drive starts
+STOP_SETTLE_S = 0.5  # lockstep: board time after a drive's Stop (the robot at rest) before the hold
 
 
 class RobotError(Exception):
@@ -96,7 +102,10 @@ class DriveSession(L.Logger):
                 return
             kind, name, values, done = item
             try:
-                if kind == "send":
+                if kind == "heartbeat":  # here, in the one thread that writes to the port
+                    self._heartbeat = bool(values["on"])
+                    done["ok"] = True
+                elif kind == "send":
                     seq = self.send(name, values)
                     if name == "Drive":
                         self.drive_sent += 1
@@ -170,14 +179,22 @@ class Robot:
             args = list(sim_args or [])
             if "--t-end" not in args:
                 args += ["--t-end", "3600"]
+            if "--lockstep" not in args:  # drive_path holds the board clock (free running otherwise)
+                args += ["--lockstep"]
             self._sim = F.Sim(elf, self.out, args)
             port = self._sim.pty
             fil_meta = {"command": self._sim.cmd[1:], "elf": str(elf)}
         baud = baud or self.d.baud
 
+        sim = self._sim
+
         def open_port():
             import serial
-            return serial.serial_for_url(port, baudrate=baud, timeout=0.05, write_timeout=0.5)
+            if sim is None:
+                return serial.serial_for_url(port, baudrate=baud, timeout=0.05, write_timeout=0.5)
+            # a held simulator sends nothing: a short read timeout lets the session thread
+            # serve the drive's commands at once rather than after a blocked read
+            return sim.wrap_port(serial.serial_for_url(port, baudrate=baud, timeout=0.002, write_timeout=0.5))
 
         self.session = DriveSession(str(self.out), open_port, str(port), baud, clamp=clamp, mu=mu,
                                     controller=controller, model=fw_model, drive_limits=limits,
@@ -252,6 +269,7 @@ class Robot:
         drive mode."""
         values = {"linear": float(v), "angular": float(w)}
         self.d.raw_values("Drive", values)  # ProtocolError (ValueError) when out of range
+        self._free_clock()
         self._target = (float(v), float(w))
         self._queue("send", "Drive", values, wait=False)
         self._last_send = time.monotonic()
@@ -263,6 +281,8 @@ class Robot:
     def sleep(self, seconds: float, board: bool = True) -> None:
         """Wait ``seconds`` of board time (``board=False``: wall-clock time), repeating the
         current Drive command."""
+        if board:
+            self._free_clock()
         t0 = self.board_time_s if board else None
         w_end = time.monotonic() + seconds
         while True:
@@ -277,10 +297,17 @@ class Robot:
             time.sleep(0.005)
 
     def drive_path(self, rows: Iterable[Sequence[float]]) -> None:
-        """A scripted path: rows (t, v, w), t in seconds from now on the board clock, sorted;
-        each (v, w) is commanded from its t until the next row's (the last one is held for
-        one repeat period, then the robot is stopped: give a last row with v = w = 0 and a
-        later t to let it ramp down before the stop)."""
+        """A scripted path: rows (t, v, w), t in seconds of board time, sorted; each (v, w) is
+        commanded from its t until the next row's (the last one is held for one repeat period,
+        then the robot is stopped: give a last row with v = w = 0 and a later t to let it ramp
+        down before the stop).
+
+        On a port, t counts from now and each command is sent when telemetry shows the board
+        clock there (it lands where the link and the host's timing put it). In the firmware in
+        the loop the board clock is held by the host (lockstep, :meth:`_drive_path_lockstep`):
+        the first row starts the drive at the firmware's next inner tick, t0, and every later
+        row is the target of the first outer tick at or after t0 + (t - the first row's t), sent
+        half an outer period before that tick, so the run is the same whatever the host's speed."""
         rows = [tuple(float(x) for x in r) for r in rows]
         for i, r in enumerate(rows):
             if len(r) != 3 or not all(math.isfinite(x) for x in r):
@@ -289,6 +316,9 @@ class Robot:
                 raise ValueError(f"path row {i + 1}: t = {r[0]} is before the previous row's {rows[i - 1][0]}")
             self.d.raw_values("Drive", {"linear": r[1], "angular": r[2]})
         self._wait_telemetry()
+        if self._sim is not None and self._sim.lockstep and rows:
+            self._drive_path_lockstep(rows)
+            return
         t0 = self.board_time_s
         for i, (t, v, w) in enumerate(rows):
             while self.board_time_s - t0 < t:
@@ -298,6 +328,118 @@ class Robot:
             self.drive(v, w)
         self.sleep(self.repeat_s)
         self.stop()
+
+    def _drive_path_lockstep(self, rows: list[tuple[float, ...]]) -> None:
+        """drive_path in the firmware in the loop: the simulator's board clock stops at holds the
+        host grants (sim/fil/lockstep.cpp), and every host byte of the drive is written while it
+        stands, so it reaches the robot at the board time of the hold, however late the host is.
+        The session's wall-clock heartbeats pause meanwhile (a Drive every outer period keeps
+        the link alive, on the board clock). The drive starts on a board-time grid of the least
+        common multiple of the firmware's task periods (100 ms), after QUIET_GRIDS of them
+        without host bytes, so that the firmware's state and its tasks' phases at the start are
+        the same in every run."""
+        from host_tools import fil as F
+        sim = self._sim
+        assert sim is not None
+        periods = {t["name"]: int(t["period_us"]) for t in self.d.tasks()}
+        outer = periods["outer"] / 1e6
+        grid = math.lcm(*periods.values()) / 1e6
+        self._target = None  # no wall-clock repeats (_keep_alive) in between
+        self._queue("heartbeat", "", {"on": False})  # done by the session thread: no heartbeat after it
+        try:
+            if sim.stepping:  # held since the previous drive_path
+                now = sim.run_to(math.ceil(sim.held_at / grid - 1e-9) * grid)
+            else:
+                now = sim.hold(grid)
+            # every byte the host wrote before (configuration, heartbeats) delivered now, then a
+            # quiet interval on the grid: the firmware idles into the same state in every run
+            now = sim.run_to(now + QUIET_GRIDS * grid)
+            t_first = rows[0][0]
+            if t_first > 0:
+                now = sim.run_to(now + t_first)
+            self._send_written("Drive", rows[0][1:])
+            t_sent = now
+            t0 = None
+            while t0 is None:  # the drive's first tick, from the first frame that reports it
+                now = sim.run_to(now + LOCKSTEP_PROBE_S)
+                t0 = self._drive_t0(t_sent)
+                if t0 is None and now - t_sent > 1.0:
+                    raise RobotError("the drive did not start within 1 s of board time: "
+                                     f"{self.session.end_reason or 'no running frame'}")
+            # each row's tick index on the drive's grid (row 0: tick 0)
+            ticks = [0] + [max(1, math.ceil((t - t_first) / outer - 1e-9)) for t, _, _ in rows[1:]]
+            n_hold = max(1, round(self.repeat_s / outer))
+            last: tuple[float, ...] | None = tuple(rows[0][1:])
+            last_t = t_sent
+            k = 0
+            for j in range(1, ticks[-1] + n_hold + 1):
+                while k + 1 < len(rows) and ticks[k + 1] <= j:
+                    k += 1
+                mid = t0 + (j - 0.5) * outer  # half an outer period before tick j
+                if mid > now:
+                    now = sim.run_to(mid)
+                target = tuple(rows[k][1:])
+                if target != last or now - last_t >= self.repeat_s - 1e-9:
+                    self._send_written("Drive", target)
+                    last, last_t = target, now
+            stop_at = t0 + (ticks[-1] + n_hold + 0.5) * outer
+            now = sim.run_to(max(stop_at, now))
+            self._send_written("Stop", None)
+            # the robot comes to rest; the clock stays held there until the caller goes on
+            # (_free_clock), so that a recording closed now ends at the same board time in
+            # every run
+            sim.run_to(now + STOP_SETTLE_S)
+        except F.FilError as exc:
+            self._free_clock()
+            raise RobotError(f"firmware in the loop: {exc}") from None
+        except BaseException:
+            self._free_clock()
+            raise
+
+    def _free_clock(self) -> None:
+        """Let a held simulator run on (after drive_path), its heartbeats on the wall clock."""
+        if self._sim is None or not self._sim.stepping:
+            return
+        if self._thread.is_alive():
+            self._queue("heartbeat", "", {"on": True})
+        self._sim.release()
+
+    def _send_written(self, name: str, vw: Sequence[float] | None) -> None:
+        """Send a command and return once it is written to the port (before the next grant)."""
+        if name == "Drive":
+            assert vw is not None
+            self._queue("send", "Drive", {"linear": float(vw[0]), "angular": float(vw[1])})
+        else:
+            self._queue("send", name, None)
+
+    def _drive_t0(self, t_sent: float, timeout_s: float = 5.0) -> float | None:
+        """While the simulator holds: the drive's first tick (board time, from the telemetry's
+        ref_t0) once the logger has decoded the last telemetry frame the robot sent before the
+        hold, if that frame was made after the Drive was sent and reports drive mode running;
+        else None."""
+        r = self._decoded_at_hold(timeout_s)
+        running = 1 << self.d.flags["status"]["running"]
+        drive = 1 << self.d.flags["status"]["drive_mode"]
+        t = float(r["t_s"])
+        st = int(r["status"])
+        if t < t_sent or (st & running) == 0 or (st & drive) == 0:
+            return None
+        return round(t - (t - float(r["ref_t0_s"])) % _U32_S, 6)
+
+    def _decoded_at_hold(self, timeout_s: float = 5.0) -> dict:
+        """While the simulator holds: once the logger has decoded the last telemetry frame the
+        robot sent before the hold, that row."""
+        assert self._sim is not None
+        last = self._sim.last_frame_t
+        t_end = time.monotonic() + timeout_s
+        while True:
+            self._alive()
+            r = self.session.last_row
+            if r is not None and float(r["t_s"]) >= last - 5e-7:
+                return r
+            if time.monotonic() > t_end:
+                raise RobotError("the logger did not decode the robot's frames while the simulator held")
+            time.sleep(0.002)
 
     def _wait_telemetry(self, timeout_s: float = 5.0) -> None:
         t_end = time.monotonic() + timeout_s
@@ -309,11 +451,13 @@ class Robot:
 
     def stop(self) -> None:
         """Brake; drive mode ends (the next drive() starts it again, from the origin)."""
+        self._free_clock()
         self._target = None
         self._queue("send", "Stop", None)
 
     def wait_stopped(self, timeout_s: float = 5.0) -> None:
         """Wait until telemetry reports the robot not running."""
+        self._free_clock()
         t_end = time.monotonic() + timeout_s
         while self.running:
             self._alive()
@@ -326,6 +470,7 @@ class Robot:
         acknowledged; then the robot's Params are asked for (meta.json records them). Only while
         stopped (the firmware answers busy while running)."""
         mu, values = _model_commands(model)
+        self._free_clock()
         self._queue("command", "SetMu", {"mu_s": mu[0], "mu_k": mu[1]})
         self._queue("command", "SetModel", values)
         self.session.mu, self.session.model = mu, values
@@ -336,7 +481,13 @@ class Robot:
         returns the logger's exit code."""
         if self._closed:
             return self.code or 0
-        if self._thread.is_alive() and self.session.ready.is_set():
+        held = self._sim is not None and self._sim.stepping  # after drive_path: stopped, at rest
+        if held:
+            try:  # the recording ends with the last frame before the hold
+                self._decoded_at_hold()
+            except RobotError:
+                pass
+        if self._thread.is_alive() and self.session.ready.is_set() and not held:
             try:
                 self.stop()
                 self.wait_stopped(2.0)
@@ -348,6 +499,10 @@ class Robot:
         self._thread.join(30.0)
         if self._sim is not None:
             from host_tools import fil as F
+            try:
+                self._sim.release()  # the recording has ended: the simulator sees the hang-up
+            except F.FilError:
+                pass
             try:
                 self._sim.wait(30.0)
             except F.FilError:

@@ -1,8 +1,9 @@
 """Driving the robot with velocity commands (protocol Drive, SetDriveLimits, SetModel), the host
 API (host_tools.robot) and the model round trip, in the firmware in the loop.
 
-The simulator runs at twice real time (--realtime 2) where a test drives: scripts are timed
-by the board clock, the host's heartbeats keep up.  The model round trip: test_drive_roundtrip.py.
+The simulator runs at twice real time (--realtime 2) where a test drives: HostScript scripts
+are timed by the board clock, the host's heartbeats keep up; Robot.drive_path holds the board
+clock (lockstep).  The model round trip: test_drive_roundtrip.py.
 """
 from __future__ import annotations
 
@@ -173,3 +174,71 @@ def test_robot_set_model_between_drives_is_reported_back(elf, sim, tmp_path):
     meta = json.loads((tmp_path / "sm" / "meta.json").read_text())
     assert meta["robot"]["r"] == pytest.approx(0.0371) and meta["robot"]["mu_s"] == pytest.approx(0.3)
     assert [c["command"] for c in meta["commands"] if c["result"] == "ok"][-2:] == ["SetMu", "SetModel"]
+
+
+def _lockstep_drive(elf, out, path, stall_at=None, stall_s=0.0):
+    """drive_path in the firmware in the loop; ``stall_at``: before that command the host
+    stalls for ``stall_s`` wall seconds. Returns (meta.json, telemetry during the drive)."""
+    sends = []
+    real_send = Robot._send_written
+
+    def send(self, name, vw):
+        if len(sends) == stall_at:
+            import time
+            time.sleep(stall_s)
+        sends.append(name)
+        real_send(self, name, vw)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(Robot, "_send_written", send)
+        with Robot(fil=True, out=out, elf=elf, sim_args=FAST) as bot:
+            bot.drive_path(path)
+    assert bot.code == 0, bot.session.end_reason
+    meta = json.loads((out / "meta.json").read_text())
+    tel = csv(out / "telemetry.csv")
+    t0 = meta["reference"]["t0_s"]
+    during = (tel["t_s"] >= t0) & (tel["t_s"] <= t0 + path[-1][0])
+    return meta, {k: v[during] for k, v in tel.items()}
+
+
+def test_drive_path_in_the_loop_is_on_the_board_clock_whatever_the_host(elf, sim, tmp_path):
+    """In the firmware in the loop drive_path holds the board clock (--lockstep): each row is
+    the target of the outer tick at t0 + t exactly, and a host that stalls for 0.4 s of wall
+    time before a command changes nothing (on a free-running simulator at --realtime 2 that
+    command would land 0.8 s of board time late, past the 0.5 s command timeout): no
+    failsafe, and the same drive, frame for frame."""
+    path = [(0.0, 0.0, 0.0), (0.1, 0.2, 0.0), (0.5, 0.2, 1.0), (0.9, 0.0, 0.0), (1.4, 0.0, 0.0)]
+    meta_a, a = _lockstep_drive(elf, tmp_path / "a", path)
+    meta_b, b = _lockstep_drive(elf, tmp_path / "b", path, stall_at=8, stall_s=0.4)
+    for meta in (meta_a, meta_b):
+        ref = meta["reference"]
+        assert ref["runs"] == 1 and ref["ambiguous"] == 0
+        got = [(round(c["t_s"] - ref["t0_s"], 6), c["v"], c["omega"]) for c in ref["commands"]]
+        assert got == [(0.0, 0.0, 0.0), (0.1, 0.2, 0.0), (0.5, 0.2, 1.0), (0.9, 0.0, 0.0)]
+        assert meta["fil"]["summary"]["link"]["down_frames"] > 0
+    assert set(a["failsafe"].astype(int)) == {0} and set(b["failsafe"].astype(int)) == {0}
+    t0a, t0b = meta_a["reference"]["t0_s"], meta_b["reference"]["t0_s"]
+    assert t0a == t0b  # the drive starts on the same board time (the firmware's start-up withheld)
+    assert a["t_s"].size > 60
+    for k in ("t_s", "enc_r", "enc_l", "x_odo_m", "y_odo_m", "phi_odo_rad", "tau_cmd_r", "tau_cmd_l",
+              "pwm_r", "pwm_l", "v_ref_m_s", "omega_ref_rad_s"):
+        assert np.array_equal(a[k], b[k]), k
+
+
+def test_drive_paths_one_after_another_in_the_loop(elf, sim, tmp_path):
+    """After a drive_path the simulator stays held (the recording, if closed now, ends at the
+    same board time in every run); a second drive_path goes on from the hold, and sleep() lets
+    the clock run free again, heartbeats on the wall clock keeping the link."""
+    path = [(0.0, 0.0, 0.0), (0.1, 0.2, 0.0), (0.4, 0.0, 0.0), (0.8, 0.0, 0.0)]
+    with Robot(fil=True, out=tmp_path / "two", elf=elf, sim_args=FAST) as bot:
+        bot.drive_path(path)
+        assert bot._sim.stepping
+        bot.drive_path(path)
+        bot.sleep(1.0)  # free running: 1 s of board time without a Drive, heartbeats only
+        assert not bot._sim.stepping
+    assert bot.code == 0, bot.session.end_reason
+    meta = json.loads((tmp_path / "two" / "meta.json").read_text())
+    assert meta["reference"]["runs"] == 2
+    tel = csv(tmp_path / "two" / "telemetry.csv")
+    assert set(tel["failsafe"].astype(int)) <= {0, D.enums["failsafe"]["stopped_by_host"]}
+    assert tel["t_s"][-1] - tel["t_s"][0] > 3.0

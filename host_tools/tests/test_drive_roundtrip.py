@@ -2,8 +2,9 @@
 commands through the Robot API with a 2 % larger wheel in the plant, recorded, analyzed (the
 closed-loop replay used), the fitted model sent back to the firmware, the same drive recorded
 again: the odometry end-point error against the ground truth must shrink at least 5x.  Figures
-are printed (pytest -s).  The simulator runs at twice real time (--realtime 2): the script is
-timed by the board clock, the host's heartbeats keep up.
+are printed (pytest -s).  drive_path holds the simulator's board clock (lockstep, docs/fil.md):
+every command reaches the firmware at its board time however loaded the host, so the drive is
+the same in every run.
 """
 from __future__ import annotations
 

@@ -696,3 +696,47 @@ def test_a_model_sent_to_the_simulator_is_the_plant_the_analyzer_replayed():
     assert not any(k.startswith("payload.") for k in keys)   # folded into robot.m_r once
     # every key the nominal sets is overridden by the model's
     assert set(fil.nominal_plant_keys()) <= set(keys)
+
+
+def test_lockstep_holds_the_board_clock_and_delivers_host_bytes_at_the_hold(elf, sim, tmp_path):
+    """--lockstep: "hold G" stops the board clock at its next multiple of G, "run T N" runs to
+    board time T once the host's N bytes are read, and those bytes reach USART2 from the hold's
+    board time on, however long the host took to write them (here 0.3 s of wall time, while a
+    free-running simulator would have run on); "free" runs on. A bad control line ends the run
+    with a reason."""
+    import serial
+    sm = fil.Sim(elf, tmp_path / "ls", ["--lockstep", "--realtime", "0", "--t-end", "5"])
+    port = sm.wrap_port(serial.serial_for_url(sm.pty, baudrate=D.baud, timeout=0.02))
+    try:
+        port.write(D.encode("Heartbeat", 1))  # the simulator waits for the host's first byte
+        t_hold = sm.hold(0.1)
+        assert 0.1 <= t_hold < 0.1 + 1e-3 and abs(t_hold / 0.1 - round(t_hold / 0.1)) < 1e-2
+        t_at = sm.run_to(0.3)
+        assert t_at == pytest.approx(0.3, abs=1e-4)
+        time.sleep(0.3)
+        frame = D.encode("Heartbeat", 2)
+        port.write(frame)
+        assert sm.run_to(0.5) == pytest.approx(0.5, abs=1e-4)
+        sm.release()
+        time.sleep(0.1)
+    finally:
+        port.close()
+        sm.wait(30)
+    s = sm.summary()
+    assert s["lockstep"] is True and s["lockstep_holds"] == 3
+    assert s["link"]["down_frames"] == 2
+    # the second frame: written during the hold at 0.3 s, received whole its bytes later
+    byte_s = 10 / s["link"]["baud"]  # 10 bits per byte at the USART's actual rate
+    assert s["link"]["last_down_frame_t_s"] == pytest.approx(t_at + len(frame) * byte_s, abs=2e-6)
+
+    bad = fil.Sim(elf, tmp_path / "bad", ["--lockstep", "--realtime", "0", "--t-end", "5"])
+    p2 = serial.serial_for_url(bad.pty, baudrate=D.baud, timeout=0.02)
+    try:
+        p2.write(D.encode("Heartbeat", 1))
+        bad.hold(0.1)
+        with pytest.raises(fil.FilError):
+            bad._control("run soon")  # not "run T N": the simulator ends, no further hold
+    finally:
+        p2.close()
+        bad.wait(30)
+    assert "bad control line" in bad.summary()["stop_reason"]

@@ -26,11 +26,13 @@
  *   link.cpp      XBee link (pty, USART2, corruption, telemetry tap)
  *   sense.cpp     current sense (ADC inputs A0/A1)
  *   recorder.cpp  groundtruth.csv, plant.csv, encoder_samples.csv, fil.json
+ *   lockstep.cpp  --lockstep: the host's control lines on stdin hold the board clock
  *   main.cpp      the run loop
  */
 #ifndef SIM_FIL_FIL_H
 #define SIM_FIL_FIL_H
 
+#include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <time.h>
@@ -81,6 +83,7 @@ struct Options {
     unsigned seed = 1;
     int plant_log_every = 1;
     bool pwm_ideal = false;        // duty = OCR / (TOP + 1) instead of the hardware's (OCR + 1) / (TOP + 1)
+    bool lockstep = false;         // stdin carries the host's control lines (lockstep.cpp)
 };
 
 void usage();
@@ -189,6 +192,7 @@ struct Fil {
     unsigned task_overruns_max[3] = {0, 0, 0}, task_overruns_run[3] = {0, 0, 0};
     unsigned long running_frames = 0;
     double run_start_t = -1;  // board time of the first frame reporting an experiment running
+    double last_telem_t = -1;  // board time stamp of the last whole telemetry frame the robot sent
     unsigned illegal_max[2] = {0, 0};
     uint8_t last_failsafe = 0;
     std::vector<FsEvent> failsafe_events;
@@ -212,6 +216,19 @@ struct Fil {
     double sense_max_a[2] = {0, 0};
     void setup_sense();
     void sense_sample(int channel, avr_cycle_count_t when);
+
+    // lockstep.cpp (--lockstep): while stepping, the board clock runs only up to the host's grant
+    // and host bytes are read only at the holds, so they reach USART2 at board times the host chose
+    bool stepping = false;
+    double grant_t = 0;                 // board time of the next hold
+    unsigned long host_bytes_read = 0;  // bytes read from the pty so far (every one, silenced too)
+    unsigned long holds = 0;
+    std::string ctl_buf;                // stdin bytes not yet a whole line
+    void setup_lockstep();
+    double wait_host_connected();      // before the first cycle: the host has written
+    void poll_control();                // free running: a "hold" line enters stepping
+    bool at_grant() const { return stepping && board_now() >= grant_t; }
+    void hold(volatile sig_atomic_t* signal_flag);  // at the grant: report, wait for the next line
 
     // recorder.cpp
     FILE* gt_f = nullptr;

@@ -94,6 +94,7 @@ bool Fil::poll_host() {
         ssize_t n = read(pty_fd, buf, sizeof buf);
         if (n > 0) {
             host_seen = true;
+            host_bytes_read += static_cast<unsigned long>(n);
             bool silent = board_origin_set &&
                           ((opt.host_silent_at >= 0 && board_now() >= opt.host_silent_at) ||
                            (opt.silent_after_run >= 0 && run_start_t >= 0 && board_now() >= run_start_t + opt.silent_after_run));
@@ -131,6 +132,7 @@ void Fil::on_uart_out(uint32_t value) {
                 uint32_t cyc[3] = {t.get_inner_max_cycles(), t.get_outer_max_cycles(), t.get_telemetry_max_cycles()};
                 unsigned ovr[3] = {t.inner_overruns, t.outer_overruns, t.telemetry_overruns};
                 bool running = t.status & proto::kStatusRunning;
+                last_telem_t = tb;
                 if (running) ++running_frames;
                 if (running && run_start_t < 0) run_start_t = tb;
                 for (int i = 0; i < 3; ++i) {

@@ -30,6 +30,7 @@ int main(int argc, char** argv) {
     f.setup_encoders();
     f.setup_sense();
     f.setup_link();
+    f.setup_lockstep();
     printf("PTY %s\n", f.pty_name.c_str());
     fflush(stdout);
 
@@ -37,6 +38,7 @@ int main(int argc, char** argv) {
     signal(SIGTERM, on_signal);
     signal(SIGPIPE, SIG_IGN);
     clock_gettime(CLOCK_MONOTONIC, &f.wall0);
+    double waited_before = f.wait_host_connected();
     f.next_plant_at = f.plant_cycles;
     f.arm_plant(f.plant_cycles);
     bool waited = !opt.wait_host;
@@ -48,6 +50,7 @@ int main(int argc, char** argv) {
             break;
         }
         f.after_step();
+        if (f.at_grant()) f.hold(&g_signal);
         if (!waited && f.board_origin_set && f.board_now() >= opt.boot_s) {
             waited = true;
             double w0 = f.wall_now();
@@ -61,7 +64,7 @@ int main(int argc, char** argv) {
                 }
                 usleep(5000);
             }
-            f.wall_waiting = f.wall_now() - w0;
+            f.wall_waiting = waited_before + f.wall_now() - w0;
             f.sim_t_at_pace0 = f.board_now();
             f.wall_at_pace0 = f.wall_now();
         }

@@ -44,6 +44,8 @@ void usage() {
         "                       an experiment running\n"
         "  --seed N             random seed (default 1)\n"
         "  --plant-log-every N  plant.csv row every N plant steps (default 1)\n"
+        "  --lockstep           stdin carries the host's control lines: 'hold G', 'run T N', 'free'\n"
+        "                       (the board clock held between the host's grants; docs/fil.md)\n"
         "  --pwm-model hardware|ideal  fast PWM duty (OCR+1)/(TOP+1) as the ATmega2560 makes it\n"
         "                       (default), or OCR/(TOP+1) as the firmware's torque->PWM map assumes\n");
 }
@@ -85,6 +87,7 @@ void parse(Options& opt, int argc, char** argv) {
         else if (a == "--no-wait-host") opt.wait_host = false;
         else if (a == "--host-wait") opt.host_wait_s = nonneg(val());
         else if (a == "--no-exit-on-hangup") opt.exit_on_hangup = false;
+        else if (a == "--lockstep") opt.lockstep = true;
         else if (a == "--set") {
             std::string kv = val();
             size_t eq = kv.find('=');

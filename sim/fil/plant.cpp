@@ -42,7 +42,7 @@ double Fil::channel_duty(int w) {
 
 // ------------------------------------------------------------------------ plant step
 void Fil::pace() {
-    if (opt.realtime <= 0) return;
+    if (opt.realtime <= 0 || stepping) return;  // stepping: the host is the clock
     double target = wall_at_pace0 + (board_now() - sim_t_at_pace0) / opt.realtime;
     double now = wall_now();
     if (target > now + 0.001) {
@@ -86,7 +86,13 @@ avr_cycle_count_t Fil::plant_cb(avr_cycle_count_t when) {
         if (plant_steps % static_cast<unsigned long>(opt.plant_log_every) == 0) write_plant_row(s1, t1);
     }
     ++plant_steps;
-    if (!poll_host() && opt.exit_on_hangup) { stop_now = true; stop_reason = "host closed the link"; }
+    // stepping (--lockstep): the host's bytes are read at the holds only; with --lockstep none
+    // in the first 50 ms of board time either (Options::boot_s, where the simulator waits for
+    // the host): the firmware's start-up is then the same in every run
+    if (!stepping && !(opt.lockstep && (!board_origin_set || board_now() < opt.boot_s))) {
+        if (!poll_host() && opt.exit_on_hangup) { stop_now = true; stop_reason = "host closed the link"; }
+        if (opt.lockstep) poll_control();
+    }
     bool hang_due = (opt.hang_at >= 0 && board_now() >= opt.hang_at) ||
                     (opt.hang_after_run >= 0 && run_start_t >= 0 && board_now() >= run_start_t + opt.hang_after_run);
     if (hang_due && !hang_done && board_origin_set) {

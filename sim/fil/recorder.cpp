@@ -104,6 +104,7 @@ void Fil::write_summary(double wall_s) {
     double run_wall = wall_s - wall_waiting;
     fprintf(f, "  \"realtime_limit\": %g,\n  \"sim_s_per_wall_s\": %.4f,\n", opt.realtime,
             run_wall > 0 ? sim_s / run_wall : 0.0);
+    fprintf(f, "  \"lockstep\": %s,\n  \"lockstep_holds\": %lu,\n", opt.lockstep ? "true" : "false", holds);
     fprintf(f, "  \"plant_dt_s\": %g,\n  \"plant_steps\": %lu,\n  \"plant_keys\": {", opt.plant_dt, plant_steps);
     for (size_t i = 0; i < opt.keys.size(); ++i) {
         fprintf(f, "%s", i ? ", " : "");
