@@ -20,6 +20,7 @@ from host_tools.analyzer.fit.problem import Problem
 from host_tools.analyzer.fit.solver import effective_n
 from host_tools.analyzer.fit.workers import run_tasks
 from host_tools.analyzer.locate.mismatch import STRONG_WINDOW, Detection, state_table
+from host_tools.analyzer.locate.revolution import revolution_remains
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import Channel, channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
@@ -269,8 +270,13 @@ def decide_verdict(det: Detection, final_effects: Mapping[str, Mapping[str, floa
         return "no_mismatch", None
     nrms1 = math.sqrt(excess(det.problem, final_effects))
     drift = invariance is not None and invariance.drift
-    if selected and nrms1 <= EXPLAINED_RMS and not drift:
+    remains = (revolution_remains(det, preps, duty, final_effects)
+               if selected and nrms1 <= EXPLAINED_RMS and not drift else [])
+    if selected and nrms1 <= EXPLAINED_RMS and not drift and not remains:
         return "explained", None
+    if remains:
+        notes.append("the once-per-revolution term of " + ", ".join(remains) + " remains after "
+                     "the selected effects: they do not explain it")
     if drift and invariance is not None:
         notes.append(invariance.note())
     chans_after = [channels(p, duty.simulate_windows(p, final_effects), "duty") for p in preps]

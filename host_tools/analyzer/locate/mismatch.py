@@ -14,6 +14,7 @@ from host_tools.analyzer.fit.problem import Problem
 from host_tools.analyzer.locate.bias import allowed_bias, bias_test
 from host_tools.analyzer.locate.episodes import unpinned_episodes
 from host_tools.analyzer.locate.floors import closed_loop_floors, noise_floors
+from host_tools.analyzer.locate.revolution import REV_CHANNELS, revolution_of
 from host_tools.analyzer.locate.wheels import imbalance_of
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import CHANNELS, FIT_CHANNELS, Channel
@@ -135,6 +136,9 @@ class Detection:
     mismatch_seen: bool
     bias: dict[str, dict[str, Any]] | None = None  # channel -> bias_test's figures
     imbalance: dict[str, Any] | None = None  # wheels.imbalance_test's figures
+    revolution: dict[str, dict[str, Any]] | None = None  # wheel speed -> revolution_test's
+    revolution_cache: dict[str, Any] | None = None  # its tolerance replays (revolution_of)
+    nominal: Sequence[Mapping[str, Channel]] | None = None  # the nominal duty replay's channels
 
 
 def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Channel]], loc: Located,
@@ -145,7 +149,8 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
     what it is on 12 s), significant windows with an overall normalized RMS above
     ``MISMATCH_RMS``, a consistent bias over many samples (``bias_test``) or the wheels'
     differences following a per-wheel torque imbalance (``wheels.imbalance_of``, in the bias
-    test's Bonferroni share).  The torque
+    test's Bonferroni share) or a wheel speed's residual following its own wheel's angle
+    (``revolution.revolution_of``, one test per wheel in the same share).  The torque
     replay does not decide; it adds a note on where the mismatch sits (between duty and
     torque, or not)."""
     floors = loc.floors
@@ -162,11 +167,29 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
     total_s = sum(float(p.run.telemetry["t_s"][-1] - p.run.telemetry["t_s"][0]) for p in preps)
     strong_k = strong_threshold(total_s)
     strong0 = [e for e in sig_fit if e["rms"] >= strong_k * e["noise_floor"]]
+    n_rev = sum(1 for c, _ in REV_CHANNELS if c in fit_chans)
     bias = bias_test(nominal, floors, fit_chans,
-                     allowed=[allowed_bias(p, floors) for p in preps], extra_tests=1)
+                     allowed=[allowed_bias(p, floors) for p in preps], extra_tests=1 + n_rev)
     biased = [c for c, v in bias.items() if v["significant"]]
-    imb = imbalance_of(problem, nominal, next((v["tests"] for v in bias.values()),
-                                              len(fit_chans) + 1))
+    n_tests = next((v["tests"] for v in bias.values()), len(fit_chans) + 1 + n_rev)
+    imb = imbalance_of(problem, nominal, n_tests)
+    rev_cache: dict[str, Any] = {}
+    rev = revolution_of(preps, nominal, {c: floors[c] for c, _ in REV_CHANNELS
+                                         if c in fit_chans}, dt_s, n_tests, cache=rev_cache)
+    for c, v in rev.items():
+        log(f"once per revolution, {c}: F {v['F']:.1f} against {v['F_threshold']:.2f} "
+            f"(F({v['df'][0]}, {v['df'][1]:.0f}), {v['blocks']} blocks, lag-1 {v['lag1']:.2f}), "
+            f"amplitude {v['amplitude_floors']:.2f} floors, RMS {v['rms_floors']:.2f}"
+            + ("" if v["tolerance_amplitude_floors"] is None else
+               f", tolerance amplitude {v['tolerance_amplitude_floors']:.2f}"))
+    revs = [c for c, v in rev.items() if v["significant"]]
+    if revs:
+        notes.append("a wheel speed's residual follows its own wheel's angle, once per "
+                     "revolution (out of the vocabulary: eccentric wheel, flat spot, bent rim): "
+                     + ", ".join(f"{c} amplitude {rev[c]['amplitude_floors']:.2f} noise floors "
+                                 f"(F {rev[c]['F']:.1f} against {rev[c]['F_threshold']:.2f} "
+                                 f"over {rev[c]['blocks']} blocks of {rev[c]['block_s']:g} s)"
+                                 for c in revs))
     if imb is not None and imb["significant"]:
         log(f"wheels' torque imbalance: t {imb['t']:.1f} > {imb['t_threshold']:.1f} "
             f"({imb['blocks']} blocks), gain ratio {imb['ratio']:.3f}")
@@ -184,7 +207,7 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
                                                f"over {bias[c]['blocks']} blocks of "
                                                f"{bias[c]['block_s']:g} s" for c in biased))
     mismatch_seen = (bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
-                     or bool(biased) or bool(imb and imb["significant"]))
+                     or bool(biased) or bool(imb and imb["significant"]) or bool(revs))
     sig_t = [e for e in loc.entries_t if e["channel"] in fit_chans]
     if mismatch_seen and not sig_t:
         notes.append("the torque-driven replay agrees with the recording while the duty-driven "
@@ -195,7 +218,8 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
                      "separately (torque_replay_mismatch), not used to locate or decide")
     log(f"nominal replay: {len(loc.entries)} significant window(s) "
         f"({len(sig_fit)} in fit channels {', '.join(fit_chans)})")
-    return Detection(problem, rss0, nrms0, strong_k, mismatch_seen, bias, imb)
+    return Detection(problem, rss0, nrms0, strong_k, mismatch_seen, bias, imb, rev, rev_cache,
+                     nominal)
 
 
 def state_table(prep: PreparedRun) -> dict[str, np.ndarray]:
