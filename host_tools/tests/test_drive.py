@@ -18,7 +18,7 @@ import pytest
 from host_tools import fil
 from host_tools import params
 from host_tools import protocol as P
-from host_tools.robot import Robot, RobotError, read_path
+from host_tools.robot import DriveSession, Robot, RobotError, read_path
 
 from test_fil import HostScript, csv  # noqa: E402  (the FIL tests' host, CSV reader)
 
@@ -177,20 +177,28 @@ def test_robot_set_model_between_drives_is_reported_back(elf, sim, tmp_path):
 
 
 def _lockstep_drive(elf, out, path, stall_at=None, stall_s=0.0):
-    """drive_path in the firmware in the loop; ``stall_at``: before that command the host
-    stalls for ``stall_s`` wall seconds. Returns (meta.json, telemetry during the drive)."""
+    """drive_path in the firmware in the loop; ``stall_at``: before that command of the drive,
+    and before the start-up's SetDriveLimits, the host stalls for ``stall_s`` wall seconds.
+    Returns (meta.json, telemetry during the drive)."""
+    import time
     sends = []
     real_send = Robot._send_written
+    real_command = DriveSession.command
 
     def send(self, name, vw):
         if len(sends) == stall_at:
-            import time
             time.sleep(stall_s)
         sends.append(name)
         real_send(self, name, vw)
 
+    def command(self, name, values=None):
+        if name == "SetDriveLimits" and stall_at is not None:
+            time.sleep(stall_s)
+        return real_command(self, name, values)
+
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(Robot, "_send_written", send)
+        mp.setattr(DriveSession, "command", command)
         with Robot(fil=True, out=out, elf=elf, sim_args=FAST) as bot:
             bot.drive_path(path)
     assert bot.code == 0, bot.session.end_reason
@@ -202,11 +210,13 @@ def _lockstep_drive(elf, out, path, stall_at=None, stall_s=0.0):
 
 
 def test_drive_path_in_the_loop_is_on_the_board_clock_whatever_the_host(elf, sim, tmp_path):
-    """In the firmware in the loop drive_path holds the board clock (--lockstep): each row is
-    the target of the outer tick at t0 + t exactly, and a host that stalls for 0.4 s of wall
-    time before a command changes nothing (on a free-running simulator at --realtime 2 that
-    command would land 0.8 s of board time late, past the 0.5 s command timeout): no
-    failsafe, and the same drive, frame for frame."""
+    """In the firmware in the loop the host holds the board clock (--lockstep) from the
+    simulator's start: each row is the target of the outer tick at t0 + t exactly, and a host
+    that stalls for 0.4 s of wall time during its start-up (before SetDriveLimits) and before a
+    command of the drive changes nothing (on a free-running simulator at --realtime 2 either
+    stall would be 0.8 s of board time: the drive would start later, and the command would land
+    past the 0.5 s command timeout): no failsafe, the drive starts at the same board time, and
+    it is the same drive, frame for frame."""
     path = [(0.0, 0.0, 0.0), (0.1, 0.2, 0.0), (0.5, 0.2, 1.0), (0.9, 0.0, 0.0), (1.4, 0.0, 0.0)]
     meta_a, a = _lockstep_drive(elf, tmp_path / "a", path)
     meta_b, b = _lockstep_drive(elf, tmp_path / "b", path, stall_at=8, stall_s=0.4)
@@ -218,6 +228,7 @@ def test_drive_path_in_the_loop_is_on_the_board_clock_whatever_the_host(elf, sim
         assert meta["fil"]["summary"]["link"]["down_frames"] > 0
     assert set(a["failsafe"].astype(int)) == {0} and set(b["failsafe"].astype(int)) == {0}
     t0a, t0b = meta_a["reference"]["t0_s"], meta_b["reference"]["t0_s"]
+    print(f"\nlockstep drive: t0 {t0a} s without a stall, {t0b} s with 2 x 0.4 s of host stalls")
     assert t0a == t0b  # the drive starts on the same board time (the firmware's start-up withheld)
     assert a["t_s"].size > 60
     for k in ("t_s", "enc_r", "enc_l", "x_odo_m", "y_odo_m", "phi_odo_rad", "tau_cmd_r", "tau_cmd_l",
