@@ -142,6 +142,9 @@ class DriveSession(L.Logger):
                 if kind == "heartbeat":  # here, in the one thread that writes to the port
                     self._heartbeat = bool(values["on"])
                     done["ok"] = True
+                elif kind == "params":
+                    self._request_params()
+                    done["ok"] = True
                 elif kind == "send":
                     seq = self.send(name, values)
                     if name == "Drive":
@@ -157,6 +160,18 @@ class DriveSession(L.Logger):
                 done["error"] = str(exc)
             finally:
                 done["event"].set()
+
+    def _request_params(self) -> None:
+        """RequestParams until a Params frame arrives (the firmware drops a frame its transmit
+        queue has no room for: telemetry tx_drops), at most ACK_RETRIES times."""
+        n = self._params_count
+        for _ in range(L.ACK_RETRIES):
+            self.send("RequestParams")
+            if self.pump(lambda: self._params_count > n, self.params_timeout_s):
+                return
+            if self._should_stop():
+                return
+        self.event("no_params_after_config", waited_s=self.params_timeout_s)
 
     def _collect_drive_acks(self) -> None:
         for seq in [s for s in self._drive_seqs if s in self.acks]:
@@ -468,15 +483,16 @@ class Robot:
         return round(t - (t - float(r["ref_t0_s"])) % _U32_S, 6)
 
     def _decoded_at_hold(self, timeout_s: float = 5.0) -> dict:
-        """While the simulator holds: once the logger has decoded the last telemetry frame the
-        robot sent before the hold, that row."""
+        """While the simulator holds: once the host has read every byte the robot sent before
+        the hold (a frame in transmission too: a recording closed then ends with the same bytes
+        in every run) and the logger has decoded the last telemetry frame among them, that row."""
         assert self._sim is not None
         last = self._sim.last_frame_t
         t_end = time.monotonic() + timeout_s
         while True:
             self._alive()
             r = self.session.last_row
-            if r is not None and float(r["t_s"]) >= last - 5e-7:
+            if r is not None and float(r["t_s"]) >= last - 5e-7 and self._sim.caught_up():
                 return r
             if time.monotonic() > t_end:
                 raise RobotError("the logger did not decode the robot's frames while the simulator held")
@@ -538,14 +554,15 @@ class Robot:
 
     def set_model(self, model: Any) -> None:
         """Send an analyzer model.json (path or dict) to the firmware: SetMu and SetModel, each
-        acknowledged; then the robot's Params are asked for (meta.json records them). Only while
+        acknowledged; then the robot's Params are asked for and waited for (meta.json records
+        them). Only while
         stopped (the firmware answers busy while running). A held simulator stays held: the
         waits for the Acks grant board time (DriveSession.pump)."""
         mu, values = _model_commands(model)
         self._queue("command", "SetMu", {"mu_s": mu[0], "mu_k": mu[1]})
         self._queue("command", "SetModel", values)
         self.session.mu, self.session.model = mu, values
-        self._queue("send", "RequestParams", None)
+        self._queue("params", "RequestParams", None)
 
     def close(self) -> int:
         """Stop the robot, end the recording (the run folder is complete) and the simulator;
