@@ -2,8 +2,8 @@
 API (host_tools.robot) and the model round trip, in the firmware in the loop.
 
 The simulator runs at twice real time (--realtime 2) where a test drives: HostScript scripts
-are timed by the board clock, the host's heartbeats keep up; Robot.drive_path holds the board
-clock (lockstep).  The model round trip: test_drive_roundtrip.py.
+are timed by the board clock, the host's heartbeats keep up; Robot holds the board clock from
+the simulator's start until drive() or sleep() lets it run (lockstep).  The model round trip: test_drive_roundtrip.py.
 """
 from __future__ import annotations
 
