@@ -148,9 +148,10 @@ def nominal_plant_args() -> list[str]:
 class Sim:
     """One simulator process. ``args``: extra command-line options of .build/fil/fil.
 
-    With ``--lockstep`` among them the host holds the board clock (:meth:`hold`,
-    :meth:`run_to`, :meth:`release`; sim/fil/lockstep.cpp): the port of :meth:`wrap_port`
-    counts the host's bytes, so that each grant waits for all of them."""
+    With ``--lockstep`` among them the host holds the board clock (:meth:`run_to`,
+    :meth:`release`, :meth:`hold`; sim/fil/lockstep.cpp): the simulator starts held at 50 ms
+    of board time (:meth:`start_hold`), and the port of :meth:`wrap_port` counts the host's
+    bytes written (each grant waits for all of them) and read (:meth:`caught_up`)."""
 
     def __init__(self, elf: str | Path, run_dir: str | Path, args: list[str] | None = None,
                  sim: str | Path = SIM, start_timeout_s: float = 10.0):
@@ -162,10 +163,13 @@ class Sim:
                     + [str(a) for a in (args or [])])
         self.lockstep = "--lockstep" in self.cmd
         self.bytes_written = 0  # host bytes written to the pty through wrap_port's port
-        self.stepping = False
+        self.bytes_read = 0  # robot bytes read from the pty through wrap_port's port
+        self.stepping = self.lockstep  # held from the start (the first hold: start_hold)
         self.held_at = -1.0  # board time of the last hold
         self.last_frame_t = -1.0  # at the last hold: the time stamp of the robot's last whole telemetry frame
+        self.up_at_hold = 0  # at the last hold: the robot's bytes written into the pty so far
         self._at: "queue.Queue[str]" = queue.Queue()
+        self._lock = threading.Lock()  # one control line and its hold at a time
         self.proc = subprocess.Popen(self.cmd, stdout=subprocess.PIPE, stderr=self._log, text=True,
                                      stdin=subprocess.PIPE if self.lockstep else None)
         self.pty = self._read_pty(start_timeout_s)
@@ -203,24 +207,48 @@ class Sim:
     def _control(self, line: str, wait: bool = True, timeout_s: float = 30.0) -> float | None:
         if not self.lockstep:
             raise FilError("the simulator runs without --lockstep: no holds")
-        try:
-            assert self.proc.stdin is not None
-            self.proc.stdin.write(line + "\n")
-            self.proc.stdin.flush()
-        except (BrokenPipeError, ValueError, OSError):
-            raise FilError(f"the simulator has ended\n{self.log()}") from None
-        if not wait:
-            return None
+        with self._lock:
+            if self.held_at < 0:  # the hold at the start comes first
+                self._await_hold("the start", timeout_s)
+            try:
+                assert self.proc.stdin is not None
+                self.proc.stdin.write(line + "\n")
+                self.proc.stdin.flush()
+            except (BrokenPipeError, ValueError, OSError):
+                raise FilError(f"the simulator has ended\n{self.log()}") from None
+            if not wait:
+                return None
+            return self._await_hold(repr(line), timeout_s)
+
+    def _await_hold(self, what: str, timeout_s: float, block: bool = True) -> float:
         t_end = time.monotonic() + timeout_s
         while True:
             try:
-                at = self._at.get(timeout=0.1).split()
+                at = self._at.get(timeout=0.1 if block else 0.0).split()
                 self.last_frame_t = float(at[3])
+                self.up_at_hold = int(at[4])
                 self.held_at = float(at[1])
                 return self.held_at
             except queue.Empty:
+                if not block:
+                    return -1.0
                 if self.proc.poll() is not None or time.monotonic() > t_end:
-                    raise FilError(f"the simulator did not hold ({line!r})\n{self.log()}") from None
+                    raise FilError(f"the simulator did not hold ({what})\n{self.log()}") from None
+
+    def start_hold(self, timeout_s: float = 30.0) -> float:
+        """The hold the simulator starts in (50 ms of board time; it runs there once the host
+        has written into the pty): its board time."""
+        with self._lock:
+            return self.held_at if self.held_at >= 0 else self._await_hold("the start", timeout_s)
+
+    def caught_up(self) -> bool:
+        """While held: the host has read every byte the robot sent before the hold (all it will
+        get until the next grant), so what it does next is the same in every run."""
+        if self.held_at < 0:
+            with self._lock:
+                if self.held_at < 0 and self._await_hold("the start", 0.0, block=False) < 0:
+                    return False
+        return self.bytes_read >= self.up_at_hold
 
     def hold(self, grid_s: float) -> float:
         """Stop the board clock at its next multiple of ``grid_s``; returns that board time."""
@@ -268,7 +296,8 @@ class Sim:
 
 
 class _CountingPort:
-    """A pyserial-like port that counts the bytes written into ``sim.bytes_written``."""
+    """A pyserial-like port that counts the bytes written into ``sim.bytes_written`` and those
+    read into ``sim.bytes_read``."""
 
     def __init__(self, port: Any, sim: Sim):
         self._port, self._sim = port, sim
@@ -277,6 +306,11 @@ class _CountingPort:
         n = self._port.write(data)
         self._sim.bytes_written += len(data)  # pyserial writes all of it or raises
         return n
+
+    def read(self, size: int = 1) -> bytes:
+        data = self._port.read(size)
+        self._sim.bytes_read += len(data)
+        return data
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._port, name)

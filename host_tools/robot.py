@@ -17,9 +17,12 @@ keeps the link alive (heartbeats).  ``drive(v, w)`` sends a Drive command and re
 ``repeat_s`` (the firmware's command timeout, protocol.json ``drive.cmd_timeout``, would
 otherwise ramp the robot to rest); ``stop()`` sends Stop (brake, drive mode ends);
 ``set_model(model)`` sends an analyzer model.json to the firmware (SetMu + SetModel; only while
-stopped); ``drive_path(rows)`` drives a scripted path of (t, v, w) rows on the board clock (in
-the firmware in the loop the host holds the simulator's board clock for it, so the drive is the
-same whatever the host's speed: docs/fil.md, "Lockstep with the host").
+stopped); ``drive_path(rows)`` drives a scripted path of (t, v, w) rows on the board clock.
+In the firmware in the loop the host holds the simulator's board clock (``--lockstep``) from
+the start: the start-up, ``set_model``, ``stop``/``wait_stopped`` and ``drive_path`` grant board
+time as they wait for the robot, and the clock stands in between, so a script of these lands
+on the same board times whatever the host's speed; ``drive``, ``sleep`` and the keys let it run
+free on the wall clock (docs/fil.md, "Lockstep with the host").
 ``close()`` (or leaving the ``with`` block) stops the robot, ends the recording and returns the
 logger's exit code.
 
@@ -47,7 +50,8 @@ from host_tools.logger.reference import _U32_S
 log = logging.getLogger(__name__)
 
 REPEAT_S = 0.05  # Drive commands per second: 20, as a ROS teleop node publishes cmd_vel
-LOCKSTEP_PROBE_S = 0.02  # lockstep: board time between looks for the drive's first frame
+LOCKSTEP_PROBE_S = 0.02  # lockstep: board time granted per step of a wait for the robot (a reply, a frame)
+CATCH_UP_WALL_S = 30.0  # lockstep: wall time the robot's bytes of one hold may take to reach the host
 QUIET_GRIDS = 3  # lockstep: grid periods without host bytes before a drive starts
 STOP_SETTLE_S = 0.5  # lockstep: board time after a drive's Stop (the robot at rest) before the hold
 
@@ -64,9 +68,10 @@ class DriveSession(L.Logger):
     """The logger's session for driving: configure, then keep the link alive and send what the
     caller queues (Drive and Stop at once, other commands acknowledged) until stopped."""
 
-    def __init__(self, *a, fil_meta: dict | None = None, **kw):
+    def __init__(self, *a, fil_meta: dict | None = None, sim: Any = None, **kw):
         super().__init__(*a, **kw)
         self.fil_meta = fil_meta
+        self.sim = sim  # host_tools.fil.Sim with --lockstep: held from the start, pump grants board time
         self.drives = True
         self.ready = threading.Event()
         self.queue: "queue.Queue[tuple]" = queue.Queue()
@@ -86,13 +91,45 @@ class DriveSession(L.Logger):
 
     def _session(self) -> None:
         self._configure()
-        self._heartbeat = True
+        self._heartbeat = not self._held()  # while held the clock stands: no timeout to keep off
         self.ready.set()
         while not self._should_stop():
             self._serve_queue()
             self.pump(None, 0.01)
             self._collect_drive_acks()
         self._heartbeat = False
+
+    def _held(self) -> bool:
+        return self.sim is not None and self.sim.stepping
+
+    def pump(self, until=None, timeout=None) -> bool:
+        """The logger's receive loop; while the simulator holds (lockstep) a wait for the robot
+        (``until``: the start-up's Params, a command's Ack) grants board time: once the host has
+        read all the robot sent before the hold, the clock runs LOCKSTEP_PROBE_S to the next
+        multiple of it, and ``timeout`` is board time.  So each reply is seen, and the next
+        command sent, at the same board time in every run.  Without ``until`` (idle) the clock
+        stands."""
+        sim = self.sim
+        if until is None or not self._held():
+            return super().pump(until, timeout)
+        from host_tools import fil as F
+        sim.start_hold()
+        t_end = None if timeout is None else sim.held_at + timeout
+        while True:
+            if not super().pump(lambda: until() or sim.caught_up(), CATCH_UP_WALL_S):
+                if until():
+                    return True
+                if not self._should_stop():
+                    raise L.LoggerError("firmware in the loop: the robot's bytes of a hold did not arrive", 1)
+                return False
+            if until():
+                return True
+            if t_end is not None and sim.held_at >= t_end - 1e-9:
+                return False
+            try:
+                sim.run_to((math.floor(sim.held_at / LOCKSTEP_PROBE_S + 1e-6) + 1) * LOCKSTEP_PROBE_S)
+            except F.FilError as exc:
+                raise L.LoggerError(f"firmware in the loop: {exc}", 1) from None
 
     def _serve_queue(self) -> None:
         while True:
@@ -104,6 +141,9 @@ class DriveSession(L.Logger):
             try:
                 if kind == "heartbeat":  # here, in the one thread that writes to the port
                     self._heartbeat = bool(values["on"])
+                    done["ok"] = True
+                elif kind == "params":
+                    self._request_params()
                     done["ok"] = True
                 elif kind == "send":
                     seq = self.send(name, values)
@@ -120,6 +160,18 @@ class DriveSession(L.Logger):
                 done["error"] = str(exc)
             finally:
                 done["event"].set()
+
+    def _request_params(self) -> None:
+        """RequestParams until a Params frame arrives (the firmware drops a frame its transmit
+        queue has no room for: telemetry tx_drops), at most ACK_RETRIES times."""
+        n = self._params_count
+        for _ in range(L.ACK_RETRIES):
+            self.send("RequestParams")
+            if self.pump(lambda: self._params_count > n, self.params_timeout_s):
+                return
+            if self._should_stop():
+                return
+        self.event("no_params_after_config", waited_s=self.params_timeout_s)
 
     def _collect_drive_acks(self) -> None:
         for seq in [s for s in self._drive_seqs if s in self.acks]:
@@ -199,7 +251,7 @@ class Robot:
         self.session = DriveSession(str(self.out), open_port, str(port), baud, clamp=clamp, mu=mu,
                                     controller=controller, model=fw_model, drive_limits=limits,
                                     status=status, description=description or "drive (velocity commands)",
-                                    d=self.d, fil_meta=fil_meta)
+                                    d=self.d, fil_meta=fil_meta, sim=sim)
         self._thread = threading.Thread(target=self._run, name="ddrobot-session", daemon=True)
         self._thread.start()
         t_end = time.monotonic() + open_timeout_s
@@ -307,7 +359,8 @@ class Robot:
         the loop the board clock is held by the host (lockstep, :meth:`_drive_path_lockstep`):
         the first row starts the drive at the firmware's next inner tick, t0, and every later
         row is the target of the first outer tick at or after t0 + (t - the first row's t), sent
-        half an outer period before that tick, so the run is the same whatever the host's speed."""
+        half an outer period before that tick, so the run is the same whatever the host's speed
+        (and, held since the start, starts at the same board time)."""
         rows = [tuple(float(x) for x in r) for r in rows]
         for i, r in enumerate(rows):
             if len(r) != 3 or not all(math.isfinite(x) for x in r):
@@ -336,8 +389,11 @@ class Robot:
         The session's wall-clock heartbeats pause meanwhile (a Drive every outer period keeps
         the link alive, on the board clock). The drive starts on a board-time grid of the least
         common multiple of the firmware's task periods (100 ms), after QUIET_GRIDS of them
-        without host bytes, so that the firmware's state and its tasks' phases at the start are
-        the same in every run."""
+        without host bytes. Held since the simulator's start (or the previous drive_path), that
+        grid point is the same in every run; after a free-running stretch (sleep, drive) it is
+        the next one after wherever the host let the clock run, and the drive is the same only
+        relative to its t0 (hardware periods that do not divide 100 ms can move a frame by tens
+        of microseconds)."""
         from host_tools import fil as F
         sim = self._sim
         assert sim is not None
@@ -347,8 +403,8 @@ class Robot:
         self._target = None  # no wall-clock repeats (_keep_alive) in between
         self._queue("heartbeat", "", {"on": False})  # done by the session thread: no heartbeat after it
         try:
-            if sim.stepping:  # held since the previous drive_path
-                now = sim.run_to(math.ceil(sim.held_at / grid - 1e-9) * grid)
+            if sim.stepping:  # held since the start or the previous drive_path
+                now = sim.run_to(math.ceil(sim.start_hold() / grid - 1e-9) * grid)
             else:
                 now = sim.hold(grid)
             # every byte the host wrote before (configuration, heartbeats) delivered now, then a
@@ -427,21 +483,47 @@ class Robot:
         return round(t - (t - float(r["ref_t0_s"])) % _U32_S, 6)
 
     def _decoded_at_hold(self, timeout_s: float = 5.0) -> dict:
-        """While the simulator holds: once the logger has decoded the last telemetry frame the
-        robot sent before the hold, that row."""
+        """While the simulator holds: once the host has read every byte the robot sent before
+        the hold (a frame in transmission too: a recording closed then ends with the same bytes
+        in every run) and the logger has decoded the last telemetry frame among them, that row."""
         assert self._sim is not None
         last = self._sim.last_frame_t
         t_end = time.monotonic() + timeout_s
         while True:
             self._alive()
             r = self.session.last_row
-            if r is not None and float(r["t_s"]) >= last - 5e-7:
+            if r is not None and float(r["t_s"]) >= last - 5e-7 and self._sim.caught_up():
                 return r
             if time.monotonic() > t_end:
                 raise RobotError("the logger did not decode the robot's frames while the simulator held")
             time.sleep(0.002)
 
+    def _held(self) -> bool:
+        return self._sim is not None and self._sim.stepping
+
+    def _grant_until(self, done, timeout_s: float, what: str) -> None:
+        """While the simulator holds: grant board time in steps of LOCKSTEP_PROBE_S until
+        ``done()`` (looked at once the logger has decoded what the robot sent before each hold);
+        RobotError after ``timeout_s`` of board time."""
+        from host_tools import fil as F
+        sim = self._sim
+        assert sim is not None
+        try:
+            t_end = sim.start_hold() + timeout_s
+            while True:
+                self._decoded_at_hold()
+                if done():
+                    return
+                if sim.held_at >= t_end - 1e-9:
+                    raise RobotError(what)
+                sim.run_to((math.floor(sim.held_at / LOCKSTEP_PROBE_S + 1e-6) + 1) * LOCKSTEP_PROBE_S)
+        except F.FilError as exc:
+            raise RobotError(f"firmware in the loop: {exc}") from None
+
     def _wait_telemetry(self, timeout_s: float = 5.0) -> None:
+        if self._held():
+            self._grant_until(lambda: self.board_time_s is not None, timeout_s, "no telemetry from the robot")
+            return
         t_end = time.monotonic() + timeout_s
         while self.board_time_s is None:
             self._alive()
@@ -450,14 +532,19 @@ class Robot:
             time.sleep(0.01)
 
     def stop(self) -> None:
-        """Brake; drive mode ends (the next drive() starts it again, from the origin)."""
-        self._free_clock()
+        """Brake; drive mode ends (the next drive() starts it again, from the origin). A held
+        simulator stays held (the Stop reaches the robot at the next grant)."""
+        if not self._held():
+            self._free_clock()
         self._target = None
         self._queue("send", "Stop", None)
 
     def wait_stopped(self, timeout_s: float = 5.0) -> None:
-        """Wait until telemetry reports the robot not running."""
-        self._free_clock()
+        """Wait until telemetry reports the robot not running (``timeout_s``: board time while
+        the simulator holds, which grants it in steps; else wall time)."""
+        if self._held():
+            self._grant_until(lambda: not self.running, timeout_s, "the robot still reports running")
+            return
         t_end = time.monotonic() + timeout_s
         while self.running:
             self._alive()
@@ -467,14 +554,15 @@ class Robot:
 
     def set_model(self, model: Any) -> None:
         """Send an analyzer model.json (path or dict) to the firmware: SetMu and SetModel, each
-        acknowledged; then the robot's Params are asked for (meta.json records them). Only while
-        stopped (the firmware answers busy while running)."""
+        acknowledged; then the robot's Params are asked for and waited for (meta.json records
+        them). Only while
+        stopped (the firmware answers busy while running). A held simulator stays held: the
+        waits for the Acks grant board time (DriveSession.pump)."""
         mu, values = _model_commands(model)
-        self._free_clock()
         self._queue("command", "SetMu", {"mu_s": mu[0], "mu_k": mu[1]})
         self._queue("command", "SetModel", values)
         self.session.mu, self.session.model = mu, values
-        self._queue("send", "RequestParams", None)
+        self._queue("params", "RequestParams", None)
 
     def close(self) -> int:
         """Stop the robot, end the recording (the run folder is complete) and the simulator;

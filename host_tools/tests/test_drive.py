@@ -2,8 +2,8 @@
 API (host_tools.robot) and the model round trip, in the firmware in the loop.
 
 The simulator runs at twice real time (--realtime 2) where a test drives: HostScript scripts
-are timed by the board clock, the host's heartbeats keep up; Robot.drive_path holds the board
-clock (lockstep).  The model round trip: test_drive_roundtrip.py.
+are timed by the board clock, the host's heartbeats keep up; Robot holds the board clock from
+the simulator's start until drive() or sleep() lets it run (lockstep).  The model round trip: test_drive_roundtrip.py.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ import pytest
 from host_tools import fil
 from host_tools import params
 from host_tools import protocol as P
-from host_tools.robot import Robot, RobotError, read_path
+from host_tools.robot import DriveSession, Robot, RobotError, read_path
 
 from test_fil import HostScript, csv  # noqa: E402  (the FIL tests' host, CSV reader)
 
@@ -176,22 +176,33 @@ def test_robot_set_model_between_drives_is_reported_back(elf, sim, tmp_path):
     assert [c["command"] for c in meta["commands"] if c["result"] == "ok"][-2:] == ["SetMu", "SetModel"]
 
 
-def _lockstep_drive(elf, out, path, stall_at=None, stall_s=0.0):
-    """drive_path in the firmware in the loop; ``stall_at``: before that command the host
-    stalls for ``stall_s`` wall seconds. Returns (meta.json, telemetry during the drive)."""
+def _lockstep_drive(elf, out, path, stall_at=None, stall_s=0.0, model=None):
+    """drive_path in the firmware in the loop (``model``: set_model first); ``stall_at``:
+    before that command of the drive, and before the start-up's SetDriveLimits and set_model's
+    SetModel, the host stalls for ``stall_s`` wall seconds. Returns (meta.json, telemetry
+    during the drive)."""
+    import time
     sends = []
     real_send = Robot._send_written
+    real_command = DriveSession.command
 
     def send(self, name, vw):
         if len(sends) == stall_at:
-            import time
             time.sleep(stall_s)
         sends.append(name)
         real_send(self, name, vw)
 
+    def command(self, name, values=None):
+        if name in ("SetDriveLimits", "SetModel") and stall_at is not None:
+            time.sleep(stall_s)
+        return real_command(self, name, values)
+
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(Robot, "_send_written", send)
+        mp.setattr(DriveSession, "command", command)
         with Robot(fil=True, out=out, elf=elf, sim_args=FAST) as bot:
+            if model is not None:
+                bot.set_model(model)
             bot.drive_path(path)
     assert bot.code == 0, bot.session.end_reason
     meta = json.loads((out / "meta.json").read_text())
@@ -202,14 +213,18 @@ def _lockstep_drive(elf, out, path, stall_at=None, stall_s=0.0):
 
 
 def test_drive_path_in_the_loop_is_on_the_board_clock_whatever_the_host(elf, sim, tmp_path):
-    """In the firmware in the loop drive_path holds the board clock (--lockstep): each row is
-    the target of the outer tick at t0 + t exactly, and a host that stalls for 0.4 s of wall
-    time before a command changes nothing (on a free-running simulator at --realtime 2 that
-    command would land 0.8 s of board time late, past the 0.5 s command timeout): no
-    failsafe, and the same drive, frame for frame."""
+    """In the firmware in the loop the host holds the board clock (--lockstep) from the
+    simulator's start: each row is the target of the outer tick at t0 + t exactly, and a host
+    that stalls for 0.4 s of wall time during its start-up (before SetDriveLimits), in
+    set_model (before SetModel) and before a command of the drive changes nothing (on a
+    free-running simulator at --realtime 2 each stall would be 0.8 s of board time: the drive
+    would start later, and the command would land past the 0.5 s command timeout): no
+    failsafe, the drive starts at the same board time, it is the same drive, frame for frame,
+    and the whole recording, start-up included, is the same bytes."""
     path = [(0.0, 0.0, 0.0), (0.1, 0.2, 0.0), (0.5, 0.2, 1.0), (0.9, 0.0, 0.0), (1.4, 0.0, 0.0)]
-    meta_a, a = _lockstep_drive(elf, tmp_path / "a", path)
-    meta_b, b = _lockstep_drive(elf, tmp_path / "b", path, stall_at=8, stall_s=0.4)
+    model = {"format": "ddmodel/1", "robot": dict(params.ROBOT, r=0.0371, mu_s=0.3, mu_k=0.28)}
+    meta_a, a = _lockstep_drive(elf, tmp_path / "a", path, model=model)
+    meta_b, b = _lockstep_drive(elf, tmp_path / "b", path, stall_at=8, stall_s=0.4, model=model)
     for meta in (meta_a, meta_b):
         ref = meta["reference"]
         assert ref["runs"] == 1 and ref["ambiguous"] == 0
@@ -218,11 +233,16 @@ def test_drive_path_in_the_loop_is_on_the_board_clock_whatever_the_host(elf, sim
         assert meta["fil"]["summary"]["link"]["down_frames"] > 0
     assert set(a["failsafe"].astype(int)) == {0} and set(b["failsafe"].astype(int)) == {0}
     t0a, t0b = meta_a["reference"]["t0_s"], meta_b["reference"]["t0_s"]
+    print(f"\nlockstep drive: t0 {t0a} s without a stall, {t0b} s with 3 x 0.4 s of host stalls")
     assert t0a == t0b  # the drive starts on the same board time (the firmware's start-up withheld)
     assert a["t_s"].size > 60
     for k in ("t_s", "enc_r", "enc_l", "x_odo_m", "y_odo_m", "phi_odo_rad", "tau_cmd_r", "tau_cmd_l",
               "pwm_r", "pwm_l", "v_ref_m_s", "omega_ref_rad_s"):
         assert np.array_equal(a[k], b[k]), k
+    for meta in (meta_a, meta_b):  # set_model took effect (while held, its Acks granted time)
+        assert meta["robot"]["r"] == pytest.approx(0.0371)
+    for f in ("raw.bin", "groundtruth.csv", "plant.csv"):
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
 
 
 def test_drive_paths_one_after_another_in_the_loop(elf, sim, tmp_path):

@@ -2,9 +2,10 @@
 commands through the Robot API with a 2 % larger wheel in the plant, recorded, analyzed (the
 closed-loop replay used), the fitted model sent back to the firmware, the same drive recorded
 again: the odometry end-point error against the ground truth must shrink at least 5x.  Figures
-are printed (pytest -s).  drive_path holds the simulator's board clock (lockstep, docs/fil.md):
-every command reaches the firmware at its board time however loaded the host, so the drive is
-the same in every run.
+are printed (pytest -s).  The Robot holds the simulator's board clock from its start (lockstep,
+docs/fil.md): the start-up, the fitted model's SetMu/SetModel and every command of the drive
+reach the firmware at their board times however loaded the host, so both recordings are the
+same in every run.
 """
 from __future__ import annotations
 
@@ -82,7 +83,8 @@ def test_model_round_trip_drive_analyze_send_drive_again(elf, sim, tmp_path):
     meta2 = json.loads((run2 / "meta.json").read_text())
     assert meta2["robot"]["r"] == pytest.approx(r_fit, rel=1e-6)  # the firmware reports the fit back
     e1, e2 = endpoint_error(run1), endpoint_error(run2)
-    print(f"\nround trip: wheel {R_TRUE} m injected, fitted {r_fit} m; odometry end-point error "
+    print(f"\nround trip: drives from t0 {ref['t0_s']} s and {meta2['reference']['t0_s']} s; "
+          f"wheel {R_TRUE} m injected, fitted {r_fit} m; odometry end-point error "
           f"{e1 * 1e3:.2f} mm -> {e2 * 1e3:.2f} mm ({e1 / e2:.1f}x); closed-loop replay: {cl['replayed']}")
     assert e1 > 5e-3  # the injected wheel shows
     assert e1 >= 5 * e2

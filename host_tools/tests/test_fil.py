@@ -699,18 +699,22 @@ def test_a_model_sent_to_the_simulator_is_the_plant_the_analyzer_replayed():
 
 
 def test_lockstep_holds_the_board_clock_and_delivers_host_bytes_at_the_hold(elf, sim, tmp_path):
-    """--lockstep: "hold G" stops the board clock at its next multiple of G, "run T N" runs to
-    board time T once the host's N bytes are read, and those bytes reach USART2 from the hold's
-    board time on, however long the host took to write them (here 0.3 s of wall time, while a
-    free-running simulator would have run on); "free" runs on. A bad control line ends the run
-    with a reason."""
+    """--lockstep: the simulator starts held at 50 ms of board time (no host byte read before;
+    the AT line counts every byte the robot sent until then), "run T N" runs to board time T
+    once the host's N bytes are read, and those bytes reach USART2 from the hold's board time
+    on, however long the host took to write them (here 0.3 s of wall time, while a
+    free-running simulator would have run on); "free" runs on; "hold G" stops the free-running
+    clock at its next multiple of G. A bad control line ends the run with a reason."""
     import serial
     sm = fil.Sim(elf, tmp_path / "ls", ["--lockstep", "--realtime", "0", "--t-end", "5"])
     port = sm.wrap_port(serial.serial_for_url(sm.pty, baudrate=D.baud, timeout=0.02))
     try:
         port.write(D.encode("Heartbeat", 1))  # the simulator waits for the host's first byte
-        t_hold = sm.hold(0.1)
-        assert 0.1 <= t_hold < 0.1 + 1e-3 and abs(t_hold / 0.1 - round(t_hold / 0.1)) < 1e-2
+        assert sm.stepping and sm.start_hold() == pytest.approx(0.05, abs=1e-4)
+        assert sm.up_at_hold > 0  # the boot's frames, in the pty before the hold
+        while not sm.caught_up():
+            port.read(1)
+        assert port.read(64) == b""  # nothing more until the next grant
         t_at = sm.run_to(0.3)
         assert t_at == pytest.approx(0.3, abs=1e-4)
         time.sleep(0.3)
@@ -718,12 +722,16 @@ def test_lockstep_holds_the_board_clock_and_delivers_host_bytes_at_the_hold(elf,
         port.write(frame)
         assert sm.run_to(0.5) == pytest.approx(0.5, abs=1e-4)
         sm.release()
+        t_hold = sm.hold(0.1)
+        assert t_hold >= 0.5 and abs(t_hold / 0.1 - round(t_hold / 0.1)) < 1e-2
+        assert t_hold < round(t_hold, 1) + 1e-3
+        sm.release()
         time.sleep(0.1)
     finally:
         port.close()
         sm.wait(30)
     s = sm.summary()
-    assert s["lockstep"] is True and s["lockstep_holds"] == 3
+    assert s["lockstep"] is True and s["lockstep_holds"] == 4
     assert s["link"]["down_frames"] == 2
     # the second frame: written during the hold at 0.3 s, received whole its bytes later
     byte_s = 10 / s["link"]["baud"]  # 10 bits per byte at the USART's actual rate
@@ -733,7 +741,7 @@ def test_lockstep_holds_the_board_clock_and_delivers_host_bytes_at_the_hold(elf,
     p2 = serial.serial_for_url(bad.pty, baudrate=D.baud, timeout=0.02)
     try:
         p2.write(D.encode("Heartbeat", 1))
-        bad.hold(0.1)
+        bad.start_hold()
         with pytest.raises(fil.FilError):
             bad._control("run soon")  # not "run T N": the simulator ends, no further hold
     finally:

@@ -222,12 +222,13 @@ struct Fil {
     bool stepping = false;
     double grant_t = 0;                 // board time of the next hold
     unsigned long host_bytes_read = 0;  // bytes read from the pty so far (every one, silenced too)
+    unsigned long up_to_pty = 0;        // robot bytes written into the pty so far (the host's to read)
     unsigned long holds = 0;
     std::string ctl_buf;                // stdin bytes not yet a whole line
     void setup_lockstep();
     double wait_host_connected();      // before the first cycle: the host has written
-    void poll_control();                // free running: a "hold" line enters stepping
-    bool at_grant() const { return stepping && board_now() >= grant_t; }
+    void poll_control();                // free running: a "hold" line enters stepping (held from the start)
+    bool at_grant() const { return stepping && board_origin_set && board_now() >= grant_t; }
     void hold(volatile sig_atomic_t* signal_flag);  // at the grant: report, wait for the next line
 
     // recorder.cpp

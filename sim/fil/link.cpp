@@ -179,6 +179,7 @@ void Fil::on_uart_out(uint32_t value) {
     if (pty_fd >= 0) {
         ssize_t n = write(pty_fd, &c, 1);
         if (n != 1) ++link.up_unsent;  // host not reading (pty buffer full) or not there
+        else ++up_to_pty;
     }
 }
 

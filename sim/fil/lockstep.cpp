@@ -2,19 +2,21 @@
 // of host bytes reaches the firmware at board times the host chose, whatever the host's own
 // speed (a loaded machine, a stalled interpreter). Lines (ASCII, one per line):
 //
-//   hold G      (while free running) stop at the next board time that is a multiple of G s
 //   run T N     (while held) wait until N host bytes in all have been read from the pty, then
 //               run to board time T and hold again
 //   free        (while held) run on, paced by --realtime as without --lockstep
+//   hold G      (while free running) stop at the next board time that is a multiple of G s
 //
+// The simulator starts held: the firmware starts once the host has written into the pty (so the
+// host receives all it sends), runs to 50 ms of board time (Options::boot_s) without reading a
+// host byte, and holds there. Every board time from then on is the host's grant until it sends
+// "free", so a host's script lands on the same board times in every run, whatever its speed.
 // At every hold the simulator prints "AT <board time s> <host bytes read> <time stamp of the
-// last whole telemetry frame the robot sent, s>" on stdout (a host that has decoded that frame
-// has seen everything the robot sent before the hold). While
+// last whole telemetry frame the robot sent, s> <robot bytes written into the pty>" on stdout (a
+// host that has read that many bytes has everything the robot sent before the hold). While
 // stepping, the pty is read only at the holds: the host's bytes enter USART2's input queue at
 // the hold's cycle, and no --realtime pacing applies (the host is the clock). The end of stdin
-// ends the run (the host is gone). With --lockstep the firmware starts only once the host has
-// written into the pty, and no host byte is read before 50 ms of board time: the start-up is the
-// same in every run, and the host receives all of it.
+// ends the run (the host is gone).
 #include "fil.h"
 
 #include <errno.h>
@@ -34,6 +36,8 @@ const double kByteWaitS = 10.0;  // wall seconds a hold waits for the host bytes
 void Fil::setup_lockstep() {
     if (!opt.lockstep) return;
     fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
+    stepping = true;  // held from the start: the first hold at boot_s, before any host byte is read
+    grant_t = opt.boot_s;
 }
 
 // Before the first cycle: wait until the host has written into the pty (it has opened it, so
@@ -93,7 +97,7 @@ void Fil::poll_control() {
 
 void Fil::hold(volatile sig_atomic_t* signal_flag) {
     ++holds;
-    printf("AT %.7f %lu %.6f\n", board_now(), host_bytes_read, last_telem_t);
+    printf("AT %.7f %lu %.6f %lu\n", board_now(), host_bytes_read, last_telem_t, up_to_pty);
     fflush(stdout);
     std::string line;
     for (;;) {
