@@ -131,9 +131,9 @@ def fill_count_level(prep: PreparedRun) -> tuple[PreparedRun, int]:
     """The straight-line fill of the unreported ticks with the reported ticks' count
     quantization taken out, for a single wheel-speed loop (meta.json ``controller`` ``pi``).
 
-    Such a loop's proportional term acts on the speed counted over one tick: at a 2 ms loop
-    and 1856 counts a revolution one count more is 1.69 rad/s, so the command sits on one of
-    two levels a count apart, tick by tick.  A frame reports one tick's level, and for blocks of
+    Such a loop's proportional term acts on the speed counted over one tick: one count more is
+    2 pi / (counts a revolution x the loop's period), 1.69 rad/s for the robot's encoder at a
+    2 ms loop, so the command sits on one of two levels a count apart, tick by tick.  A frame reports one tick's level, and for blocks of
     frames the same one (the frames alias the count beat); the line through the reported
     commands then runs a fraction of a level off the unreported ticks' mean, with one sign for
     the whole block, and held open loop that drifts the wheel speed by several noise floors.
