@@ -11,7 +11,8 @@ period, so its reported duties are the ticks' true commands.
 
 For each run it prints:
   * the fill's error on the unreported ticks (the line between the reported ones, and the
-    line refined by the closed-loop replay's pattern, as the analyzer replays them), RMS and
+    line refined by the closed-loop replay's pattern, or for a PI loop with its count
+    quantization taken out (``fill_count_level``), as the analyzer replays them), RMS and
     the mean over blocks of constant parity of the reported ticks, against the input
     uncertainty the analyzer assumes for them (std of its uniform draw: bend / sqrt 3, and
     the tick-level scatter);

@@ -15,7 +15,8 @@ from host_tools.analyzer.replay.channels import Channel, channels
 from host_tools.analyzer.replay.closedloop import ClosedLoopReplay, closed_loop_channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
 from host_tools.analyzer.replay.tolerance import tolerance_uncertainty
-from host_tools.analyzer.replay.unseen import fill_unseen_from_controller, input_uncertainty
+from host_tools.analyzer.replay.unseen import (fill_count_level, fill_unseen_from_controller,
+                                               input_uncertainty)
 
 
 @dataclass
@@ -72,6 +73,12 @@ def replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[st
                     "line between the reported ones plus the closed-loop replay's pattern")
         else:
             notes.append(f"closed-loop replay of {p.name} not run: " + "; ".join(problems))
+    for i, p in enumerate(filled):
+        filled[i], n_lvl = fill_count_level(p)
+        if n_lvl:
+            runs[i]["assumptions"].append(
+                f"{n_lvl} inner ticks were reported by no frame: their commands are the line "
+                "between the reported ones with the reported ticks' count quantization taken out")
     n_cl = sum(1 for c in nominal if c)
     if n_cl:
         log(f"closed-loop replay through lib/control: {n_cl}/{len(preps)} run(s)")

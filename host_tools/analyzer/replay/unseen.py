@@ -127,6 +127,69 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
     return dataclasses.replace(prep, duty=duty, torque=torque), int(unseen.size)
 
 
+def fill_count_level(prep: PreparedRun) -> tuple[PreparedRun, int]:
+    """The straight-line fill of the unreported ticks with the reported ticks' count
+    quantization taken out, for a single wheel-speed loop (meta.json ``controller`` ``pi``).
+
+    Such a loop's proportional term acts on the speed counted over one tick: one count more is
+    2 pi / (counts a revolution x the loop's period), 1.69 rad/s for the robot's encoder at a
+    2 ms loop, so the command sits on one of two levels a count apart, tick by tick.  A frame reports one tick's level, and for blocks of
+    frames the same one (the frames alias the count beat); the line through the reported
+    commands then runs a fraction of a level off the unreported ticks' mean, with one sign for
+    the whole block, and held open loop that drifts the wheel speed by several noise floors.
+    What the recording says: the reported tick's counted speed (``omega``) and the encoder
+    counts of the frames, whose difference over an interval is the mean of the ticks' counted
+    speeds over it exactly.  The command's dependence on the counted speed, ``g``, is the least
+    squares slope of the reported commands' second differences on the reported speeds' (trend
+    removed; the count steps are the only fast change of the counted speed); each unreported
+    tick's fill moves by ``g x`` (the line through the reported counted speeds minus the
+    count-mean speed, the latter taken through the intervals' mid-times).  Returns (the run
+    with those fills, a new value; the number of ticks changed, 0: ``prep`` itself)."""
+    seen = prep.seen_ticks
+    if seen is None or prep.run.meta.get("controller") != "pi":
+        return prep, 0
+    seen = np.asarray(seen, bool)
+    tel = prep.run.telemetry
+    if any(c not in tel for c in ("enc_r", "enc_l", "omega_r", "omega_l", "t_s")):
+        return prep, 0
+    i_seen, unseen = np.flatnonzero(seen), np.flatnonzero(~seen)
+    t_in = np.asarray(prep.t_in, float)
+    t_tel = np.asarray(tel["t_s"], float)
+    if unseen.size == 0 or i_seen.size < 5 or t_tel.size < 5:
+        return prep, 0
+    # the telemetry row of each reported tick (the nearest in time)
+    row = np.clip(np.searchsorted(t_tel, t_in[i_seen]), 1, t_tel.size - 1)
+    row = np.where(np.abs(t_tel[row - 1] - t_in[i_seen]) < np.abs(t_tel[row] - t_in[i_seen]),
+                   row - 1, row)
+    if np.unique(row).size != row.size:
+        return prep, 0
+    q = 2.0 * math.pi / float(prep.ppr)
+    ts = t_in[i_seen]
+    # the counts are the frame's (its own time), the command and the counted speed its tick's
+    tf = t_tel[row]
+    dt = np.diff(tf)
+    if np.any(dt <= 0):
+        return prep, 0
+    mid = 0.5 * (tf[1:] + tf[:-1])
+    duty = []
+    for side, (enc, om) in enumerate((("enc_r", "omega_r"), ("enc_l", "omega_l"))):
+        u = np.asarray(prep.duty[side], float).copy()
+        w_rep = np.asarray(tel[om], float)[row]
+        w_mean = np.diff(np.asarray(tel[enc], float)[row]) * q / dt
+        us = u[i_seen]
+        d_u = us[1:-1] - 0.5 * (us[:-2] + us[2:])
+        d_w = w_rep[1:-1] - 0.5 * (w_rep[:-2] + w_rep[2:])
+        den = float(np.sum(d_w ** 2))
+        if den <= 0:
+            duty.append(u)
+            continue
+        g = -float(np.sum(d_u * d_w)) / den
+        tk = t_in[unseen]
+        u[unseen] += g * (np.interp(tk, ts, w_rep) - np.interp(tk, mid, w_mean))
+        duty.append(u)
+    return dataclasses.replace(prep, duty=(duty[0], duty[1])), int(unseen.size)
+
+
 UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from their uncertainty
 
 

@@ -1,0 +1,86 @@
+"""The straight-line fill of unreported ticks with the reported ticks' count quantization taken
+out, for a single wheel-speed loop (replay.unseen.fill_count_level; docs/analyzer.md "Ticks no
+frame reported"): a PI loop's proportional term on the speed counted over one tick puts the
+command on one of two levels, the frames see one level for blocks of them, and the line
+through the reported commands runs off the unreported ticks' mean by a fraction of a level."""
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+
+from host_tools.analyzer.prepare.run import PreparedRun
+from host_tools.analyzer.replay import unseen as UN
+
+PPR = 1000          # counts a revolution (a round test value)
+TICK = 0.002        # s, the loop's period
+FRAME = 10          # ticks a frame
+G = 0.03            # the command's drop per rad/s of counted speed (the P term)
+
+
+def _pi_run(controller: str | None = "pi", drop: tuple[int, ...] = (7, 8, 30, 31, 32)
+            ) -> tuple[PreparedRun, np.ndarray, np.ndarray]:
+    """A wheel accelerating then cruising under a PI loop on the counted speed, seen every
+    FRAME ticks with some frames lost: (the prepared run with the line fill, the true command of
+    every tick, the reported mask)."""
+    n = 1200
+    t = TICK * np.arange(n)
+    q = 2.0 * math.pi / PPR
+    omega = np.minimum(9.0 * t, 6.1)                      # rad/s
+    theta = np.cumsum(omega) * TICK
+    counts = np.floor(theta / q)
+    w_cnt = np.concatenate([[0.0], np.diff(counts)]) * q / TICK
+    smooth = 0.05 + 0.04 * np.minimum(t, 0.7)
+    u = smooth - G * (w_cnt - omega)                     # on the level of the counted speed
+    frames = np.arange(0, n, FRAME)
+    frames = np.delete(frames, list(drop))
+    seen = np.zeros(n, bool)
+    seen[frames] = True
+    fill = np.interp(t, t[seen], u[seen])                # prepare's straight line
+    fill[seen] = u[seen]
+    tel = {"t_s": t[frames], "enc_r": counts[frames], "enc_l": counts[frames],
+           "omega_r": w_cnt[frames], "omega_l": w_cnt[frames],
+           "pwm_r": u[frames], "pwm_l": u[frames]}
+    meta = {} if controller is None else {"controller": controller}
+    run = SimpleNamespace(meta=meta, telemetry=tel)
+    prep = PreparedRun(run=run, t_in=t, t_in_tau=t, duty=(fill, fill.copy()),  # type: ignore[arg-type]
+                       torque=(fill, fill.copy()), t_grid=t, robot={}, motor={},
+                       start_pose=(0.0, 0.0, 0.0), ppr=PPR, inner_period=TICK, tick_phase=0.0,
+                       seen_ticks=seen)
+    return prep, u, seen
+
+
+def _interval_mean_error(duty: np.ndarray, u: np.ndarray, seen: np.ndarray) -> float:
+    """RMS over the frame intervals of the mean error of their unreported ticks (what a wheel's
+    speed integrates)."""
+    i_seen = np.flatnonzero(seen)
+    errs = [float(np.mean(duty[a + 1:b] - u[a + 1:b]))
+            for a, b in zip(i_seen[:-1], i_seen[1:]) if b > a + 1]
+    return math.sqrt(float(np.mean(np.square(errs))))
+
+
+def test_the_count_levels_taken_out_of_the_fill() -> None:
+    prep, u, seen = _pi_run()
+    line = _interval_mean_error(np.asarray(prep.duty[0]), u, seen)
+    out, n = UN.fill_count_level(prep)
+    assert n == int((~seen).sum())
+    refined = _interval_mean_error(np.asarray(out.duty[0]), u, seen)
+    # the line runs a fraction of a level (G x 2 pi / PPR / TICK = 0.094) off the mean
+    assert line > 0.01
+    assert refined < 0.25 * line
+    # the reported ticks stay as recorded; the run given is left as it is
+    assert np.array_equal(np.asarray(out.duty[1])[seen], u[seen])
+    assert np.array_equal(np.asarray(prep.duty[0])[~seen],
+                          np.interp(prep.t_in[~seen], prep.t_in[seen], u[seen]))
+
+
+def test_not_a_single_wheel_speed_loop_or_every_tick_reported_changes_nothing() -> None:
+    for ctl in (None, "cascade"):
+        prep, _, _ = _pi_run(controller=ctl)
+        out, n = UN.fill_count_level(prep)
+        assert n == 0 and out is prep
+    prep, _, _ = _pi_run()
+    full = PreparedRun(**{**prep.__dict__, "seen_ticks": None})
+    out, n = UN.fill_count_level(full)
+    assert n == 0 and out is full
