@@ -3,6 +3,7 @@ floors (:func:`locate_mismatch`), and whether the recordings disagree with the n
 all (:func:`detect_mismatch`)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
@@ -11,7 +12,7 @@ import numpy as np
 
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.fit.problem import Problem
-from host_tools.analyzer.locate.bias import allowed_bias, bias_test
+from host_tools.analyzer.locate.bias import WHEEL_PAIRS, allowed_bias, bias_test, pair_name
 from host_tools.analyzer.locate.episodes import unpinned_episodes
 from host_tools.analyzer.locate.floors import closed_loop_floors, noise_floors
 from host_tools.analyzer.locate.revolution import REV_CHANNELS, revolution_of
@@ -37,6 +38,36 @@ def strong_threshold(total_s: float) -> float:
 
 
 MISMATCH_RMS = 1.25      # otherwise the overall normalized RMS must exceed this
+
+
+def slip_difference_rss(problem: Problem, pair_unc: Sequence[Mapping[str, tuple[np.ndarray, np.ndarray]]]
+                        ) -> tuple[float, float]:
+    """The wheel pairs' differences in pinned slips (``Problem.slip_differences``) as the
+    normalized RMS counts them: (their raw sum of squares in floors, the same deflated by the
+    difference's own replay uncertainty).  In such a slip each wheel is no evidence, so its
+    channel's uncertainty reads SLIP_UNC; the difference (r - l)/sqrt(2) is evidence, but only
+    up to the uncertainty the two wheels had before (the tolerance ensemble's spread, the input
+    spread and the sampling band, ``pair_unc``: per run, channel -> (t, uncertainty)), which
+    carries over to the difference as sqrt(u_r^2 + u_l^2)/sqrt(2) in floors (the two wheels'
+    errors counted independent).  Every other sample of the normalized RMS is deflated that
+    way (``Channel.deflated``); a difference left raw counts a slip the ensemble spreads by
+    10-30 floors as that many floors of mismatch."""
+    raw = defl = 0.0
+    pairs = {pair_name(a, b): (a, b) for a, b in WHEEL_PAIRS}
+    runs = list(range(len(problem.preps)))
+    for i, chans in zip(runs, problem.sim_channels({}, runs, True, fit_only=True)):
+        units = pair_unc[i] if i < len(pair_unc) else {}
+        for name, d, t in problem.named_slip_differences(chans):
+            a, b = pairs[name]
+            u2 = np.zeros(t.size)
+            for c in (a, b):
+                if c in units:
+                    tu, uu = units[c]
+                    u2 += (np.interp(t, tu, uu) / problem.floors[c]) ** 2
+            d = np.where(np.isfinite(d), d, 1e6)
+            raw += float(np.sum(d ** 2))
+            defl += float(np.sum(d ** 2 / (1.0 + u2 / 2.0)))
+    return raw, defl
 
 def _window_entries(preps: Sequence[PreparedRun], chans_per_run: Sequence[Mapping[str, Channel]],
                     floors: Mapping[str, float], channel_names: Sequence[str], replay_name: str,
@@ -85,6 +116,10 @@ class Located:
     cl_entries: list[dict[str, Any]]    # ... of the closed-loop replay
     windows: dict[tuple[int, str], list[sg.Window]]     # (run index, channel) -> [Window], duty
     cl_windows: dict[tuple[int, str], list[sg.Window]]  # ... closed-loop replay
+    # per run, each wheel pair channel's (t, replay uncertainty with its sampling band) before
+    # the slips were marked no evidence (``slip_difference_rss``)
+    pair_unc: list[dict[str, tuple[np.ndarray, np.ndarray]]] = dataclasses.field(
+        default_factory=list)
 
 
 def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Channel]],
@@ -102,6 +137,9 @@ def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
     floors_t = noise_floors(preps, nominal_t)
     cl_floors = closed_loop_floors(cl_nominal)
     log("noise floors: " + ", ".join(f"{c}={v:.3g}" for c, v in sorted(floors.items())))
+    pair_unc = [{c: (ch.t, ch.total_unc) for c in {x for p in WHEEL_PAIRS for x in p}
+                 if (ch := chans.get(c)) is not None and ch.total_unc is not None}
+                for chans in nominal]
     unpinned = unpinned_episodes(preps, nominal, floors)
     preps, nominal = unpinned.preps, unpinned.nominal
     if any(unpinned.episodes):
@@ -123,7 +161,7 @@ def locate_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
                                               [c for c in CLOSED_LOOP_CHANNELS if c in cl_floors],
                                               "closed-loop", states, tau_max)
     return preps, nominal, Located(floors, floors_t, cl_floors, entries, entries_t, cl_entries,
-                                   wins, cl_wins)
+                                   wins, cl_wins, pair_unc)
 
 
 @dataclass
@@ -164,6 +202,11 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
     r0 = problem.residual({}, list(range(len(preps))), full=True)
     rss0 = float(np.sum(r0 ** 2))
     nrms0 = math.sqrt(rss0 / max(r0.size, 1))
+    diff_raw, diff_defl = slip_difference_rss(problem, loc.pair_unc)
+    nrms_rule = math.sqrt(max(rss0 - diff_raw + diff_defl, 0.0) / max(r0.size, 1))
+    if diff_raw > 0:
+        log(f"normalized RMS {nrms0:.3g}; {nrms_rule:.3g} with the wheel pairs' differences in "
+            f"pinned slips deflated by their replay uncertainty")
     total_s = sum(float(p.run.telemetry["t_s"][-1] - p.run.telemetry["t_s"][0]) for p in preps)
     strong_k = strong_threshold(total_s)
     strong0 = [e for e in sig_fit if e["rms"] >= strong_k * e["noise_floor"]]
@@ -206,7 +249,7 @@ def detect_mismatch(preps: Sequence[PreparedRun], nominal: Sequence[dict[str, Ch
                      "threshold: " + ", ".join(f"{c} {bias[c]['bias_floors']:+.2f} noise floors "
                                                f"over {bias[c]['blocks']} blocks of "
                                                f"{bias[c]['block_s']:g} s" for c in biased))
-    mismatch_seen = (bool(strong0) or (bool(sig_fit) and nrms0 > MISMATCH_RMS)
+    mismatch_seen = (bool(strong0) or (bool(sig_fit) and nrms_rule > MISMATCH_RMS)
                      or bool(biased) or bool(imb and imb["significant"]) or bool(revs))
     sig_t = [e for e in loc.entries_t if e["channel"] in fit_chans]
     if mismatch_seen and not sig_t:
