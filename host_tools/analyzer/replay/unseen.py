@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING, Mapping, cast
+from typing import TYPE_CHECKING, Callable, Mapping, cast
 
 import numpy as np
 
@@ -145,49 +145,70 @@ def fill_count_level(prep: PreparedRun) -> tuple[PreparedRun, int]:
     tick's fill moves by ``g x`` (the line through the reported counted speeds minus the
     count-mean speed, the latter taken through the intervals' mid-times).  Returns (the run
     with those fills, a new value; the number of ticks changed, 0: ``prep`` itself)."""
-    seen = prep.seen_ticks
-    if seen is None or prep.run.meta.get("controller") != "pi":
+    lv = _count_level(prep)
+    if lv is None:
         return prep, 0
+    unseen, tk, corr = lv
+    duty = []
+    for side, c in enumerate(corr):
+        u = np.asarray(prep.duty[side], float).copy()
+        if c is not None:
+            u[unseen] += c(tk)
+        duty.append(u)
+    return dataclasses.replace(prep, duty=(duty[0], duty[1])), int(unseen.size)
+
+
+def _count_level(prep: PreparedRun
+                 ) -> tuple[np.ndarray, np.ndarray,
+                            list[Callable[[np.ndarray], np.ndarray] | None]] | None:
+    """What :func:`fill_count_level` moves: (the unreported ticks, their times, per side the
+    move as a function of time, None where the reported commands do not follow the counted
+    speed), or None when the run is not a single wheel-speed loop or lacks the columns."""
+    seen = prep.seen_ticks
+    run = getattr(prep, "run", None)
+    if seen is None or run is None or run.meta.get("controller") != "pi":
+        return None
     seen = np.asarray(seen, bool)
     tel = prep.run.telemetry
     if any(c not in tel for c in ("enc_r", "enc_l", "omega_r", "omega_l", "t_s")):
-        return prep, 0
+        return None
     i_seen, unseen = np.flatnonzero(seen), np.flatnonzero(~seen)
     t_in = np.asarray(prep.t_in, float)
     t_tel = np.asarray(tel["t_s"], float)
     if unseen.size == 0 or i_seen.size < 5 or t_tel.size < 5:
-        return prep, 0
+        return None
     # the telemetry row of each reported tick (the nearest in time)
     row = np.clip(np.searchsorted(t_tel, t_in[i_seen]), 1, t_tel.size - 1)
     row = np.where(np.abs(t_tel[row - 1] - t_in[i_seen]) < np.abs(t_tel[row] - t_in[i_seen]),
                    row - 1, row)
     if np.unique(row).size != row.size:
-        return prep, 0
+        return None
     q = 2.0 * math.pi / float(prep.ppr)
     ts = t_in[i_seen]
     # the counts are the frame's (its own time), the command and the counted speed its tick's
     tf = t_tel[row]
     dt = np.diff(tf)
     if np.any(dt <= 0):
-        return prep, 0
+        return None
     mid = 0.5 * (tf[1:] + tf[:-1])
-    duty = []
+    corr: list[Callable[[np.ndarray], np.ndarray] | None] = []
     for side, (enc, om) in enumerate((("enc_r", "omega_r"), ("enc_l", "omega_l"))):
-        u = np.asarray(prep.duty[side], float).copy()
+        us = np.asarray(prep.duty[side], float)[i_seen]
         w_rep = np.asarray(tel[om], float)[row]
         w_mean = np.diff(np.asarray(tel[enc], float)[row]) * q / dt
-        us = u[i_seen]
         d_u = us[1:-1] - 0.5 * (us[:-2] + us[2:])
         d_w = w_rep[1:-1] - 0.5 * (w_rep[:-2] + w_rep[2:])
         den = float(np.sum(d_w ** 2))
         if den <= 0:
-            duty.append(u)
+            corr.append(None)
             continue
         g = -float(np.sum(d_u * d_w)) / den
-        tk = t_in[unseen]
-        u[unseen] += g * (np.interp(tk, ts, w_rep) - np.interp(tk, mid, w_mean))
-        duty.append(u)
-    return dataclasses.replace(prep, duty=(duty[0], duty[1])), int(unseen.size)
+
+        def move(t: np.ndarray, g: float = g, w_rep: np.ndarray = w_rep,
+                 w_mean: np.ndarray = w_mean) -> np.ndarray:
+            return cast(np.ndarray, g * (np.interp(t, ts, w_rep) - np.interp(t, mid, w_mean)))
+        corr.append(move)
+    return unseen, t_in[unseen], corr
 
 
 UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from their uncertainty
@@ -269,8 +290,14 @@ def fill_spread(prep: PreparedRun
     # on into the gap, or stopped early, does so for all of them)
     gap = np.concatenate([[0], np.cumsum(np.diff(unseen) > 1)])
     white, bend = [], []
-    for u in prep.duty:
+    lv = _count_level(prep)
+    for side, u in enumerate(prep.duty):
         us = np.asarray(u, float)[i_seen]
+        if lv is not None and (move := lv[2][side]) is not None:
+            # a single wheel-speed loop's reported commands sit on one of two count levels
+            # (fill_count_level): the fill is the line through them with that level taken
+            # out, and so is what it can miss
+            us = us + move(ts)
         dd = us[1:-1] - 0.5 * (us[:-2] + us[2:])
         white.append(robust_std(dd) / math.sqrt(1.5) if dd.size > 4 else 0.0)
         line = np.interp(tk, ts, us)

@@ -84,3 +84,19 @@ def test_not_a_single_wheel_speed_loop_or_every_tick_reported_changes_nothing() 
     full = PreparedRun(**{**prep.__dict__, "seen_ticks": None})
     out, n = UN.fill_count_level(full)
     assert n == 0 and out is full
+
+
+def test_the_fill_spread_is_that_of_the_fill_with_the_count_levels_taken_out() -> None:
+    # the reported commands jump by a level wherever the frames' aliasing of the count beat
+    # changes; measured on them, the bend that input_uncertainty draws takes each jump for a
+    # trend that may go on into the gap, carried over the lost frames' gaps as well
+    rms = {}
+    for ctl in ("pi", None):
+        prep, _, _ = _pi_run(controller=ctl)
+        spread = UN.fill_spread(prep)
+        assert spread is not None
+        rms[ctl] = math.sqrt(float(np.mean(np.square(spread[3][0]))))
+    level = G * 2.0 * math.pi / PPR / TICK
+    assert rms[None] > 0.25 * level
+    # the PI loop's fill is the line with the count level taken out: so is its spread
+    assert rms["pi"] < 0.25 * rms[None]
