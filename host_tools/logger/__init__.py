@@ -32,7 +32,9 @@ Guarantees:
   already read are decoded to the end, every frame that passed the CRC is written as a row or
   counted (duplicate, stale, unknown type, ...), events.jsonl gets its "end" line, meta.json
   its row count and end_reason ("interrupted (Ctrl-C)", "stopped by SIGTERM", ...).  A second
-  signal interrupts at once (the folder is still closed the same way); later ones are ignored.
+  signal interrupts at once, though never inside the handling of one chunk of input or one
+  frame (a row written twice or bytes never decoded): it waits for that step's end, which
+  takes microseconds; the folder is still closed the same way; later signals are ignored.
   A closed status pipe (stderr to ``head``) never ends the recording.
 * A full disk (or any other write error) stops the recording with exit 1 and a message: a
   256 KB reserve file kept in the run folder while recording is deleted so that meta.json

@@ -99,16 +99,17 @@ class FramesMixin(SessionParts):
         self._flagged_seqs: list[int] = []  # flagged since the last row: received, not lost
 
     def _drain(self) -> None:
-        """Handle the verified frames in the queue.  A frame leaves the queue only after it
-        was handled, so an interruption (a second Ctrl-C) leaves it for close() to handle: a
-        frame handled twice is then counted as a duplicate, never lost."""
+        """Handle the verified frames in the queue.  A frame is handled and leaves the queue
+        as one step that a second Ctrl-C waits for (``_uninterrupted``); a write error in it
+        leaves the frame queued (counted as not written by close(), never retried)."""
         if len(self.dec.errors) > self._errors_logged:
             for off, n, reason in self.dec.errors[self._errors_logged:]:
                 self.event("rejected_block", raw_offset=off, length=n, reason=reason)
             self._errors_logged = len(self.dec.errors)
         while self._queue:
-            self._frame(self._queue[0])
-            self._queue.pop(0)
+            with self._uninterrupted():  # handled and off the queue, or neither
+                self._frame(self._queue[0])
+                self._queue.pop(0)
 
     def _end_frames(self) -> None:
         """At the end of the recording: telemetry still held for confirmation.  The first

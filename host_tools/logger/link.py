@@ -9,8 +9,9 @@ time.  Every byte read goes to raw.bin and to the stream decoder; the verified f
 """
 from __future__ import annotations
 
+import contextlib
 import time
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 from host_tools import protocol as P
 from host_tools.logger.errors import LoggerError
@@ -118,9 +119,24 @@ class LinkMixin(SessionParts):
             self._status()
 
     def _receive(self, data: bytes) -> None:
-        try:
-            self.raw.write(data)
-        finally:  # decoded even when raw.bin could not take it (a full disk): counted
-            self.stats["bytes"] += len(data)
-            self._queue.extend(self.dec.feed(data))
+        with self._uninterrupted():  # in raw.bin and decoded, or neither
+            try:
+                self.raw.write(data)
+            finally:  # decoded even when raw.bin could not take it (a full disk): counted
+                self.stats["bytes"] += len(data)
+                self._queue.extend(self.dec.feed(data))
         self._drain()
+
+    @contextlib.contextmanager
+    def _uninterrupted(self) -> Iterator[None]:
+        """A step of input handling that a second signal must not cut: the signal handler
+        (session.Logger._on_signal) leaves the interruption due, raised here at the step's
+        end (the outermost step's, when steps nest)."""
+        self._handling += 1
+        try:
+            yield
+        finally:
+            self._handling -= 1
+        if self._interrupt_due and not self._handling:
+            self._interrupt_due = False
+            raise KeyboardInterrupt

@@ -7,6 +7,7 @@
 """
 from __future__ import annotations
 
+import contextlib
 from typing import IO, Any, Callable
 
 from host_tools import protocol as P
@@ -49,6 +50,8 @@ class SessionParts:
     params: dict[str, Any] | None
     _params_count: int
     _queue: list[P.Frame]
+    _handling: int
+    _interrupt_due: bool
     writer: runfmt.RunWriter
     raw: IO[bytes]
     events: IO[str]
@@ -58,6 +61,9 @@ class SessionParts:
 
     def write_meta(self) -> None:
         raise NotImplementedError  # runfolder.RunFolderMixin
+
+    def _uninterrupted(self) -> contextlib.AbstractContextManager[None]:
+        raise NotImplementedError  # link.LinkMixin
 
     def _meta(self) -> dict[str, Any]:
         raise NotImplementedError  # runfolder.RunFolderMixin

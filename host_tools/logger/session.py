@@ -77,6 +77,8 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         self._stop = False
         self._signals = 0
         self._interruptible = False
+        self._handling = 0  # > 0 while input is handled: a second signal waits for its end
+        self._interrupt_due = False
         self._write_error: OSError | None = None
         self.commands: list[dict[str, Any]] = []
         self._params_before_config = 0
@@ -243,7 +245,10 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
     def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
         """The first signal asks the session to stop; a later one interrupts it at once, but
         only once and only while the session runs: closing the folder (the queued frames, the
-        end event, meta.json, the reserve file) is never interrupted, however many follow."""
+        end event, meta.json, the reserve file) is never interrupted, however many follow.
+        Nor is the handling of a chunk of input or of one frame: a row written but not yet
+        counted, or bytes in raw.bin not yet decoded, would be a row written twice or frames
+        lost; the interruption waits for the end of that step (microseconds)."""
         if not self._signals:  # named before counting: a signal landing in this handler
             name = signal.Signals(signum).name  # finds the reason already set
             self.end_reason = self.end_reason or ("interrupted (Ctrl-C)" if name == "SIGINT"
@@ -252,6 +257,9 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
         self._signals += 1
         if self._signals > 1 and self._interruptible:
             self._interruptible = False
+            if self._handling:  # never inside the handling of input: at its end (link.py)
+                self._interrupt_due = True
+                return
             raise KeyboardInterrupt  # a second signal: stop at once (close() still runs)
 
     def _install_signals(self) -> dict[int, Any]:

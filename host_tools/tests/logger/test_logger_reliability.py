@@ -15,6 +15,7 @@ from host_tools import protocol as P
 from host_tools import runfmt
 from host_tools.logger import link as logger_link
 from host_tools.logger import runfolder as logger_files
+from host_tools.logger.reference import ReferenceTracker
 from host_tools.runfmt import write as runfmt_write
 from test_logger import (ScriptedPort, _args, events, log_until_rows_then_signal, rows,
                          telemetry)
@@ -102,6 +103,40 @@ def test_second_ctrl_c_during_a_burst_still_counts_every_frame(tmp_path, monkeyp
     s = lg.stats
     assert s["telemetry_rows"] + s["duplicates"] + s["stale"] >= 60
     assert rows(out).telemetry["seq"].astype(int).tolist() == list(range(60))
+
+
+def _two_sigints_in(monkeypatch, owner, name: str, at: int) -> None:
+    """Two real SIGINTs to this process inside the ``at``-th call of ``owner.name``: the
+    first asks the session to stop, the second lands in the middle of the work."""
+    real = getattr(owner, name)
+    state = {"n": 0}
+
+    def hooked(self, *args):
+        state["n"] += 1
+        if state["n"] == at:
+            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), signal.SIGINT)
+        return real(self, *args)
+    monkeypatch.setattr(owner, name, hooked)
+
+
+@pytest.mark.parametrize("owner, name", [
+    (ReferenceTracker, "row"),  # a row written, the frame's handling not finished
+    (P.StreamDecoder, "feed"),  # the bytes in raw.bin, not yet decoded
+    (runfmt.RunWriter, "write_row")])  # before the row is written
+def test_a_second_signal_never_tears_a_frame(tmp_path, monkeypatch, owner, name):
+    """However a second signal cuts into the handling of the input, every verified frame is
+    a row exactly once, the recording ends as interrupted and the exit code is 0."""
+    n = len(telemetry(0, 0))
+    port = ScriptedPort(_burst(60), [60 * n])  # one read: 60 frames
+    _two_sigints_in(monkeypatch, owner, name, 1 if name == "feed" else 10)
+    out = tmp_path / "run"
+    lg = L.Logger(str(out), lambda: port, "scripted", 115200, params_timeout_s=5, status=False)
+    assert lg.run() == 0
+    assert lg.dec.frames == 60
+    assert rows(out).telemetry["seq"].astype(int).tolist() == list(range(60))
+    assert lg.stats["gaps"] == lg.stats["duplicates"] == lg.stats["stale"] == 0
+    _check_complete(out, "interrupted (Ctrl-C)")
 
 
 class FullDisk:
