@@ -140,6 +140,7 @@ class Logger(LinkMixin, FramesMixin, RunFolderMixin):
                     self._interruptible = False
                 except KeyboardInterrupt:  # raised just before the line above: the only one
                     self.end_reason = self.end_reason or "interrupted (Ctrl-C)"
+                self._interrupt_due = False  # left due by a step that raised: the session is over
                 if self.end_reason == "" and self._stop:
                     self.end_reason = "stopped"
                 # failed before the experiment ran (nothing of it recorded): marked so; a free
