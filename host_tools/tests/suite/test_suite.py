@@ -165,13 +165,14 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback17", 28, 12),
                                                     ("heldback18", 28, 12),
                                                     ("heldback19", 28, 12),
-                                                    ("heldback20", 28, 12)])
+                                                    ("heldback20", 28, 12),
+                                                    ("heldback21", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
              "heldback6", "heldback7", "heldback8", "heldback9", "heldback10", "heldback11",
              "heldback12", "heldback13", "heldback14", "heldback15", "heldback16",
-             "heldback17", "heldback18", "heldback19", "heldback20"]
+             "heldback17", "heldback18", "heldback19", "heldback20", "heldback21"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -219,8 +220,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
         assert {c.length for c in new} == {"short", "20 s", "1 min"}
     if which in ("heldback11", "heldback12", "heldback13", "heldback14", "heldback15",
                  "heldback16", "heldback17", "heldback18", "heldback19",
-                 "heldback20"):  # both engines in every kind and on 20 s and 60 s runs (hard
-        # ones with the clamp off)
+                 "heldback20", "heldback21"):  # both engines in every kind and on 20 s and 60 s
+        # runs (hard ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -243,8 +244,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
         assert any(c.engine == "mujoco" and c.effects[e]["h"] >= 0.09 for c in new
                    for e in c.effects if e == "load_transfer")
     if which in ("heldback13", "heldback14", "heldback15", "heldback16",
-                 "heldback17", "heldback18", "heldback19", "heldback20"):  # friction on both
-        # engines, mu_s / mu_k drawn over [1, 1.15]; an effect over 60 s runs
+                 "heldback17", "heldback18", "heldback19", "heldback20",
+                 "heldback21"):  # friction on both engines, mu_s / mu_k drawn over [1, 1.15];
+        # an effect over 60 s runs
         friction = [c for c in new if "friction_coefficient" in c.effects]
         assert {c.engine for c in friction} == {"truth", "mujoco"}
         ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
@@ -261,7 +263,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     # heldback18's Stribeck friction, floor slope, deadband and axle viscous friction (all four
     # absent from heldback17); heldback19's load transfer and payload (both absent from
     # heldback18); heldback20's motor lag, track width, floor slope and driver voltage drop (all
-    # four absent from heldback19)
+    # four absent from heldback19); heldback21's deadband, caster drag and wheel radius (all
+    # three absent from heldback20)
     own_kinds = {"heldback14": ("payload", "motor_back_emf", "deadband"),
                  "heldback15": ("axle_coulomb", "motor_gain_asymmetry", "actuation_delay"),
                  "heldback16": ("motor_back_emf", "motor_lag", "track_width"),
@@ -269,7 +272,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                                 "wheel_radius"),
                  "heldback18": ("stribeck", "floor_slope", "deadband", "axle_viscous"),
                  "heldback19": ("load_transfer", "payload"),
-                 "heldback20": ("motor_lag", "track_width", "floor_slope", "driver_voltage_drop")}
+                 "heldback20": ("motor_lag", "track_width", "floor_slope", "driver_voltage_drop"),
+                 "heldback21": ("deadband", "caster_drag", "wheel_radius")}
     if which in own_kinds:
         for kind in own_kinds[which]:
             sizes = [c.effects[kind][cases.MAIN_PARAM[kind]] for c in new if kind in c.effects]
@@ -376,6 +380,7 @@ FROZEN_SETS = {
     "heldback18": "df941c5593cc16497b001db35f0de00509666e42f4ee050a3668ce639bb42ee2",
     "heldback19": "c80f514435858957ebdd30bccdc95b23fc83d9fa815ae81bf1a8209c7bc83269",
     "heldback20": "33b12625280df1291625fff60096c365c865a32b3233cd7c3420a17a3a38191c",
+    "heldback21": "cb78e9e7db5d1d847607ca25e764f0f9dd6e331c7e94718065f5d6c9c3f65c23",
 }
 
 
