@@ -144,7 +144,7 @@ def _fit_pairs(problem: Problem, cands: list[Candidate], best_single: Candidate 
         for e, zs in weak:
             pc.reasons.append(f"{e} insignificant in the pair (its parameter {zs:.2f} sigma from "
                               f"nominal, within {HELDOUT_Z} sigma of what the nominal model "
-                              f"allows): dropped")
+                              f"allows with its tolerance): dropped")
     pair_cands.sort(key=lambda c: c.delta_bic)
     return pair_cands
 
@@ -159,12 +159,14 @@ def _heldout_beats(pair: Candidate, single: Candidate) -> bool:
 
 
 def _insignificant_partners(pair: Candidate, problem: Problem) -> list[tuple[str, float]]:
-    """Effects of a pair none of whose fitted parameters is significantly off nominal (|value -
-    neutral| within HELDOUT_Z of its 1-sigma uncertainty, one-sided 1 %: the rate of the other
-    tests; within what the nominal model's left-out physics of the normal forces moves it by,
-    ``judge.significant_deviation``): such a partner only bends the fit, and the pair is refused
-    so its other effect stands alone.  Shape parameters and unidentified coordinates do not
-    count."""
+    """Effects of a pair none of whose fitted parameters is significantly off nominal: the
+    size test a single effect passes (``judge.significant_deviation``: beyond the range the
+    nominal model's left-out physics of the normal forces moves it by, by more than HELDOUT_Z,
+    one-sided 1 %, the rate of the other tests, of the combined uncertainty of the fit and of
+    the nominal parameter's tolerance).  Such a partner only bends the fit -- a deviation the
+    nominal model's own tolerance allows is no evidence of the effect, alone or in a pair --
+    and the pair is refused so its other effect stands alone.  Shape parameters and
+    unidentified coordinates do not count."""
     params = params_for(pair.effects, problem.meta, problem.vocab)
     best: dict[str, float] = {}
     strong: set[str] = set()
@@ -176,13 +178,13 @@ def _insignificant_partners(pair: Candidate, problem: Problem) -> list[tuple[str
         dev = pair.fit.values[j] - p.neutral
         zs = abs(dev) / sd if math.isfinite(sd) and sd > 0 else (math.inf if dev else 0.0)
         best[p.effect] = max(best.get(p.effect, 0.0), zs)
-        if significant_deviation(dev, sd, 0.0, HELDOUT_Z,
+        if significant_deviation(dev, sd, p.tol, HELDOUT_Z,
                                  fx.left_out_ranges(p.effect, p.name, problem.meta)):
             strong.add(p.effect)
     for jd in fx.judged_sets(params, pair.fit.values, pair.fit.std, [], problem.meta):
         zs = abs(jd.dev) / jd.std if math.isfinite(jd.std) and jd.std > 0 else math.inf
         best[jd.effect] = max(best.get(jd.effect, 0.0), zs)
-        if significant_deviation(jd.dev, jd.std, 0.0, HELDOUT_Z, jd.left_out):
+        if significant_deviation(jd.dev, jd.std, jd.tol, HELDOUT_Z, jd.left_out):
             strong.add(jd.effect)
     return [(e, zs) for e, zs in best.items() if e not in strong]
 

@@ -179,6 +179,36 @@ def test_a_pair_partner_whose_parameter_is_insignificant_is_dropped():
     assert _insignificant_partners(pair(0.001), _P()) == []
 
 
+def test_a_pair_partner_within_its_nominal_tolerance_is_dropped():
+    """Wheel radius far off with a track width 1.3 mm off at 0.27 mm: 4.8 sigma by the fit
+    alone, but inside what the table's half width and its tolerance allow (the size test a
+    single track width fails: 2.33 x sqrt(sigma^2 + tol^2/3)), so the pair is refused and the
+    radius stands alone; 2.5 tolerances off, the track width stays."""
+    from host_tools import params as PP
+    from host_tools.analyzer.fit.judge import Candidate
+    from host_tools.analyzer.fit.params import FitResult
+    from host_tools.analyzer.select import _insignificant_partners
+    from host_tools.runfmt import validate_meta
+
+    r0, b0 = PP.ROBOT["r"], PP.ROBOT["b"]
+    b_tol = next(p.tol for p in PP.TABLE.group("robot") if p.name == "b")
+
+    class _P:
+        meta = validate_meta({})
+        vocab = {"wheel_radius": {"r_eff": r0}, "track_width": {"b_eff": b0}}
+        floors: dict[str, float] = {}
+
+    def pair(db: float):
+        fit = FitResult(["wheel_radius", "track_width"],
+                        {"wheel_radius": {"r_eff": r0 * 1.02}, "track_width": {"b_eff": b0 + db}},
+                        [r0 * 1.02, b0 + db], np.array([0.5, 0.5]), 10.0, 1000,
+                        [r0 * 2e-4, 0.27e-3], 10)
+        return Candidate(fit.effects, fit, -300.0, 2.0, 1.0, {}, {}, [[r0 * 1.02, b0 + db]], 3.0)
+    assert 1.3e-3 / 0.27e-3 > 2.33  # significant by the fit's sigma alone
+    assert [e for e, _ in _insignificant_partners(pair(1.3e-3), _P())] == ["track_width"]
+    assert _insignificant_partners(pair(2.5 * b_tol), _P()) == []
+
+
 def _detect(paths, with_tolerance: bool, monkeypatch):
     from host_tools.analyzer import pipeline as P
     from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
