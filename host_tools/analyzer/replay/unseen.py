@@ -89,25 +89,40 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
     if k_seen.size < 2 or unseen.size == 0:
         return prep, 0
 
+    i_seen = np.flatnonzero(seen)
+    j_next = np.clip(np.searchsorted(i_seen, unseen), 1, i_seen.size - 1)
+    prev_i, next_i = i_seen[j_next - 1], i_seen[j_next]
+    ku = k[unseen]
+    # the staircase's place of each unseen tick: the outer phase of the reported tick before
+    # it, its distance from that tick and the distance between the two reported ticks that
+    # bracket it.  A periodic staircase on a trend lies off the line through the reported
+    # ticks by the same amount wherever this is the same, and by another amount (another
+    # sign) where it is not, so the pattern is averaged within one place only.
+    m = outer_ticks(prep)
+    kp, kn = k[prev_i], k[next_i]
+    place = (np.unique(np.stack([np.mod(kp, m), ku - kp, kn - kp], axis=1), axis=0,
+                       return_inverse=True)[1].ravel()
+             if m >= 2 else np.zeros(ku.size, np.int64))
+
     def pattern(u: np.ndarray) -> tuple[np.ndarray, float]:
-        off = u[k[unseen]] - np.interp(k[unseen], k_seen, u[k_seen])
-        # averaged over the unseen ticks within 2 * UNSEEN_PATTERN_HALF ticks (every other
-        # tick unseen: UNSEEN_PATTERN_HALF on either side), never over other, distant gaps
-        ku = k[unseen]
-        c = np.concatenate([[0.0], np.cumsum(off)])
-        lo = np.searchsorted(ku, ku - 2 * UNSEEN_PATTERN_HALF, side="left")
-        hi = np.searchsorted(ku, ku + 2 * UNSEEN_PATTERN_HALF, side="right")
-        smooth = (c[hi] - c[lo]) / (hi - lo)
+        off = u[ku] - np.interp(ku, k_seen, u[k_seen])
+        # averaged over the unseen ticks in the same place of the staircase within
+        # 2 * UNSEEN_PATTERN_HALF ticks (every other tick unseen: UNSEEN_PATTERN_HALF on
+        # either side), never over other, distant gaps
+        smooth = np.empty_like(off)
+        for pl in np.unique(place):
+            sel = np.flatnonzero(place == pl)
+            kk = ku[sel]
+            c = np.concatenate([[0.0], np.cumsum(off[sel])])
+            lo = np.searchsorted(kk, kk - 2 * UNSEEN_PATTERN_HALF, side="left")
+            hi = np.searchsorted(kk, kk + 2 * UNSEEN_PATTERN_HALF, side="right")
+            smooth[sel] = (c[hi] - c[lo]) / (hi - lo)
         # a single tick far off the line (a step: the end of a ramp, a clamp taking hold) is
         # the controller's, not an encoder count's: kept beyond 3 sigma of the tick-level
         # scatter (soft threshold), the scatter itself averaged away
         dev = off - smooth
         sigma = robust_std(dev) if dev.size > 4 else 0.0
         return smooth + np.sign(dev) * np.maximum(np.abs(dev) - 3.0 * sigma, 0.0), sigma
-
-    i_seen = np.flatnonzero(seen)
-    j_next = np.clip(np.searchsorted(i_seen, unseen), 1, i_seen.size - 1)
-    prev_i, next_i = i_seen[j_next - 1], i_seen[j_next]
 
     def refined(v: np.ndarray, col: str) -> np.ndarray:
         out = np.asarray(v, float).copy()
@@ -217,6 +232,18 @@ UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from the
 ReplayUnc = dict[str, tuple[np.ndarray, np.ndarray]]  # channel -> (t, std) (PreparedRun.replay_unc)
 
 
+def outer_ticks(prep: PreparedRun) -> int:
+    """Inner ticks per outer period of a cascade (meta.json ``periods_s``: outer / inner), 1
+    when the recorder gives none or its controller has no outer loop (a single wheel-speed
+    loop such as ``pi``, whatever outer period meta.json gives)."""
+    ctl = prep.run.meta.get("controller")
+    if ctl is not None and ctl not in REPLAYABLE_CONTROLLERS:
+        return 1
+    per = prep.run.meta.get("periods_s") or {}
+    inner, outer = float(per.get("inner", 0.0) or 0.0), float(per.get("outer", 0.0) or 0.0)
+    return max(int(round(outer / inner)), 1) if inner > 0 else 1
+
+
 def phase_term(prep: PreparedRun) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
     """The unreported ticks' offset within a cascade's outer period that the straight-line fill
     cannot see: (block of each unreported tick, per side the offset per unit draw), or None.
@@ -238,14 +265,10 @@ def phase_term(prep: PreparedRun) -> tuple[np.ndarray, tuple[np.ndarray, np.ndar
     single tick, every tick is reported, or the fill is no longer the straight line
     (:func:`fill_unseen_from_controller` refined it with the controller's own staircase)."""
     seen = prep.seen_ticks
-    ctl = prep.run.meta.get("controller")
-    if ctl is not None and ctl not in REPLAYABLE_CONTROLLERS:
-        return None
-    per = prep.run.meta.get("periods_s") or {}
-    inner, outer = float(per.get("inner", 0.0) or 0.0), float(per.get("outer", 0.0) or 0.0)
-    m = int(round(outer / inner)) if inner > 0 else 0
+    m = outer_ticks(prep)
     if seen is None or m < 2:
         return None
+    inner = float(prep.run.meta["periods_s"]["inner"])
     seen = np.asarray(seen, bool)
     i_seen, unseen = np.flatnonzero(seen), np.flatnonzero(~seen)
     if unseen.size == 0 or i_seen.size < 3:

@@ -37,6 +37,19 @@ def _rms(x) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
 
 
+def given_commands(prep, full, inner_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The duties the controller gave at ``prep``'s ticks, from ``full``: the same run recorded
+    with a frame at every tick.  About half of ``prep``'s ticks are unreported."""
+    tf = np.asarray(full.telemetry["t_s"], float)
+    kf = np.floor(tf / inner_s + 1e-9).astype(np.int64)
+    k = np.round(prep.t_in / inner_s).astype(np.int64)
+    idx = np.searchsorted(kf, k)
+    assert np.array_equal(kf[idx], k)
+    assert 0.4 < np.mean(np.asarray(prep.seen_ticks, bool)) < 0.6
+    return (np.asarray(full.telemetry["pwm_r"], float)[idx],
+            np.asarray(full.telemetry["pwm_l"], float)[idx])
+
+
 @pytest.fixture(scope="module")
 def staircase(tmp_path_factory):
     """(prepared run, the commands the controller gave at its ticks): the same run recorded
@@ -49,14 +62,8 @@ def staircase(tmp_path_factory):
     full = load_run(truth.simulate_run(d / "full", TOUR, None, duration_s=3.5, seed=41,
                                        recorder=dict(rec, tel_s=INNER_S)))
     prep = PI.prepare_timed(run)
-    tf = np.asarray(full.telemetry["t_s"], float)
-    kf = np.floor(tf / INNER_S + 1e-9).astype(np.int64)
-    k = np.round(prep.t_in / INNER_S).astype(np.int64)
-    idx = np.searchsorted(kf, k)
-    assert np.array_equal(kf[idx], k)
-    given = tuple(np.asarray(full.telemetry[c], float)[idx] for c in ("pwm_r", "pwm_l"))
+    given = given_commands(prep, full, INNER_S)
     seen = np.asarray(prep.seen_ticks, bool)
-    assert 0.4 < seen.mean() < 0.6
     for side in (0, 1):   # the reported ticks are the recorded commands, exactly
         assert np.array_equal(prep.duty[side][seen], given[side][seen])
     return prep, given
