@@ -186,7 +186,8 @@ def _block_cov(e: np.ndarray, have: np.ndarray, rows: np.ndarray,
         for l in range(j + 1, p):
             m = have[:, j] & have[:, l] & rows
             if m.sum() > 3:
-                c = float(np.corrcoef(e[m, j], e[m, l])[0, 1])
+                with np.errstate(invalid="ignore", divide="ignore"):  # a constant column: 0
+                    c = float(np.corrcoef(e[m, j], e[m, l])[0, 1])
                 c = min(max(c if math.isfinite(c) else 0.0, -0.95), 0.95)
                 cov[j, l] = cov[l, j] = c * math.sqrt(var[j] * var[l])
     return cov
