@@ -158,7 +158,10 @@ def fill_count_level(prep: PreparedRun) -> tuple[PreparedRun, int]:
     squares slope of the reported commands' second differences on the reported speeds' (trend
     removed; the count steps are the only fast change of the counted speed); each unreported
     tick's fill moves by ``g x`` (the line through the reported counted speeds minus the
-    count-mean speed, the latter taken through the intervals' mid-times).  Returns (the run
+    count-mean speed, the latter taken through the intervals' mid-times and read half a period
+    before the tick: its counted speed is the mean over the tick before it, which on a ramp
+    lags the speed at the tick by acceleration x period / 2, three counts at a 25 ms loop on a
+    33 rad/s^2 ramp).  Returns (the run
     with those fills, a new value; the number of ticks changed, 0: ``prep`` itself)."""
     lv = _count_level(prep)
     if lv is None:
@@ -206,6 +209,10 @@ def _count_level(prep: PreparedRun
     if np.any(dt <= 0):
         return None
     mid = 0.5 * (tf[1:] + tf[:-1])
+    # a tick's counted speed is the count difference over the tick before it: the mean speed
+    # over that tick, whose mid-time is half a period before the tick (on a trend, a 25 ms
+    # loop's counted speed lags the speed at the tick by several counts)
+    half = 0.5 * float(prep.inner_period or 0.0)
     corr: list[Callable[[np.ndarray], np.ndarray] | None] = []
     for side, (enc, om) in enumerate((("enc_r", "omega_r"), ("enc_l", "omega_l"))):
         us = np.asarray(prep.duty[side], float)[i_seen]
@@ -221,7 +228,8 @@ def _count_level(prep: PreparedRun
 
         def move(t: np.ndarray, g: float = g, w_rep: np.ndarray = w_rep,
                  w_mean: np.ndarray = w_mean) -> np.ndarray:
-            return cast(np.ndarray, g * (np.interp(t, ts, w_rep) - np.interp(t, mid, w_mean)))
+            return cast(np.ndarray, g * (np.interp(t, ts, w_rep)
+                                         - np.interp(t - half, mid, w_mean)))
         corr.append(move)
     return unseen, t_in[unseen], corr
 

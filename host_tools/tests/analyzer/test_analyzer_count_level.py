@@ -100,3 +100,44 @@ def test_the_fill_spread_is_that_of_the_fill_with_the_count_levels_taken_out() -
     assert rms[None] > 0.25 * level
     # the PI loop's fill is the line with the count level taken out: so is its spread
     assert rms["pi"] < 0.25 * rms[None]
+
+
+def test_a_slow_loop_on_a_ramp_is_not_moved_by_its_counted_speed_lag() -> None:
+    # a 25 ms loop seen every 2.16 ticks (54 ms frames) on ramps of 30 rad/s^2: a tick's counted
+    # speed is the mean over the tick before it, half a period (0.375 rad/s here, several
+    # counts) behind the speed at the tick; the counts' mean speed taken at the tick instead of
+    # at its counting interval's mid-time moves every unreported tick by G x that, one sign
+    # for the whole ramp
+    tick, accel = 0.025, 30.0
+    n = 480
+    t = tick * np.arange(n)
+    q = 2.0 * math.pi / PPR
+    phase = np.mod(t, 4.0)
+    omega = np.where(phase < 1.0, accel * phase,
+                     np.where(phase < 2.0, accel, np.where(phase < 3.0, accel * (3.0 - phase), 0.0)))
+    theta = np.concatenate([[0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1])) * tick])
+    counts = np.floor(theta / q)
+    w_cnt = np.concatenate([[0.0], np.diff(counts)]) * q / tick
+    u = 0.05 + 0.01 * t - G * w_cnt
+    frames = np.unique(np.round(np.arange(0.0, n / 2.16) * 2.16).astype(int))
+    frames = frames[frames < n]
+    seen = np.zeros(n, bool)
+    seen[frames] = True
+    fill = np.interp(t, t[seen], u[seen])
+    tel = {"t_s": t[frames], "enc_r": counts[frames], "enc_l": counts[frames],
+           "omega_r": w_cnt[frames], "omega_l": w_cnt[frames],
+           "pwm_r": u[frames], "pwm_l": u[frames]}
+    run = SimpleNamespace(meta={"controller": "pi"}, telemetry=tel)
+    prep = PreparedRun(run=run, t_in=t, t_in_tau=t, duty=(fill, fill.copy()),  # type: ignore[arg-type]
+                       torque=(fill, fill.copy()), t_grid=t, robot={}, motor={},
+                       start_pose=(0.0, 0.0, 0.0), ppr=PPR, inner_period=tick, tick_phase=0.0,
+                       seen_ticks=seen)
+    out, n_moved = UN.fill_count_level(prep)
+    assert n_moved == int((~seen).sum())
+    speeding_up = ~seen & (phase > 0.2) & (phase < 0.95)
+    err = np.asarray(out.duty[0])[speeding_up] - u[speeding_up]
+    lag_move = G * accel * tick / 2.0
+    # the fill's error while speeding up keeps no one-signed share of the lag's move
+    assert abs(float(np.mean(err))) < 0.2 * lag_move
+    assert _interval_mean_error(np.asarray(out.duty[0]), u, seen) \
+        <= _interval_mean_error(fill, u, seen)
