@@ -237,6 +237,18 @@ def test_clamp_off_48_slips_clamp_on_72_does_not(run48, run72_clamped):
     assert meta["torque_clamp"] is True
 
 
+def test_record_s_is_simulated_time_on_a_simulator_slower_than_real_time(elf, sim, tmp_path):
+    """The length of a recording is simulated time: a simulator slower than real time (held to
+    half of it here, as a loaded machine slows it) still records it whole; the wall clock,
+    which would have cut it at half, is only the backstop."""
+    out = tmp_path / "slow"
+    code, lg, _ = fil.record(out, elf, None, record_s=1.0, args=["--realtime", "0.5"])
+    assert code == 0, lg.end_reason
+    assert lg.end_reason == "recorded 1 s"
+    t = csv(out / "telemetry.csv")["t_s"]
+    assert t[-1] - t[0] >= 1.0
+
+
 def test_plant_effects_reach_the_plant_slippery_floor_defeats_the_nominal_clamp(elf, sim, tmp_path):
     # the firmware clamps at the nominal mu_s (Table II.2); on a floor with mu_s = 0.12 the same
     # clamp allows twice the torque the floor can take: the wheels slip although the clamp is on
