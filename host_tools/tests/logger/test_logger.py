@@ -201,7 +201,7 @@ def pty_pair():
     return master, os.ttyname(slave), slave
 
 
-def robot_on_pty(**kw):
+def robot_on_pty(start=True, **kw):
     master, path, slave = pty_pair()
 
     def read():
@@ -212,8 +212,16 @@ def robot_on_pty(**kw):
         except OSError:
             return b""
     robot = FakeRobot(lambda b: os.write(master, b), read, **kw)
-    robot.start()
+    if start:
+        robot.start()
     return robot, path, (master, slave)
+
+
+def _wait_until(cond, timeout_s=30.0):
+    """Wait for ``cond()`` (a wall-clock guard only: a loaded machine may be slow to get there)."""
+    deadline = time.monotonic() + timeout_s
+    while not cond() and time.monotonic() < deadline:
+        time.sleep(0.01)
 
 
 def test_pty_experiment_with_params_commands_and_heartbeats(tmp_path):
@@ -319,16 +327,31 @@ def test_bad_controller_value_is_refused_before_anything_is_sent(tmp_path, capsy
 def test_failsafe_without_heartbeats_is_recorded(tmp_path):
     """A robot running an experiment that stops hearing the host brakes (failsafe
     host_timeout); the logger, recording freely (so sending no heartbeats), records why."""
-    robot, path, fds = robot_on_pty(period=0.004)
-    with robot.lock:
-        robot.last_host = time.monotonic()
-        robot.running_until = 10**9
+    robot, path, fds = robot_on_pty(period=0.004, start=False)
+    # an experiment under way from the robot's first frame, its host heard until the logger
+    # connects (however late a loaded machine lets it)
+    robot.running_until, robot.last_host = 10**9, math.inf
+    robot.start()
+
+    def open_port():
+        port = serial.serial_for_url(path, timeout=0.02)
+        with robot.lock:
+            robot.last_host = time.monotonic()
+        return port
     out = tmp_path / "run"
+    lg = L.Logger(str(out), open_port, path, 115200, record_s=60, params_timeout_s=0.2, status=False)
+
+    def stop_after_the_brake():  # the robot brakes 0.5 s after the host's last frame (its
+        _wait_until(lambda: robot.failsafe)  # RequestParams): recorded until 20 rows after
+        n = lg.stats["telemetry_rows"]
+        _wait_until(lambda: lg.stats["telemetry_rows"] >= n + 20)
+        lg.stop()
+    th = threading.Thread(target=stop_after_the_brake, daemon=True)
+    th.start()
     try:
-        lg = L.Logger(str(out), lambda: serial.serial_for_url(path, timeout=0.02), path, 115200,
-                      record_s=1.0, params_timeout_s=0.2, status=False)
         assert lg.run() == 0
     finally:
+        th.join()
         robot.stop_flag.set()
         robot.join(2)
     fs = [e for e in events(out) if e["kind"] == "failsafe"]
@@ -434,13 +457,6 @@ class SocketRobot:
         self.robot.stop_flag.set()
         self.robot.join(2)
         self.pull()
-
-
-def _wait_until(cond, timeout_s=30.0):
-    """Wait for ``cond()`` (a wall-clock guard only: a loaded machine may be slow to get there)."""
-    deadline = time.monotonic() + timeout_s
-    while not cond() and time.monotonic() < deadline:
-        time.sleep(0.01)
 
 
 def _cable_timeline(lg, robot, pull, plug, rows_before=100, frames_lost=60, rows_after=50):
