@@ -110,6 +110,9 @@ def test_loop_corruption_drops_and_duplicates(tmp_path):
 # ----------------------------------------------------------------- a fake robot
 
 
+STALL_S = 0.1  # a gap between the fake robot's steps this much longer than its period: a stall
+
+
 class FakeRobot(threading.Thread):
     """Robot side of the protocol: answers commands with Acks, sends Params on request and
     telemetry every ``period`` s (board time in 20 ms steps), runs experiments, brakes when no
@@ -185,7 +188,17 @@ class FakeRobot(threading.Thread):
         self.t_us += 20_000
 
     def run(self):
+        last = time.monotonic()
         while not self.stop_flag.is_set():
+            # this robot runs in the host's process (the in-process tests): a stall of the whole
+            # process (a loaded machine) stops both, and is not the host falling silent, which a
+            # real robot, running on, would judge on its own clock
+            now = time.monotonic()
+            stalled = now - last - self.period
+            last = now
+            if stalled > STALL_S and self.last_host is not None:
+                with self.lock:
+                    self.last_host += stalled
             data = self.read()
             if data:
                 self.handle(data)
