@@ -878,7 +878,7 @@ def log_until_rows_then_signal(out, sig, min_rows=20, extra=(), period=0.01):
                              str(out), *extra], cwd=root, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 20
+        deadline = time.monotonic() + 60  # a guard: a loaded machine starts Python slowly
         tpath = out / "telemetry.csv"
         while time.monotonic() < deadline:  # wait until rows are on disk (flushed as it goes)
             if tpath.exists() and len(tpath.read_text().splitlines()) > min_rows:
