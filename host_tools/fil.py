@@ -317,11 +317,25 @@ class _CountingPort:
 
 
 class FilLogger(L.Logger):
-    """The telemetry logger, with the simulator's description added to meta.json."""
+    """The telemetry logger, with the simulator's description added to meta.json.
+    ``board_s``: the recording's length in simulated seconds (the robot's clock, from the first
+    telemetry row): a simulator slower than real time (a loaded machine) would otherwise have
+    its run cut by the wall clock, which stays the backstop (``record_s``)."""
 
-    def __init__(self, *a, fil_meta: dict | None = None, **kw):
+    def __init__(self, *a, fil_meta: dict | None = None, board_s: float | None = None, **kw):
         super().__init__(*a, **kw)
         self.fil_meta = fil_meta or {}
+        self.board_s = board_s
+        self._board_t0: float | None = None
+
+    def _should_stop(self) -> bool:
+        if self.board_s is not None and self.last_t_s is not None:
+            if self._board_t0 is None:
+                self._board_t0 = self.last_t_s
+            elif self.last_t_s - self._board_t0 >= self.board_s:
+                self.end_reason = self.end_reason or f"recorded {self.board_s:g} s"
+                return True
+        return super()._should_stop()
 
     def _meta(self) -> dict:
         meta = super()._meta()
@@ -352,7 +366,8 @@ def record(out: str | Path, elf: str | Path, experiment: dict | None = None, cla
     """Runs the simulator and records through its pty with the logger (``controller``:
     the velocity loop the logger sets with SetController before the Start, None: the
     firmware's default; ``model``: SetModel values, host_tools.model.firmware_model;
-    ``on_row``: called with each telemetry row, e.g. the live view's publish). Returns
+    ``on_row``: called with each telemetry row, e.g. the live view's publish; ``record_s``:
+    simulated seconds, the wall clock allowing ``timeout_s`` more). Returns
     (logger exit code, logger, fil.json)."""
     out = Path(out)
     if controller is not None and controller not in P.definition().enums["controller"]:
@@ -376,7 +391,7 @@ def record(out: str | Path, elf: str | Path, experiment: dict | None = None, cla
         return serial.serial_for_url(sim.pty, baudrate=d.baud, timeout=0.05, write_timeout=0.5)
 
     lg = FilLogger(str(out), open_port, sim.pty, d.baud, experiment=experiment, clamp=clamp, mu=mu,
-                   record_s=record_s, controller=controller, status=False, d=d, model=model, on_row=on_row,
+                   board_s=record_s, record_s=record_s + timeout_s, controller=controller, status=False, d=d, model=model, on_row=on_row,
                    fil_meta={"command": sim.cmd[1:], "elf": str(elf)})
     try:
         code = lg.run()

@@ -224,16 +224,30 @@ def test_cluster_with_a_worker_killed_mid_batch(tmp_path):
                                                 progress=lines.append))))
         th.start()
         partial = os.path.join(out, ".partial")
-        t0 = time.time()
-        while time.time() - t0 < 90:  # both workers busy: two analyses in flight
-            if os.path.isdir(partial) and len(os.listdir(partial)) >= 2:
-                break
-            time.sleep(0.1)
-        in_flight = set(os.listdir(partial))
-        assert len(in_flight) >= 2, "the workers never started two analyses"
         victim = cluster.workers[1]
-        analyses = [p for p in psutil.Process(victim.pid).children(recursive=True)
-                    if "analyze" in " ".join(p.cmdline())]
+
+        def victims_analyses():
+            found = []
+            for p in psutil.Process(victim.pid).children(recursive=True):
+                try:
+                    if "analyze" in " ".join(p.cmdline()):
+                        found.append(p)
+                except psutil.Error:  # it ended while we looked
+                    pass
+            return found
+
+        # both workers busy: two analyses in flight, the victim's started (its attempt folder
+        # is made before its analyzer process, which is what the kill must take with it)
+        analyses: list = []
+        t0 = time.time()
+        while time.time() - t0 < 90:
+            if os.path.isdir(partial) and len(os.listdir(partial)) >= 2:
+                analyses = victims_analyses()
+                if analyses:
+                    break
+            time.sleep(0.1)
+        in_flight = set(os.listdir(partial)) if os.path.isdir(partial) else set()
+        assert len(in_flight) >= 2, "the workers never started two analyses"
         assert analyses, "the killed worker was running no analysis"
         cluster.kill_worker(1)  # nanny and worker: SIGKILL to the process group
         th.join(timeout=240)
@@ -247,14 +261,23 @@ def test_cluster_with_a_worker_killed_mid_batch(tmp_path):
         done = [ln for ln in lines if ln.startswith("[")]
         assert len(done) == len(sets) and done[-1].startswith(f"[{len(sets)}/{len(sets)}]")
         assert f"{len(sets)} ok, 0 failed" in done[-1]
-        # the killed worker's analysis was stopped with it (it would race its redo)
-        time.sleep(1.0)
-        assert not [p for p in analyses if p.is_running() and p.status() != "zombie"]
-        # its task was redone: its attempt folder was left unpublished, its set still has a
-        # result from another attempt
+        # the killed worker's analysis was stopped with it (it would race its redo): it ends,
+        # and before its end it wrote no report (an analysis left to run would have finished)
+        def running(p):
+            try:
+                return p.is_running() and p.status() != psutil.STATUS_ZOMBIE
+            except psutil.Error:
+                return False
+        t0 = time.time()
+        while [p for p in analyses if running(p)] and time.time() - t0 < 30:
+            time.sleep(0.1)
+        assert not [p for p in analyses if running(p)]
+        # its task was redone: its attempt folder was left unpublished, without a report, and
+        # its set still has a result from another attempt
         left = set(os.listdir(partial)) & in_flight
         assert left, "no attempt was lost with the killed worker"
         for name in left:
+            assert not os.path.exists(os.path.join(partial, name, "report.json")), name
             assert T.read_result(out, name.rsplit(".", 1)[0].replace("~", "/"))["status"] == "ok"
         recs2, stats2 = run_batch(sets, out, scheduler=address, progress=lambda s: None)
         assert stats2["skipped"] == len(sets) and stats2["run"] == 0

@@ -114,7 +114,7 @@ def _logging(out, extra=(), period=0.005):
             os.close(fd)
 
 
-def _wait_rows(out, n, timeout=20):
+def _wait_rows(out, n, timeout=60):  # a guard: a loaded machine starts Python slowly
     tpath = out / "telemetry.csv"
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
