@@ -168,14 +168,15 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback20", 28, 12),
                                                     ("heldback21", 28, 12),
                                                     ("heldback22", 28, 12),
-                                                    ("heldback23", 28, 12)])
+                                                    ("heldback23", 28, 12),
+                                                    ("heldback24", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
              "heldback6", "heldback7", "heldback8", "heldback9", "heldback10", "heldback11",
              "heldback12", "heldback13", "heldback14", "heldback15", "heldback16",
              "heldback17", "heldback18", "heldback19", "heldback20", "heldback21",
-             "heldback22", "heldback23"]
+             "heldback22", "heldback23", "heldback24"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -223,8 +224,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
         assert {c.length for c in new} == {"short", "20 s", "1 min"}
     if which in ("heldback11", "heldback12", "heldback13", "heldback14", "heldback15",
                  "heldback16", "heldback17", "heldback18", "heldback19",
-                 "heldback20", "heldback21", "heldback22", "heldback23"):  # both engines in
-        # every kind and on 20 s and 60 s runs (hard ones with the clamp off)
+                 "heldback20", "heldback21", "heldback22", "heldback23",
+                 "heldback24"):  # both engines in every kind and on 20 s and 60 s runs (hard
+        # ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -248,8 +250,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                    for e in c.effects if e == "load_transfer")
     if which in ("heldback13", "heldback14", "heldback15", "heldback16",
                  "heldback17", "heldback18", "heldback19", "heldback20",
-                 "heldback21", "heldback22", "heldback23"):  # friction on both engines, mu_s /
-        # mu_k drawn over [1, 1.15]; an effect over 60 s runs
+                 "heldback21", "heldback22", "heldback23", "heldback24"):  # friction on both
+        # engines, mu_s / mu_k drawn over [1, 1.15]; an effect over 60 s runs
         friction = [c for c in new if "friction_coefficient" in c.effects]
         assert {c.engine for c in friction} == {"truth", "mujoco"}
         ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
@@ -269,7 +271,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     # four absent from heldback19); heldback21's deadband, caster drag and wheel radius (all
     # three absent from heldback20); heldback22's motor gain asymmetry, axle viscous friction and
     # floor slope (all three absent from heldback21); heldback23's load transfer (absent from
-    # heldback22)
+    # heldback22); heldback24's back-EMF, driver voltage drop, floor slope and actuation delay
+    # (all four absent from heldback23)
     own_kinds = {"heldback14": ("payload", "motor_back_emf", "deadband"),
                  "heldback15": ("axle_coulomb", "motor_gain_asymmetry", "actuation_delay"),
                  "heldback16": ("motor_back_emf", "motor_lag", "track_width"),
@@ -280,7 +283,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback20": ("motor_lag", "track_width", "floor_slope", "driver_voltage_drop"),
                  "heldback21": ("deadband", "caster_drag", "wheel_radius"),
                  "heldback22": ("motor_gain_asymmetry", "axle_viscous", "floor_slope"),
-                 "heldback23": ("load_transfer",)}
+                 "heldback23": ("load_transfer",),
+                 "heldback24": ("motor_back_emf", "driver_voltage_drop", "floor_slope",
+                                "actuation_delay")}
     if which in own_kinds:
         for kind in own_kinds[which]:
             sizes = [c.effects[kind][cases.MAIN_PARAM[kind]] for c in new if kind in c.effects]
@@ -390,6 +395,7 @@ FROZEN_SETS = {
     "heldback21": "cb78e9e7db5d1d847607ca25e764f0f9dd6e331c7e94718065f5d6c9c3f65c23",
     "heldback22": "31a0ee49a247aeb807c1aaf28789810f8136823264c9ad5e4e10c7089d42b61d",
     "heldback23": "b5fde45ddcb3ddc8d710ff8742fcc6d5aaa81784d55d659c5d234d5c0e6342ae",
+    "heldback24": "c7a47452d15551f7f4a4af0bddd94609d7ca7164e941517805c70eeb163e8617",
 }
 
 
