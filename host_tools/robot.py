@@ -162,8 +162,9 @@ class DriveSession(L.Logger):
                 done["event"].set()
 
     def _request_params(self) -> None:
-        """RequestParams until a Params frame arrives (the firmware drops a frame its transmit
-        queue has no room for: telemetry tx_drops), at most ACK_RETRIES times."""
+        """RequestParams until a Params frame arrives, at most ACK_RETRIES times. The firmware
+        answers the first (a reply waits for room in its transmit queue, before telemetry); the
+        re-ask guards against a frame lost on the link."""
         n = self._params_count
         for _ in range(L.ACK_RETRIES):
             self.send("RequestParams")

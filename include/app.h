@@ -3,7 +3,8 @@
 //   inner     25 ms  encoder snapshot, odometry, velocity/torque loop, tau_max clamp, PWM
 //   outer     50 ms  reference sample, kinematic tracking law
 //   telemetry 20 ms  Telemetry frame (protocol/protocol.json) queued on the XBee link
-// Background (main loop): host command decoding + Ack, 500 ms host-timeout failsafe.
+// Background (main loop): host command decoding; the replies (Ack, Params), kept until the TX
+// ring has room and sent before telemetry; 500 ms host-timeout failsafe.
 #ifndef FW_APP_H
 #define FW_APP_H
 

@@ -10,6 +10,7 @@
 #include <control/reference.h>
 #include <protocol/frame.h>
 #include <protocol/messages.h>
+#include <protocol/replies.h>
 #include <slipmodel/motor.h>
 #include <slipmodel/params.h>
 
@@ -115,6 +116,14 @@ proto::Decoder g_rx;
 uint16_t g_tx_seq;
 uint8_t g_frame[proto::kMaxWire];
 
+// Replies owed to the host (Acks; Params after RequestParams and at boot), kept until the TX
+// ring has room for them and sent before any later telemetry frame: periodic telemetry, which
+// the next frame supersedes, is what the uplink drops when it is short. 16 replies (6 bytes
+// each) cover a burst of 50 back-to-back host frames with room to spare (docs/firmware.md, "XBee
+// link"); a reply owed while all 16 wait is lost and counted in tx_drops.
+const uint8_t kReplySlots = 16;
+proto::ReplyQueue<kReplySlots> g_replies;
+
 template <class T>
 T* place(uint8_t* storage, const T& v) {
     T* p = reinterpret_cast<T*>(storage);
@@ -159,22 +168,34 @@ void rebuild_controller() {
     g_idle_odo = place(g_idle_odo_storage, ctl::OdometryQ(q.odo));
 }
 
+// Queues the frame whole, or drops it and counts it (tx_drops) when the TX ring has no room.
 template <class Msg>
 void send_msg(const Msg& m) {
     uint16_t n = proto::encode_message(m, g_tx_seq, g_frame, sizeof g_frame);
     if (n != 0 && xbee_write(g_frame, n)) ++g_tx_seq;
 }
 
-void send_ack(uint16_t seq, uint8_t type, uint8_t result, uint8_t detail) {
-    proto::Ack a;
-    a.cmd_seq = seq;
-    a.cmd_type = type;
-    a.result = result;
-    a.detail = detail;
-    send_msg(a);
+// A reply: false (nothing built or sent, nothing counted) while the TX ring has no room for it.
+template <class Msg>
+bool send_reply(const Msg& m) {
+    if (xbee_tx_free() < proto::wire_size(Msg::kSize)) return false;
+    send_msg(m);  // fits: the main loop is the ring's only producer
+    return true;
 }
 
-void send_params() {
+bool send_ack(const proto::Reply& r) {
+    proto::Ack a;
+    a.cmd_seq = r.cmd_seq;
+    a.cmd_type = r.cmd_type;
+    a.result = r.result;
+    a.detail = r.detail;
+    return send_reply(a);
+}
+
+// The Params are built when they are sent: they report the configuration in use then (any
+// command handled between the RequestParams and this moment included).
+bool send_params() {
+    if (xbee_tx_free() < proto::wire_size(proto::Params::kSize)) return false;
     proto::Params p;
     p.mu_s = static_cast<float>(g_robot.mu_s);
     p.mu_k = static_cast<float>(g_robot.mu_k);
@@ -204,7 +225,28 @@ void send_params() {
     p.firmware_id = FIRMWARE_ID;
     p.ke_ratio = static_cast<float>(g_motor_fit.ke_ratio);
     p.drop_v = static_cast<float>(g_motor_fit.drop_v);
-    send_msg(p);
+    return send_reply(p);
+}
+
+struct ReplySink {
+    bool send(const proto::Reply& r) { return r.kind == proto::Reply::kParams ? send_params() : send_ack(r); }
+};
+
+// Sends the replies owed, oldest first, as far as the TX ring takes them; true when none waits.
+bool flush_replies() {
+    if (g_replies.empty()) return true;
+    ReplySink sink;
+    return g_replies.flush(sink);
+}
+
+void owe_ack(uint16_t seq, uint8_t type, uint8_t result, uint8_t detail) {
+    if (!g_replies.ack(seq, type, result, detail)) xbee_count_drop();
+    flush_replies();
+}
+
+void owe_params() {
+    if (!g_replies.params()) xbee_count_drop();
+    flush_replies();
 }
 
 // Running, or about to (a Start waiting for its tick): commands that change the
@@ -415,8 +457,8 @@ bool handle_frame(const proto::Frame& f, uint32_t rx_us) {
                 break;
         }
     }
-    send_ack(f.seq, f.type, res, detail);
-    if (res == proto::kResultOk && f.type == proto::kMsgRequestParams) send_params();
+    owe_ack(f.seq, f.type, res, detail);
+    if (res == proto::kResultOk && f.type == proto::kMsgRequestParams) owe_params();
     return known;
 }
 
@@ -570,7 +612,11 @@ void telemetry_task() {
     t.current_l = motor_sense_raw(kLeft);
     t.stack_hwm = stack_high_water(kStackScanBytesPerFrame);
     t.boot_count = boot_count();
-    send_msg(t);
+    // Replies first: while one waits for room (app_poll() sends it as soon as there is), this
+    // frame is dropped and counted. Not flushed here: a Params built in this task would add its
+    // encoding to the task's budget.
+    if (g_replies.empty()) send_msg(t);
+    else xbee_count_drop();
 }
 
 }  // namespace
@@ -583,10 +629,11 @@ void app_init() {
     g_last_inner_us = time_us();
     if (boot_reset_cause() & _BV(WDRF)) g_failsafe = proto::kFailsafeWatchdogReset;
     (void)stack_high_water();  // first scan (the whole stack in use so far) before the schedule
-    send_params();
+    owe_params();
 }
 
 void app_poll() {
+    flush_replies();  // what waited for room since the last iteration goes first
     uint8_t b;
     while (xbee_read(&b)) {
         proto::Decoder::Status s = g_rx.feed(b);
@@ -596,7 +643,7 @@ void app_poll() {
         } else if (s == proto::Decoder::kError && g_rx.error_has_header()) {
             uint8_t res = g_rx.error() == proto::Decoder::kErrVersion ? proto::kResultBadVersion
                                                                       : proto::kResultBadCrc;
-            send_ack(g_rx.error_seq(), g_rx.error_type(), res, 255);
+            owe_ack(g_rx.error_seq(), g_rx.error_type(), res, 255);
         }
     }
     if (g_rebuild_pending) {  // the receive ring is empty here

@@ -47,9 +47,13 @@ void xbee_init() {
     XBEE_UCSRB = _BV(XBEE_RXEN_BIT) | _BV(XBEE_TXEN_BIT) | _BV(XBEE_RXCIE_BIT);
 }
 
+void xbee_count_drop() {
+    if (g_tx_drops != 0xFFFFu) ++g_tx_drops;
+}
+
 bool xbee_write(const uint8_t* p, uint16_t n) {
     if (!g_tx.push_block(p, n)) {
-        if (g_tx_drops != 0xFFFFu) ++g_tx_drops;
+        xbee_count_drop();
         return false;
     }
     uint8_t sreg = SREG;

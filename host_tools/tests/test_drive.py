@@ -182,6 +182,36 @@ def test_robot_set_model_between_drives_is_reported_back(elf, sim, tmp_path):
     assert [c["command"] for c in meta["commands"] if c["result"] == "ok"][-2:] == ["SetMu", "SetModel"]
 
 
+def test_robot_set_model_gets_its_params_at_the_first_ask(elf, sim, tmp_path):
+    """Robot.set_model's RequestParams, right behind the SetMu and SetModel Acks and telemetry,
+    is answered at the first ask: the firmware keeps a reply the transmit ring has no room for
+    and sends it before the next telemetry frame, so the host's re-ask (kept as a guard) never
+    runs. Three set_model calls in the held simulator; one RequestParams each."""
+    asks = []
+    real_send = DriveSession.send
+
+    def send(self, name, values=None):
+        if name == "RequestParams":
+            asks.append(name)
+        return real_send(self, name, values)
+
+    models = [{"format": "ddmodel/1", "robot": dict(params.ROBOT, r=r, mu_s=0.3, mu_k=0.28)}
+              for r in (0.0371, 0.0372, 0.0373)]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(DriveSession, "send", send)
+        with Robot(fil=True, out=tmp_path / "sm", elf=elf, sim_args=FAST) as bot:
+            n0 = len(asks)
+            for m in models:
+                bot.set_model(m)
+            n = len(asks) - n0
+    events = (tmp_path / "sm" / "events.jsonl").read_text()
+    print(f"\n{len(models)} set_model: {n} RequestParams sent")
+    assert "no_params_after_config" not in events
+    assert n == len(models)
+    meta = json.loads((tmp_path / "sm" / "meta.json").read_text())
+    assert meta["robot"]["r"] == pytest.approx(0.0373)
+
+
 def _lockstep_drive(elf, out, path, stall_at=None, stall_s=0.0, model=None):
     """drive_path in the firmware in the loop (``model``: set_model first); ``stall_at``:
     before that command of the drive, and before the start-up's SetDriveLimits and set_model's

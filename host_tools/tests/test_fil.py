@@ -569,13 +569,15 @@ BURST = 50  # back-to-back host frames the firmware takes whole at 115200 baud (
 @pytest.mark.parametrize("name", ["Heartbeat", "SetMu"])
 def test_a_burst_of_50_back_to_back_host_frames_is_received_whole(elf, sim, tmp_path, name):
     """A burst of 50 host frames back to back at the link's baud rate is received whole: every
-    frame is decoded (no CRC, framing or overflow error) and handled: answered ok, or its Ack
-    counted in tx_drops (the 14-byte Acks outrun the uplink). The failure modes this guards:
-    UBRR written before U2X (simavr then receives at half the baud rate) and a controller
-    rebuild per SetMu frame (16.6 ms each) overflowing the receive ring."""
+    frame is decoded (no CRC, framing or overflow error), handled and answered ok. The 14-byte
+    Acks outrun the uplink: those the transmit ring has no room for wait in the firmware's reply
+    store and go before telemetry, which is what is dropped (counted in tx_drops). The failure
+    modes this guards: UBRR written before U2X (simavr then receives at half the baud rate), a
+    controller rebuild per SetMu frame (16.6 ms each) overflowing the receive ring, and Acks
+    dropped for the room telemetry took."""
     values = {"mu_s": 0.30, "mu_k": 0.28} if name == "SetMu" else None
     burst = b"".join(D.encode(name, 100 + i, values) for i in range(BURST))
-    counters = ("rx_crc_errors", "rx_bad_frames", "rx_overflows", "tx_drops")
+    counters = ("rx_crc_errors", "rx_bad_frames", "rx_overflows", "tx_drops", "telemetry_overruns")
     st = {"before": None}
     host = HostScript(elf, tmp_path / "burst", ["--t-end", "1.2"])
 
@@ -588,12 +590,52 @@ def test_a_burst_of_50_back_to_back_host_frames_is_received_whole(elf, sim, tmp_
     after = {k: int(host.telem[-1][k]) for k in counters}
     d = {k: after[k] - st["before"][k] for k in counters}
     acks = [r for q, _, r in host.acks if 100 <= q < 100 + BURST]
-    print(f"\nburst of {BURST} {name}: {len(acks)} Acks, {d['tx_drops']} dropped Acks counted, "
+    frames = [t for t in host.telem if t["t_us"] >= 0.3]
+    print(f"\nburst of {BURST} {name}: {len(acks)} Acks, tx_drops +{d['tx_drops']}, "
           f"receive errors {d['rx_crc_errors']} CRC, {d['rx_bad_frames']} framing, "
-          f"{d['rx_overflows']} ring overflows")
+          f"{d['rx_overflows']} ring overflows; {len(frames)} telemetry frames from 0.3 s, "
+          f"telemetry overruns +{d['telemetry_overruns']}")
     assert d["rx_crc_errors"] == d["rx_bad_frames"] == d["rx_overflows"] == 0
     assert all(D.result_names.get(r) == "ok" for r in acks)
-    assert len(acks) + d["tx_drops"] >= BURST
+    assert sorted(q for q, _, _ in host.acks if 100 <= q < 100 + BURST) == list(range(100, 100 + BURST))
+    # what was dropped is telemetry: each drop is a frame missing from the 50 Hz, and each
+    # missing frame was dropped or not built (a release missed during the controller rebuild)
+    due = round((host.telem[-1]["t_us"] - frames[0]["t_us"]) / 0.02) + 1
+    assert len(frames) + d["tx_drops"] <= due <= len(frames) + d["tx_drops"] + d["telemetry_overruns"]
+
+
+def test_request_params_behind_a_burst_of_acks_gets_its_params_at_the_first_ask(elf, sim, tmp_path):
+    """A RequestParams that arrives while Acks and telemetry fill the transmit ring gets its Ack
+    and its Params (105 bytes on the wire) at the first ask: the Params wait for room instead of
+    being dropped, and go before the next telemetry frame. Three rounds, each 20 Heartbeats and
+    a RequestParams back to back (280 bytes of Acks for 189 bytes received) right after a
+    telemetry frame."""
+    rounds = (0.3, 0.5, 0.7)
+    n_hb = 20
+    st = {"sent": [], "params_before": []}
+    host = HostScript(elf, tmp_path / "rp", ["--t-end", "1.0"])
+
+    def step(now, t):
+        i = len(st["sent"])
+        if i < len(rounds) and now >= rounds[i]:
+            base = 1000 * (i + 1)
+            st["params_before"].append(len(host.params))
+            st["sent"].append((base, now))
+            host.port.write(b"".join(D.encode("Heartbeat", base + k) for k in range(n_hb))
+                            + D.encode("RequestParams", base + n_hb))
+
+    host.run(step)
+    assert len(st["sent"]) == len(rounds)
+    # one Params per RequestParams (the boot's and the first-byte RequestParams' come before)
+    n0 = st["params_before"][0]
+    print(f"\nRequestParams behind {n_hb} Heartbeats, {len(rounds)} rounds: "
+          f"{len(host.params) - n0} Params received, tx_drops {int(host.telem[-1]['tx_drops'])}")
+    assert len(host.params) - n0 == len(rounds)
+    rp = D.by_name["RequestParams"].type
+    for base, _ in st["sent"]:
+        got = sorted(q for q, _, r in host.acks if base <= q <= base + n_hb and D.result_names.get(r) == "ok")
+        assert got == list(range(base, base + n_hb + 1)), f"round {base}: Acks {got}"
+        assert any(q == base + n_hb and typ == rp for q, typ, _ in host.acks)
 
 
 def test_corrupted_command_bytes_are_rejected(elf, sim, tmp_path):

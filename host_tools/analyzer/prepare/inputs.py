@@ -11,9 +11,11 @@ import numpy as np
 from host_tools.runfmt import Run
 from host_tools.analyzer.prepare.odometry import recorder_odometry
 from host_tools.analyzer.prepare.run import PreparedRun, make_windows
-from host_tools.analyzer.prepare.timing import (_feasible_arc, _ramped_duty, board_rate_phase,
+from host_tools.analyzer.prepare.timing import (_feasible_arc, _fill_unreported, _ramped_duty,
+                                                at_rest_until, board_rate_phase,
                                                 compute_latency_s, experiment_start_s,
-                                                reconstruct_input_times, tick_phase)
+                                                reconstruct_input_times, tick_phase,
+                                                unreported_ticks)
 
 # the tick phase of a loop faster than the telemetry, from a cubic through the counts: within
 # 2 ms on the tuning cases recorded with a 10 ms loop
@@ -51,10 +53,13 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
     torque = (np.asarray(tel["tau_cmd_r"], float), np.asarray(tel["tau_cmd_l"], float))
     dt_tel = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     latency = compute_latency_s(run)
-    # a frame gap longer than one tick can hold two ticks, the first of which no frame reports
-    # (a lost frame, or frames as fast as the loop with jitter: 28.8-30 ms gaps of 20 ms frames
-    # at +-5.5 ms against a 25 ms loop)
-    gappy = t.size > 1 and float(np.max(np.diff(t))) > period * 1.0001
+    # a frame interval that holds two ticks leaves the first unreported (a lost or late frame,
+    # or frames as fast as the loop with jitter: 28.8-30 ms gaps of 20 ms frames at +-5.5 ms
+    # against a 25 ms loop); counted at the phase, and only from the experiment's first command
+    # on (unreported_ticks): a frame late or lost at rest before it leaves none
+    rest_until = (at_rest_until(t, phase, period, duty_in + [tel["tau_cmd_r"], tel["tau_cmd_l"]],
+                                t_start) if phase is not None else -math.inf)
+    gappy = phase is not None and unreported_ticks(t, phase, period, rest_until).size > 0
     if phase is not None and period > 0 and (period < 0.999 * dt_tel or gappy):
         # A loop faster than the telemetry, or frames lost: a frame reports the value of the
         # latest tick before it, and the ticks between two frames went unseen.  Their values
@@ -77,7 +82,8 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
         if started and t_start is not None:
             # the first tick is the start itself (a tick the phase puts a little earlier is it)
             ticks = np.concatenate([[t_start], ticks[ticks > t_start + 0.5 * period]])
-        dense: Callable[[np.ndarray], np.ndarray] = lambda v: np.interp(ticks, known, np.asarray(v, float)[first])  # noqa: E731
+        dense: Callable[[np.ndarray], np.ndarray] = lambda v: _fill_unreported(  # noqa: E731
+            ticks, known, np.asarray(v, float)[first], rest_until)
         duty = (dense(duty[0]), dense(duty[1]))
         torque = (dense(torque[0]), dense(torque[1]))
         t_in, t_in_tau = ticks.copy(), ticks.copy()
@@ -94,7 +100,7 @@ def prepare(run: Run, arc_position: float = 0.5, phase: float | None = None) -> 
     if (run.meta.get("duty_ramp") and phase is not None and period >= 0.999 * dt_tel
             and seen is None):
         t_steps = t_in
-        t_in, duty = _ramped_duty(t, duty, phase, period, latency)
+        t_in, duty = _ramped_duty(t, duty, phase, period, latency, rest_until)
     # the input takes effect at t_in[k] and holds until the next one; the simulation is sampled
     # at the union of input times and telemetry times
     grid = np.unique(np.concatenate([t, t_in, t_in_tau]))

@@ -59,6 +59,59 @@ def _changes(t: np.ndarray, values: list[np.ndarray]) -> np.ndarray:
     return np.flatnonzero(changed)
 
 
+def at_rest_until(t: np.ndarray, phase: float, period: float, commands: list[np.ndarray],
+                  t_start: float | None = None) -> float:
+    """Board time up to which the board commanded nothing (-inf when the recording does not
+    say): the tick that the last frame reporting no command before the first that does
+    reports (``commands``: the reported inputs per frame), or, when the run says when its
+    experiment started (``t_start``, :func:`experiment_start_s`), half a period before that
+    start (the tolerance the tick-by-tick inputs give it), whichever is later."""
+    t = np.asarray(t, float)
+    bound = -math.inf
+    if t.size == 0 or period <= 0:
+        return bound
+    active = np.zeros(t.size, bool)
+    for v in commands:
+        active |= np.asarray(v, float) != 0
+    j = int(np.argmax(active)) if active.any() else 0
+    if j >= 1:
+        bound = phase + math.floor((t[j - 1] - phase) / period + 1e-9) * period
+    if t_start is not None:
+        bound = max(bound, t_start - 0.5 * period)
+    return bound
+
+
+def unreported_ticks(t: np.ndarray, phase: float, period: float,
+                     rest_until: float = -math.inf) -> np.ndarray:
+    """The ticks of the loop (``phase``, ``period``) between the first frame's and the last
+    frame's that no frame reports, after ``rest_until`` (:func:`at_rest_until`: before it
+    the board commanded nothing, so no command went unreported).  A frame reports the latest
+    tick at or before it, so a tick goes unreported where one frame interval (t[k-1], t[k]]
+    holds two ticks (a lost or late frame, or frames as fast as the loop with jitter); a frame
+    interval longer than a period need not hold two (32.7 ms from 20.5 ms with ticks at
+    18.9 + 25 n ms holds one)."""
+    t = np.asarray(t, float)
+    if t.size < 2 or period <= 0:
+        return np.zeros(0)
+    n = np.floor((t - phase) / period + 1e-9).astype(np.int64)   # the tick each frame reports
+    every = np.arange(int(n.min()), int(n.max()) + 1)
+    ticks = phase + period * every[~np.isin(every, n)].astype(float)
+    return ticks[ticks > rest_until + 1e-9]
+
+
+def _fill_unreported(ticks: np.ndarray, known: np.ndarray, values: np.ndarray,
+                     rest_until: float) -> np.ndarray:
+    """Values at ``ticks`` from those at the reported ticks ``known``: on the line between the
+    reported ones, but held from the last reported one up to ``rest_until`` (the board
+    commanded nothing there: no line toward the experiment's first command)."""
+    out: np.ndarray = np.interp(ticks, known, values)
+    rest = ticks <= rest_until + 1e-9
+    if rest.any():
+        i = np.searchsorted(known, ticks[rest] + 1e-9, side="right") - 1
+        out[rest] = values[np.maximum(i, 0)]
+    return out
+
+
 def _feasible_arc(t: np.ndarray, values: list[np.ndarray], period: float
                   ) -> tuple[float, float, np.ndarray] | None:
     """(first phase, width, frames where an input changed) of the arc of tick phases that put a
@@ -100,7 +153,8 @@ def _feasible_arc(t: np.ndarray, values: list[np.ndarray], period: float
 
 
 def _ramped_duty(t: np.ndarray, duty: tuple[np.ndarray, np.ndarray], phase: float, period: float,
-                 latency: np.ndarray | None) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+                 latency: np.ndarray | None, rest_until: float = -math.inf
+                 ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """The duty of a recorder that ramps it between its ticks (meta ``duty_ramp``: this
     project's firmware, src/motor.cpp): at a tick it sets d_k, then every millisecond adds the
     slope s_k the torque->PWM map chose, and a frame reports the duty in force at its own time.
@@ -109,8 +163,10 @@ def _ramped_duty(t: np.ndarray, duty: tuple[np.ndarray, np.ndarray], phase: floa
     while a clamped wheel accelerates; it is 0 where nothing is ramped; at the tick where the
     clamp lets go one frame cannot tell, and the neighbours' slope is off for a tick or two;
     the line to the next frame instead, tried on the firmware in the loop, was worse: the
-    velocity loop's next duty does not continue the ramp). Returns the input times (the tick,
-    then each millisecond) and the duties."""
+    velocity loop's next duty does not continue the ramp). Ticks no frame reported take the
+    line between the reported ones, unramped. Up to ``rest_until`` (:func:`at_rest_until`)
+    the board commanded nothing: no ramp, and an unreported tick holds the duty reported
+    before it. Returns the input times (the tick, then each millisecond) and the duties."""
     t = np.asarray(t, float)
     n_ms = max(1, int(round(period / RAMP_STEP_S)))
     k0 = math.floor((t[0] - phase) / period + 1e-9)
@@ -134,6 +190,9 @@ def _ramped_duty(t: np.ndarray, duty: tuple[np.ndarray, np.ndarray], phase: floa
             if sel.size >= 2 and ms.max() > ms.min():
                 a, b = sel[np.argmin(ms)], sel[np.argmax(ms)]
                 slope[k] = (v[b] - v[a]) / (m_f[b] - m_f[a])
+        # no ramp while the board commanded nothing (a tick with one frame at rest would
+        # otherwise take the slope of the experiment's first ticks)
+        slope[ticks <= rest_until + 1e-9] = 0.0
         have = np.flatnonzero(np.isfinite(slope))
         for k in np.unique(kf):
             if not np.isfinite(slope[k]):
@@ -143,7 +202,8 @@ def _ramped_duty(t: np.ndarray, duty: tuple[np.ndarray, np.ndarray], phase: floa
             base[k] = float(np.mean(v[sel] - slope[k] * m_f[sel]))
         known = np.flatnonzero(np.isfinite(base))
         # ticks no frame reported (a gap): on the line between the reported ones, unramped
-        base = np.interp(np.arange(ticks.size), known, base[known])
+        # (held while the board commanded nothing)
+        base = _fill_unreported(ticks, ticks[known], base[known], rest_until)
         slope = np.where(np.isin(np.arange(ticks.size), known), slope, 0.0)
         slope = np.nan_to_num(slope)
         out.append((base[:, None] + slope[:, None] * np.arange(n_ms)[None, :]).ravel())

@@ -148,6 +148,8 @@ static void test_xbee_write_drops_whole_frames_and_never_blocks() {
     TEST_ASSERT_FALSE(xbee_write(frame, sizeof frame));  // does not fit: dropped whole
     TEST_ASSERT_EQUAL_UINT16(drops0 + 1, xbee_counters().tx_drops);
     TEST_ASSERT_TRUE(xbee_tx_free() >= free_after_first);  // nothing partial was queued
+    xbee_count_drop();  // a frame the application chose not to queue (telemetry behind a reply)
+    TEST_ASSERT_EQUAL_UINT16(drops0 + 2, xbee_counters().tx_drops);
 }
 
 int main() {

@@ -151,7 +151,7 @@ struct Telemetry {
     uint16_t rx_crc_errors;  // count; host frames rejected for CRC
     uint16_t rx_bad_frames;  // count; host frames rejected for COBS, length or version
     uint16_t rx_overflows;  // count; UART receive ring overflows
-    uint16_t tx_drops;  // count; frames not queued because the transmit ring was full
+    uint16_t tx_drops;  // count; frames not sent: telemetry frames dropped because the transmit ring had no room or a reply was waiting for room, and replies lost because the reply store was full
     uint8_t status;  // flags kStatus*
     uint8_t failsafe;  // enum Failsafe
     uint8_t reset_cause;  // flags kResetCause*
