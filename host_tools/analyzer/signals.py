@@ -38,6 +38,28 @@ def quantization_std(step: float) -> float:
     return cast(float, float(step) / np.sqrt(6.0))
 
 
+def count_rate_band(dt: np.ndarray, dt_ref: float, count: float) -> np.ndarray:
+    """Per sample of a rate from two cumulative counts ``dt`` apart (a wheel speed from the
+    encoder counts of two frames, ``count`` its unit per count): how much its quantization
+    spreads beyond that of a sample ``dt_ref`` apart, which the noise floor already holds
+    (``quantization_std(count / dt_ref)``, ``dt_ref`` the median frame interval).  The count
+    difference is off by up to a count whatever the interval, so in rate units its std is
+    ``quantization_std(count / dt)``: a frame 4 ms after its neighbour (±9 ms jitter on
+    20 ms frames) reads a speed five times as coarse as the floor's.  The excess
+    ``sqrt(max(q(dt)^2 - q(dt_ref)^2, 0))`` is joined to the floor in quadrature like the
+    replay's other spreads (``Channel.deflated``); nil at and beyond ``dt_ref``, so a
+    recorder with regular frames is compared as before."""
+    dt = np.asarray(dt, float)
+    if dt_ref <= 0 or count <= 0:
+        return np.zeros(dt.size)
+    q = quantization_std(count) / np.where(dt > 0, dt, np.inf)
+    q_ref = quantization_std(count / dt_ref)
+    out: np.ndarray = np.sqrt(np.maximum(q ** 2 - q_ref ** 2, 0.0))
+    # the same interval up to the round-off of a difference of two times
+    out[dt >= dt_ref * (1.0 - 1e-9)] = 0.0
+    return out
+
+
 def quantization_step(x: np.ndarray, rel_tol: float = 0.1) -> float:
     """The quantization step of a recorded column: its smallest non-zero difference between
     samples, when the other differences are whole multiples of it (within ``rel_tol`` of a

@@ -9,6 +9,7 @@ from typing import Collection, Mapping, cast
 
 import numpy as np
 
+from host_tools.analyzer import signals as sg
 from host_tools.analyzer.prepare.odometry import encoder_odometry, wrap_angle
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.anchors import _count_anchor_shift, _gt_anchor
@@ -220,12 +221,17 @@ def _wheel_channels(win: _Window) -> dict[str, Channel]:
         lo += 1
     kk = np.arange(lo, win.i_b)
     dt = t_all[kk] - t_all[kk - 1]
+    # the count difference's quantization over each sample's own frame interval, beyond what
+    # the noise floor holds at the run's median interval (jittered frames)
+    band = sg.count_rate_band(dt, float(np.median(np.diff(t_all))) if t_all.size > 1 else 0.0, k)
+    band_or_none = band if band.any() else None
     for side in ("r", "l"):
         enc = tel[f"enc_{side}"]
         th = at(f"theta_{side}_rad", t_all[kk])
         th_prev = at(f"theta_{side}_rad", t_all[kk - 1])
         out[f"omega_{side}"] = Channel(f"omega_{side}", t_all[kk], (enc[kk] - enc[kk - 1]) * k / dt,
-                                       (th - th_prev) / dt, "rad/s", seg(kk.size))
+                                       (th - th_prev) / dt, "rad/s", seg(kk.size),
+                                       band=band_or_none)
     for side, th in (("r", win.th_r), ("l", win.th_l)):
         enc = tel[f"enc_{side}"][win.i_a:win.i_b]
         out[f"enc_{side}"] = Channel(f"enc_{side}", t, enc - enc[0], (th - th[0]) / k, "counts",
