@@ -15,7 +15,10 @@ starts an experiment (keeping it alive with heartbeats), decodes every frame and
     events.jsonl   one JSON object per line, {"host_t_s", "kind", ...}; kinds: start, end,
                    command, ack, params, bad_params, params_mismatch, no_params, no_params_after_config,
                    rejected_block (raw_offset
-                   into raw.bin, length, reason cobs/short/long/crc/version), gap (missing),
+                   into raw.bin, length, reason cobs/short/long/crc/version), gap (after_seq, seq,
+                   missing: frames of any kind skipped in the robot's one seq counter, counted
+                   in the order the frames came, an Ack or Params after telemetry still held
+                   for confirmation after it),
                    duplicate, stale, time_not_increasing, robot_reset, failsafe (reason),
                    implausible (a verified frame no following frame confirmed: all its
                    values and the reason; counted in meta.json logger.implausible),

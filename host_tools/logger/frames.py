@@ -181,20 +181,45 @@ class FramesMixin(SessionParts):
 
     def _sequence(self, f: P.Frame) -> str:
         """Track the robot's frame counter for Ack and Params frames (they carry neither board
-        time nor boot number): "drop" for an exact repeat, else "ok" (a seq jump is a gap).
-        Telemetry goes through :meth:`_telemetry`, where resets are recognised."""
+        time nor boot number): "drop" for an exact repeat of the frame received before it,
+        else "ok".  Gaps are counted in the order the frames arrived: while Telemetry is held
+        for confirmation (:meth:`_telemetry`), the frame's seq waits in the chain with it and
+        is counted when the chain is committed or flagged; else at once (a seq jump is a gap)."""
+        ch = self._chain
+        if ch is not None:
+            before = ch.replies[-1][1] if ch.replies and ch.replies[-1][0] == len(ch.frames) else ch.frames[-1][0]
+            if f.seq == before.seq:
+                self._count_duplicate(f, before.seq)
+                return "drop"
+            ch.replies.append((len(ch.frames), f))
+            return "ok"
+        if self.last_seq is not None and f.seq == self.last_seq:
+            self._count_duplicate(f, self.last_seq)
+            return "drop"
+        self._count_reply_seq(f)
+        return "ok"
+
+    def _count_duplicate(self, f: P.Frame, last_seq: int) -> None:
+        self.stats["duplicates"] += 1
+        self.event("duplicate", seq=f.seq, last_seq=last_seq, raw_offset=f.offset)
+
+    def _count_reply_seq(self, f: P.Frame) -> None:
+        """Gaps before an Ack or Params frame (a seq behind the last is ignored: it cannot be
+        placed without a board time).  Flagged telemetry in between was received: not lost."""
         if self.last_seq is None:
             self.last_seq = f.seq
-            return "ok"
+            return
         ahead = (f.seq - self.last_seq) & 0xFFFF
-        if ahead == 0:
-            self.stats["duplicates"] += 1
-            self.event("duplicate", seq=f.seq, last_seq=self.last_seq, raw_offset=f.offset)
-            return "drop"
-        if ahead < 0x8000:
-            self._count_gap(f, ahead - 1)
+        if 0 < ahead < 0x8000:
+            self._count_gap(f, ahead - 1 - self._flagged_between(ahead))
             self.last_seq = f.seq
-        return "ok"
+
+    def _flagged_between(self, ahead: int) -> int:
+        """Frames flagged since the last row with a seq between the last seq and ``ahead``
+        after it: received, not lost."""
+        assert self.last_seq is not None
+        last = self.last_seq
+        return sum(1 for s in self._flagged_seqs if 0 < (s - last) & 0xFFFF < ahead)
 
     def _count_gap(self, f: P.Frame, missing: int) -> None:
         if missing > 0:
@@ -311,8 +336,10 @@ class FramesMixin(SessionParts):
         if ch.kind in ("reset", "first"):
             self.boot = boot
             self.boots_seen.add(boot)
-        for f, raws, host_t in ch.frames:
+        for i, (f, raws, host_t) in enumerate(ch.frames, 1):
             self._accept(f, raws, host_t)
+            for _, reply in (r for r in ch.replies if r[0] == i):  # the replies that came after it
+                self._count_reply_seq(reply)
 
     def _flag(self, ch: "_Chain", reason: str) -> None:
         """Frames that no following frame confirmed: kept (events.jsonl, all values) and
@@ -325,6 +352,8 @@ class FramesMixin(SessionParts):
             self.event("implausible", seq=f.seq, raw_offset=f.offset, t_us=raws[0],
                        boot=raws[self.cols.index["boot_count"]], current_boot=self.boot,
                        reason=reason, values=values)
+        for _, reply in ch.replies:  # the Acks and Params that came in between, in order
+            self._count_reply_seq(reply)
 
     def _accept(self, f: P.Frame, raws: tuple[Any, ...], host_t: float) -> None:
         t_us = raws[0]
@@ -358,13 +387,13 @@ class FramesMixin(SessionParts):
     def _count_seq(self, f: P.Frame, t_us: int) -> None:
         """Gaps before an accepted telemetry frame, from seq (or the board time when the
         16-bit counter is ambiguous after a long outage)."""
-        flagged, self._flagged_seqs = self._flagged_seqs, []
         if self.last_seq is None:
+            self._flagged_seqs = []
             self.last_seq = f.seq
             return
         ahead = (f.seq - self.last_seq) & 0xFFFF
-        # frames flagged in between were received: not lost
-        between = sum(1 for s in flagged if 0 < (s - self.last_seq) & 0xFFFF < ahead)
+        between = self._flagged_between(ahead)  # frames flagged in between: not lost
+        self._flagged_seqs = []
         if self.last_t_us is None:  # the first frame after a reset
             if 0 < ahead < 0x8000:
                 self._count_gap(f, ahead - 1 - between)
@@ -378,8 +407,11 @@ class FramesMixin(SessionParts):
 
 
 class _Chain:
-    """Telemetry frames held until confirmed: ``kind`` "first", "reset" or "jump"."""
+    """Telemetry frames held until confirmed: ``kind`` "first", "reset" or "jump";
+    ``replies``, the Ack and Params frames that came while it was held, each with the number
+    of its frames before it (their seqs are counted in that order when it is settled)."""
 
     def __init__(self, kind: str, frames: list[tuple[P.Frame, tuple[Any, ...], float]]):
         self.kind = kind
         self.frames = frames
+        self.replies: list[tuple[int, P.Frame]] = []
