@@ -10,10 +10,11 @@ import math
 import numpy as np
 from _native_skip import needs_native
 
+from host_tools import params
 from host_tools.analyzer import signals as sg
 from host_tools.analyzer.replay.channels import Channel
 
-PPR = 1856
+PPR = params.ENCODER_PPR
 COUNT = 2 * math.pi / PPR
 # heldback22's `jitter90_adc50_cam205`: 20 ms frames, each moved uniformly by up to +-9 ms
 JITTER_S, FRAME_S = 0.009, 0.02
@@ -35,7 +36,7 @@ def test_the_band_is_nil_for_regular_frames_and_the_quantization_excess_otherwis
 
 
 def test_a_quantized_wheel_under_frame_jitter_reads_one_floor_in_every_interval():
-    """A wheel accelerating at 57 rad/s^2 seen through a 1856-count encoder at jittered frame
+    """A wheel accelerating at 57 rad/s^2 seen through the table's encoder at jittered frame
     times, against its exact speed: the count-difference speed's error is about 1/sqrt(6)
     counts per interval, so in rad/s it grows as the interval shrinks; with the floor at the
     median interval the frames under 8 ms apart read several floors, the band brings every
