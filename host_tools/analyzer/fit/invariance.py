@@ -122,8 +122,8 @@ def invariance_check(problem: Problem, chosen: Candidate,
     coords: list[dict[str, Any]] = []
     params = params_for(chosen.effects, problem.meta, problem.vocab)
     for k, (effect, name) in enumerate(chosen.fit.coords):
-        if k in chosen.fit.fixed:
-            continue
+        if k in chosen.fit.fixed or (k < len(params) and params[k].shape):
+            continue   # a shape parameter (Stribeck's v_s) is judged through its partner
         # a sigma at the pseudo-inverse's round-off (a half that does not move the outputs
         # with this coordinate: a track width on a straight half) is no estimate
         tiny = NUMERICAL_ZERO * (params[k].hi - params[k].lo) if k < len(params) else 0.0
