@@ -51,6 +51,13 @@ class ParamSpec:
     # tolerance, its left-out ranges as ``left_out``), all functions of meta.
     sets_judged: tuple[Callable[[Mapping[str, Any]], float], Callable[[Mapping[str, Any]], float],
                        Callable[[Mapping[str, Any]], tuple[tuple[float, float], ...]]] | None = None
+    # Fitted in the logarithm of its value (``fit.params.Param``): a positive scale that the
+    # plant uses only as a ratio (Stribeck's v_s: mu depends on |s| / v_s alone) and whose search
+    # range spans decades.  A step of the coordinate is then one relative change of the scale
+    # wherever it lies, as the physics sees it; on a linear map of [0.001, 1] m/s the grid start's
+    # levels jump from 0.001 to 0.17 m/s and a finite-difference step (1 % of the range,
+    # 0.01 m/s) is a fifth of a v_s of 0.05 m/s.
+    log: bool = False
 
 
 @dataclass(frozen=True)
@@ -228,7 +235,7 @@ SPECS: dict[str, EffectSpec] = {s.name: s for s in [
         # friction at zero slip speed is capped at mu_s by the plant: above it is unidentifiable
         P("mu_k0", _robot("mu_k"), _c(0.03), _robot("mu_s"), _tol("mu_k"),
           left_out=_friction_left_out("mu_k")),
-        P("v_s", _c(0.01), _c(0.001), _c(1.0), None)),
+        P("v_s", _c(0.01), _c(0.001), _c(1.0), None, log=True)),
         "kinetic friction depends on slip speed"),
     EffectSpec("deadband", (
         P("volts", _c(0.0), _c(0.0), _motor("supply_v", 0.3), _NO_TOL, "V"),),

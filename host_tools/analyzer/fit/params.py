@@ -2,6 +2,7 @@
 and the result of a fit."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -20,12 +21,24 @@ class Param:
     tol: float                  # tolerance of ``neutral`` (ParamSpec.tol); 0 for a shape parameter
     shape: bool = False         # a shape parameter (ParamSpec.tol None): judged through its partner
     given: tuple[Any, ...] | None = None   # ParamSpec.given
+    log: bool = False           # ParamSpec.log: the coordinate is log(value), lo > 0
 
     def to_x(self, v: float) -> float:
+        if self.log:
+            return math.log(v / self.lo) / math.log(self.hi / self.lo)
         return (v - self.lo) / (self.hi - self.lo)
 
     def from_x(self, x: float) -> float:
+        if self.log:
+            return float(self.lo * (self.hi / self.lo) ** float(x))
         return self.lo + float(x) * (self.hi - self.lo)
+
+    def span(self, v: float) -> float:
+        """d value / d coordinate at value ``v``: the search range's width on a linear map,
+        v ln(hi/lo) on a logarithmic one (a coordinate's sigma times it is the value's)."""
+        if self.log:
+            return float(v) * math.log(self.hi / self.lo)
+        return self.hi - self.lo
 
 
 def params_for(names: Sequence[str], meta: Mapping[str, Any], vocab: Mapping[str, Mapping[str, float]]
@@ -38,7 +51,7 @@ def params_for(names: Sequence[str], meta: Mapping[str, Any], vocab: Mapping[str
                 continue
             out.append(Param(n, ps.name, ps.neutral(meta), ps.lo(meta), ps.hi(meta),
                              ps.tol(meta) if ps.tol is not None else 0.0,
-                             shape=ps.tol is None, given=ps.given))
+                             shape=ps.tol is None, given=ps.given, log=ps.log))
     return out
 
 

@@ -296,12 +296,14 @@ class Problem:
 
     def fit(self, names: Sequence[str], runs: Sequence[int], part: str = "all",
             x0: np.ndarray | None = None, max_nfev: int = 60, grid: int = 7,
-            fixed: Mapping[int, float] | None = None) -> FitResult:
+            fixed: Mapping[int, float] | None = None, pin_unidentified: bool = True) -> FitResult:
         """Fit the coordinates of ``names`` (bounded, after a coarse grid).  ``fixed`` pins
         coordinates (index -> value in [0, 1]).  Without ``fixed``, a coordinate that the data
-        do not identify (1-sigma uncertainty above UNIDENTIFIED of its search range) while
+        do not identify (1-sigma uncertainty above UNIDENTIFIED of its search range in its fit coordinate) while
         another one is identified is pinned at its neutral value and the rest refitted; the
-        result names it in ``unidentified``.
+        result names it in ``unidentified``.  ``pin_unidentified=False`` keeps every coordinate
+        free: a refit that must stay the model it is compared with, its sigmas saying what the
+        data leave open.
 
         A coordinate with a ``given`` spec (mu_s with mu_k held) is profiled, since its cost
         is a staircase that neither a gradient nor a finite difference sees: on a fit of every
@@ -383,7 +385,7 @@ class Problem:
                     x, r = x1, r1
         xfull = expand(x)
         values = [p.from_x(v) for p, v in zip(params, xfull)]
-        std = param_std(J, r, params, free)
+        std = param_std(J, r, params, free, values)
         for i, prof in intervals.items():
             std[i] = prof.sigma
         out = FitResult(list(names), effects_dict(params, values), values, np.asarray(xfull),
@@ -392,8 +394,9 @@ class Problem:
                         intervals={f"{params[i].effect}.{params[i].name}": v
                                    for i, v in intervals.items()})
         out.unidentified = [f"{params[i].effect}.{params[i].name}" for i in fixed]
-        if not fixed and k >= 2 and ok:
-            unid = [i for i in free if not (std[i] <= UNIDENTIFIED * (params[i].hi - params[i].lo))]
+        if pin_unidentified and not fixed and k >= 2 and ok:
+            unid = [i for i in free
+                    if not (std[i] <= UNIDENTIFIED * params[i].span(values[i]))]
             # a profiled coordinate is pinned at the nominal model's point on its line
             # (solver.given_neutral) where the data allow it, else at the nearest value they
             # allow (its profile set)

@@ -336,9 +336,11 @@ NULL_RCOND = 1e-15
 NULL_SHARE = 1e-6
 
 
-def param_std(J: np.ndarray | None, r: np.ndarray, params: Sequence[Param], free: Sequence[int]) -> list[float]:
+def param_std(J: np.ndarray | None, r: np.ndarray, params: Sequence[Param], free: Sequence[int],
+              values: Sequence[float] | None = None) -> list[float]:
     """1-sigma uncertainty of each parameter (nan: pinned; inf: not estimated), from the
-    parameter covariance inflated for correlated residuals."""
+    parameter covariance inflated for correlated residuals; a coordinate's sigma times
+    ``Param.span`` at its fitted value (``values``; needed for a logarithmic coordinate)."""
     k = len(free)
     std = [math.nan] * len(params)
     for i in free:
@@ -358,7 +360,8 @@ def param_std(J: np.ndarray | None, r: np.ndarray, params: Sequence[Param], free
             for jj, i in enumerate(free):
                 if blind.size and float(blind[jj].max()) > NULL_SHARE:
                     continue
-                std[i] = float(np.sqrt(max(cov[jj, jj], 0.0))) * (params[i].hi - params[i].lo)
+                v = params[i].neutral if values is None else values[i]
+                std[i] = float(np.sqrt(max(cov[jj, jj], 0.0))) * params[i].span(v)
         except np.linalg.LinAlgError:
             pass
     return std
