@@ -44,6 +44,25 @@ def current_count_a(preps: Sequence[PreparedRun]) -> float:
     return max(counts, default=0.0)
 
 
+HF_MIN_SAMPLES = 5   # signals.hf_noise_std's least samples for an estimate of its own
+
+
+def pooled_hf_noise_std(res: Sequence[np.ndarray]) -> float:
+    """The white part of a channel's residual over the runs (:func:`signals.hf_noise_std`): the
+    RMS of the estimates of the runs with HF_MIN_SAMPLES finite samples or more (a shorter run
+    gives no estimate, and counted as one of nil noise it pulled the floor down); when no run
+    has that many (a 2 Hz camera over 2 s runs: three or four frames each), the robust std of
+    all the runs' second differences pooled, over sqrt(6), the same estimate on the same
+    differences; 0 with fewer than three of them."""
+    xs = [np.asarray(x, float) for x in res]
+    xs = [x[np.isfinite(x)] for x in xs]
+    est = [sg.hf_noise_std(x) for x in xs if x.size >= HF_MIN_SAMPLES]
+    if est:
+        return float(np.sqrt(np.mean(np.square(est))))
+    dd = np.concatenate([np.diff(x, 2) for x in xs if x.size >= 3] or [np.zeros(0)])
+    return float(sg.robust_std(dd) / math.sqrt(6.0)) if dd.size >= 3 else 0.0
+
+
 def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Channel]]
                  ) -> dict[str, float]:
     """Per-channel noise floor, pooled over runs, estimated from the data:
@@ -64,7 +83,7 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Ch
     count_a = current_count_a(preps) if any(c.startswith("current") for c in names) else 0.0
     for c in names:
         res = [ch[c].resid for ch in nominal if c in ch]
-        hf = float(np.sqrt(np.mean([sg.hf_noise_std(x) ** 2 for x in res])))
+        hf = pooled_hf_noise_std(res)
         if c.startswith("omega"):
             base = sg.quantization_std(k / dt)
         elif c.startswith("enc"):
