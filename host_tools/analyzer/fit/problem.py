@@ -312,7 +312,8 @@ class Problem:
         start when no start is given (:meth:`_profile_start`), and its profile set at the
         solution (:meth:`_profile_set`) gives its 1-sigma and ``FitResult.intervals``; the
         held-out folds' and halves' refits, which start from such a fit, hold it at its
-        start (its uncertainty is the set) and refit the rest."""
+        start (its uncertainty is the set) and refit the rest; a kept nuisance coordinate
+        (:meth:`_fit_nuisance`) is held alike."""
         params = params_for(names, self.meta, self.vocab)
         k_all = len(params)
         fixed = dict(fixed or {})
@@ -326,10 +327,13 @@ class Problem:
         asked = {i: v for i, v in fixed.items() if params[i].nuisance is None}
         profiled = [i for i in range(k_all) if i not in fixed and params[i].given is not None]
         held: dict[int, float] = {}
-        if not whole and x0 is not None and profiled:
+        if not whole and x0 is not None and (profiled or nuisance):
+            # a kept nuisance (k) is held at the whole fit's value too: a fold or half has fewer
+            # slips, and k free there would send h anywhere along their valley (correlation
+            # about -0.99), a spread of the valley, not of h
             xa = np.asarray(x0, float)
             if xa.size == k_all:
-                held = {i: float(np.clip(xa[i], 0, 1)) for i in profiled}
+                held = {i: float(np.clip(xa[i], 0, 1)) for i in [*profiled, *nuisance]}
         free = [i for i in range(k_all) if i not in fixed and i not in held]
         full0 = np.array([np.clip(p.to_x(p.neutral), 0, 1) for p in params])
         for i, v in {**fixed, **held}.items():
@@ -439,7 +443,8 @@ class Problem:
         where it fits at least as well and every nuisance coordinate's 1-sigma is below its
         ``Param.nuisance`` (the data identify it beyond the nominal model's own knowledge),
         else the former.  A kept nuisance coordinate is fitted, so it counts in the fit's free
-        parameters (``FitResult.n_free``: BIC, the held-out folds refit it)."""
+        parameters (``FitResult.n_free``: BIC); the held-out folds and the invariance halves hold
+        it at this fit's value (:meth:`fit`)."""
         pins = {i: float(np.clip(params[i].to_x(params[i].neutral), 0, 1)) for i in nuisance}
         base = self.fit(names, runs, part, x0=x0, max_nfev=max_nfev, grid=grid,
                         fixed={**fixed, **pins}, pin_unidentified=pin_unidentified)
