@@ -126,13 +126,22 @@ def _height_left_out(meta: Mapping[str, Any]) -> tuple[tuple[float, float], ...]
             ((k_lo - lo.spin_share) * lo.spin_h_m, (k_hi - lo.spin_share) * lo.spin_h_m))
 
 
-def left_out_ranges(effect: str, name: str, meta: Mapping[str, Any]
+def left_out_ranges(effect: str, name: str, meta: Mapping[str, Any],
+                    fitted: Mapping[str, Mapping[str, float]] | None = None
                     ) -> tuple[tuple[float, float], ...]:
-    """:attr:`ParamSpec.left_out` of ``effect``'s parameter ``name`` (none: ``()``)."""
+    """:attr:`ParamSpec.left_out` of ``effect``'s parameter ``name`` (none: ``()``).  Where
+    the fit's effects ``fitted`` carry the load transfer's spin share k as a kept nuisance
+    (``fit.params.spin_param``), h's range from k's tolerance is no longer left out: the fit has
+    k, and its sigma of h holds what k leaves open (their correlation)."""
+    from host_tools.analyzer.replay.normal_forces import SPIN_KEY
     spec = SPECS.get(effect)
     for ps in spec.params if spec is not None else ():
         if ps.name == name and ps.left_out is not None:
-            return ps.left_out(meta)
+            ranges = ps.left_out(meta)
+            if (effect == "load_transfer" and name == "h"
+                    and SPIN_KEY in (fitted or {}).get(effect, {})):
+                return ranges[:1]   # _height_left_out: (centre of mass, spin share)
+            return ranges
     return ()
 
 

@@ -15,7 +15,7 @@ from host_tools.analyzer.fit.invariance import Invariance, invariance_check
 from host_tools.analyzer.fit.state_dependence import state_dependence_check
 from host_tools.analyzer.fit.judge import (HELDOUT_Z, Candidate, delta_bic, judge, paired_better,
                                            significant_deviation)
-from host_tools.analyzer.fit.params import params_for
+from host_tools.analyzer.fit.params import fitted_nuisance, params_for, vocabulary_only
 from host_tools.analyzer.fit.problem import Problem
 from host_tools.analyzer.fit.solver import effective_n
 from host_tools.analyzer.fit.workers import run_tasks
@@ -179,7 +179,8 @@ def _insignificant_partners(pair: Candidate, problem: Problem) -> list[tuple[str
         zs = abs(dev) / sd if math.isfinite(sd) and sd > 0 else (math.inf if dev else 0.0)
         best[p.effect] = max(best.get(p.effect, 0.0), zs)
         if significant_deviation(dev, sd, p.tol, HELDOUT_Z,
-                                 fx.left_out_ranges(p.effect, p.name, problem.meta)):
+                                 fx.left_out_ranges(p.effect, p.name, problem.meta,
+                                                    pair.fit.params)):
             strong.add(p.effect)
     for jd in fx.judged_sets(params, pair.fit.values, pair.fit.std, [], problem.meta):
         zs = abs(jd.dev) / jd.std if math.isfinite(jd.std) and jd.std > 0 else math.inf
@@ -238,12 +239,18 @@ def selected_entries(sel: Selection, rss0: float) -> list[dict[str, Any]]:
             alt = [x for x in c.effects if x not in others]
             if len(alt) == 1 and _close(c, sel_c) and alt[0] not in equiv:
                 equiv.append(alt[0])
-        selected.append({"effect": e, "params": {k: round_sig(v, 5) for k, v in
-                                                sel_c.fit.params[e].items()},
-                         "unidentified": [u.split(".", 1)[1] for u in sel_c.fit.unidentified
-                                          if u.startswith(e + ".")],
-                         "equivalent": equiv,
-                         "separating_measurement": {q: fx.separator(e, q) for q in equiv}})
+        entry: dict[str, Any] = {
+            "effect": e, "params": {k: round_sig(v, 5) for k, v in
+                                    vocabulary_only(sel_c.fit.params)[e].items()},
+            "unidentified": [u.split(".", 1)[1] for u in sel_c.fit.unidentified
+                             if u.startswith(e + ".")],
+            "equivalent": equiv,
+            "separating_measurement": {q: fx.separator(e, q) for q in equiv}}
+        nuis = fitted_nuisance(sel_c.fit, e)
+        if nuis:   # not a vocabulary parameter: beside the params (run-format's report.json)
+            entry["nuisance"] = {k: {q: round_sig(x, 4) for q, x in v.items()}
+                                 for k, v in nuis.items()}
+        selected.append(entry)
     return selected
 
 

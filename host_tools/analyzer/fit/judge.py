@@ -374,7 +374,8 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
         dev = cand.fit.values[j] - p.neutral
         sd = cand.fit.std[j] if j < len(cand.fit.std) else math.nan
         counts = significant_deviation(dev, sd, p.tol,
-                                       left_out=fx.left_out_ranges(p.effect, p.name, problem.meta))
+                                       left_out=fx.left_out_ranges(p.effect, p.name, problem.meta,
+                                                                   cand.fit.params))
         size_ok = size_ok or counts
         folds = [fv[j] for fv in cand.fold_values]
         if counts:

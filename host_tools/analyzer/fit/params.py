@@ -22,6 +22,10 @@ class Param:
     shape: bool = False         # a shape parameter (ParamSpec.tol None): judged through its partner
     given: tuple[Any, ...] | None = None   # ParamSpec.given
     log: bool = False           # ParamSpec.log: the coordinate is log(value), lo > 0
+    # a nuisance coordinate (not a vocabulary parameter: the load_transfer fit's spin share k):
+    # kept only where its 1-sigma is below this, else pinned at ``neutral``, where the effect
+    # carries it not at all (Problem.fit); None for every vocabulary parameter
+    nuisance: float | None = None
 
     def to_x(self, v: float) -> float:
         if self.log:
@@ -52,15 +56,51 @@ def params_for(names: Sequence[str], meta: Mapping[str, Any], vocab: Mapping[str
             out.append(Param(n, ps.name, ps.neutral(meta), ps.lo(meta), ps.hi(meta),
                              ps.tol(meta) if ps.tol is not None else 0.0,
                              shape=ps.tol is None, given=ps.given, log=ps.log))
+        if n == "load_transfer" and any(p.effect == n and p.name == "h" for p in out):
+            out.append(spin_param())
     return out
 
 
-def effects_dict(params: Sequence[Param], values: Sequence[float]) -> dict[str, dict[str, float]]:
-    """Vocabulary parameters (what the plant and the report take) of fitted coordinates."""
+def spin_param() -> Param:
+    """The ``load_transfer`` fit's nuisance coordinate: the share k of the wheels' spin-up that
+    reacts on the body, in [0, 1] (``replay.normal_forces``: carried through the plant's own
+    theta'' term where fitted).  Its neutral value is the nominal model's k^ (params.json
+    ``model.spin_share``), its tolerance k^'s, and it is kept only where its 1-sigma is below
+    the tolerance's standard uncertainty tol/sqrt(3) (the nominal model's own knowledge of k,
+    a uniform draw over k^ +- tol): otherwise the data tell k no better than the nominal model
+    does and the fit is the one without it (k^ as the rolling height k^ h_s), as an
+    unidentified coordinate is pinned at its neutral value.  A shape coordinate: no size or
+    stability test of its own (it is no effect's evidence)."""
+    from host_tools.analyzer.replay import normal_forces as nf
+    return Param("load_transfer", nf.SPIN_KEY, nf.SPIN_SHARE, 0.0, 1.0, nf.SPIN_SHARE_TOL,
+                 shape=True, nuisance=nf.SPIN_SHARE_SIGMA)
+
+
+def effects_dict(params: Sequence[Param], values: Sequence[float],
+                 fixed: Mapping[int, float] | None = None) -> dict[str, dict[str, float]]:
+    """Vocabulary parameters (what the plant and the report take) of fitted coordinates, with
+    each nuisance coordinate (``Param.nuisance``) that is not pinned (``fixed``) beside them
+    under its own name: a pinned nuisance is not carried at all (the nominal model's form)."""
     raw: dict[str, dict[str, float]] = {}
-    for p, v in zip(params, values):
+    extra: dict[str, dict[str, float]] = {}
+    for i, (p, v) in enumerate(zip(params, values)):
+        if p.nuisance is not None:
+            if fixed is None or i not in fixed:
+                extra.setdefault(p.effect, {})[p.name] = float(v)
+            continue
         raw.setdefault(p.effect, {})[p.name] = float(v)
-    return {e: fx.vocabulary_params(e, d) for e, d in raw.items()}
+    out = {e: fx.vocabulary_params(e, d) for e, d in raw.items()}
+    for e, d in extra.items():
+        out.setdefault(e, {}).update(d)
+    return out
+
+
+def vocabulary_only(effects: Mapping[str, Mapping[str, float]]) -> dict[str, dict[str, float]]:
+    """``effects`` without the fits' nuisance parameters (the report's and model.json's
+    vocabulary parameters)."""
+    from host_tools.analyzer.replay.normal_forces import SPIN_KEY
+    return {e: {k: float(v) for k, v in ps.items() if not (e == "load_transfer" and k == SPIN_KEY)}
+            for e, ps in effects.items()}
 
 
 @dataclass
@@ -85,6 +125,20 @@ class FitResult:
     @property
     def n_free(self) -> int:
         return len(self.values) - len(self.fixed)
+
+
+def fitted_nuisance(fit: "FitResult", effect: str) -> dict[str, dict[str, float]]:
+    """The nuisance coordinates ``fit`` carries for ``effect`` (kept, not pinned: the effect's
+    fitted parameters hold them beside the vocabulary's), name -> {"value", "std"} (the
+    report's extra field ``nuisance``; empty when none is kept)."""
+    from host_tools.analyzer.replay.normal_forces import SPIN_KEY
+    ps = fit.params.get(effect, {})
+    out: dict[str, dict[str, float]] = {}
+    if effect == "load_transfer" and SPIN_KEY in ps:
+        sd = next((s for (e, k), s in zip(fit.coords, fit.std)
+                   if e == effect and k == SPIN_KEY), math.nan)
+        out[SPIN_KEY] = {"value": float(ps[SPIN_KEY]), "std": float(sd)}
+    return out
 
 
 @dataclass

@@ -296,7 +296,8 @@ class Problem:
 
     def fit(self, names: Sequence[str], runs: Sequence[int], part: str = "all",
             x0: np.ndarray | None = None, max_nfev: int = 60, grid: int = 7,
-            fixed: Mapping[int, float] | None = None, pin_unidentified: bool = True) -> FitResult:
+            fixed: Mapping[int, float] | None = None, pin_unidentified: bool = True,
+            decide_nuisance: bool = True) -> FitResult:
         """Fit the coordinates of ``names`` (bounded, after a coarse grid).  ``fixed`` pins
         coordinates (index -> value in [0, 1]).  Without ``fixed``, a coordinate that the data
         do not identify (1-sigma uncertainty above UNIDENTIFIED of its search range in its fit coordinate) while
@@ -311,19 +312,29 @@ class Problem:
         start when no start is given (:meth:`_profile_start`), and its profile set at the
         solution (:meth:`_profile_set`) gives its 1-sigma and ``FitResult.intervals``; the
         held-out folds' and halves' refits, which start from such a fit, hold it at its
-        start (its uncertainty is the set) and refit the rest."""
+        start (its uncertainty is the set) and refit the rest; a kept nuisance coordinate
+        (:meth:`_fit_nuisance`) is held alike."""
         params = params_for(names, self.meta, self.vocab)
         k_all = len(params)
         fixed = dict(fixed or {})
         whole = part == "all" and sorted(set(runs)) == list(range(len(self.preps)))
+        nuisance = [i for i in range(k_all) if params[i].nuisance is not None and i not in fixed]
+        if nuisance and decide_nuisance and (whole or x0 is None):
+            return self._fit_nuisance(names, runs, part, x0, max_nfev, grid, fixed,
+                                      pin_unidentified, params, nuisance)
+        # the pins the fit was asked for, apart from a pinned nuisance coordinate: that one is
+        # the fit without it (effects_dict), which pins what it pins as it would alone
+        asked = {i: v for i, v in fixed.items() if params[i].nuisance is None}
         profiled = [i for i in range(k_all) if i not in fixed and params[i].given is not None]
         held: dict[int, float] = {}
-        if not whole and x0 is not None and profiled:
+        if not whole and x0 is not None and (profiled or nuisance):
+            # a kept nuisance (k) is held at the whole fit's value too: a fold or half has fewer
+            # slips, and k free there would send h anywhere along their valley (correlation
+            # about -0.99), a spread of the valley, not of h
             xa = np.asarray(x0, float)
             if xa.size == k_all:
-                held = {i: float(np.clip(xa[i], 0, 1)) for i in profiled}
+                held = {i: float(np.clip(xa[i], 0, 1)) for i in [*profiled, *nuisance]}
         free = [i for i in range(k_all) if i not in fixed and i not in held]
-        k = len(free)
         full0 = np.array([np.clip(p.to_x(p.neutral), 0, 1) for p in params])
         for i, v in {**fixed, **held}.items():
             full0[i] = v
@@ -335,8 +346,8 @@ class Problem:
 
         def fun(xf: np.ndarray) -> np.ndarray:
             x = expand(xf)
-            return self.residual(effects_dict(params, [p.from_x(v) for p, v in zip(params, x)]),
-                                 runs, part)
+            return self.residual(effects_dict(params, [p.from_x(v) for p, v in zip(params, x)],
+                                              fixed), runs, part)
 
         profiled = [i for i in profiled if whole and i in free]
         nfev = 0
@@ -388,15 +399,18 @@ class Problem:
         std = param_std(J, r, params, free, values)
         for i, prof in intervals.items():
             std[i] = prof.sigma
-        out = FitResult(list(names), effects_dict(params, values), values, np.asarray(xfull),
+        out = FitResult(list(names), effects_dict(params, values, fixed), values,
+                        np.asarray(xfull),
                         float(np.sum(r ** 2)), int(r.size), std, nfev, ok, msg,
                         [(p.effect, p.name) for p in params], fixed=fixed,
                         intervals={f"{params[i].effect}.{params[i].name}": v
                                    for i, v in intervals.items()})
-        out.unidentified = [f"{params[i].effect}.{params[i].name}" for i in fixed]
-        if pin_unidentified and not fixed and k >= 2 and ok:
-            unid = [i for i in free
-                    if not (std[i] <= UNIDENTIFIED * params[i].span(values[i]))]
+        out.unidentified = [f"{params[i].effect}.{params[i].name}" for i in fixed
+                            if params[i].nuisance is None]
+        k_voc = len([i for i in free if params[i].nuisance is None])
+        if pin_unidentified and not asked and k_voc >= 2 and ok:
+            unid = [i for i in free if params[i].nuisance is None
+                    and not (std[i] <= UNIDENTIFIED * params[i].span(values[i]))]
             # a profiled coordinate is pinned at the nominal model's point on its line
             # (solver.given_neutral) where the data allow it, else at the nearest value they
             # allow (its profile set)
@@ -404,19 +418,49 @@ class Problem:
             pins = {i: float(np.clip(params[i].to_x(min(max(self._line_neutral(
                         params, free, i, values), allowed[i][0]), allowed[i][1])), 0, 1))
                     if i in allowed else float(full0[i]) for i in unid}
-            if len(unid) < k:
+            if len(unid) < k_voc:
                 for i, pin in unidentified_given(params, free, xfull, values, r, expand, fun,
                                                  self.meta, allowed).items():
                     if i not in pins:
                         unid.append(i)
                         pins[i] = pin
-            if unid and len(unid) < k:
+            if unid and len(unid) < k_voc:
                 re = self.fit(names, runs, part, x0=None, max_nfev=max_nfev, grid=grid,
-                              fixed=pins)
+                              fixed={**fixed, **pins})
                 re.nfev += out.nfev
                 re.intervals = {**out.intervals, **re.intervals}
                 return re
         return out
+
+    def _fit_nuisance(self, names: Sequence[str], runs: Sequence[int], part: str,
+                      x0: np.ndarray | None, max_nfev: int, grid: int, fixed: Mapping[int, float],
+                      pin_unidentified: bool, params: Sequence[Param], nuisance: Sequence[int]
+                      ) -> FitResult:
+        """A fit whose effects carry nuisance coordinates (``Param.nuisance``: the
+        ``load_transfer`` fit's spin share k): first the fit without them (each pinned at its
+        neutral value, where the effect does not carry it: exactly the fit of the nominal
+        model's form), then from its point the fit with them free; the latter is kept only
+        where it fits at least as well and every nuisance coordinate's 1-sigma is below its
+        ``Param.nuisance`` (the data identify it beyond the nominal model's own knowledge),
+        else the former.  A kept nuisance coordinate is fitted, so it counts in the fit's free
+        parameters (``FitResult.n_free``: BIC); the held-out folds and the invariance halves hold
+        it at this fit's value (:meth:`fit`)."""
+        pins = {i: float(np.clip(params[i].to_x(params[i].neutral), 0, 1)) for i in nuisance}
+        base = self.fit(names, runs, part, x0=x0, max_nfev=max_nfev, grid=grid,
+                        fixed={**fixed, **pins}, pin_unidentified=pin_unidentified)
+        if not base.ok:
+            return base
+        start = np.asarray(base.x, float).copy()
+        for i in nuisance:
+            start[i] = pins[i]
+        free = self.fit(names, runs, part, x0=start, max_nfev=max_nfev, grid=grid,
+                        fixed={**fixed, **{i: v for i, v in base.fixed.items()
+                                           if i not in pins}},
+                        pin_unidentified=False, decide_nuisance=False)
+        free.nfev += base.nfev
+        kept = (free.ok and free.rss <= base.rss
+                and all(free.std[i] < float(params[i].nuisance or 0.0) for i in nuisance))
+        return free if kept else base
 
     def _line_neutral(self, params: Sequence[Param], free: Sequence[int], i: int,
                       values: Sequence[float]) -> float:

@@ -136,7 +136,9 @@ def state_dependence_check(problem: Problem, chosen: Candidate) -> StateDependen
         return None
     fit = chosen.fit
     params = params_for(chosen.effects, problem.meta, problem.vocab)
-    free = [k for k in range(len(params)) if k not in fit.fixed]
+    # the vocabulary's coordinates: a fit's nuisance (the load transfer's spin share) is held
+    # where it was fitted, as the time-invariance check holds a shape coordinate
+    free = [k for k in range(len(params)) if k not in fit.fixed and params[k].nuisance is None]
     if not free:
         return None
     x0 = np.asarray(fit.x, float)
@@ -145,8 +147,8 @@ def state_dependence_check(problem: Problem, chosen: Candidate) -> StateDependen
     for k in free:
         x = x0.copy()
         x[k] = x[k] + STEP_X if x[k] + STEP_X <= 1.0 else x[k] - STEP_X
-        moved = _series(problem, effects_dict(params, [p.from_x(v) for p, v in zip(params, x)]),
-                        runs)
+        moved = _series(problem, effects_dict(params, [p.from_x(v) for p, v in zip(params, x)],
+                                              fit.fixed), runs)
         sens.append([(m[3] - b[3]) / (x[k] - x0[k]) for b, m in zip(base, moved)])
     # per run: the stacked rows of all its channel series
     rows: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, str, int]]] = {}

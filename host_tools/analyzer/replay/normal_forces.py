@@ -30,10 +30,15 @@ model carries each at its table value:
   ``test_analyzer_e2e``).
 
 A candidate ``load_transfer`` effect's ``h`` is the centre-of-mass height: it replaces the
-table's h, and ``k^ h_s`` stays added.
+table's h, and ``k^ h_s`` stays added.  Where the fit carries the spin share k as its nuisance
+parameter (the key :data:`SPIN_KEY` beside ``h``, ``fit.params``: kept only where the slips
+identify it), the plant carries the spin-up through its own theta'' term at that k instead
+(``plant.spin_share`` k, no rolling height): the form the data identify k in, since while the
+wheels roll k h_s and h are one parameter.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Mapping
 
@@ -43,6 +48,12 @@ from host_tools import params as P
 SPIN_SHARE = float(P.MODEL["spin_share"])
 #: its tolerance: the possible k lie within SPIN_SHARE +- SPIN_SHARE_TOL (clipped to [0, 1])
 SPIN_SHARE_TOL = float(P.TOLERANCES[("model", "spin_share")])
+#: the standard uncertainty of that tolerance (a uniform draw over k^ +- tol): a fit's nuisance k
+#: is kept only where its 1-sigma is below it (``fit.params.params_for``)
+SPIN_SHARE_SIGMA = SPIN_SHARE_TOL / math.sqrt(3.0)
+#: the key of the ``load_transfer`` effect's nuisance spin share k in a fit's effects (not a
+#: vocabulary parameter: the reports carry it apart from ``h``)
+SPIN_KEY = "spin_share"
 #: the share of the wheels' mass on the axle in the nominal model (the table's reading)
 WHEELS_ON_AXLE = 1.0
 
@@ -106,10 +117,13 @@ def plant_config(robot: Mapping[str, float], effects: Mapping[str, Mapping[str, 
     first (a payload is mass at the platform's c), then the wheels' mass moved to the axle, and
     the ``load_transfer`` effect at the centre-of-mass height (a candidate's ``h``, else
     ``forces.com_h_m``, else the robot's ``h``) plus ``forces.spin_share`` h_s, with the
-    plant's own spin term off."""
+    plant's own spin term off; or, where the effect carries the fit's nuisance spin share
+    (:data:`SPIN_KEY`), at the centre-of-mass height alone with the plant's own spin term at
+    that share."""
     from host_tools.analyzer.effects import plant_setup
     r, fx = plant_setup(robot, effects)
-    lt = fx.pop("load_transfer", {})
+    lt = dict(fx.pop("load_transfer", {}))
+    spin = lt.pop(SPIN_KEY, None)
     if "h" in lt:
         h_com = float(lt["h"])
     elif forces.com_h_m is not None:
@@ -119,5 +133,8 @@ def plant_config(robot: Mapping[str, float], effects: Mapping[str, Mapping[str, 
     r_eff = fx.get("wheel_radius", {}).get("r_eff", r["r"])
     h_s = spin_height(r, r_eff)
     r.update(wheels_on_axle(r, forces.share))
+    if spin is not None:
+        fx["load_transfer"] = {**lt, "h": max(h_com, 0.0)}
+        return PlantConfig(r, fx, {"plant.spin_share": min(max(float(spin), 0.0), 1.0)})
     fx["load_transfer"] = {**lt, "h": max(h_com + float(forces.spin_share) * h_s, 0.0)}
     return PlantConfig(r, fx, {"plant.spin_share": 0.0})

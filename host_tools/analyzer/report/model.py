@@ -11,6 +11,8 @@ def updated_model(meta: Mapping[str, Any], effects: Mapping[str, Mapping[str, fl
                   sources: Sequence[str]) -> dict[str, Any]:
     """The updated model-parameter file (format ``ddmodel/1``, see docs/analyzer.md)."""
     from host_tools import _native
+    from host_tools.analyzer.fit.params import vocabulary_only
+    effects = vocabulary_only(effects)   # the fits' nuisance parameters are not the model's
     robot = dict(meta["robot"])
     motor = dict(meta["motor"])
     plant_robot, plant_effects = plant_setup(robot, effects)

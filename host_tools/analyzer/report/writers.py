@@ -9,6 +9,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from host_tools.analyzer.fit.params import fitted_nuisance, vocabulary_only
 from host_tools.analyzer.report import outputs
 from host_tools.analyzer.report.sections import REPORT_FORMAT, Analysis
 from host_tools.analyzer.report.series import BAND_K, Series
@@ -46,14 +47,23 @@ def report_dict(an: Analysis) -> dict[str, Any]:
                                               for q, x in v.items()}
                                          for ch, v in c.heldout_per_channel.items()},
                  "param_std": {}, "unidentified": list(c.fit.unidentified)}
-        for e, ps in c.fit.params.items():
+        for e, ps in vocabulary_only(c.fit.params).items():
             for k, v in ps.items():
                 key = k if len(c.effects) == 1 else f"{e}.{k}"
                 entry["params"][key] = round_sig(v, 5)
         # 1-sigma uncertainty of each fitted coordinate (e.g. mu_k_over_mu_s for friction)
+        nuis = {e: fitted_nuisance(c.fit, e) for e in c.effects}
         for (e, k), sd in zip(c.fit.coords, c.fit.std):
+            if _is_nuisance(e, k):
+                continue
             key = k if len(c.effects) == 1 else f"{e}.{k}"
             entry["param_std"][key] = round_sig(sd)
+        # the fit's nuisance parameters where it kept them (the load transfer's spin share k):
+        # not vocabulary parameters, so beside params
+        if any(nuis.values()):
+            entry["nuisance"] = {(k if len(c.effects) == 1 else f"{e}.{k}"):
+                                 {q: round_sig(x, 4) for q, x in v.items()}
+                                 for e, d in nuis.items() for k, v in d.items()}
         # the profile set of a coordinate profiled by the fit (mu_s), beside its value
         entry["param_interval"] = {(k if len(c.effects) == 1 else f"{e}.{k}"): interval_entry(iv)
                                    for (e, k), iv in _intervals(c).items()}
@@ -238,8 +248,15 @@ def _chosen_std(an: Analysis) -> dict[tuple[str, str], float]:
     want = {s["effect"] for s in an.selected}
     for c in an.candidates:
         if set(c.effects) == want:
-            return {(e, k): sd for (e, k), sd in zip(c.fit.coords, c.fit.std)}
+            return {(e, k): sd for (e, k), sd in zip(c.fit.coords, c.fit.std)
+                    if not _is_nuisance(e, k)}
     return {}
+
+
+def _is_nuisance(effect: str, name: str) -> bool:
+    """A fit coordinate that is no vocabulary parameter (the load transfer's spin share)."""
+    from host_tools.analyzer.replay.normal_forces import SPIN_KEY
+    return effect == "load_transfer" and name == SPIN_KEY
 
 
 def _pm(v: float, sd: float | None) -> str:
@@ -278,6 +295,9 @@ def summary_lines(an: Analysis) -> list[str]:
             if s.get("unidentified"):
                 ps += (f"; {', '.join(s['unidentified'])} not identified by these data, kept "
                        "nominal (or the nearest value the data allow)")
+            for k, v in (s.get("nuisance") or {}).items():
+                ps += (f"; fitted beside it (not a vocabulary parameter): {k} = "
+                       f"{_pm(v['value'], v.get('std'))}")
             ivs = {k: interval_entry(iv) for (e, k), iv in _chosen_intervals(an).items()
                    if e == s["effect"]}
             if ivs:
