@@ -34,20 +34,8 @@ SEED = 7300
 def _problem(paths: list[str]):
     """The fit problem of ``paths`` as :func:`host_tools.analyzer.pipeline.analyze` builds it."""
     from host_tools.analyzer import pipeline as pl
-    from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
-    from host_tools.analyzer.prepare.inputs import prepare_runs
-    from host_tools.analyzer.replay.nominal import replay_closed_loop, replay_open_loop
 
-    quiet = lambda msg: None  # noqa: E731
-    runs = pl._load_runs(paths, quiet)
-    vocab, _ = pl._vocabulary(None)
-    notes: list[str] = []
-    preps = prepare_runs(runs, quiet)
-    preps, cl = replay_closed_loop(preps, 5e-4, notes, quiet)
-    ol = replay_open_loop(preps, 5e-4)
-    preps, nominal, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, quiet)
-    det = detect_mismatch(preps, nominal, loc, vocab, 5e-4, notes, quiet)
-    return det
+    return pl.front(paths).det
 
 
 def main(argv=None) -> int:

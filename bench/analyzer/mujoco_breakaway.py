@@ -432,23 +432,10 @@ def cmd_compare(a: argparse.Namespace) -> int:
 def case_problem(case_dir: Path) -> tuple[Any, Any, Any]:
     """(the prepared runs, the nominal open-loop replays, the fit problem) of the case's runs,
     as the pipeline builds them."""
-    from host_tools import runfmt
-    from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
-    from host_tools.analyzer.pipeline import _vocabulary
-    from host_tools.analyzer.prepare.inputs import prepare_runs
-    from host_tools.analyzer.replay.nominal import replay_closed_loop, replay_open_loop
+    from host_tools.analyzer.pipeline import front
 
-    def log(_m: str) -> None:
-        return None
-    runs = [runfmt.load_run(str(p)) for p in sorted(case_dir.iterdir())
-            if (p / "meta.json").is_file()]
-    vocab, _ = _vocabulary(None)
-    preps = prepare_runs(runs, log)
-    preps, cl = replay_closed_loop(preps, 5e-4, [], log)
-    ol = replay_open_loop(preps, 5e-4)
-    preps, nominal, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, log)
-    problem = detect_mismatch(preps, nominal, loc, vocab, 5e-4, [], log).problem
-    return preps, ol, problem
+    fr = front([str(p) for p in sorted(case_dir.iterdir()) if (p / "meta.json").is_file()])
+    return fr.preps, fr.ol, fr.det.problem
 
 
 def cmd_profile(a: argparse.Namespace) -> int:

@@ -38,9 +38,6 @@ from scipy.optimize import least_squares
 
 from host_tools.analyzer import pipeline as PL
 from host_tools.analyzer.fit.solver import effective_n
-from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
-from host_tools.analyzer.prepare.inputs import prepare_runs
-from host_tools.analyzer.replay.nominal import replay_closed_loop, replay_open_loop
 from host_tools.analyzer.replay.normal_forces import NormalForces, spin_height
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
 
@@ -80,16 +77,7 @@ def _fit_h(fun: Any, h0: float) -> tuple[float, float]:
 
 
 def analyze_case(case_dir: str, ks: Sequence[float], dt_s: float = 5e-4) -> dict[str, Any]:
-    def quiet(_: str) -> None:
-        return None
-    runs = PL._load_runs(sorted(glob.glob(os.path.join(case_dir, "run-*"))), quiet)
-    vocab, _ = PL._vocabulary(None)
-    notes: list[str] = []
-    preps = prepare_runs(runs, quiet)
-    preps, cl = replay_closed_loop(preps, dt_s, notes, quiet)
-    ol = replay_open_loop(preps, dt_s)
-    preps, nominal, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, quiet)
-    problem = detect_mismatch(preps, nominal, loc, vocab, dt_s, notes, quiet).problem
+    problem = PL.front(sorted(glob.glob(os.path.join(case_dir, "run-*"))), dt_s=dt_s).det.problem
     idx = list(range(len(problem.preps)))
     name = os.path.basename(os.path.normpath(case_dir))
     out: dict[str, Any] = {"case": name, "h_s": spin_height(problem.preps[0].robot)}

@@ -5,7 +5,8 @@ Runs :func:`host_tools.analyzer.pipeline.analyze` on the run folders (one analys
 written, its messages below warnings silenced) under ``sys.setprofile`` and keeps, in call
 order, every call of a function defined in the analyzer package (``host_tools/analyzer``;
 comprehensions and lambdas belong to the function they are in) down to ``--depth`` such calls
-below ``analyze`` (0: all).  Consecutive
+below ``analyze`` (0: all; the pipeline module's own functions that ``analyze`` calls, such as
+``front``, count as ``analyze``'s level, so the stages are its depth-1 calls).  Consecutive
 calls within one file are a *stay*; a stay in a file an earlier stay already visited is a
 *return*.  Prints the number of stays, files and returns, each file's visits (stays) and calls
 in the order of its first visit, and the sequence of stays.  A reader who follows the code from
@@ -76,8 +77,9 @@ def walk(run_dirs: Sequence[str], depth: int = 2, jobs: int = 2,
 
     base = os.path.dirname(os.path.abspath(pkg.__file__ or "")) + os.sep
     skip = {os.path.normpath(f) for f in ignore}
-    counted: list[bool] = []     # per open Python frame: an analyzer function's
-    level = [0]                  # open analyzer frames (analyze's own included)
+    counted: list[bool] = []     # per open Python frame: whether it opened an analyzer level
+    level = [0]                  # open analyzer levels (analyze's own included)
+    pipeline = os.path.join(base, "pipeline.py")
     calls: list[str] = []
 
     def profile(frame: FrameType, event: str, arg: Any) -> None:
@@ -85,11 +87,13 @@ def walk(run_dirs: Sequence[str], depth: int = 2, jobs: int = 2,
             code = frame.f_code
             mine = (code.co_filename.startswith(base) and not code.co_name.startswith("<")
                     and os.path.relpath(code.co_filename, base) not in skip)
-            if mine:
-                if depth <= 0 or level[0] <= depth:
-                    calls.append(os.path.relpath(code.co_filename, base))
+            if mine and (depth <= 0 or level[0] <= depth):
+                calls.append(os.path.relpath(code.co_filename, base))
+            # the pipeline's own functions below analyze (front, _load_runs) are analyze's level
+            opens = mine and not (level[0] == 1 and code.co_filename == pipeline)
+            if opens:
                 level[0] += 1
-            counted.append(mine)
+            counted.append(opens)
         elif event == "return" and counted:
             if counted.pop():
                 level[0] -= 1

@@ -12,10 +12,13 @@ from typing import Callable, Sequence
 
 from host_tools import runfmt
 from host_tools.analyzer import stage_log
-from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
+from host_tools.analyzer.locate.mismatch import Detection, Located, detect_mismatch, locate_mismatch
 from host_tools.analyzer.prepare.command_lag import select_command_delay
 from host_tools.analyzer.prepare.inputs import prepare_runs
-from host_tools.analyzer.replay.nominal import replay_closed_loop, replay_open_loop
+from host_tools.analyzer.prepare.run import PreparedRun
+from host_tools.analyzer.replay.channels import Channel
+from host_tools.analyzer.replay.nominal import (NominalClosedLoop, NominalOpenLoop,
+                                                replay_closed_loop, replay_open_loop)
 from host_tools.analyzer.report.model import updated_model
 from host_tools.analyzer.report.sections import (Analysis, closed_loop_report, error_tables,
                                                  localize, recorder_findings, replay_updated)
@@ -32,15 +35,10 @@ def analyze(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run], jobs: int =
     package's stage line, ``host_tools.analyzer.stage_log``); the fits' progress goes to the
     package's logger (``host_tools.analyzer.log``), which the logging configuration silences."""
     t_start = time.time()
-    runs = _load_runs(run_dirs, log)
-    vocab, vocab_fit = _vocabulary(effects)
     notes: list[str] = []
-    preps = prepare_runs(runs, log)
-    preps, cl = replay_closed_loop(preps, dt_s, notes, log)
-    ol = replay_open_loop(preps, dt_s)
-    preps, nominal, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, log)
-    det = detect_mismatch(preps, nominal, loc, vocab, dt_s, notes, log)
-    cands = fit_candidates(det, vocab_fit, jobs, notes, log)
+    fr = front(run_dirs, effects, dt_s, notes, log)
+    runs, preps, cl, ol, nominal, loc, det = fr.runs, fr.preps, fr.cl, fr.ol, fr.nominal, fr.loc, fr.det
+    cands = fit_candidates(det, fr.vocab_fit, jobs, notes, log)
     sel = select_effects(det, cands, jobs, pairs_top, log)
     selected = selected_entries(sel, det.rss0)
     invariance = invariance_of(det, sel)
@@ -67,6 +65,44 @@ def analyze(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run], jobs: int =
     log(f"verdict: {verdict}" + (f"; selected {', '.join(s['effect'] for s in selected)}"
                                  if selected else "") + f" ({an.timing_s:.1f} s)")
     return an
+
+
+@dataclasses.dataclass
+class Front:
+    """The stages of :func:`analyze` up to the mismatch's detection, in its order: the loaded
+    runs, the candidates' vocabulary, the prepared runs (as located), both nominal replays, the
+    nominal channels, the located mismatch and its detection (``det.problem``: the fit problem
+    every candidate is fitted on)."""
+    runs: list[runfmt.Run]
+    vocab_fit: dict[str, dict[str, float]]
+    preps: list[PreparedRun]
+    cl: NominalClosedLoop
+    ol: NominalOpenLoop
+    nominal: list[dict[str, Channel]]
+    loc: Located
+    det: Detection
+
+
+def _quiet(_msg: str) -> None:
+    return None
+
+
+def front(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run],
+          effects: Sequence[str] | None = None, dt_s: float = 5e-4,
+          notes: list[str] | None = None, log: Callable[[str], None] = _quiet) -> Front:
+    """:func:`analyze`'s stages up to the detection, for :func:`analyze` and for the tools and
+    tests that fit on an analysis's own problem (``front(paths).det.problem``).  ``notes``
+    collects the stages' report notes (a new list when not given); ``log`` is silent unless
+    given."""
+    notes = [] if notes is None else notes
+    runs = _load_runs(run_dirs, log)
+    vocab, vocab_fit = _vocabulary(effects)
+    preps = prepare_runs(runs, log)
+    preps, cl = replay_closed_loop(preps, dt_s, notes, log)
+    ol = replay_open_loop(preps, dt_s)
+    preps, nominal, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, log)
+    det = detect_mismatch(preps, nominal, loc, vocab, dt_s, notes, log)
+    return Front(runs, vocab_fit, preps, cl, ol, nominal, loc, det)
 
 
 def _load_runs(run_dirs: Sequence[str | os.PathLike[str] | runfmt.Run],

@@ -27,9 +27,6 @@ def _problem(tmp_path: Path) -> Any:
     from host_tools import _native
     from host_tools.analyzer import pipeline as PL
     from host_tools.analyzer import synth
-    from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
-    from host_tools.analyzer.prepare.inputs import prepare_runs
-    from host_tools.analyzer.replay.nominal import replay_closed_loop, replay_open_loop
     from host_tools.analyzer.replay.normal_forces import wheels_on_axle
 
     def factory(meta: Any) -> Any:
@@ -41,17 +38,7 @@ def _problem(tmp_path: Path) -> Any:
     paths = synth.make_case(tmp_path / "k1", {"load_transfer": {"h": H_TRUE}},
                             profiles=("ramp", "brake", "ramp"), seed=3, duration_s=2.0,
                             plant_factory=factory)
-
-    def quiet(_: str) -> None:
-        return None
-    runs = PL._load_runs(paths, quiet)
-    vocab, _ = PL._vocabulary(None)
-    notes: list[str] = []
-    preps = prepare_runs(runs, quiet)
-    preps, cl = replay_closed_loop(preps, 5e-4, notes, quiet)
-    ol = replay_open_loop(preps, 5e-4)
-    preps, nominal, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, quiet)
-    return detect_mismatch(preps, nominal, loc, vocab, 5e-4, notes, quiet).problem
+    return PL.front(paths).det.problem
 
 
 def test_the_spin_share_is_fitted_beside_h_where_the_slips_identify_it(tmp_path: Path) -> None:

@@ -211,21 +211,11 @@ def test_a_pair_partner_within_its_nominal_tolerance_is_dropped():
 
 def _detect(paths, with_tolerance: bool, monkeypatch):
     from host_tools.analyzer import pipeline as P
-    from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
-    from host_tools.analyzer.prepare.inputs import prepare_runs
     from host_tools.analyzer.replay import nominal as N
-    quiet = lambda m: None  # noqa: E731
     with monkeypatch.context() as mp:
         if not with_tolerance:
             mp.setattr(N, "tolerance_uncertainty", lambda *a, **k: None)
-        runs = P._load_runs(paths, quiet)
-        vocab, _ = P._vocabulary(None)
-        notes: list[str] = []
-        preps = prepare_runs(runs, quiet)
-        preps, cl = N.replay_closed_loop(preps, 5e-4, notes, quiet)
-        ol = N.replay_open_loop(preps, 5e-4)
-        preps, nom, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, quiet)
-        return detect_mismatch(preps, nom, loc, vocab, 5e-4, notes, quiet).mismatch_seen
+        return P.front(paths).det.mismatch_seen
 
 
 def test_a_robot_within_its_tolerance_is_a_null_and_one_beyond_it_is_not(tmp_path, monkeypatch):

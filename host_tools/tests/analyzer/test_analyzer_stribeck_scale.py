@@ -65,10 +65,7 @@ def test_a_stribeck_fit_reaches_the_floor_of_its_valley(tmp_path):
     true value (on the linear map it stopped at mu_k0 0.066, v_s 0.031, with a residual sum of
     squares a third higher)."""
     from host_tools import truth
-    from host_tools.analyzer.locate.mismatch import detect_mismatch, locate_mismatch
-    from host_tools.analyzer.pipeline import _load_runs, _vocabulary
-    from host_tools.analyzer.prepare.inputs import prepare_runs
-    from host_tools.analyzer.replay.nominal import replay_closed_loop, replay_open_loop
+    from host_tools.analyzer.pipeline import front
     rec = {"heading_tel": "wrapped", "tel_s": 0.036, "tel_drop": 0.19}
     exps = [({"kind": "line", "accel": 2.628, "cruise": 1.314}, False),
             ({"kind": "line", "accel": 1.752, "cruise": 0.876}, False),
@@ -78,13 +75,7 @@ def test_a_stribeck_fit_reaches_the_floor_of_its_valley(tmp_path):
     paths = [truth.simulate_run(tmp_path / f"run-{i}", ref, {"stribeck": true}, clamp=clamp,
                                 duration_s=2.0, seed=5 + i, recorder=rec)
              for i, (ref, clamp) in enumerate(exps)]
-    quiet = lambda s: None  # noqa: E731
-    vocab, _ = _vocabulary(None)
-    preps = prepare_runs(_load_runs(paths, quiet), quiet)
-    preps, cl = replay_closed_loop(preps, 5e-4, [], quiet)
-    ol = replay_open_loop(preps, 5e-4)
-    preps, nominal, loc = locate_mismatch(ol.preps, ol.nominal, ol.nominal_t, cl.nominal, quiet)
-    pb = detect_mismatch(preps, nominal, loc, vocab, 5e-4, [], quiet).problem
+    pb = front(paths).det.problem
     fit = pb.fit(["stribeck"], list(range(len(paths))))
     got = fit.params["stribeck"]
     assert abs(got["mu_k0"] - true["mu_k0"]) < 0.01, got
