@@ -170,14 +170,15 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback22", 28, 12),
                                                     ("heldback23", 28, 12),
                                                     ("heldback24", 28, 12),
-                                                    ("heldback25", 28, 12)])
+                                                    ("heldback25", 28, 12),
+                                                    ("heldback26", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
              "heldback6", "heldback7", "heldback8", "heldback9", "heldback10", "heldback11",
              "heldback12", "heldback13", "heldback14", "heldback15", "heldback16",
              "heldback17", "heldback18", "heldback19", "heldback20", "heldback21",
-             "heldback22", "heldback23", "heldback24", "heldback25"]
+             "heldback22", "heldback23", "heldback24", "heldback25", "heldback26"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -226,8 +227,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     if which in ("heldback11", "heldback12", "heldback13", "heldback14", "heldback15",
                  "heldback16", "heldback17", "heldback18", "heldback19",
                  "heldback20", "heldback21", "heldback22", "heldback23",
-                 "heldback24", "heldback25"):  # both engines in every kind and on 20 s and 60 s
-        # runs (hard ones with the clamp off)
+                 "heldback24", "heldback25", "heldback26"):  # both engines in every kind and on
+        # 20 s and 60 s runs (hard ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -252,8 +253,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     if which in ("heldback13", "heldback14", "heldback15", "heldback16",
                  "heldback17", "heldback18", "heldback19", "heldback20",
                  "heldback21", "heldback22", "heldback23", "heldback24",
-                 "heldback25"):  # friction on both engines, mu_s / mu_k drawn over [1, 1.15];
-        # an effect over 60 s runs
+                 "heldback25", "heldback26"):  # friction on both engines, mu_s / mu_k drawn over
+        # [1, 1.15]; an effect over 60 s runs
         friction = [c for c in new if "friction_coefficient" in c.effects]
         assert {c.engine for c in friction} == {"truth", "mujoco"}
         ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
@@ -275,7 +276,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     # floor slope (all three absent from heldback21); heldback23's load transfer (absent from
     # heldback22); heldback24's back-EMF, driver voltage drop, floor slope and actuation delay
     # (all four absent from heldback23); heldback25's deadband and load transfer (both absent
-    # from heldback24)
+    # from heldback24); heldback26's axle Coulomb friction, Stribeck friction, track width and
+    # motor lag (all four absent from heldback25)
     own_kinds = {"heldback14": ("payload", "motor_back_emf", "deadband"),
                  "heldback15": ("axle_coulomb", "motor_gain_asymmetry", "actuation_delay"),
                  "heldback16": ("motor_back_emf", "motor_lag", "track_width"),
@@ -289,7 +291,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback23": ("load_transfer",),
                  "heldback24": ("motor_back_emf", "driver_voltage_drop", "floor_slope",
                                 "actuation_delay"),
-                 "heldback25": ("deadband", "load_transfer")}
+                 "heldback25": ("deadband", "load_transfer"),
+                 "heldback26": ("axle_coulomb", "stribeck", "track_width", "motor_lag")}
     if which in own_kinds:
         for kind in own_kinds[which]:
             sizes = [c.effects[kind][cases.MAIN_PARAM[kind]] for c in new if kind in c.effects]
@@ -401,6 +404,7 @@ FROZEN_SETS = {
     "heldback23": "b5fde45ddcb3ddc8d710ff8742fcc6d5aaa81784d55d659c5d234d5c0e6342ae",
     "heldback24": "c7a47452d15551f7f4a4af0bddd94609d7ca7164e941517805c70eeb163e8617",
     "heldback25": "df5d011290433e66d4c4977035a326c1f1d83e2962f936c39551120326fad8ca",
+    "heldback26": "7f35d0e9d2668ca12b24af79ac4323036e3ebbea5dfecf51cbabfd763bdbc4d7",
 }
 
 
