@@ -138,3 +138,22 @@ def plant_config(robot: Mapping[str, float], effects: Mapping[str, Mapping[str, 
         return PlantConfig(r, fx, {"plant.spin_share": min(max(float(spin), 0.0), 1.0)})
     fx["load_transfer"] = {**lt, "h": max(h_com + float(forces.spin_share) * h_s, 0.0)}
     return PlantConfig(r, fx, {"plant.spin_share": 0.0})
+
+
+def rolling_form(robot: Mapping[str, float], effects: Mapping[str, Mapping[str, float]]
+                 ) -> dict[str, dict[str, float]]:
+    """``effects`` in the nominal model's form: a ``load_transfer`` that carries the fit's kept
+    spin share k (:data:`SPIN_KEY`) becomes the height :func:`plant_config` replays the same
+    while the wheels roll, ``h + (k - k^) h_s`` (it adds ``k^ h_s`` to a height), without k.
+    For what takes a model in that form (model.json, ``fil.model_plant_keys``); other effects
+    as given."""
+    from host_tools.analyzer.effects import plant_setup
+    lt = effects.get("load_transfer", {})
+    if SPIN_KEY not in lt:
+        return {e: dict(p) for e, p in effects.items()}
+    rest = {e: dict(p) for e, p in effects.items() if e != "load_transfer"}
+    r, _ = plant_setup(robot, rest)
+    h_s = spin_height(r, rest.get("wheel_radius", {}).get("r_eff", r["r"]))
+    h = float(lt["h"]) + (float(lt[SPIN_KEY]) - float(NOMINAL.spin_share)) * h_s
+    return {**rest, "load_transfer": {**{k: float(v) for k, v in lt.items() if k != SPIN_KEY},
+                                      "h": max(h, 0.0)}}

@@ -11,9 +11,11 @@ def updated_model(meta: Mapping[str, Any], effects: Mapping[str, Mapping[str, fl
                   sources: Sequence[str]) -> dict[str, Any]:
     """The updated model-parameter file (format ``ddmodel/1``, see docs/analyzer.md)."""
     from host_tools import _native
-    from host_tools.analyzer.fit.params import vocabulary_only
-    effects = vocabulary_only(effects)   # the fits' nuisance parameters are not the model's
+    from host_tools.analyzer.replay.normal_forces import rolling_form
     robot = dict(meta["robot"])
+    # the model is replayed in the nominal model's form (plant_config): a kept spin share is
+    # folded into the load transfer's height there, and no nuisance parameter is the model's
+    effects = rolling_form(robot, effects)
     motor = dict(meta["motor"])
     plant_robot, plant_effects = plant_setup(robot, effects)
     plant = _native.Plant.from_meta({**meta, "robot": plant_robot})

@@ -98,3 +98,24 @@ def test_an_unkept_spin_share_leaves_the_nominal_form_exactly() -> None:
     # the tolerance ensemble replays the nominal model (no effect): never the theta'' term
     assert plant_config(P.ROBOT, {}).keys == {"plant.spin_share": 0.0}
     assert np.isfinite(a.effects["load_transfer"]["h"])
+
+
+def test_the_model_carries_a_kept_spin_share_in_the_nominal_form() -> None:
+    """model.json is replayed in the nominal model's form (``plant_config``: k^ h_s added to
+    its height, ``fil.model_plant_keys``): a kept k is folded into h there, so the model's
+    rolling height is the fitted plant's, h + k h_s, and no nuisance key reaches the model."""
+    from host_tools.analyzer.replay.normal_forces import SPIN_KEY, plant_config, spin_height
+    from host_tools.analyzer.report.model import updated_model
+    from host_tools.runfmt import validate_meta
+    meta = validate_meta({})
+    fitted = {"load_transfer": {"h": 0.06, SPIN_KEY: 1.0}}
+    model = updated_model(meta, fitted, ["run-0"])
+    lt = model["effects"]["load_transfer"]
+    assert set(lt) == {"h"}
+    replayed = plant_config(dict(meta["robot"]), model["effects"])
+    assert replayed.keys == {"plant.spin_share": 0.0}
+    assert math.isclose(replayed.effects["load_transfer"]["h"],
+                        0.06 + 1.0 * spin_height(meta["robot"]), rel_tol=1e-12)
+    # without a kept k the model's h is the fit's, as before
+    plain = updated_model(meta, {"load_transfer": {"h": 0.06}}, ["run-0"])
+    assert plain["effects"]["load_transfer"] == {"h": 0.06}
