@@ -364,12 +364,22 @@ def _camera_channels(win: _Window) -> dict[str, Channel]:
         # turned by the heading it is off the anchor at the window's first frame (its
         # early start's transient, a few mrad, would otherwise grow into a cross-track
         # drift of millimetres per metre)
-        p0 = {c: float(at(c, t[:1])[0]) for c in ("x_m", "y_m")}
+        # without an anchor (too few camera samples in the slip-free span around the first
+        # frame), the replay is tied to the window's first camera sample at that sample's own
+        # time: tied at the first frame instead, it would carry the robot's motion between the
+        # two (up to a camera period: 0.3 rad, 0.3 m at 1.5 Hz) as an offset over the window
+        t_ref = t[:1] if an is not None else tg[:1]
+        p0 = {c: float(at(c, t_ref)[0] - (shift[c][0] if an is None else 0.0))
+              for c in ("x_m", "y_m")}
         ref = {c: an[c] if an is not None else float(gt[c][inside][0])
                for c in ("x_m", "y_m")}
         rot = 0.0
         if an is not None and an.get("phi_rad") is not None:
             rot = float(wrap_angle(np.array([an["phi_rad"] - float(at("phi_rad", t[:1])[0])]))[0])
+        elif an is None and np.isfinite(gt["phi_rad"][inside][0]):
+            rot = float(wrap_angle(np.array([float(gt["phi_rad"][inside][0])
+                                             - float(at("phi_rad", tg[:1])[0])
+                                             + float(shift["phi_rad"][0])]))[0])
         dx, dy = pos["x_m"] - p0["x_m"], pos["y_m"] - p0["y_m"]
         cr, sr = math.cos(rot), math.sin(rot)
         pos = {"x_m": cr * dx - sr * dy + ref["x_m"], "y_m": sr * dx + cr * dy + ref["y_m"]}
@@ -383,8 +393,10 @@ def _camera_channels(win: _Window) -> dict[str, Channel]:
         if anchored:
             ref_phi = (an or {}).get("phi_rad")
             if ref_phi is None:
-                ref_phi = float(ph[ok][0])
-            sv = sv - float(at("phi_rad", t[:1])[0]) + ref_phi
+                # the first camera heading, at its own time (as the position above)
+                sv = sv - float(sv[0]) + float(ph[ok][0])
+            else:
+                sv = sv - float(at("phi_rad", t[:1])[0]) + ref_phi
         out["phi_rad"] = Channel("phi_rad", tg[ok], ph[ok], sv, "rad", seg(int(ok.sum())))
     return out
 

@@ -287,3 +287,29 @@ def test_a_window_after_a_gap_starts_at_the_wheel_speed_of_its_first_frame():
     t0, _, vel = AN.window_start(prep, 1)
     assert t0 == t[22] and vel is not None
     assert abs(vel[3] - accel * t0) < 0.25 and abs(vel[4] - 0.5 * accel * t0) < 0.25, vel
+
+
+def test_a_window_without_anchor_is_tied_to_its_first_camera_sample_at_that_time(
+        tmp_path, monkeypatch):
+    """Without a camera anchor at a window's first frame (too few camera samples in the
+    slip-free span around it: a 1.5 Hz camera between slips), the window's camera channels are
+    tied to its first camera sample at that sample's own time.  Tied at the first frame instead,
+    the robot's turn and travel between the two (up to a camera period) stayed in the
+    residual as a constant offset over the whole window."""
+    path = synth.make_run(tmp_path / "long", "turn", duration_s=20.0, seed=4, gt_rate_hz=1.5)
+    prep = PI.prepare_timed(load_run(path))
+    rp = OL.OpenLoopReplay("duty")
+    sims = rp.simulate_windows(prep, {})
+    base = CH.channels(prep, sims)
+    monkeypatch.setattr(CH, "_gt_anchor", lambda *a, **k: None)
+    bare = CH.channels(prep, sims)
+    for c, tol in (("phi_rad", 0.01), ("x_m", 0.01), ("y_m", 0.01)):
+        ch = bare[c]
+        later = ch.seg >= 1
+        # the replay is anchored on a camera sample: its residual is the camera's noise and
+        # the replay's drift over a window, not the motion up to the first sample
+        worst = max(abs(float(np.mean(ch.resid[later & (ch.seg == s)])))
+                    for s in np.unique(ch.seg[later]))
+        ref = max(abs(float(np.mean(base[c].resid[later & (base[c].seg == s)])))
+                  for s in np.unique(ch.seg[later]))
+        assert worst < ref + tol, (c, worst, ref)
