@@ -14,8 +14,7 @@ from host_tools.analyzer.prepare.odometry import wrap_angle
 case_runs, labels = sys.argv[1], sys.argv[2]
 dirs = sorted(glob.glob(os.path.join(case_runs, "run-*")))
 fr = front(dirs)
-PREPS = fr.det.problem.preps if os.environ.get("DET") else fr.preps
-for prep, d in zip(PREPS, dirs):
+for prep, d in zip(fr.preps, dirs):
     name = os.path.basename(d)
     tr = np.genfromtxt(os.path.join(labels, name + ".truth.csv"), delimiter=",", names=True)
     tp = np.unwrap(tr["true_phi_rad"])
