@@ -282,9 +282,12 @@ def phase_term(prep: PreparedRun) -> tuple[np.ndarray, tuple[np.ndarray, np.ndar
     if unseen.size == 0 or i_seen.size < 3:
         return None
     t = np.asarray(prep.t_in, float)
-    if any(np.any(np.abs(np.asarray(u, float)[unseen]
+    # the fill is the line, or the line plus the feed-forward's departure (fill_feedforward)
+    ff = feedforward_term(prep)
+    ff_dep = (np.zeros(unseen.size), np.zeros(unseen.size)) if ff is None else ff[2]
+    if any(np.any(np.abs(np.asarray(u, float)[unseen] - ff_dep[side]
                          - np.interp(t[unseen], t[i_seen], np.asarray(u, float)[i_seen])) > 1e-12)
-           for u in prep.duty):
+           for side, u in enumerate(prep.duty)):
         return None
     # the ticks' index on the inner grid (its origin within the outer period is unknown and
     # does not matter: only where the reported phase changes does)
@@ -298,6 +301,122 @@ def phase_term(prep: PreparedRun) -> tuple[np.ndarray, tuple[np.ndarray, np.ndar
         slope = np.gradient(us, t[i_seen])
         off.append(np.interp(t[unseen], t[i_seen], slope) * inner)
     return block, (off[0], off[1])
+
+
+def _segments_accel(ref: Mapping[str, object], t: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The reference's (dv/dt, domega/dt) at board times ``t`` (reference time 0 at the
+    experiment's start) for a ``segments`` reference (meta.json ``{"kind": "segments",
+    "accel", "alpha", "segments": [{"duration_s", "v", "omega"}, ...]}``, docs/suite.md): from
+    rest, segment i (starting at the sum of the earlier durations) ramps v toward its ``v`` at
+    +-accel and omega toward its ``omega`` at +-alpha, then holds; after the last segment its
+    targets hold.  None when the reference is not such a list."""
+    try:
+        accel, alpha = float(cast(float, ref["accel"])), float(cast(float, ref["alpha"]))
+        segs = [(float(g["duration_s"]), float(g["v"]), float(g["omega"]))
+                for g in cast("list[Mapping[str, float]]", ref["segments"])]
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not segs or not (accel > 0 and alpha > 0) or any(d < 0 for d, _, _ in segs):
+        return None
+    dv, dw = np.zeros(t.size), np.zeros(t.size)
+    t0, v, w = 0.0, 0.0, 0.0
+    for k, (dur, vt, wt) in enumerate(segs):
+        end = t0 + dur if k + 1 < len(segs) else math.inf
+        for tgt, cur, rate, out in ((vt, v, accel, dv), (wt, w, alpha, dw)):
+            ramp = abs(tgt - cur) / rate
+            # a boundary within 1 us counts as reached (the recorder sums the durations in
+            # double precision, on a 0.2 ms step)
+            sel = (t >= t0 - 1e-6) & (t < min(t0 + ramp, end) - 1e-6)
+            out[sel] = math.copysign(rate, tgt - cur) if tgt != cur else 0.0
+        v = vt if dur * accel >= abs(vt - v) else v + math.copysign(dur * accel, vt - v)
+        w = wt if dur * alpha >= abs(wt - w) else w + math.copysign(dur * alpha, wt - w)
+        t0 = end
+    return dv, dw
+
+
+def feedforward_term(prep: PreparedRun) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
+    """The cascade's acceleration feed-forward that the straight-line fill of unreported ticks
+    cannot see: (the unseen ticks' indices, the gap of each, per side the feed-forward's
+    departure from its own line through the reported ticks, in duty), or None.
+
+    A cascade's outer step takes the reference's acceleration at its tick and adds
+    ``(r/2) m_ff dv +- (r/2b) I_ff domega`` (lib/control cascade: m_ff, I_ff the rolling mass
+    and yaw inertia of the nominal robot) to each wheel's torque, in force from the next inner
+    tick for one outer period.  A reference segment shorter than an outer period (a ramp the
+    outer ticks see one sample of) makes that a pulse of one outer period, and when the frames
+    that would report its ticks are lost no reported command shows it: the line through the
+    reported ticks misses all of it.  Needs a ``segments`` reference in meta.json (which
+    lib/control does not replay, so nothing else refines the fill) and a cascade (meta.json
+    ``controller`` absent or one lib/control replays) with an outer period of whole ticks."""
+    seen = prep.seen_ticks
+    meta = prep.run.meta
+    ref = meta.get("reference")
+    ctl = meta.get("controller")
+    if (seen is None or not isinstance(ref, Mapping) or ref.get("kind") != "segments"
+            or (ctl is not None and ctl not in REPLAYABLE_CONTROLLERS)):
+        return None
+    seen = np.asarray(seen, bool)
+    i_seen, unseen = np.flatnonzero(seen), np.flatnonzero(~seen)
+    if unseen.size == 0 or i_seen.size < 2:
+        return None
+    per = meta.get("periods_s") or {}
+    inner, outer = float(per.get("inner", 0.0) or 0.0), float(per.get("outer", 0.0) or 0.0)
+    m = int(round(outer / inner)) if inner > 0 else 0
+    if m < 1 or abs(m * inner - outer) > 1e-9:
+        return None
+    t0 = float(cast(float, ref.get("t0_s", 0.0) or 0.0))
+    k = np.round((np.asarray(prep.t_in, float) - t0) / inner).astype(np.int64)
+    # the outer tick whose step is in force at inner tick k: the last one before it
+    k_outer = m * np.floor_divide(k - 1, m)
+    acc = _segments_accel(ref, t0 + k_outer * inner)
+    if acc is None:
+        return None
+    rb, mo = prep.robot, prep.motor
+    try:
+        r, b = float(rb["r"]), float(rb["b"])
+        m_t = float(rb["m_r"]) + 2.0 * float(rb["m_w"])
+        i_t = float(rb["I_rz"]) + 2.0 * (float(rb["I_wz"]) + float(rb["m_w"]) * b * b)
+        m_ff = m_t + 2.0 * float(rb["I_wy"]) / (r * r)
+        i_ff = i_t + m_t * float(rb["d"]) ** 2 + 2.0 * float(rb["I_wy"]) * b * b / (r * r)
+        stall = float(mo["stall_nm"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    p_ff = 0.5 * r * m_ff * acc[0] / stall
+    q_ff = 0.5 * r / b * i_ff * acc[1] / stall
+    gap = np.concatenate([[0], np.cumsum(np.diff(unseen) > 1)])
+    dep = []
+    for f in (p_ff + q_ff, p_ff - q_ff):
+        dep.append(f[unseen] - np.interp(unseen, i_seen, f[i_seen]))
+    if not any(np.any(np.abs(d) > 0) for d in dep):
+        return None
+    return unseen, gap, (dep[0], dep[1])
+
+
+def fill_feedforward(prep: PreparedRun) -> tuple[PreparedRun, int]:
+    """The straight-line fill of the unreported ticks plus the cascade's acceleration
+    feed-forward's departure from its own line (:func:`feedforward_term`), in the duty and, when
+    it is given at the same ticks, in the torque command (x the stall torque).  Returns (the run
+    with those fills, a new value; the number of ticks moved, 0: ``prep`` itself)."""
+    ff = feedforward_term(prep)
+    if ff is None:
+        return prep, 0
+    unseen, _, dep = ff
+    duty = []
+    for side in (0, 1):
+        u = np.asarray(prep.duty[side], float).copy()
+        u[unseen] += dep[side]
+        duty.append(np.clip(u, -1.0, 1.0))
+    torque = prep.torque
+    if prep.t_in_tau.size == prep.t_in.size and np.array_equal(prep.t_in_tau, prep.t_in):
+        stall = float(prep.motor["stall_nm"])
+        tq = []
+        for side in (0, 1):
+            v = np.asarray(prep.torque[side], float).copy()
+            v[unseen] += dep[side] * stall
+            tq.append(v)
+        torque = (tq[0], tq[1])
+    moved = int(np.sum((np.abs(dep[0]) > 0) | (np.abs(dep[1]) > 0)))
+    return dataclasses.replace(prep, duty=(duty[0], duty[1]), torque=torque), moved
 
 
 def fill_spread(prep: PreparedRun
@@ -378,18 +497,25 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     phase = phase_term(prep)
     # the phase term's draws from their own stream: the other draws stay as they are
     rng_ph = np.random.default_rng([seed, unseen.size, 2])
+    ff = feedforward_term(prep)
+    rng_ff = np.random.default_rng([seed, unseen.size, 3])
+    ff_pos = None if ff is None else np.searchsorted(unseen, ff[0])
     base = cast("tuple[np.ndarray, np.ndarray]", tuple(np.asarray(u, float) for u in prep.duty))
     acc: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
     for _ in range(n):
         draw = []
         # one draw per block, shared by both wheels (the frames report the same tick of each)
         zp = None if phase is None else rng_ph.uniform(-1.0, 1.0, int(phase[0][-1]) + 1)
+        # the feed-forward's share that reached the command: one draw per gap, both wheels
+        zf = None if ff is None else rng_ff.standard_normal(int(ff[1][-1]) + 1)
         for side, (u, w, bd) in enumerate(zip(base, white, bend)):
             v = u.copy()
             z = rng.standard_normal(int(gap[-1]) + 1)
             v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
             if phase is not None and zp is not None:
                 v[unseen] += zp[phase[0]] * phase[1][side]
+            if ff is not None and zf is not None and ff_pos is not None:
+                v[unseen[ff_pos]] += zf[ff[1]] * ff[2][side] / math.sqrt(3.0)
             draw.append(np.clip(v, -1.0, 1.0))
         drawn = dataclasses.replace(prep, duty=cast("tuple[np.ndarray, np.ndarray]", tuple(draw)))
         for name, ch in channels(drawn, replay.simulate_windows(drawn, {}), "duty").items():
