@@ -284,10 +284,13 @@ def phase_term(prep: PreparedRun) -> tuple[np.ndarray, tuple[np.ndarray, np.ndar
     t = np.asarray(prep.t_in, float)
     # the fill is the line, or the line plus the feed-forward's departure (fill_feedforward)
     ff = feedforward_term(prep)
-    ff_dep = (np.zeros(unseen.size), np.zeros(unseen.size)) if ff is None else ff[2]
-    if any(np.any(np.abs(np.asarray(u, float)[unseen] - ff_dep[side]
-                         - np.interp(t[unseen], t[i_seen], np.asarray(u, float)[i_seen])) > 1e-12)
-           for side, u in enumerate(prep.duty)):
+    zero = np.zeros(unseen.size)
+
+    def off_line(dep: tuple[np.ndarray, np.ndarray]) -> bool:
+        return any(np.any(np.abs(np.asarray(u, float)[unseen] - dep[side] - np.interp(
+            t[unseen], t[i_seen], np.asarray(u, float)[i_seen])) > 1e-12)
+            for side, u in enumerate(prep.duty))
+    if off_line((zero, zero)) and (ff is None or off_line(ff[2])):
         return None
     # the ticks' index on the inner grid (its origin within the outer period is unknown and
     # does not matter: only where the reported phase changes does)

@@ -104,8 +104,9 @@ def test_the_fill_with_the_feedforward_is_closer_to_the_given_commands(pulse):
 
 
 def test_the_phase_term_still_sees_a_line_fill(pulse):
-    """phase_term draws only where the fill is the straight line: the line plus the
-    feed-forward's departure counts as one."""
+    """phase_term draws only where the fill is the straight line: the line, and the line plus
+    the feed-forward's departure (fill_feedforward), count as one."""
     prep, _, _ = pulse
     filled, _ = UN.fill_feedforward(prep)
+    assert UN.phase_term(prep) is not None
     assert UN.phase_term(filled) is not None
