@@ -15,8 +15,8 @@ from host_tools.analyzer.replay.channels import Channel, channels
 from host_tools.analyzer.replay.closedloop import ClosedLoopReplay, closed_loop_channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
 from host_tools.analyzer.replay.tolerance import tolerance_uncertainty
-from host_tools.analyzer.replay.unseen import (fill_count_level, fill_feedforward,
-                                               fill_unseen_from_controller, input_uncertainty)
+from host_tools.analyzer.replay.unseen import (fill_count_level, fill_unseen_from_controller,
+                                               input_uncertainty)
 
 
 @dataclass
@@ -79,12 +79,6 @@ def replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[st
             runs[i]["assumptions"].append(
                 f"{n_lvl} inner ticks were reported by no frame: their commands are the line "
                 "between the reported ones with the reported ticks' count quantization taken out")
-        filled[i], n_ff = fill_feedforward(filled[i])
-        if n_ff:
-            runs[i]["assumptions"].append(
-                f"{n_ff} inner ticks were reported by no frame where the reference's acceleration "
-                "feed-forward departs from its line through the reported ones: their commands "
-                "are that line's fill plus the departure")
     n_cl = sum(1 for c in nominal if c)
     if n_cl:
         log(f"closed-loop replay through lib/control: {n_cl}/{len(preps)} run(s)")

@@ -282,15 +282,9 @@ def phase_term(prep: PreparedRun) -> tuple[np.ndarray, tuple[np.ndarray, np.ndar
     if unseen.size == 0 or i_seen.size < 3:
         return None
     t = np.asarray(prep.t_in, float)
-    # the fill is the line, or the line plus the feed-forward's departure (fill_feedforward)
-    ff = feedforward_term(prep)
-    zero = np.zeros(unseen.size)
-
-    def off_line(dep: tuple[np.ndarray, np.ndarray]) -> bool:
-        return any(np.any(np.abs(np.asarray(u, float)[unseen] - dep[side] - np.interp(
-            t[unseen], t[i_seen], np.asarray(u, float)[i_seen])) > 1e-12)
-            for side, u in enumerate(prep.duty))
-    if off_line((zero, zero)) and (ff is None or off_line(ff[2])):
+    if any(np.any(np.abs(np.asarray(u, float)[unseen]
+                         - np.interp(t[unseen], t[i_seen], np.asarray(u, float)[i_seen])) > 1e-12)
+           for u in prep.duty):
         return None
     # the ticks' index on the inner grid (its origin within the outer period is unknown and
     # does not matter: only where the reported phase changes does)
@@ -393,33 +387,6 @@ def feedforward_term(prep: PreparedRun) -> tuple[np.ndarray, np.ndarray, tuple[n
     if not any(np.any(np.abs(d) > 0) for d in dep):
         return None
     return unseen, gap, (dep[0], dep[1])
-
-
-def fill_feedforward(prep: PreparedRun) -> tuple[PreparedRun, int]:
-    """The straight-line fill of the unreported ticks plus the cascade's acceleration
-    feed-forward's departure from its own line (:func:`feedforward_term`), in the duty and, when
-    it is given at the same ticks, in the torque command (x the stall torque).  Returns (the run
-    with those fills, a new value; the number of ticks moved, 0: ``prep`` itself)."""
-    ff = feedforward_term(prep)
-    if ff is None:
-        return prep, 0
-    unseen, _, dep = ff
-    duty = []
-    for side in (0, 1):
-        u = np.asarray(prep.duty[side], float).copy()
-        u[unseen] += dep[side]
-        duty.append(np.clip(u, -1.0, 1.0))
-    torque = prep.torque
-    if prep.t_in_tau.size == prep.t_in.size and np.array_equal(prep.t_in_tau, prep.t_in):
-        stall = float(prep.motor["stall_nm"])
-        tq = []
-        for side in (0, 1):
-            v = np.asarray(prep.torque[side], float).copy()
-            v[unseen] += dep[side] * stall
-            tq.append(v)
-        torque = (tq[0], tq[1])
-    moved = int(np.sum((np.abs(dep[0]) > 0) | (np.abs(dep[1]) > 0)))
-    return dataclasses.replace(prep, duty=(duty[0], duty[1]), torque=torque), moved
 
 
 def fill_spread(prep: PreparedRun

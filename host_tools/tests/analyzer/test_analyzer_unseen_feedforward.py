@@ -3,11 +3,12 @@ shorter than an outer period (a ramp the outer ticks see one sample of) makes th
 (r/2) m_ff dv for one outer period, and when the frames that would report those two ticks are
 lost the straight-line fill of the unreported ticks misses all of it.  The reference (a
 ``segments`` list in meta.json, which the closed-loop replay does not replay) says where and by
-how much: replay.unseen.feedforward_term, fill_feedforward (docs/analyzer.md, "Ticks no frame
-reported")."""
+how much: replay.unseen.feedforward_term, drawn in the replay's uncertainty from unreported
+commands (docs/analyzer.md, "The replay's uncertainty from unreported commands")."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 
 import numpy as np
 import pytest
@@ -18,7 +19,9 @@ pytestmark = needs_native(truth=True)
 
 from host_tools import truth  # noqa: E402
 from host_tools.analyzer.prepare import inputs as PI  # noqa: E402
+from host_tools.analyzer.replay import channels as CH  # noqa: E402
 from host_tools.analyzer.replay import closedloop as CL  # noqa: E402
+from host_tools.analyzer.replay import openloop as OL  # noqa: E402
 from host_tools.analyzer.replay import unseen as UN  # noqa: E402
 from host_tools.runfmt import load_run  # noqa: E402
 
@@ -89,24 +92,39 @@ def test_feedforward_term_finds_the_pulse(pulse):
         assert np.all(dep[side][~on] == 0.0)
 
 
-def test_the_fill_with_the_feedforward_is_closer_to_the_given_commands(pulse):
-    """The line fill is off by the whole pulse; with the feed-forward's departure added it is
-    off by what the feedback made of it (fails before: no fill_feedforward)."""
-    prep, k, given = pulse
-    filled, n = UN.fill_feedforward(prep)
-    assert n == 2
-    i = np.flatnonzero(np.isin(k, PULSE_TICKS))
-    for side in (0, 1):
-        before = np.abs(np.asarray(prep.duty[side])[i] - given[side][i])
-        after = np.abs(np.asarray(filled.duty[side])[i] - given[side][i])
-        assert np.all(before > 0.02)
-        assert np.all(after < 0.5 * before)
+def _worst_in_floors(prep, given, floor: float) -> dict[str, float]:
+    """Per wheel speed, within 0.3 s after the pulse: the largest error of the duty replay from
+    the fill (filled against given commands) over sqrt(floor^2 + the replay's uncertainty^2),
+    the deflation the decisions use (Channel.deflated)."""
+    duty = OL.OpenLoopReplay("duty")
+    unc = UN.input_uncertainty(prep, duty)
+    assert unc
+    p = dataclasses.replace(prep, replay_unc=unc)
+    filled = CH.channels(p, duty.simulate_windows(p, {}), "duty")
+    p_true = dataclasses.replace(p, duty=given)
+    true = CH.channels(p_true, duty.simulate_windows(p_true, {}), "duty")
+    out = {}
+    for c in ("omega_r", "omega_l"):
+        near = (filled[c].t > 1.075) & (filled[c].t < 1.4)
+        err = (filled[c].sim - true[c].sim)[near]
+        u = np.nan_to_num(filled[c].unc[near]) if filled[c].unc is not None else 0.0 * err
+        out[c] = float(np.max(np.abs(err) / np.sqrt(floor ** 2 + u ** 2)))
+    return out
 
 
-def test_the_phase_term_still_sees_a_line_fill(pulse):
-    """phase_term draws only where the fill is the straight line: the line, and the line plus
-    the feed-forward's departure (fill_feedforward), count as one."""
+def test_the_replay_uncertainty_covers_the_hidden_pulse(pulse, monkeypatch):
+    """The straight-line fill keeps none of the pulse, so the duty replay's wheel speeds run off
+    by several wheel-speed quantization floors after it; the feed-forward's draw (std
+    |departure| / sqrt 3 per gap) takes it within 3 (fails before: no feed-forward term)."""
+    prep, _, given = pulse
+    floor = 2 * np.pi / prep.run.meta["encoder_ppr"] / (INNER_S * np.sqrt(6.0))
+    with_term = _worst_in_floors(prep, given, floor)
+    assert all(v < 3.0 for v in with_term.values()), with_term
+    monkeypatch.setattr(UN, "feedforward_term", lambda p: None)
+    without = _worst_in_floors(prep, given, floor)
+    assert all(v > 3.0 for v in without.values()), without
+
+
+def test_the_phase_term_still_sees_the_line_fill(pulse):
     prep, _, _ = pulse
-    filled, _ = UN.fill_feedforward(prep)
     assert UN.phase_term(prep) is not None
-    assert UN.phase_term(filled) is not None
