@@ -342,9 +342,14 @@ def feedforward_term(prep: PreparedRun) -> tuple[np.ndarray, np.ndarray, tuple[n
     tick for one outer period.  A reference segment shorter than an outer period (a ramp the
     outer ticks see one sample of) makes that a pulse of one outer period, and when the frames
     that would report its ticks are lost no reported command shows it: the line through the
-    reported ticks misses all of it.  Needs a ``segments`` reference in meta.json (which
-    lib/control does not replay, so nothing else refines the fill) and a cascade (meta.json
-    ``controller`` absent or one lib/control replays) with an outer period of whole ticks."""
+    reported ticks misses all of it; at a ramp's start or end inside a gap the line misses part
+    of the step.  Needs a ``segments`` reference in meta.json (which lib/control does not
+    replay, so nothing else refines the fill) and a cascade (meta.json ``controller`` absent or
+    one lib/control replays) with an outer period of whole ticks.  The departure is drawn in
+    :func:`input_uncertainty`, not added to the fill: where the torque command sits at the
+    clamp (tau_max, a hard reversal) the feed-forward does not reach it (hb15_mj_payload_60s,
+    hb25_mj_driver_voltage_drop_60s: the given commands' departure over it had a median of
+    0.1-0.6, and the fill with it added was further off than without)."""
     seen = prep.seen_ticks
     meta = prep.run.meta
     ref = meta.get("reference")
@@ -450,7 +455,12 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     period spans several inner ticks adds :func:`phase_term` where the fill is the straight
     line: the staircase's unreported phase, one uniform draw in [-1, 1] per block of frames
     that report the same phase, times that tick's change of the command (independent of the
-    other draws: the variances add).  The replay turns the
+    other draws: the variances add).  A cascade on a ``segments`` reference adds
+    :func:`feedforward_term`: the reference's acceleration feed-forward's departure from its line
+    through the reported ticks, which the feedback's response to the same reference change and
+    the torque clamp take partly or wholly back, as one normal draw per gap of std
+    ``|departure| / sqrt(3)``, shared by both wheels (one reference change moves both), from
+    its own random stream (the other draws unchanged).  The replay turns the
     draws into the output errors they cause, large
     where the output is sensitive to the input (a slipping wheel, a step) and small elsewhere.
     Returns it as channel -> (t, std over the draws, the draws matched by sample time:
