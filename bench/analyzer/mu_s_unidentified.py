@@ -15,7 +15,8 @@ For each suite case (its runs and its label with the true mu_s, mu_k) it prints:
   at the true mu_s, at the profile set's upper edge and over a grid of mu_s in the set
   (the profile over mu_s with mu_k re-minimized): mu_k and the cost (sum of squares of the
   normalized residual) against the free fit's, with the set's threshold
-  (chi2(0.95, 1) s^2 n / n_eff);
+  (chi2(0.95, 1) s^2 n / n_eff); and each run's cost over the same grid and 2 % beyond the set's
+  edge with mu_k held (which run bounds mu_s);
 * a summary table over the cases: the true mu_k/mu_s, the truth's onsets after the first 10 ms
   (and the telemetry frames inside their slips), the cost's spread over the profile grid in
   units of the set's threshold, mu_k's and mu_s's errors, and the share of mu_s's deviation
@@ -166,6 +167,11 @@ def run(a: argparse.Namespace) -> None:
                 prof.append(f"{v:.4f}:{k:.4f}/{c - free.rss:+.1f}")
             print("  profile mu_s: mu_k / cost - free cost: " + "  ".join(prof))
             spread = (max(costs) - min(costs)) / thr
+            print(f"  cost per run with mu_k held at {mu_k:.4f} (which run bounds mu_s):")
+            for v in [*np.linspace(max(iv.lo, mu_k), iv.hi, a.grid), 1.02 * iv.hi]:
+                per = [float(np.sum(pr.residual({FX: {"mu_s": float(v), "mu_k": mu_k}}, [j])
+                                    ** 2)) for j in runs]
+                print(f"    mu_s {v:.4f}: " + " ".join(f"{c:9.2f}" for c in per))
         if "mu_k" in true:
             print(f"  errors: mu_k {100 * (dflt.params[FX]['mu_k'] / true['mu_k'] - 1):+.1f} %, "
                   f"mu_s (pipeline) {100 * (dflt.params[FX]['mu_s'] / true['mu_s'] - 1):+.1f} %,"
