@@ -22,9 +22,16 @@ from host_tools._stdio import STATUS
 from host_tools.suite.generate import generate_case
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-#: the analyzer's targets (the held-back set's figures are the ones that count, docs/suite.md)
-TARGETS = {"null_ok": 1.0, "named": 0.90, "param": 0.85, "oov_ok": 1.0, "impossible": 0,
-           "long_s": 60.0, "long_mb": 1024.0}
+#: the analyzer's targets (the held-back set's figures are the ones that count, docs/suite.md):
+#: shares of cases, the slowest analysis per run length (s; ``long_s`` for lengths not listed in
+#: ``time_s``) and the peak memory (MB)
+TARGETS = {"null_ok": 1.0, "named": 0.95, "param": 0.90, "oov_ok": 1.0, "impossible": 0,
+           "time_s": {"20 s": 30.0}, "long_s": 60.0, "long_mb": 1024.0}
+
+
+def time_target_s(length: str) -> float:
+    """The slowest analysis allowed for runs of ``length`` (s)."""
+    return float(TARGETS["time_s"].get(length, TARGETS["long_s"]))
 #: analyzer time limit per case: past it the case is stopped and scored as a timeout
 DEFAULT_TIMEOUT_S = 300.0
 
@@ -352,7 +359,7 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
                      (f" (+{len(r['impossible']) - 4})" if len(r["impossible"]) > 4 else ""))
     m["impossible"] = len(imp)
     m["impossible_selected"] = sum(1 for r in imp if any(x.startswith("selected") for x in r["impossible"]))
-    # analysis time and peak memory by run length (the time target: ``long_s``)
+    # analysis time and peak memory by run length (the time targets: ``time_target_s``)
     lengths = [ln for ln in ("20 s", "1 min", "2 min", "10 min") if any(r.get("length") == ln for r in results)]
     if any(r.get("analysis_s") is not None for r in results):
         L.append("")
@@ -370,14 +377,18 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
     m["false_alarms"] = sum(1 for r in nulls if not r["ok"])
     def pct(key, group):  # a share of a group of cases, or "no cases"
         return f"{100 * m[key]:.0f} %" if group else "no cases"
-    rows = [("nulls giving no_mismatch", pct("null_ok", nulls), "100 %", m["null_ok"] >= 1.0 or not nulls),
+    rows = [("nulls giving no_mismatch", pct("null_ok", nulls), f"{100 * TARGETS['null_ok']:.0f} %",
+             m["null_ok"] >= TARGETS["null_ok"] or not nulls),
             ("false alarms on nulls", f"{m['false_alarms']}/{len(nulls)}", "0", m["false_alarms"] == 0),
-            ("effect cases naming every true effect (sel./equiv.)", pct("named", effs), ">= 90 %", m["named"] >= 0.9 or not effs),
+            ("effect cases naming every true effect (sel./equiv.)", pct("named", effs),
+             f">= {100 * TARGETS['named']:.0f} %", m["named"] >= TARGETS["named"] or not effs),
             ("effect cases naming at least one true effect", pct("named_any", effs), "—", True),
             ("  ... explained, only true effects selected", pct("named_exact", effs), "—", True),
-            ("main parameter within 25 % (deviation from nominal)", pct("param", effs), ">= 85 %", m["param"] >= TARGETS["param"] or not effs),
+            ("main parameter within 25 % (deviation from nominal)", pct("param", effs),
+             f">= {100 * TARGETS['param']:.0f} %", m["param"] >= TARGETS["param"] or not effs),
             ("main parameter within 25 % (value)", pct("param_value", effs), "—", True),
-            ("out-of-vocabulary cases giving unexplained", pct("oov_ok", oovs), "100 %", m["oov_ok"] >= 1.0 or not oovs),
+            ("out-of-vocabulary cases giving unexplained", pct("oov_ok", oovs), f"{100 * TARGETS['oov_ok']:.0f} %",
+             m["oov_ok"] >= TARGETS["oov_ok"] or not oovs),
             ("cases whose held-out error got worse (all channels)", f"{m['heldout_worse_overall']}", "0", m["heldout_worse_overall"] == 0),
             ("cases with a physics channel worse beyond its noise", f"{m['heldout_worse_significant']}", "0", m["heldout_worse_significant"] == 0),
             ("cases with a channel whose held-out error grew at all", f"{m['heldout_worse']}", "—", True),
@@ -392,8 +403,9 @@ def summarize(results: list[dict], total_s: float) -> tuple[str, dict]:
         stopped = any(r.get("rc") == -9 for r in rs)
         m[f"time_{ln}"], m[f"mb_{ln}"] = t_max, mb_max
         rows.append((f"{ln} runs: slowest analysis (s)", (">" if stopped else "") + f"{t_max:.0f}",
-                     "<= 60", t_max <= TARGETS["long_s"] and not stopped))
-        rows.append((f"{ln} runs: peak memory (MB)", f"{mb_max:.0f}", "<= 1024", mb_max <= TARGETS["long_mb"]))
+                     f"<= {time_target_s(ln):.0f}", t_max <= time_target_s(ln) and not stopped))
+        rows.append((f"{ln} runs: peak memory (MB)", f"{mb_max:.0f}", f"<= {TARGETS['long_mb']:.0f}",
+                     mb_max <= TARGETS["long_mb"]))
     for name, val, tgt, ok in rows:
         L.append(f"{name:<52} {val:>10} {tgt:>10}  {'met' if ok else 'MISSED'}")
     L.append(f"cases: {len(results)} ({len(nulls)} nulls, {len(effs)} effect, {len(oovs)} outside the "
