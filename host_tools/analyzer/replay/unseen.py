@@ -10,7 +10,7 @@ import numpy as np
 
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import channels
-from host_tools.analyzer.replay.closedloop import REPLAYABLE_CONTROLLERS
+from host_tools.analyzer.replay.closedloop import CTL_KEYS, REPLAYABLE_CONTROLLERS, VELOCITY_LOOPS
 from host_tools.analyzer.signals import robust_std
 
 if TYPE_CHECKING:
@@ -331,14 +331,32 @@ def _segments_accel(ref: Mapping[str, object], t: np.ndarray) -> tuple[np.ndarra
     return dv, dw
 
 
+def feedforward_gains(meta: Mapping[str, object]) -> tuple[float, float, float, float, float] | None:
+    """(r, b, m_ff, I_ff, stall torque) of the recording's controller: the feed-forward mass and
+    yaw inertia as lib/control configures them for meta.json's robot, motor and velocity loop
+    (``controller_variant``), read through the ``ctl_*`` C ABI (``ff.m_kg``, ``ff.I_kgm2``); None
+    where meta.json does not give them."""
+    from host_tools.control import Controller
+    try:
+        robot = cast("Mapping[str, float]", meta["robot"])
+        motor = cast("Mapping[str, float]", meta["motor"])
+        params = {k: float(v) for part in (robot, motor) for k, v in part.items() if k in CTL_KEYS}
+        variant = meta.get("controller_variant", "improved")
+        ctl = Controller(fixed_point=False, params={"controller": VELOCITY_LOOPS[cast(str, variant)], **params})
+        return (float(robot["r"]), float(robot["b"]), ctl.get("ff.m_kg"), ctl.get("ff.I_kgm2"),
+                float(motor["stall_nm"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
 def feedforward_term(prep: PreparedRun) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
     """The cascade's acceleration feed-forward that the straight-line fill of unreported ticks
     cannot see: (the unseen ticks' indices, the gap of each, per side the feed-forward's
     departure from its own line through the reported ticks, in duty), or None.
 
     A cascade's outer step takes the reference's acceleration at its tick and adds
-    ``(r/2) m_ff dv +- (r/2b) I_ff domega`` (lib/control cascade: m_ff, I_ff the rolling mass
-    and yaw inertia of the nominal robot) to each wheel's torque, in force from the next inner
+    ``(r/2) m_ff dv +- (r/2b) I_ff domega`` (m_ff, I_ff: :func:`feedforward_gains`) to each
+    wheel's torque, in force from the next inner
     tick for one outer period.  A reference segment shorter than an outer period (a ramp the
     outer ticks see one sample of) makes that a pulse of one outer period, and when the frames
     that would report its ticks are lost no reported command shows it: the line through the
@@ -373,16 +391,10 @@ def feedforward_term(prep: PreparedRun) -> tuple[np.ndarray, np.ndarray, tuple[n
     acc = _segments_accel(ref, t0 + k_outer * inner)
     if acc is None:
         return None
-    rb, mo = prep.robot, prep.motor
-    try:
-        r, b = float(rb["r"]), float(rb["b"])
-        m_t = float(rb["m_r"]) + 2.0 * float(rb["m_w"])
-        i_t = float(rb["I_rz"]) + 2.0 * (float(rb["I_wz"]) + float(rb["m_w"]) * b * b)
-        m_ff = m_t + 2.0 * float(rb["I_wy"]) / (r * r)
-        i_ff = i_t + m_t * float(rb["d"]) ** 2 + 2.0 * float(rb["I_wy"]) * b * b / (r * r)
-        stall = float(mo["stall_nm"])
-    except (KeyError, TypeError, ValueError):
+    gains = feedforward_gains(meta)
+    if gains is None:
         return None
+    r, b, m_ff, i_ff, stall = gains
     p_ff = 0.5 * r * m_ff * acc[0] / stall
     q_ff = 0.5 * r / b * i_ff * acc[1] / stall
     gap = np.concatenate([[0], np.cumsum(np.diff(unseen) > 1)])

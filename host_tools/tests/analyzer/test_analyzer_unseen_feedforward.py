@@ -128,3 +128,16 @@ def test_the_replay_uncertainty_covers_the_hidden_pulse(pulse, monkeypatch):
 def test_the_phase_term_still_sees_the_line_fill(pulse):
     prep, _, _ = pulse
     assert UN.phase_term(prep) is not None
+
+
+def test_the_feedforward_gains_are_the_recording_controllers(pulse):
+    """m_ff and I_ff come from lib/control for the recording's velocity loop: the improved loop's
+    rolling mass (the chassis, the wheels and their spin inertia), the thesis loop's m_t."""
+    prep, _, _ = pulse
+    r = prep.run.meta["robot"]
+    _, _, m_ff, i_ff, _ = UN.feedforward_gains(prep.run.meta)
+    assert m_ff == pytest.approx(r["m_r"] + 2 * r["m_w"] + 2 * r["I_wy"] / r["r"] ** 2, rel=1e-6)
+    thesis = dict(prep.run.meta, controller_variant="thesis")
+    _, _, m_t, i_t, _ = UN.feedforward_gains(thesis)
+    assert m_t == pytest.approx(r["m_r"] + 2 * r["m_w"], rel=1e-6)
+    assert i_t < i_ff
