@@ -45,8 +45,8 @@ from host_tools.analyzer.prepare.run import PreparedRun  # noqa: E402
 from host_tools.analyzer.replay.channels import Channel  # noqa: E402
 from host_tools.analyzer.replay.nominal import (replay_channels, replay_closed_loop,  # noqa: E402
                                                 replay_open_loop)
-from host_tools.analyzer.replay.unseen import (fill_unseen_from_controller,  # noqa: E402
-                                               input_uncertainty)
+from host_tools.analyzer.replay.unseen import (fill_spread,  # noqa: E402
+                                               fill_unseen_from_controller, input_uncertainty)
 from host_tools.analyzer.signals import robust_std  # noqa: E402
 
 ACC_REGIME = 12.0  # rad/s^2: the report's "during acceleration" predicate
@@ -97,7 +97,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--full", required=True, help="same case, telemetry at the inner period")
     ap.add_argument("--dump", default=None, metavar="T0,T1",
                     help="also print every tick between board times T0 and T1 (s): reported or "
-                         "not, the true duty, the analyzer's, the error, the torque command")
+                         "not, the true duty, the analyzer's, the error, the torque command; and "
+                         "every wheel-speed sample there: recording, duty replay with the "
+                         "analyzer's and with the true commands, the input uncertainty drawn")
     a = ap.parse_args(argv)
     span = tuple(float(x) for x in a.dump.split(",")) if a.dump else None
     names = sorted(p.name for p in Path(a.runs).iterdir() if (p / "meta.json").exists())
@@ -151,6 +153,22 @@ def main(argv: list[str] | None = None) -> int:
                 if m.any():
                     print(f"      reported ticks {'even' if pv == 0 else 'odd'}: n {int(m.sum())}, "
                           f"refined mean {np.mean(e_ref[m]):+.4f} RMS {np.sqrt(np.mean(e_ref[m] ** 2)):.4f}")
+        # unreported ticks whose fill error lies beyond 4 std of the spread the analyzer draws
+        # for them (bend / sqrt 3 and the tick-level scatter in quadrature): commands that no
+        # reported one shows (a pulse hidden by the frame pattern and lost frames)
+        fs = fill_spread(pu)
+        if fs is not None:
+            us_i, _, white, bend = fs
+            pos = np.searchsorted(us_i, np.flatnonzero(unseen))
+            for side, u_true in enumerate((ur, ul)):
+                e = np.asarray(p.duty[side])[unseen] - u_true[idx[unseen]]
+                sd = np.sqrt(bend[side][pos] ** 2 + white[side] ** 2)
+                far = np.abs(e) > 4.0 * sd
+                print(f"   duty {'rl'[side]}: unreported ticks beyond 4 std of the drawn spread: "
+                      f"{int(far.sum())} of {e.size}" + "".join(
+                          f"; {float(tt):.3f} s error {float(ee):+.4f} std {float(ss):.4f}"
+                          for tt, ee, ss in zip(np.asarray(p.t_in)[unseen][far][:6], e[far][:6],
+                                                sd[far][:6])))
         unc = input_uncertainty(p, ol.duty)
         p_true = _with_true_duty(pu, k_true, (ur, ul))
         tru = replay_channels(p_true, ol.duty, {})
@@ -178,6 +196,16 @@ def main(argv: list[str] | None = None) -> int:
                       f"analyzer assumes: RMS {_rms(u):.4f} (|acc|>{ACC_REGIME:g}: "
                       f"{_rms(u[acc]):.4f}); ratio {_rms(u) / _rms(err):.2f} "
                       f"({_rms(u[acc]) / _rms(err[acc]):.2f})")
+        if span is not None and unc:
+            for lab in ("omega_r", "omega_l"):
+                if lab not in unc or nom[lab].t.size != tru[lab].t.size:
+                    continue
+                u = np.interp(nom[lab].t, *unc[lab])
+                for i in np.flatnonzero((nom[lab].t >= span[0]) & (nom[lab].t <= span[1])):
+                    print(f"     {lab} {nom[lab].t[i]:7.3f} s recording {nom[lab].rec[i]:+.4f} "
+                          f"replay {nom[lab].sim[i]:+.4f} (resid {nom[lab].resid[i]:+.4f}) "
+                          f"true-command replay {tru[lab].sim[i]:+.4f} (resid "
+                          f"{tru[lab].resid[i]:+.4f}) input unc {u[i]:.4f}")
     return 0
 
 

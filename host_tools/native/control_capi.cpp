@@ -235,6 +235,8 @@ int ctl_get(void* h, const char* key, double* out) {
   else if (float* g = p->gain(key)) *out = *g;
   else if (strcmp(key, "clamp") == 0) *out = p->clamp ? 1.0 : 0.0;
   else if (strcmp(key, "controller") == 0) *out = static_cast<double>(static_cast<uint8_t>(p->variant));
+  else if (strcmp(key, "ff.m_kg") == 0) *out = p->cfg.m_ff_kg;        // read-only: the variant's
+  else if (strcmp(key, "ff.I_kgm2") == 0) *out = p->cfg.I_ff_kgm2;    // feed-forward mass, inertia
   else {
     snprintf(p->err, sizeof p->err, "unknown key %s", key);
     return CTL_ERR_KEY;

@@ -23,6 +23,8 @@ void* ctl_new(int fixed_point, int clamp_enabled);
 void ctl_free(void* h);
 const char* ctl_last_error(void* h);
 int ctl_set(void* h, const char* key, double value);
+// ctl_get also reads (not settable) "ff.m_kg", "ff.I_kgm2": the configured variant's feed-forward
+// mass and yaw inertia (ControlConfig m_ff_kg, I_ff_kgm2).
 int ctl_get(void* h, const char* key, double* out);
 // kind 0 line, 1 arc, 2 figure eight; accel m/s^2, cruise m/s, signed radius m.
 int ctl_set_reference(void* h, int kind, double accel_m_s2, double cruise_m_s, double radius_m);

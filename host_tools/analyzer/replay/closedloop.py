@@ -131,7 +131,7 @@ def closed_loop_setup(meta: Mapping[str, Any], t: np.ndarray, tau_r: np.ndarray,
              "controller": VELOCITY_LOOPS[variant]}, [], assumptions)
 
 
-_CTL_KEYS = (*param_table.ROBOT, *param_table.MOTOR)  # the controller's nominal keys in meta.json
+CTL_KEYS = (*param_table.ROBOT, *param_table.MOTOR)  # the controller's nominal keys in meta.json
 
 
 class ClosedLoopReplay:
@@ -189,7 +189,7 @@ class ClosedLoopReplay:
             if setup is None:
                 raise ValueError("closed-loop replay impossible: " + "; ".join(problems))
         meta = prep.run.meta
-        ctl = {part: {k: float(v) for k, v in meta[part].items() if k in _CTL_KEYS}
+        ctl = {part: {k: float(v) for k, v in meta[part].items() if k in CTL_KEYS}
                for part in ("robot", "motor")}
         T, t0 = setup["inner_s"], setup["t0_s"]
         t_end = float(prep.run.telemetry["t_s"][-1])

@@ -10,7 +10,7 @@ import numpy as np
 
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import channels
-from host_tools.analyzer.replay.closedloop import REPLAYABLE_CONTROLLERS
+from host_tools.analyzer.replay.closedloop import CTL_KEYS, REPLAYABLE_CONTROLLERS, VELOCITY_LOOPS
 from host_tools.analyzer.signals import robust_std
 
 if TYPE_CHECKING:
@@ -300,6 +300,112 @@ def phase_term(prep: PreparedRun) -> tuple[np.ndarray, tuple[np.ndarray, np.ndar
     return block, (off[0], off[1])
 
 
+def _segments_accel(ref: Mapping[str, object], t: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The reference's (dv/dt, domega/dt) at board times ``t`` (reference time 0 at the
+    experiment's start) for a ``segments`` reference (meta.json ``{"kind": "segments",
+    "accel", "alpha", "segments": [{"duration_s", "v", "omega"}, ...]}``, docs/suite.md): from
+    rest, segment i (starting at the sum of the earlier durations) ramps v toward its ``v`` at
+    +-accel and omega toward its ``omega`` at +-alpha, then holds; after the last segment its
+    targets hold.  None when the reference is not such a list."""
+    try:
+        accel, alpha = float(cast(float, ref["accel"])), float(cast(float, ref["alpha"]))
+        segs = [(float(g["duration_s"]), float(g["v"]), float(g["omega"]))
+                for g in cast("list[Mapping[str, float]]", ref["segments"])]
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not segs or not (accel > 0 and alpha > 0) or any(d < 0 for d, _, _ in segs):
+        return None
+    dv, dw = np.zeros(t.size), np.zeros(t.size)
+    t0, v, w = 0.0, 0.0, 0.0
+    for k, (dur, vt, wt) in enumerate(segs):
+        end = t0 + dur if k + 1 < len(segs) else math.inf
+        for tgt, cur, rate, out in ((vt, v, accel, dv), (wt, w, alpha, dw)):
+            ramp = abs(tgt - cur) / rate
+            # a boundary within 1 us counts as reached (the recorder sums the durations in
+            # double precision, on a 0.2 ms step)
+            sel = (t >= t0 - 1e-6) & (t < min(t0 + ramp, end) - 1e-6)
+            out[sel] = math.copysign(rate, tgt - cur) if tgt != cur else 0.0
+        v = vt if dur * accel >= abs(vt - v) else v + math.copysign(dur * accel, vt - v)
+        w = wt if dur * alpha >= abs(wt - w) else w + math.copysign(dur * alpha, wt - w)
+        t0 = end
+    return dv, dw
+
+
+def feedforward_gains(meta: Mapping[str, object]) -> tuple[float, float, float, float, float] | None:
+    """(r, b, m_ff, I_ff, stall torque) of the recording's controller: the feed-forward mass and
+    yaw inertia as lib/control configures them for meta.json's robot, motor and velocity loop
+    (``controller_variant``), read through the ``ctl_*`` C ABI (``ff.m_kg``, ``ff.I_kgm2``); None
+    where meta.json does not give them."""
+    from host_tools.control import Controller
+    try:
+        robot = cast("Mapping[str, float]", meta["robot"])
+        motor = cast("Mapping[str, float]", meta["motor"])
+        params = {k: float(v) for part in (robot, motor) for k, v in part.items() if k in CTL_KEYS}
+        variant = meta.get("controller_variant", "improved")
+        ctl = Controller(fixed_point=False, params={"controller": VELOCITY_LOOPS[cast(str, variant)], **params})
+        return (float(robot["r"]), float(robot["b"]), ctl.get("ff.m_kg"), ctl.get("ff.I_kgm2"),
+                float(motor["stall_nm"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def feedforward_term(prep: PreparedRun) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]] | None:
+    """The cascade's acceleration feed-forward that the straight-line fill of unreported ticks
+    cannot see: (the unseen ticks' indices, the gap of each, per side the feed-forward's
+    departure from its own line through the reported ticks, in duty), or None.
+
+    A cascade's outer step takes the reference's acceleration at its tick and adds
+    ``(r/2) m_ff dv +- (r/2b) I_ff domega`` (m_ff, I_ff: :func:`feedforward_gains`) to each
+    wheel's torque, in force from the next inner
+    tick for one outer period.  A reference segment shorter than an outer period (a ramp the
+    outer ticks see one sample of) makes that a pulse of one outer period, and when the frames
+    that would report its ticks are lost no reported command shows it: the line through the
+    reported ticks misses all of it; at a ramp's start or end inside a gap the line misses part
+    of the step.  Needs a ``segments`` reference in meta.json (which lib/control does not
+    replay, so nothing else refines the fill) and a cascade (meta.json ``controller`` absent or
+    one lib/control replays) with an outer period of whole ticks.  The departure is drawn in
+    :func:`input_uncertainty`, not added to the fill: where the torque command sits at the
+    clamp (tau_max, a hard reversal) the feed-forward does not reach it (hb15_mj_payload_60s,
+    hb25_mj_driver_voltage_drop_60s: the given commands' departure over it had a median of
+    0.1-0.6, and the fill with it added was further off than without)."""
+    seen = prep.seen_ticks
+    meta = prep.run.meta
+    ref = meta.get("reference")
+    ctl = meta.get("controller")
+    if (seen is None or not isinstance(ref, Mapping) or ref.get("kind") != "segments"
+            or (ctl is not None and ctl not in REPLAYABLE_CONTROLLERS)):
+        return None
+    seen = np.asarray(seen, bool)
+    i_seen, unseen = np.flatnonzero(seen), np.flatnonzero(~seen)
+    if unseen.size == 0 or i_seen.size < 2:
+        return None
+    per = meta.get("periods_s") or {}
+    inner, outer = float(per.get("inner", 0.0) or 0.0), float(per.get("outer", 0.0) or 0.0)
+    m = int(round(outer / inner)) if inner > 0 else 0
+    if m < 1 or abs(m * inner - outer) > 1e-9:
+        return None
+    t0 = float(cast(float, ref.get("t0_s", 0.0) or 0.0))
+    k = np.round((np.asarray(prep.t_in, float) - t0) / inner).astype(np.int64)
+    # the outer tick whose step is in force at inner tick k: the last one before it
+    k_outer = m * np.floor_divide(k - 1, m)
+    acc = _segments_accel(ref, t0 + k_outer * inner)
+    if acc is None:
+        return None
+    gains = feedforward_gains(meta)
+    if gains is None:
+        return None
+    r, b, m_ff, i_ff, stall = gains
+    p_ff = 0.5 * r * m_ff * acc[0] / stall
+    q_ff = 0.5 * r / b * i_ff * acc[1] / stall
+    gap = np.concatenate([[0], np.cumsum(np.diff(unseen) > 1)])
+    dep = []
+    for f in (p_ff + q_ff, p_ff - q_ff):
+        dep.append(f[unseen] - np.interp(unseen, i_seen, f[i_seen]))
+    if not any(np.any(np.abs(d) > 0) for d in dep):
+        return None
+    return unseen, gap, (dep[0], dep[1])
+
+
 def fill_spread(prep: PreparedRun
                 ) -> tuple[np.ndarray, np.ndarray, list[float], list[np.ndarray]] | None:
     """The spread of the straight-line fill of the ticks no frame reported, as
@@ -361,7 +467,12 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     period spans several inner ticks adds :func:`phase_term` where the fill is the straight
     line: the staircase's unreported phase, one uniform draw in [-1, 1] per block of frames
     that report the same phase, times that tick's change of the command (independent of the
-    other draws: the variances add).  The replay turns the
+    other draws: the variances add).  A cascade on a ``segments`` reference adds
+    :func:`feedforward_term`: the reference's acceleration feed-forward's departure from its line
+    through the reported ticks, which the feedback's response to the same reference change and
+    the torque clamp take partly or wholly back, as one normal draw per gap of std
+    ``|departure| / sqrt(3)``, shared by both wheels (one reference change moves both), from
+    its own random stream (the other draws unchanged).  The replay turns the
     draws into the output errors they cause, large
     where the output is sensitive to the input (a slipping wheel, a step) and small elsewhere.
     Returns it as channel -> (t, std over the draws, the draws matched by sample time:
@@ -378,18 +489,25 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     phase = phase_term(prep)
     # the phase term's draws from their own stream: the other draws stay as they are
     rng_ph = np.random.default_rng([seed, unseen.size, 2])
+    ff = feedforward_term(prep)
+    rng_ff = np.random.default_rng([seed, unseen.size, 3])
+    ff_pos = None if ff is None else np.searchsorted(unseen, ff[0])
     base = cast("tuple[np.ndarray, np.ndarray]", tuple(np.asarray(u, float) for u in prep.duty))
     acc: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
     for _ in range(n):
         draw = []
         # one draw per block, shared by both wheels (the frames report the same tick of each)
         zp = None if phase is None else rng_ph.uniform(-1.0, 1.0, int(phase[0][-1]) + 1)
+        # the feed-forward's share that reached the command: one draw per gap, both wheels
+        zf = None if ff is None else rng_ff.standard_normal(int(ff[1][-1]) + 1)
         for side, (u, w, bd) in enumerate(zip(base, white, bend)):
             v = u.copy()
             z = rng.standard_normal(int(gap[-1]) + 1)
             v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
             if phase is not None and zp is not None:
                 v[unseen] += zp[phase[0]] * phase[1][side]
+            if ff is not None and zf is not None and ff_pos is not None:
+                v[unseen[ff_pos]] += zf[ff[1]] * ff[2][side] / math.sqrt(3.0)
             draw.append(np.clip(v, -1.0, 1.0))
         drawn = dataclasses.replace(prep, duty=cast("tuple[np.ndarray, np.ndarray]", tuple(draw)))
         for name, ch in channels(drawn, replay.simulate_windows(drawn, {}), "duty").items():
