@@ -231,7 +231,8 @@ _NOT_COPIES = {
     ("bench/logger/avr_codec_cycles.cpp", "0.095"): "arbitrary inputs of the codec cycle benchmark",
     ("bench/logger/avr_codec_cycles.cpp", "0.77"): "arbitrary inputs of the codec cycle benchmark",
     ("host_tools/analyzer/select.py", "0.77"): "analyzer score figures in a comment",
-    ("host_tools/suite/sets.json", "0.055"): "a load_transfer effect size (h), not d",
+    ("host_tools/suite/sets.json", "0.055"):
+        "a load_transfer effect size (h) and a recorder's inner loop (inner_s = 55 ms), not d",
     ("host_tools/suite/sets.json", "0.095"): "a load_transfer effect size (h = 95 mm), not tau_max",
     ("host_tools/suite/sets.json", "0.105"): "a recorder's telemetry period (tel_s = 105 ms), not b",
     ("host_tools/suite/sets.json", "0.064"): "a recorder's telemetry period (tel_s = 64 ms), not m_w",
