@@ -63,6 +63,44 @@ def pooled_hf_noise_std(res: Sequence[np.ndarray]) -> float:
     return float(sg.robust_std(dd) / math.sqrt(6.0)) if dd.size >= 3 else 0.0
 
 
+# The motor current's sense reads |I| through an ADC that reads no negative counts (protocol.json's
+# current_sense, magnitude_only): where the current is within a few noise sigmas of nil, the
+# ADC's noise is clipped at 0 counts, and the residual there holds a half-normal's spread
+# (0.60 sigma, its second differences' MAD less still), not the noise that a flowing current
+# carries.  The white part is therefore measured where the replayed current clears the clipping:
+# on the second differences whose three samples all replay at least SENSE_LINEAR_K floors
+# (a reading clipped with 2.3 % odds at 2 sigma), iterated once from the all-sample estimate.
+# heldback27's truth tour null (ADC noise 7.0 LSB = 20.7 mA): 80 % of its samples near rest,
+# floor 11.6-12.1 mA over all of them, 21.7 mA where the current flows.
+SENSE_LINEAR_K = 2.0
+SENSE_LINEAR_MIN = 30   # least second differences in the linear range for an estimate
+
+
+def sense_linear_noise_std(chans: Sequence[Channel], floor0: float) -> float:
+    """The white part of a magnitude-only current's residual where the replayed current is at
+    least SENSE_LINEAR_K noise floors above nil (two passes, the first from ``floor0``); 0 when
+    fewer than SENSE_LINEAR_MIN second differences qualify."""
+    f = floor0
+    est = 0.0
+    for _ in range(2):
+        dd = []
+        for ch in chans:
+            r = np.asarray(ch.resid, float)
+            lin = np.isfinite(r) & (np.abs(np.asarray(ch.sim, float)) >= SENSE_LINEAR_K * f)
+            if r.size < 3:
+                continue
+            ok = lin[:-2] & lin[1:-1] & lin[2:]
+            dd.append(np.diff(r, 2)[ok])
+        d = np.concatenate(dd) if dd else np.zeros(0)
+        if d.size < SENSE_LINEAR_MIN:
+            return est
+        est = float(sg.robust_std(d) / math.sqrt(6.0))
+        if est <= f:
+            return est
+        f = est
+    return est
+
+
 def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Channel]]
                  ) -> dict[str, float]:
     """Per-channel noise floor, pooled over runs, estimated from the data:
@@ -102,6 +140,9 @@ def noise_floors(preps: Sequence[PreparedRun], nominal: Sequence[Mapping[str, Ch
             base = 1e-6
         f = max(base, hf)
         if c.startswith("current"):
+            # the noise where the current flows (sense_linear_noise_std), not the clipped
+            # spread at rest
+            f = max(f, sense_linear_noise_std([ch[c] for ch in nominal if c in ch], f))
             # never below one ADC count: a magnitude-only sense reads long runs of exact zeros
             # at rest, where the MAD of second differences is nil, and had put the floor at
             # 0.6 of a count, so that a reading two counts off stood out

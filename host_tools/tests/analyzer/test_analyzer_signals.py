@@ -183,3 +183,32 @@ def test_current_floor_is_at_least_one_adc_count(tmp_path):
         floors = locate_floors.noise_floors([prep], [ch])
         assert floors["current_r_a"] >= count * (1 - 1e-3), meta_says
         assert floors["current_l_a"] >= count * (1 - 1e-3), meta_says
+
+
+@needs_native(truth=True)
+def test_current_floor_is_the_adc_noise_where_the_current_flows(tmp_path):
+    """A run that rests most of the time, read by a noisy magnitude-only ADC (7 LSB): at rest
+    the ADC's noise is clipped at 0 counts, so the residual's MAD of second differences over all
+    samples is about half the noise (0.52 sigma at nil current), and a flowing current's
+    readings, whose noise is the ADC's whole sigma, stood out of that floor two or three times
+    (heldback27's truth tour null).  The floor is the noise where the replayed current clears
+    the clipping."""
+    from host_tools import truth
+    from host_tools.analyzer.locate import floors as locate_floors
+    from host_tools.analyzer.prepare import inputs as PI
+    from host_tools.analyzer.replay import channels as CH, openloop as OL
+    from host_tools.runfmt import load_run
+    ref = {"kind": "segments", "accel": 0.6, "alpha": 2.0,
+           "segments": [{"duration_s": 2.0}, {"duration_s": 2.5, "v": 0.45},
+                        {"duration_s": 4.0}, {"duration_s": 2.5, "v": 0.45}, {"duration_s": 3.0}]}
+    run = load_run(truth.simulate_run(tmp_path / "r", ref, None, clamp=True, duration_s=14.0,
+                                      seed=3, recorder={"adc_noise_lsb": 7.0}))
+    cs = truth.CURRENT_SENSE
+    sigma = 7.0 * cs["adc_vref_v"] / 2 ** cs["adc_bits"] / cs["volts_per_amp"]
+    prep = PI.prepare_timed(run)
+    ch = CH.channels(prep, OL.OpenLoopReplay("duty").simulate_windows(prep, {}), "duty")
+    for side in ("r", "l"):   # over all samples: the clipped rest's spread (0.64-0.68 sigma)
+        assert sg.hf_noise_std(ch[f"current_{side}_a"].resid) < 0.75 * sigma, side
+    floors = locate_floors.noise_floors([prep], [ch])
+    for side in ("r", "l"):
+        assert floors[f"current_{side}_a"] == pytest.approx(sigma, rel=0.2), side
