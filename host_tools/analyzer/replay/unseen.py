@@ -156,8 +156,7 @@ def fill_count_level(prep: PreparedRun) -> tuple[PreparedRun, int]:
     counts of the frames, whose difference over an interval is the mean of the ticks' counted
     speeds over it exactly.  The command's dependence on the counted speed, ``g``, is the least
     squares slope of the reported commands' second differences on the reported speeds' (trend
-    removed: each middle value minus the line through its two neighbours at its time, which
-    for unevenly spaced reported ticks (lost frames) is not their mean; the count steps are the only fast change of the counted speed); each unreported
+    removed; the count steps are the only fast change of the counted speed); each unreported
     tick's fill moves by ``g x`` (the line through the reported counted speeds minus the
     count-mean speed, the latter taken through the intervals' mid-times and read half a period
     before the tick: its counted speed is the mean over the tick before it, which on a ramp
@@ -214,17 +213,13 @@ def _count_level(prep: PreparedRun
     # over that tick, whose mid-time is half a period before the tick (on a trend, a 25 ms
     # loop's counted speed lags the speed at the tick by several counts)
     half = 0.5 * float(prep.inner_period or 0.0)
-    # the trend is the line through the neighbours at the middle tick's time: with lost frames
-    # the reported ticks are unevenly spaced, and their plain mean leaves the trend's curvature
-    # and a fraction of its slope in the second difference (30 % of frames lost halved g)
-    lam = (ts[1:-1] - ts[:-2]) / (ts[2:] - ts[:-2])
     corr: list[Callable[[np.ndarray], np.ndarray] | None] = []
     for side, (enc, om) in enumerate((("enc_r", "omega_r"), ("enc_l", "omega_l"))):
         us = np.asarray(prep.duty[side], float)[i_seen]
         w_rep = np.asarray(tel[om], float)[row]
         w_mean = np.diff(np.asarray(tel[enc], float)[row]) * q / dt
-        d_u = us[1:-1] - ((1.0 - lam) * us[:-2] + lam * us[2:])
-        d_w = w_rep[1:-1] - ((1.0 - lam) * w_rep[:-2] + lam * w_rep[2:])
+        d_u = us[1:-1] - 0.5 * (us[:-2] + us[2:])
+        d_w = w_rep[1:-1] - 0.5 * (w_rep[:-2] + w_rep[2:])
         den = float(np.sum(d_w ** 2))
         if den <= 0:
             corr.append(None)
