@@ -8,20 +8,18 @@ commands (docs/analyzer.md, "The replay's uncertainty from unreported commands")
 from __future__ import annotations
 
 import csv
-import dataclasses
 
 import numpy as np
 import pytest
 
 from _native_skip import needs_native
+from _unseen_replay import filled_and_given
 
 pytestmark = needs_native(truth=True)
 
 from host_tools import truth  # noqa: E402
 from host_tools.analyzer.prepare import inputs as PI  # noqa: E402
-from host_tools.analyzer.replay import channels as CH  # noqa: E402
 from host_tools.analyzer.replay import closedloop as CL  # noqa: E402
-from host_tools.analyzer.replay import openloop as OL  # noqa: E402
 from host_tools.analyzer.replay import unseen as UN  # noqa: E402
 from host_tools.runfmt import load_run  # noqa: E402
 
@@ -96,13 +94,7 @@ def _worst_in_floors(prep, given, floor: float) -> dict[str, float]:
     """Per wheel speed, within 0.3 s after the pulse: the largest error of the duty replay from
     the fill (filled against given commands) over sqrt(floor^2 + the replay's uncertainty^2),
     the deflation the decisions use (Channel.deflated)."""
-    duty = OL.OpenLoopReplay("duty")
-    unc = UN.input_uncertainty(prep, duty)
-    assert unc
-    p = dataclasses.replace(prep, replay_unc=unc)
-    filled = CH.channels(p, duty.simulate_windows(p, {}), "duty")
-    p_true = dataclasses.replace(p, duty=given)
-    true = CH.channels(p_true, duty.simulate_windows(p_true, {}), "duty")
+    filled, true = filled_and_given(prep, given)
     out = {}
     for c in ("omega_r", "omega_l"):
         near = (filled[c].t > 1.075) & (filled[c].t < 1.4)

@@ -13,14 +13,13 @@ import numpy as np
 import pytest
 
 from _native_skip import needs_native
+from _unseen_replay import filled_and_given
 
 pytestmark = needs_native(truth=True)
 
 from host_tools import truth  # noqa: E402
 from host_tools.analyzer.prepare import inputs as PI  # noqa: E402
-from host_tools.analyzer.replay import channels as CH  # noqa: E402
 from host_tools.analyzer.replay import closedloop as CL  # noqa: E402
-from host_tools.analyzer.replay import openloop as OL  # noqa: E402
 from host_tools.analyzer.replay import unseen as UN  # noqa: E402
 from host_tools.runfmt import load_run  # noqa: E402
 
@@ -107,13 +106,7 @@ def test_phase_term_blocks_follow_the_reported_phase(staircase):
 def _coverage(prep, given) -> dict[str, float]:
     """Per wheel speed: the RMS of the replay uncertainty over the RMS of the replay's error
     from the fill (filled against given commands), where |wheel acceleration| > 12 rad/s^2."""
-    duty = OL.OpenLoopReplay("duty")
-    unc = UN.input_uncertainty(prep, duty)
-    assert unc
-    p = dataclasses.replace(prep, replay_unc=unc)
-    filled = CH.channels(p, duty.simulate_windows(p, {}), "duty")
-    p_true = dataclasses.replace(p, duty=given)
-    true = CH.channels(p_true, duty.simulate_windows(p_true, {}), "duty")
+    filled, true = filled_and_given(prep, given)
     out = {}
     for c in ("omega_r", "omega_l"):
         acc = np.abs(np.gradient(true[c].sim, true[c].t)) > ACC_REGIME
