@@ -14,6 +14,7 @@ import numpy as np
 
 from host_tools import runfmt, truth
 from host_tools.control import REF_KINDS
+from host_tools.segments import segments_speeds
 from host_tools.suite.cases import Case
 
 
@@ -31,24 +32,14 @@ def _null_runs(case: Case, tmp: str) -> list[tuple[dict, dict]]:
 
 def _segments_position(meta: dict, t: np.ndarray, dt: float = 2e-4) -> np.ndarray:
     """Reference position of a 'segments' reference (meta.json's reference or speed_reference)
-    at times t: v and omega ramp toward each segment's targets at accel and alpha, and the pose
-    is their integral (trapezoid on fine steps)."""
+    at times t: the integral of its v and omega (:func:`host_tools.segments.segments_speeds`;
+    trapezoid on fine steps)."""
     ref = meta.get("reference") or meta.get("speed_reference")
     tg = np.arange(0.0, float(t[-1]) + 2 * dt, dt)
-    v = np.zeros(tg.size)
-    w = np.zeros(tg.size)
-    t0, v0, w0 = 0.0, 0.0, 0.0
-    segs = ref["segments"]
-    for i, sg in enumerate(segs):
-        t1 = t0 + sg["duration_s"] if i + 1 < len(segs) else np.inf
-        m = (tg >= t0) & (tg < t1)
-        tau = tg[m] - t0
-        v[m] = v0 + np.sign(sg["v"] - v0) * np.minimum(ref["accel"] * tau, abs(sg["v"] - v0))
-        w[m] = w0 + np.sign(sg["omega"] - w0) * np.minimum(ref["alpha"] * tau, abs(sg["omega"] - w0))
-        d = sg["duration_s"]
-        v0 = v0 + np.sign(sg["v"] - v0) * min(ref["accel"] * d, abs(sg["v"] - v0))
-        w0 = w0 + np.sign(sg["omega"] - w0) * min(ref["alpha"] * d, abs(sg["omega"] - w0))
-        t0 = t1
+    speeds = segments_speeds(ref, tg)
+    if speeds is None:
+        raise ValueError("meta.json's reference is not a segments reference")
+    v, w = speeds[0], speeds[1]
     phi = np.concatenate([[0.0], np.cumsum(0.5 * dt * (w[1:] + w[:-1]))])
     phm = phi[:-1] + 0.25 * dt * (w[1:] + w[:-1])
     vm = 0.5 * (v[1:] + v[:-1])

@@ -12,6 +12,7 @@ from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import channels
 from host_tools.analyzer.replay.closedloop import CTL_KEYS, REPLAYABLE_CONTROLLERS, VELOCITY_LOOPS
 from host_tools.analyzer.signals import robust_std
+from host_tools.segments import segments_speeds
 
 if TYPE_CHECKING:
     from host_tools.analyzer.replay.openloop import OpenLoopReplay
@@ -300,37 +301,6 @@ def phase_term(prep: PreparedRun) -> tuple[np.ndarray, tuple[np.ndarray, np.ndar
     return block, (off[0], off[1])
 
 
-def _segments_accel(ref: Mapping[str, object], t: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The reference's (dv/dt, domega/dt) at board times ``t`` (reference time 0 at the
-    experiment's start) for a ``segments`` reference (meta.json ``{"kind": "segments",
-    "accel", "alpha", "segments": [{"duration_s", "v", "omega"}, ...]}``, docs/suite.md): from
-    rest, segment i (starting at the sum of the earlier durations) ramps v toward its ``v`` at
-    +-accel and omega toward its ``omega`` at +-alpha, then holds; after the last segment its
-    targets hold.  None when the reference is not such a list."""
-    try:
-        accel, alpha = float(cast(float, ref["accel"])), float(cast(float, ref["alpha"]))
-        segs = [(float(g["duration_s"]), float(g["v"]), float(g["omega"]))
-                for g in cast("list[Mapping[str, float]]", ref["segments"])]
-    except (KeyError, TypeError, ValueError):
-        return None
-    if not segs or not (accel > 0 and alpha > 0) or any(d < 0 for d, _, _ in segs):
-        return None
-    dv, dw = np.zeros(t.size), np.zeros(t.size)
-    t0, v, w = 0.0, 0.0, 0.0
-    for k, (dur, vt, wt) in enumerate(segs):
-        end = t0 + dur if k + 1 < len(segs) else math.inf
-        for tgt, cur, rate, out in ((vt, v, accel, dv), (wt, w, alpha, dw)):
-            ramp = abs(tgt - cur) / rate
-            # a boundary within 1 us counts as reached (the recorder sums the durations in
-            # double precision, on a 0.2 ms step)
-            sel = (t >= t0 - 1e-6) & (t < min(t0 + ramp, end) - 1e-6)
-            out[sel] = math.copysign(rate, tgt - cur) if tgt != cur else 0.0
-        v = vt if dur * accel >= abs(vt - v) else v + math.copysign(dur * accel, vt - v)
-        w = wt if dur * alpha >= abs(wt - w) else w + math.copysign(dur * alpha, wt - w)
-        t0 = end
-    return dv, dw
-
-
 def feedforward_gains(meta: Mapping[str, object]) -> tuple[float, float, float, float, float] | None:
     """(r, b, m_ff, I_ff, stall torque) of the recording's controller: the feed-forward mass and
     yaw inertia as lib/control configures them for meta.json's robot, motor and velocity loop
@@ -388,9 +358,12 @@ def feedforward_term(prep: PreparedRun) -> tuple[np.ndarray, np.ndarray, tuple[n
     k = np.round((np.asarray(prep.t_in, float) - t0) / inner).astype(np.int64)
     # the outer tick whose step is in force at inner tick k: the last one before it
     k_outer = m * np.floor_divide(k - 1, m)
-    acc = _segments_accel(ref, t0 + k_outer * inner)
-    if acc is None:
+    # a boundary within 1 us counts as reached (the recorder sums the durations in double
+    # precision, on a 0.2 ms step)
+    speeds = segments_speeds(ref, t0 + k_outer * inner, eps_s=1e-6)
+    if speeds is None:
         return None
+    acc = speeds[2:]
     gains = feedforward_gains(meta)
     if gains is None:
         return None
