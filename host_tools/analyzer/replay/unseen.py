@@ -464,7 +464,6 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
     rng_ph = np.random.default_rng([seed, unseen.size, 2])
     ff = feedforward_term(prep)
     rng_ff = np.random.default_rng([seed, unseen.size, 3])
-    ff_pos = None if ff is None else np.searchsorted(unseen, ff[0])
     base = cast("tuple[np.ndarray, np.ndarray]", tuple(np.asarray(u, float) for u in prep.duty))
     acc: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
     for _ in range(n):
@@ -479,8 +478,8 @@ def input_uncertainty(prep: PreparedRun, replay: "OpenLoopReplay",
             v[unseen] += z[gap] * bd + rng.standard_normal(unseen.size) * w
             if phase is not None and zp is not None:
                 v[unseen] += zp[phase[0]] * phase[1][side]
-            if ff is not None and zf is not None and ff_pos is not None:
-                v[unseen[ff_pos]] += zf[ff[1]] * ff[2][side] / math.sqrt(3.0)
+            if ff is not None and zf is not None:   # ff[0]: the same unseen ticks
+                v[ff[0]] += zf[ff[1]] * ff[2][side] / math.sqrt(3.0)
             draw.append(np.clip(v, -1.0, 1.0))
         drawn = dataclasses.replace(prep, duty=cast("tuple[np.ndarray, np.ndarray]", tuple(draw)))
         for name, ch in channels(drawn, replay.simulate_windows(drawn, {}), "duty").items():
