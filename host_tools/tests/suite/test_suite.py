@@ -174,7 +174,8 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback26", 28, 12),
                                                     ("heldback27", 28, 12),
                                                     ("heldback28", 28, 12),
-                                                    ("heldback29", 28, 12)])
+                                                    ("heldback29", 28, 12),
+                                                    ("heldback30", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
@@ -182,7 +183,7 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
              "heldback12", "heldback13", "heldback14", "heldback15", "heldback16",
              "heldback17", "heldback18", "heldback19", "heldback20", "heldback21",
              "heldback22", "heldback23", "heldback24", "heldback25", "heldback26",
-             "heldback27", "heldback28", "heldback29"]
+             "heldback27", "heldback28", "heldback29", "heldback30"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -233,8 +234,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback20", "heldback21", "heldback22", "heldback23",
                  "heldback24", "heldback25", "heldback26",
                  "heldback27", "heldback28",
-                 "heldback29"):  # both engines in every kind and on 20 s and 60 s runs (hard
-        # ones with the clamp off)
+                 "heldback29", "heldback30"):  # both engines in every kind and on 20 s and 60 s
+        # runs (hard ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -260,8 +261,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback17", "heldback18", "heldback19", "heldback20",
                  "heldback21", "heldback22", "heldback23", "heldback24",
                  "heldback25", "heldback26", "heldback27",
-                 "heldback28", "heldback29"):  # friction on both engines, mu_s / mu_k drawn
-        # over [1, 1.15]; an effect over 60 s runs
+                 "heldback28", "heldback29",
+                 "heldback30"):  # friction on both engines, mu_s / mu_k drawn over [1, 1.15];
+        # an effect over 60 s runs
         friction = [c for c in new if "friction_coefficient" in c.effects]
         assert {c.engine for c in friction} == {"truth", "mujoco"}
         ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
@@ -288,7 +290,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     # delay and motor gain asymmetry (all three absent from heldback26); heldback28's back-EMF,
     # load transfer, motor lag and floor slope (all four absent from heldback27); heldback29's
     # caster drag, driver voltage drop, axle Coulomb friction and actuation delay (all four absent
-    # from heldback28)
+    # from heldback28); heldback30's wheel radius, motor gain asymmetry and load transfer (all
+    # three absent from heldback29)
     own_kinds = {"heldback14": ("payload", "motor_back_emf", "deadband"),
                  "heldback15": ("axle_coulomb", "motor_gain_asymmetry", "actuation_delay"),
                  "heldback16": ("motor_back_emf", "motor_lag", "track_width"),
@@ -307,7 +310,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback27": ("axle_viscous", "actuation_delay", "motor_gain_asymmetry"),
                  "heldback28": ("motor_back_emf", "load_transfer", "motor_lag", "floor_slope"),
                  "heldback29": ("caster_drag", "driver_voltage_drop", "axle_coulomb",
-                                "actuation_delay")}
+                                "actuation_delay"),
+                 "heldback30": ("wheel_radius", "motor_gain_asymmetry", "load_transfer")}
     if which in own_kinds:
         for kind in own_kinds[which]:
             sizes = [c.effects[kind][cases.MAIN_PARAM[kind]] for c in new if kind in c.effects]
@@ -423,6 +427,7 @@ FROZEN_SETS = {
     "heldback27": "59b4f569482412513cd44a451d26ed7ef2ca9f0a2fc940844326cc3215c17e20",
     "heldback28": "7b71d4ed7baed5b6d1bf6865be56ff6b74058ff41c62ade55588def62eca005c",
     "heldback29": "ee736c9377b499b33d5a00e96fbe00467f7a30239938b4c30b858e322002a4d8",
+    "heldback30": "0e1cb3225cac733ee566115092e531e9f2007688f4a63c2d8bffa974d9d95769",
 }
 
 
