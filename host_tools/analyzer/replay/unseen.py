@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Callable, Mapping, cast
 
 import numpy as np
 
+from host_tools.analyzer.prepare.command_lag import Z_ESTIMATE
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import channels
 from host_tools.analyzer.replay.closedloop import CTL_KEYS, REPLAYABLE_CONTROLLERS, VELOCITY_LOOPS
@@ -157,12 +158,16 @@ def fill_count_level(prep: PreparedRun) -> tuple[PreparedRun, int]:
     counts of the frames, whose difference over an interval is the mean of the ticks' counted
     speeds over it exactly.  The command's dependence on the counted speed, ``g``, is the least
     squares slope of the reported commands' second differences on the reported speeds' (trend
-    removed; the count steps are the only fast change of the counted speed); each unreported
+    removed: each middle value minus the line through its neighbours at its time, which for
+    unevenly spaced reported ticks, lost frames, is not their mean; the count steps are the only
+    fast change of the counted speed), taken only where the reported data establish it
+    (:func:`count_gain`: against the counted speed, significant, the commands at the duty's
+    limit left out; else that side is not moved); each unreported
     tick's fill moves by ``g x`` (the line through the reported counted speeds minus the
     count-mean speed, the latter taken through the intervals' mid-times and read half a period
     before the tick: its counted speed is the mean over the tick before it, which on a ramp
     lags the speed at the tick by acceleration x period / 2, three counts at a 25 ms loop on a
-    33 rad/s^2 ramp).  Returns (the run
+    33 rad/s^2 ramp); a moved command stays inside the duty's limits.  Returns (the run
     with those fills, a new value; the number of ticks changed, 0: ``prep`` itself)."""
     lv = _count_level(prep)
     if lv is None:
@@ -172,8 +177,10 @@ def fill_count_level(prep: PreparedRun) -> tuple[PreparedRun, int]:
     for side, c in enumerate(corr):
         u = np.asarray(prep.duty[side], float).copy()
         if c is not None:
-            u[unseen] += c(tk)
+            u[unseen] = np.clip(u[unseen] + c(tk), -1.0, 1.0)
         duty.append(u)
+    if all(c is None for c in corr):
+        return prep, 0
     return dataclasses.replace(prep, duty=(duty[0], duty[1])), int(unseen.size)
 
 
@@ -214,18 +221,19 @@ def _count_level(prep: PreparedRun
     # over that tick, whose mid-time is half a period before the tick (on a trend, a 25 ms
     # loop's counted speed lags the speed at the tick by several counts)
     half = 0.5 * float(prep.inner_period or 0.0)
+    # the trend a reported tick's second difference takes out is the line through its two
+    # neighbours at its own time: lost frames space the reported ticks unevenly, and the plain
+    # mean of the neighbours leaves a share of the trend in it (30 % lost halved g)
+    lam = (ts[1:-1] - ts[:-2]) / (ts[2:] - ts[:-2])
     corr: list[Callable[[np.ndarray], np.ndarray] | None] = []
     for side, (enc, om) in enumerate((("enc_r", "omega_r"), ("enc_l", "omega_l"))):
         us = np.asarray(prep.duty[side], float)[i_seen]
         w_rep = np.asarray(tel[om], float)[row]
         w_mean = np.diff(np.asarray(tel[enc], float)[row]) * q / dt
-        d_u = us[1:-1] - 0.5 * (us[:-2] + us[2:])
-        d_w = w_rep[1:-1] - 0.5 * (w_rep[:-2] + w_rep[2:])
-        den = float(np.sum(d_w ** 2))
-        if den <= 0:
+        g = count_gain(us, w_rep, lam)
+        if g is None:
             corr.append(None)
             continue
-        g = -float(np.sum(d_u * d_w)) / den
 
         def move(t: np.ndarray, g: float = g, w_rep: np.ndarray = w_rep,
                  w_mean: np.ndarray = w_mean) -> np.ndarray:
@@ -233,6 +241,39 @@ def _count_level(prep: PreparedRun
                                          - np.interp(t - half, mid, w_mean)))
         corr.append(move)
     return unseen, t_in[unseen], corr
+
+
+COUNT_GAIN_Z = Z_ESTIMATE  # a count-level gain must exceed this many standard errors (one-sided 1 %)
+
+
+def count_gain(us: np.ndarray, w_rep: np.ndarray, lam: np.ndarray) -> float | None:
+    """A single wheel-speed loop's count-level gain from its reported ticks (:func:`_count_level`):
+    the least squares slope ``g`` of the commands' second differences on the counted speeds'
+    (each middle value minus the line through its neighbours at its time, ``lam`` its share of
+    the way from the first to the third), the commands' ``-g``; None where the reported data do
+    not establish it.  A proportional term acts against the counted speed (the command falls
+    when one count more is counted: ``g`` > 0; the duty's back-EMF term, counted speed /
+    no-load speed, acts with it but is the smaller for any loop whose gain, (kp + ki x period)
+    in N m per rad/s, exceeds stall torque / no-load speed, 0.021 for the robot's motor against
+    the recorders' 0.04 or more; a loop below that is not moved), and ``g`` is taken only when it exceeds
+    :data:`COUNT_GAIN_Z` standard errors; the standard error is the regression residuals',
+    with the covariance of neighbouring triples (they share samples: lags 1 and 2) in a
+    Newey-West sum.  Triples with a command at the duty's limit (+-1) are left out: a clamped
+    command does not follow the count."""
+    free = np.abs(us) < 1.0
+    ok = free[1:-1] & free[:-2] & free[2:]
+    d_u = (us[1:-1] - ((1.0 - lam) * us[:-2] + lam * us[2:]))[ok]
+    d_w = (w_rep[1:-1] - ((1.0 - lam) * w_rep[:-2] + lam * w_rep[2:]))[ok]
+    den = float(np.sum(d_w ** 2))
+    if d_w.size < 3 or den <= 0:
+        return None
+    g = -float(np.sum(d_u * d_w)) / den
+    p = d_w * (d_u + g * d_w)
+    s = float(np.sum(p * p)) + 2.0 * sum((1.0 - k / 3.0) * float(np.sum(p[k:] * p[:-k]))
+                                         for k in (1, 2))
+    if g <= 0 or g * den <= COUNT_GAIN_Z * math.sqrt(max(s, 0.0)):
+        return None
+    return g
 
 
 UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from their uncertainty
