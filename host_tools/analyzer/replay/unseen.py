@@ -260,6 +260,16 @@ def count_gain(us: np.ndarray, w_rep: np.ndarray, lam: np.ndarray) -> float | No
     with the covariance of neighbouring triples (they share samples: lags 1 and 2) in a
     Newey-West sum.  Triples with a command at the duty's limit (+-1) are left out: a clamped
     command does not follow the count."""
+    fit = count_gain_fit(us, w_rep, lam)
+    if fit is None or fit[0] <= 0 or not fit[1] > COUNT_GAIN_Z:
+        return None
+    return fit[0]
+
+
+def count_gain_fit(us: np.ndarray, w_rep: np.ndarray, lam: np.ndarray
+                   ) -> tuple[float, float, int] | None:
+    """:func:`count_gain`'s fit before its test: (``g``, ``g`` over its standard error, the
+    triples used), or None with fewer than three triples inside the duty's limits."""
     free = np.abs(us) < 1.0
     ok = free[1:-1] & free[:-2] & free[2:]
     d_u = (us[1:-1] - ((1.0 - lam) * us[:-2] + lam * us[2:]))[ok]
@@ -268,12 +278,13 @@ def count_gain(us: np.ndarray, w_rep: np.ndarray, lam: np.ndarray) -> float | No
     if d_w.size < 3 or den <= 0:
         return None
     g = -float(np.sum(d_u * d_w)) / den
+    # the slope's variance: sum_ij d_w_i d_w_j e_i e_j / den^2 over the triples |i - j| <= 2
+    # apart (a triple shares samples with the two on either side), Bartlett-weighted
     p = d_w * (d_u + g * d_w)
     s = float(np.sum(p * p)) + 2.0 * sum((1.0 - k / 3.0) * float(np.sum(p[k:] * p[:-k]))
                                          for k in (1, 2))
-    if g <= 0 or g * den <= COUNT_GAIN_Z * math.sqrt(max(s, 0.0)):
-        return None
-    return g
+    se = math.sqrt(max(s, 0.0)) / den
+    return g, (g / se if se > 0 else math.copysign(math.inf, g)), int(d_w.size)
 
 
 UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from their uncertainty
