@@ -57,7 +57,7 @@ def _gains(prep, side: int) -> tuple[float, float, tuple[float, float, int] | No
         d_u = us[1:-1] - ((1.0 - lam) * us[:-2] + lam * us[2:])
         d_w = w[1:-1] - ((1.0 - lam) * w[:-2] + lam * w[2:])
         out.append(-float(np.sum(d_u * d_w)) / float(np.sum(d_w ** 2)))
-    return out[0], out[1], count_gain_fit(us, w, (ts[1:-1] - ts[:-2]) / (ts[2:] - ts[:-2]))
+    return out[0], out[1], count_gain_fit([(us, w, (ts[1:-1] - ts[:-2]) / (ts[2:] - ts[:-2]))])
 
 
 def _true_step(full: runfmt.Run, side: int, step: float) -> float:
