@@ -5,6 +5,7 @@ command on one of two levels, the frames see one level for blocks of them, and t
 through the reported commands runs off the unreported ticks' mean by a fraction of a level."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import SimpleNamespace
 from typing import Callable
@@ -224,3 +225,46 @@ def test_a_command_that_does_not_fall_with_the_count_is_not_moved() -> None:
         prep, _, _ = _cruise_run(lambda t, w_cnt, omega, k=k: 0.5 + noise - k * (w_cnt - omega))
         out, n = UN.fill_count_level(prep)
         assert n == 0 and out is prep
+
+
+def test_ticks_between_commands_held_at_the_limit_are_not_moved() -> None:
+    # a loop at full duty for three quarters of the run: there its count response is not seen,
+    # and the unreported ticks between two reported commands at the limit stay on it (moved by
+    # the gain of the run's last quarter, a third of them went below it)
+    def u_of(t: np.ndarray, w_cnt: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        return np.clip(np.where(t < 3.0, 1.2, 0.9) - G * (w_cnt - omega), -1.0, 1.0)
+    prep, u, seen = _cruise_run(u_of)
+    out, n = UN.fill_count_level(prep)
+    assert n == int((~seen).sum())
+    held = ~seen & (prep.t_in < 2.9)
+    assert np.all(u[held] == 1.0)
+    assert np.all(np.asarray(out.duty[0])[held] == 1.0)
+
+
+def test_a_run_whose_own_ticks_do_not_establish_the_gain_takes_the_cases() -> None:
+    # the same loop in two runs: one off the limit throughout, one at full duty but for its
+    # last 0.1 s (two triples inside the limits: no gain of its own); the case's gain, fitted
+    # over both, takes the count level out of the second run's last frames as well
+    def free(t: np.ndarray, w_cnt: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        return 0.6 - G * (w_cnt - omega)
+
+    def late(t: np.ndarray, w_cnt: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        return np.clip(np.where(t < 3.9, 1.2, 0.9) - G * (w_cnt - omega), -1.0, 1.0)
+    a, _, _ = _cruise_run(free, seed=6)
+    b, u_b, seen_b = _cruise_run(late, seed=5)
+    series = UN._gain_series(b)
+    assert series is not None and UN.count_gain([series[0]]) is None
+    own, n_own = UN.fill_count_level(b)
+    assert n_own == 0
+    gains = UN.count_gains([a, b])
+    g_b = gains[1]
+    assert g_b is not None and g_b[0] is not None and abs(g_b[0] - G) < 0.1 * G
+    out, n = UN.fill_count_level(dataclasses.replace(b, count_gains=g_b))
+    assert n == int((~seen_b).sum())
+    tail = seen_b & (b.t_in > 3.9)
+    assert _interval_mean_error(np.asarray(out.duty[0]), u_b, tail) \
+        < 0.5 * _interval_mean_error(np.asarray(b.duty[0]), u_b, tail)
+    # a run of another loop (other gains in meta.json) is fitted apart
+    other = dataclasses.replace(a, run=SimpleNamespace(meta={"controller": "pi", "pi": {"kp": 1}},
+                                                       telemetry=a.run.telemetry))
+    assert UN.count_gains([other, b])[1] == (None, None)
