@@ -6,7 +6,8 @@ mean of the two neighbours (before) and as the line through them at the middle t
 re-recorded without losses (``suite bench ... --recorder tel_drop=0``, same seed: the same
 physics and the same ticks, every frame kept), and the rule's (replay.unseen.count_gain_fit: the
 line at the tick's time over the triples whose commands are inside the duty's limits, with its
-z; the fill takes it when g > 0 and z > COUNT_GAIN_Z, else that side is not moved).
+z; the fill takes it when g > 0 and z > COUNT_GAIN_Z, else that side is not moved) for each
+run alone and, as the analysis does, for the case's runs together (replay.unseen.count_gains).
 
 For each run and side it prints both fits, the count a tick (2 pi / ppr / inner period, rad/s)
 and ``g`` x that (the command's level step that the fill takes out), and, with ``--full`` (the
@@ -24,6 +25,7 @@ Usage (one process, a few seconds):
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import sys
@@ -35,7 +37,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 from host_tools import runfmt  # noqa: E402
 from host_tools.analyzer.prepare.inputs import prepare_runs  # noqa: E402
-from host_tools.analyzer.replay.unseen import COUNT_GAIN_Z, _count_level, count_gain_fit  # noqa: E402
+from host_tools.analyzer.replay.unseen import (  # noqa: E402
+    COUNT_GAIN_Z, _count_level, _gain_series, count_gain_fit, count_gains)
 
 
 def _gains(prep, side: int) -> tuple[float, float, tuple[float, float, int] | None]:  # type: ignore[no-untyped-def]
@@ -83,12 +86,22 @@ def main(argv: list[str] | None = None) -> int:
         quiet: list[str] = []
         preps = prepare_runs(runs, quiet.append)
         print(f"== {case}")
+        # the analysis fits the gain over the case's runs with the same loop (count_gains)
+        series = [sr for sr in (_gain_series(p) for p in preps) if sr is not None]
+        for side in (0, 1):
+            fit = count_gain_fit([sr[side] for sr in series]) if series else None
+            if fit is not None:
+                print(f"  case {'rl'[side]} (the runs together): g {fit[0]:.4f} z {fit[1]:.1f} "
+                      f"over {fit[2]} triples")
+        pooled = count_gains(preps)
         for name, p in zip(names, preps):
             if p.seen_ticks is None:
                 print(f"  {name}: every tick reported")
                 continue
             step = 2.0 * math.pi / float(p.ppr) / float(p.inner_period)
             n_tel = len(p.run.telemetry["t_s"])
+            if pooled[preps.index(p)] is not None:
+                p = dataclasses.replace(p, count_gains=pooled[preps.index(p)])
             lv = _count_level(p)
             for side in (0, 1):
                 g0, g1, fit = _gains(p, side)
