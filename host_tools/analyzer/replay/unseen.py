@@ -278,6 +278,7 @@ def _count_level(prep: PreparedRun
     # over that tick, whose mid-time is half a period before the tick (on a trend, a 25 ms
     # loop's counted speed lags the speed at the tick by several counts)
     half = 0.5 * float(prep.inner_period or 0.0)
+    q_tick = q / float(prep.inner_period) if prep.inner_period else math.inf
     corr: list[Callable[[np.ndarray], np.ndarray] | None] = []
     for side, (enc, om) in enumerate((("enc_r", "omega_r"), ("enc_l", "omega_l"))):
         us = np.asarray(prep.duty[side], float)[i_seen]
@@ -293,12 +294,21 @@ def _count_level(prep: PreparedRun
         # there: its count response is not seen, and the unreported ticks are left on the line
         at_lim = np.abs(us) >= 1.0
 
+        # the count level is at most what the quantization can make: a reported counted
+        # speed is off the tick's mean speed by (r_before - r_tick) counts a tick, r the
+        # position's residue below its count (in [0, 1)), so the line through two of them by
+        # less than one count a tick, and an interval's counted mean speed by less than one
+        # count over the interval; what the line departs from the counts' mean speed beyond
+        # that is the speed's own curvature between the reported ticks, which the command
+        # follows through all its terms, not by the count step's g
         def move(t: np.ndarray, g: float = g, w_rep: np.ndarray = w_rep,
                  w_mean: np.ndarray = w_mean, at_lim: np.ndarray = at_lim) -> np.ndarray:
             a = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, ts.size - 1)
             b = np.clip(np.searchsorted(ts, t, side="left"), 0, ts.size - 1)
-            return np.where(at_lim[a] & at_lim[b], 0.0, g * (
-                np.interp(t, ts, w_rep) - np.interp(t - half, mid, w_mean)))
+            bound = q_tick + np.interp(t - half, mid, q / dt)
+            lvl = np.clip(np.interp(t, ts, w_rep) - np.interp(t - half, mid, w_mean),
+                          -bound, bound)
+            return np.where(at_lim[a] & at_lim[b], 0.0, g * lvl)
         corr.append(move)
     return unseen, t_in[unseen], corr
 

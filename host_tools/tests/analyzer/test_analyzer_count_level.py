@@ -268,3 +268,43 @@ def test_a_run_whose_own_ticks_do_not_establish_the_gain_takes_the_cases() -> No
     other = dataclasses.replace(a, run=SimpleNamespace(meta={"controller": "pi", "pi": {"kp": 1}},
                                                        telemetry=a.run.telemetry))
     assert UN.count_gains([other, b])[1] == (None, None)
+
+
+def test_a_swinging_speed_moves_a_tick_by_no_more_than_a_count_level() -> None:
+    # a 25 ms loop (a count a tick: 0.25 rad/s) tracking a reference that swings the wheel by
+    # 6 rad/s at 2 Hz, seen every 2.56 ticks (64 ms frames): the command is G x the tracking
+    # error, the reference minus the counted speed, the speed following the reference, so
+    # only the count's quantization is in it.  The line through the reported counted speeds
+    # departs from the counts' mean speed by the swing's curvature as well, which the command
+    # does not follow; the count level a tick can carry is less than a count a tick (the
+    # reported speeds' residues) plus a count over the interval (the counts' mean speed's).
+    # Moved by more, with the loop's gain (the case's, as count_gains gives it), the fill
+    # landed farther from the commands than the line (0.0046 against 0.0042, interval means)
+    tick = 0.025
+    n = 480
+    t = tick * np.arange(n)
+    q = 2.0 * math.pi / PPR
+    omega = 10.0 + 6.0 * np.sin(2.0 * math.pi * 2.0 * t)
+    theta = np.cumsum(omega) * tick
+    counts = np.floor(theta / q)
+    w_cnt = np.concatenate([[omega[0] * tick / q], np.diff(counts)]) * q / tick
+    u = -G * (w_cnt - omega)
+    frames = np.unique(np.round(np.arange(0.0, n / 2.56) * 2.56).astype(int))
+    frames = frames[frames < n]
+    seen = np.zeros(n, bool)
+    seen[frames] = True
+    fill = np.interp(t, t[seen], u[seen])
+    tel = {"t_s": t[frames], "enc_r": counts[frames], "enc_l": counts[frames],
+           "omega_r": w_cnt[frames], "omega_l": w_cnt[frames],
+           "pwm_r": u[frames], "pwm_l": u[frames]}
+    run = SimpleNamespace(meta={"controller": "pi"}, telemetry=tel)
+    prep = PreparedRun(run=run, t_in=t, t_in_tau=t, duty=(fill, fill.copy()),  # type: ignore[arg-type]
+                       torque=(fill, fill.copy()), t_grid=t, robot={}, motor={},
+                       start_pose=(0.0, 0.0, 0.0), ppr=PPR, inner_period=tick, tick_phase=0.0,
+                       seen_ticks=seen, count_gains=(G, G))
+    out, n_moved = UN.fill_count_level(prep)
+    assert n_moved == int((~seen).sum())
+    moved = np.abs(np.asarray(out.duty[0]) - fill)
+    assert float(np.max(moved)) <= G * (q / tick + q / (2.0 * tick)) + 1e-12
+    assert _interval_mean_error(np.asarray(out.duty[0]), u, seen) \
+        < _interval_mean_error(fill, u, seen)
