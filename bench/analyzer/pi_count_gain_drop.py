@@ -4,7 +4,10 @@ reported") fits from the reported ticks, with the second differences' trend take
 mean of the two neighbours (before) and as the line through them at the middle tick's time
 (after), for recordings that lose frames (the reported ticks unevenly spaced) and the same case
 re-recorded without losses (``suite bench ... --recorder tel_drop=0``, same seed: the same
-physics and the same ticks, every frame kept).
+physics and the same ticks, every frame kept), and the rule's (replay.unseen.count_gain_fit: the
+line at the tick's time over the triples whose commands are inside the duty's limits, with its
+z; the fill takes it when g > 0 and z > COUNT_GAIN_Z, else that side is not moved) for each
+run alone and, as the analysis does, for the case's runs together (replay.unseen.count_gains).
 
 For each run and side it prints both fits, the count a tick (2 pi / ppr / inner period, rad/s)
 and ``g`` x that (the command's level step that the fill takes out), and, with ``--full`` (the
@@ -22,6 +25,7 @@ Usage (one process, a few seconds):
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import sys
@@ -33,11 +37,13 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 from host_tools import runfmt  # noqa: E402
 from host_tools.analyzer.prepare.inputs import prepare_runs  # noqa: E402
-from host_tools.analyzer.replay.unseen import _count_level  # noqa: E402
+from host_tools.analyzer.replay.unseen import (  # noqa: E402
+    COUNT_GAIN_Z, _count_level, _gain_series, count_gain_fit, count_gains)
 
 
-def _gains(prep, side: int) -> tuple[float, float]:  # type: ignore[no-untyped-def]
-    """(g with the plain mean of the neighbours, g with the line at the tick's time)."""
+def _gains(prep, side: int) -> tuple[float, float, tuple[float, float, int] | None]:  # type: ignore[no-untyped-def]
+    """(g with the plain mean of the neighbours, g with the line at the tick's time, both over
+    every triple; the rule's fit: g, z, triples inside the duty's limits)."""
     seen = np.asarray(prep.seen_ticks, bool)
     t = np.asarray(prep.t_in, float)
     tel = prep.run.telemetry
@@ -54,7 +60,7 @@ def _gains(prep, side: int) -> tuple[float, float]:  # type: ignore[no-untyped-d
         d_u = us[1:-1] - ((1.0 - lam) * us[:-2] + lam * us[2:])
         d_w = w[1:-1] - ((1.0 - lam) * w[:-2] + lam * w[2:])
         out.append(-float(np.sum(d_u * d_w)) / float(np.sum(d_w ** 2)))
-    return out[0], out[1]
+    return out[0], out[1], count_gain_fit([(us, w, (ts[1:-1] - ts[:-2]) / (ts[2:] - ts[:-2]))])
 
 
 def _true_step(full: runfmt.Run, side: int, step: float) -> float:
@@ -80,18 +86,34 @@ def main(argv: list[str] | None = None) -> int:
         quiet: list[str] = []
         preps = prepare_runs(runs, quiet.append)
         print(f"== {case}")
+        # the analysis fits the gain over the case's runs with the same loop (count_gains)
+        series = [sr for sr in (_gain_series(p) for p in preps) if sr is not None]
+        for side in (0, 1):
+            fit = count_gain_fit([sr[side] for sr in series]) if series else None
+            if fit is not None:
+                print(f"  case {'rl'[side]} (the runs together): g {fit[0]:.4f} z {fit[1]:.1f} "
+                      f"over {fit[2]} triples")
+        pooled = count_gains(preps)
         for name, p in zip(names, preps):
             if p.seen_ticks is None:
                 print(f"  {name}: every tick reported")
                 continue
             step = 2.0 * math.pi / float(p.ppr) / float(p.inner_period)
             n_tel = len(p.run.telemetry["t_s"])
+            if pooled[preps.index(p)] is not None:
+                p = dataclasses.replace(p, count_gains=pooled[preps.index(p)])
             lv = _count_level(p)
             for side in (0, 1):
-                g0, g1 = _gains(p, side)
+                g0, g1, fit = _gains(p, side)
                 line = (f"  {name} {'rl'[side]}: frames {n_tel}, count a tick {step:.3f} rad/s; "
                         f"g plain mean {g0:.4f} (level {g0 * step:.4f}), "
                         f"line at the tick's time {g1:.4f} (level {g1 * step:.4f})")
+                if fit is None:
+                    line += "; rule: fewer than 3 triples inside the duty's limits, not moved"
+                else:
+                    taken = fit[0] > 0 and fit[1] > COUNT_GAIN_Z
+                    line += (f"; rule: g {fit[0]:.4f} z {fit[1]:.1f} over {fit[2]} triples, "
+                             + ("taken" if taken else "not moved"))
                 if a.full:
                     full = runfmt.load_run(os.path.join(a.full, name))
                     line += f"; true level step {_true_step(full, side, step):.4f}"

@@ -31,6 +31,9 @@ class PreparedRun:
     tick_phase: float | None = None
     # per input tick: reported by a frame (None: every input is)
     seen_ticks: np.ndarray | None = None
+    # a single wheel-speed loop's count-level gain per side, fitted over the case's runs
+    # (replay.unseen.count_gains; None: the run's own)
+    count_gains: tuple[float | None, float | None] | None = None
     # ramped duty: the ticks that set it (the motor current's transients)
     t_steps: np.ndarray | None = None
     # camera channels against the count-anchored pose (replay.anchors._count_anchor_shift)

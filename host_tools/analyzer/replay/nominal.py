@@ -15,7 +15,7 @@ from host_tools.analyzer.replay.channels import Channel, channels
 from host_tools.analyzer.replay.closedloop import ClosedLoopReplay, closed_loop_channels
 from host_tools.analyzer.replay.openloop import OpenLoopReplay
 from host_tools.analyzer.replay.tolerance import tolerance_uncertainty
-from host_tools.analyzer.replay.unseen import (fill_count_level, fill_unseen_from_controller,
+from host_tools.analyzer.replay.unseen import (count_gains, fill_count_level, fill_unseen_from_controller,
                                                input_uncertainty)
 
 
@@ -73,7 +73,10 @@ def replay_closed_loop(preps: Sequence[PreparedRun], dt_s: float, notes: list[st
                     "line between the reported ones plus the closed-loop replay's pattern")
         else:
             notes.append(f"closed-loop replay of {p.name} not run: " + "; ".join(problems))
+    gains = count_gains(filled)
     for i, p in enumerate(filled):
+        if gains[i] is not None:
+            p = dataclasses.replace(p, count_gains=gains[i])
         filled[i], n_lvl = fill_count_level(p)
         if n_lvl:
             runs[i]["assumptions"].append(

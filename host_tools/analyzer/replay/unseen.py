@@ -3,11 +3,13 @@ fill refined with the controller's pattern, and the replay's uncertainty from th
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
-from typing import TYPE_CHECKING, Callable, Mapping, cast
+from typing import TYPE_CHECKING, Callable, Mapping, Sequence, cast
 
 import numpy as np
 
+from host_tools.analyzer.prepare.command_lag import Z_ESTIMATE
 from host_tools.analyzer.prepare.run import PreparedRun
 from host_tools.analyzer.replay.channels import channels
 from host_tools.analyzer.replay.closedloop import CTL_KEYS, REPLAYABLE_CONTROLLERS, VELOCITY_LOOPS
@@ -157,12 +159,18 @@ def fill_count_level(prep: PreparedRun) -> tuple[PreparedRun, int]:
     counts of the frames, whose difference over an interval is the mean of the ticks' counted
     speeds over it exactly.  The command's dependence on the counted speed, ``g``, is the least
     squares slope of the reported commands' second differences on the reported speeds' (trend
-    removed; the count steps are the only fast change of the counted speed); each unreported
+    removed: each middle value minus the line through its neighbours at its time, which for
+    unevenly spaced reported ticks, lost frames, is not their mean; the count steps are the only
+    fast change of the counted speed), taken only where the reported data establish it
+    (:func:`count_gain`: against the counted speed, significant, the commands at the duty's
+    limit left out; fitted over the case's runs with the same loop, :func:`count_gains`, where
+    the analysis sets ``prep.count_gains``; else that side is not moved); each unreported
     tick's fill moves by ``g x`` (the line through the reported counted speeds minus the
     count-mean speed, the latter taken through the intervals' mid-times and read half a period
     before the tick: its counted speed is the mean over the tick before it, which on a ramp
     lags the speed at the tick by acceleration x period / 2, three counts at a 25 ms loop on a
-    33 rad/s^2 ramp).  Returns (the run
+    33 rad/s^2 ramp); a tick between two reported commands at the duty's limit is not moved
+    (the loop was held there), and a moved command stays inside the limits.  Returns (the run
     with those fills, a new value; the number of ticks changed, 0: ``prep`` itself)."""
     lv = _count_level(prep)
     if lv is None:
@@ -172,17 +180,19 @@ def fill_count_level(prep: PreparedRun) -> tuple[PreparedRun, int]:
     for side, c in enumerate(corr):
         u = np.asarray(prep.duty[side], float).copy()
         if c is not None:
-            u[unseen] += c(tk)
+            u[unseen] = np.clip(u[unseen] + c(tk), -1.0, 1.0)
         duty.append(u)
+    if all(c is None for c in corr):
+        return prep, 0
     return dataclasses.replace(prep, duty=(duty[0], duty[1])), int(unseen.size)
 
 
-def _count_level(prep: PreparedRun
-                 ) -> tuple[np.ndarray, np.ndarray,
-                            list[Callable[[np.ndarray], np.ndarray] | None]] | None:
-    """What :func:`fill_count_level` moves: (the unreported ticks, their times, per side the
-    move as a function of time, None where the reported commands do not follow the counted
-    speed), or None when the run is not a single wheel-speed loop or lacks the columns."""
+def _reported_rows(prep: PreparedRun
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """A single wheel-speed loop's reported ticks: (their indices, the unreported ticks', the
+    telemetry row of each reported tick, the reported ticks' ``lam``: each one's share of the
+    way between its two neighbours in time), or None when the run is not such a loop, reports
+    every tick or too few, or lacks the columns."""
     seen = prep.seen_ticks
     run = getattr(prep, "run", None)
     if seen is None or run is None or run.meta.get("controller") != "pi":
@@ -200,39 +210,157 @@ def _count_level(prep: PreparedRun
     row = np.clip(np.searchsorted(t_tel, t_in[i_seen]), 1, t_tel.size - 1)
     row = np.where(np.abs(t_tel[row - 1] - t_in[i_seen]) < np.abs(t_tel[row] - t_in[i_seen]),
                    row - 1, row)
-    if np.unique(row).size != row.size:
+    if np.unique(row).size != row.size or np.any(np.diff(t_tel[row]) <= 0):
         return None
+    # the trend a reported tick's second difference takes out is the line through its two
+    # neighbours at its own time: lost frames space the reported ticks unevenly, and the plain
+    # mean of the neighbours leaves a share of the trend in it (30 % lost halved g)
+    ts = t_in[i_seen]
+    lam = (ts[1:-1] - ts[:-2]) / (ts[2:] - ts[:-2])
+    return i_seen, unseen, row, lam
+
+
+def _gain_series(prep: PreparedRun) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None:
+    """Per side the reported commands, counted speeds and ``lam`` :func:`count_gain` fits."""
+    rep = _reported_rows(prep)
+    if rep is None:
+        return None
+    i_seen, _, row, lam = rep
+    tel = prep.run.telemetry
+    return [(np.asarray(prep.duty[side], float)[i_seen], np.asarray(tel[om], float)[row], lam)
+            for side, om in enumerate(("omega_r", "omega_l"))]
+
+
+def count_gains(preps: Sequence[PreparedRun]) -> list[tuple[float | None, float | None] | None]:
+    """Per run, its single wheel-speed loop's count-level gain per side (:func:`count_gain`)
+    fitted over every run of the case with the same loop (meta.json ``pi`` gains, loop period
+    and encoder): one loop, one gain, established by all its runs' reported ticks (a run alone
+    may hold too few triples inside the duty's limits, or too noisy ones); None for a run that
+    is not such a loop."""
+    series = [_gain_series(p) for p in preps]
+    groups: dict[str, list[int]] = {}
+    for i, (p, sr) in enumerate(zip(preps, series)):
+        if sr is not None:
+            key = json.dumps([p.run.meta.get("pi"), float(p.inner_period), int(p.ppr)],
+                             sort_keys=True, default=str)
+            groups.setdefault(key, []).append(i)
+    out: list[tuple[float | None, float | None] | None] = [None] * len(preps)
+    for members in groups.values():
+        gs = tuple(count_gain([series[i][side] for i in members])  # type: ignore[index]
+                   for side in (0, 1))
+        for i in members:
+            out[i] = (gs[0], gs[1])
+    return out
+
+
+def _count_level(prep: PreparedRun
+                 ) -> tuple[np.ndarray, np.ndarray,
+                            list[Callable[[np.ndarray], np.ndarray] | None]] | None:
+    """What :func:`fill_count_level` moves: (the unreported ticks, their times, per side the
+    move as a function of time, None where the reported commands do not follow the counted
+    speed), or None when the run is not a single wheel-speed loop or lacks the columns.  The
+    gain is ``prep.count_gains`` (:func:`count_gains`, the case's runs together) where set,
+    else the run's own."""
+    rep = _reported_rows(prep)
+    if rep is None:
+        return None
+    i_seen, unseen, row, lam = rep
+    tel = prep.run.telemetry
+    t_in = np.asarray(prep.t_in, float)
+    t_tel = np.asarray(tel["t_s"], float)
     q = 2.0 * math.pi / float(prep.ppr)
     ts = t_in[i_seen]
     # the counts are the frame's (its own time), the command and the counted speed its tick's
     tf = t_tel[row]
     dt = np.diff(tf)
-    if np.any(dt <= 0):
-        return None
     mid = 0.5 * (tf[1:] + tf[:-1])
     # a tick's counted speed is the count difference over the tick before it: the mean speed
     # over that tick, whose mid-time is half a period before the tick (on a trend, a 25 ms
     # loop's counted speed lags the speed at the tick by several counts)
     half = 0.5 * float(prep.inner_period or 0.0)
+    q_tick = q / float(prep.inner_period) if prep.inner_period else math.inf
     corr: list[Callable[[np.ndarray], np.ndarray] | None] = []
     for side, (enc, om) in enumerate((("enc_r", "omega_r"), ("enc_l", "omega_l"))):
         us = np.asarray(prep.duty[side], float)[i_seen]
         w_rep = np.asarray(tel[om], float)[row]
         w_mean = np.diff(np.asarray(tel[enc], float)[row]) * q / dt
-        d_u = us[1:-1] - 0.5 * (us[:-2] + us[2:])
-        d_w = w_rep[1:-1] - 0.5 * (w_rep[:-2] + w_rep[2:])
-        den = float(np.sum(d_w ** 2))
-        if den <= 0:
+        g = (prep.count_gains[side] if prep.count_gains is not None
+             else count_gain([(us, w_rep, lam)]))
+        if g is None:
             corr.append(None)
             continue
-        g = -float(np.sum(d_u * d_w)) / den
 
+        # where the reported commands on both sides are at the duty's limit the loop was held
+        # there: its count response is not seen, and the unreported ticks are left on the line
+        at_lim = np.abs(us) >= 1.0
+
+        # the count level is at most what the quantization can make: a reported counted
+        # speed is off the tick's mean speed by (r_before - r_tick) counts a tick, r the
+        # position's residue below its count (in [0, 1)), so the line through two of them by
+        # less than one count a tick, and an interval's counted mean speed by less than one
+        # count over the interval; what the line departs from the counts' mean speed beyond
+        # that is the speed's own curvature between the reported ticks, which the command
+        # follows through all its terms, not by the count step's g
         def move(t: np.ndarray, g: float = g, w_rep: np.ndarray = w_rep,
-                 w_mean: np.ndarray = w_mean) -> np.ndarray:
-            return cast(np.ndarray, g * (np.interp(t, ts, w_rep)
-                                         - np.interp(t - half, mid, w_mean)))
+                 w_mean: np.ndarray = w_mean, at_lim: np.ndarray = at_lim) -> np.ndarray:
+            a = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, ts.size - 1)
+            b = np.clip(np.searchsorted(ts, t, side="left"), 0, ts.size - 1)
+            bound = q_tick + np.interp(t - half, mid, q / dt)
+            lvl = np.clip(np.interp(t, ts, w_rep) - np.interp(t - half, mid, w_mean),
+                          -bound, bound)
+            return np.where(at_lim[a] & at_lim[b], 0.0, g * lvl)
         corr.append(move)
     return unseen, t_in[unseen], corr
+
+
+COUNT_GAIN_Z = Z_ESTIMATE  # a count-level gain must exceed this many standard errors (one-sided 1 %)
+
+
+def count_gain(series: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> float | None:
+    """A single wheel-speed loop's count-level gain from its reported ticks (:func:`_count_level`)
+    in one or more runs, each (reported commands, counted speeds, ``lam``): the least squares
+    slope ``g`` of the commands' second differences on the counted speeds' (each middle value
+    minus the line through its neighbours at its time, ``lam`` its share of the way from the
+    first to the third), the commands' ``-g``; None where the reported data do not establish it.  A proportional term acts against the counted speed (the command falls
+    when one count more is counted: ``g`` > 0; the duty's back-EMF term, counted speed /
+    no-load speed, acts with it but is the smaller for any loop whose gain, (kp + ki x period)
+    in N m per rad/s, exceeds stall torque / no-load speed, 0.021 for the robot's motor against
+    the recorders' 0.04 or more; a loop below that is not moved), and ``g`` is taken only when it exceeds
+    :data:`COUNT_GAIN_Z` standard errors; the standard error is the regression residuals',
+    with the covariance of neighbouring triples (they share samples: lags 1 and 2) in a
+    Newey-West sum.  Triples with a command at the duty's limit (+-1) are left out: a clamped
+    command does not follow the count."""
+    fit = count_gain_fit(series)
+    if fit is None or fit[0] <= 0 or not fit[1] > COUNT_GAIN_Z:
+        return None
+    return fit[0]
+
+
+def count_gain_fit(series: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]
+                   ) -> tuple[float, float, int] | None:
+    """:func:`count_gain`'s fit before its test: (``g``, ``g`` over its standard error, the
+    triples used), or None with fewer than three triples inside the duty's limits."""
+    pairs = []
+    for us, w_rep, lam in series:
+        free = np.abs(us) < 1.0
+        ok = free[1:-1] & free[:-2] & free[2:]
+        pairs.append(((us[1:-1] - ((1.0 - lam) * us[:-2] + lam * us[2:]))[ok],
+                      (w_rep[1:-1] - ((1.0 - lam) * w_rep[:-2] + lam * w_rep[2:]))[ok]))
+    den = sum(float(np.sum(d_w ** 2)) for _, d_w in pairs)
+    n = sum(int(d_w.size) for _, d_w in pairs)
+    if n < 3 or den <= 0:
+        return None
+    g = -sum(float(np.sum(d_u * d_w)) for d_u, d_w in pairs) / den
+    # the slope's variance: sum_ij d_w_i d_w_j e_i e_j / den^2 over the triples |i - j| <= 2
+    # apart in one run (a triple shares samples with the two on either side), Bartlett-weighted;
+    # the runs are independent
+    s = 0.0
+    for d_u, d_w in pairs:
+        p = d_w * (d_u + g * d_w)
+        s += float(np.sum(p * p)) + 2.0 * sum((1.0 - k / 3.0) * float(np.sum(p[k:] * p[:-k]))
+                                              for k in (1, 2))
+    se = math.sqrt(max(s, 0.0)) / den
+    return g, (g / se if se > 0 else math.copysign(math.inf, g)), n
 
 
 UNSEEN_ENSEMBLE = 8        # replays with the unreported commands drawn from their uncertainty
