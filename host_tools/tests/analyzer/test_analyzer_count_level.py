@@ -21,6 +21,25 @@ FRAME = 10          # ticks a frame
 G = 0.03            # the command's drop per rad/s of counted speed (the P term)
 
 
+
+def _pi_prep(t: np.ndarray, u: np.ndarray, counts: np.ndarray, w_cnt: np.ndarray,
+             frames: np.ndarray, tick: float, **extra: object) -> tuple[PreparedRun, np.ndarray]:
+    """A `pi` loop's run whose ``frames`` report the tick (both sides alike), the unreported
+    ticks filled by the line through the reported commands: (the prepared run, reported)."""
+    n = t.size
+    seen = np.zeros(n, bool)
+    seen[frames] = True
+    fill = np.interp(t, t[seen], u[seen])
+    tel = {"t_s": t[frames], "enc_r": counts[frames], "enc_l": counts[frames],
+           "omega_r": w_cnt[frames], "omega_l": w_cnt[frames],
+           "pwm_r": u[frames], "pwm_l": u[frames]}
+    run = SimpleNamespace(meta={"controller": "pi"}, telemetry=tel)
+    prep = PreparedRun(run=run, t_in=t, t_in_tau=t, duty=(fill, fill.copy()),  # type: ignore[arg-type]
+                       torque=(fill, fill.copy()), t_grid=t, robot={}, motor={},
+                       start_pose=(0.0, 0.0, 0.0), ppr=PPR, inner_period=tick, tick_phase=0.0,
+                       seen_ticks=seen, **extra)  # type: ignore[arg-type]
+    return prep, seen
+
 def _pi_run(controller: str | None = "pi", drop: tuple[int, ...] = (7, 8, 30, 31, 32),
             ppr: int = PPR, accel: float = 9.0, top: float = 6.1
             ) -> tuple[PreparedRun, np.ndarray, np.ndarray]:
@@ -124,17 +143,8 @@ def test_a_slow_loop_on_a_ramp_is_not_moved_by_its_counted_speed_lag() -> None:
     u = 0.05 + 0.01 * t - G * w_cnt
     frames = np.unique(np.round(np.arange(0.0, n / 2.16) * 2.16).astype(int))
     frames = frames[frames < n]
-    seen = np.zeros(n, bool)
-    seen[frames] = True
-    fill = np.interp(t, t[seen], u[seen])
-    tel = {"t_s": t[frames], "enc_r": counts[frames], "enc_l": counts[frames],
-           "omega_r": w_cnt[frames], "omega_l": w_cnt[frames],
-           "pwm_r": u[frames], "pwm_l": u[frames]}
-    run = SimpleNamespace(meta={"controller": "pi"}, telemetry=tel)
-    prep = PreparedRun(run=run, t_in=t, t_in_tau=t, duty=(fill, fill.copy()),  # type: ignore[arg-type]
-                       torque=(fill, fill.copy()), t_grid=t, robot={}, motor={},
-                       start_pose=(0.0, 0.0, 0.0), ppr=PPR, inner_period=tick, tick_phase=0.0,
-                       seen_ticks=seen)
+    prep, seen = _pi_prep(t, u, counts, w_cnt, frames, tick)
+    fill = np.asarray(prep.duty[0])  # the line through the reported commands
     out, n_moved = UN.fill_count_level(prep)
     assert n_moved == int((~seen).sum())
     speeding_up = ~seen & (phase > 0.2) & (phase < 0.95)
@@ -183,23 +193,13 @@ def _cruise_run(u_of: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
     keep = np.ones(n_frames, bool)
     keep[1:-1] = rng.random(n_frames - 2) >= 0.3
     frames = np.arange(0, n, FRAME)[keep]
-    seen = np.zeros(n, bool)
-    seen[frames] = True
-    fill = np.interp(t, t[seen], u[seen])
-    tel = {"t_s": t[frames], "enc_r": counts[frames], "enc_l": counts[frames],
-           "omega_r": w_cnt[frames], "omega_l": w_cnt[frames],
-           "pwm_r": u[frames], "pwm_l": u[frames]}
-    run = SimpleNamespace(meta={"controller": "pi"}, telemetry=tel)
-    prep = PreparedRun(run=run, t_in=t, t_in_tau=t, duty=(fill, fill.copy()),  # type: ignore[arg-type]
-                       torque=(fill, fill.copy()), t_grid=t, robot={}, motor={},
-                       start_pose=(0.0, 0.0, 0.0), ppr=PPR, inner_period=TICK, tick_phase=0.0,
-                       seen_ticks=seen)
+    prep, seen = _pi_prep(t, u, counts, w_cnt, frames, TICK)
     return prep, u, seen
 
 
 def test_the_gain_is_fitted_where_the_command_is_inside_its_limits() -> None:
-    # a loop at full duty for three quarters of the run (as hb29_mj_null_slip's fast line at
-    # 36 rad/s, a 36.65 rad/s no-load speed), then off the limit: the clamped commands do not
+    # a loop at full duty for three quarters of the run (as hb29_mj_null_slip's fast line near
+    # the motors' no-load speed), then off the limit: the clamped commands do not
     # follow the count, and taken into the fit they pulled g to a fraction of the loop's (or
     # below 0, with lost frames)
     def u_of(t: np.ndarray, w_cnt: np.ndarray, omega: np.ndarray) -> np.ndarray:
@@ -291,17 +291,8 @@ def test_a_swinging_speed_moves_a_tick_by_no_more_than_a_count_level() -> None:
     u = -G * (w_cnt - omega)
     frames = np.unique(np.round(np.arange(0.0, n / 2.56) * 2.56).astype(int))
     frames = frames[frames < n]
-    seen = np.zeros(n, bool)
-    seen[frames] = True
-    fill = np.interp(t, t[seen], u[seen])
-    tel = {"t_s": t[frames], "enc_r": counts[frames], "enc_l": counts[frames],
-           "omega_r": w_cnt[frames], "omega_l": w_cnt[frames],
-           "pwm_r": u[frames], "pwm_l": u[frames]}
-    run = SimpleNamespace(meta={"controller": "pi"}, telemetry=tel)
-    prep = PreparedRun(run=run, t_in=t, t_in_tau=t, duty=(fill, fill.copy()),  # type: ignore[arg-type]
-                       torque=(fill, fill.copy()), t_grid=t, robot={}, motor={},
-                       start_pose=(0.0, 0.0, 0.0), ppr=PPR, inner_period=tick, tick_phase=0.0,
-                       seen_ticks=seen, count_gains=(G, G))
+    prep, seen = _pi_prep(t, u, counts, w_cnt, frames, tick, count_gains=(G, G))
+    fill = np.asarray(prep.duty[0])  # the line through the reported commands
     out, n_moved = UN.fill_count_level(prep)
     assert n_moved == int((~seen).sum())
     moved = np.abs(np.asarray(out.duty[0]) - fill)
