@@ -175,7 +175,8 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback27", 28, 12),
                                                     ("heldback28", 28, 12),
                                                     ("heldback29", 28, 12),
-                                                    ("heldback30", 28, 12)])
+                                                    ("heldback30", 28, 12),
+                                                    ("heldback31", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
@@ -183,7 +184,7 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
              "heldback12", "heldback13", "heldback14", "heldback15", "heldback16",
              "heldback17", "heldback18", "heldback19", "heldback20", "heldback21",
              "heldback22", "heldback23", "heldback24", "heldback25", "heldback26",
-             "heldback27", "heldback28", "heldback29", "heldback30"]
+             "heldback27", "heldback28", "heldback29", "heldback30", "heldback31"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -234,8 +235,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback20", "heldback21", "heldback22", "heldback23",
                  "heldback24", "heldback25", "heldback26",
                  "heldback27", "heldback28",
-                 "heldback29", "heldback30"):  # both engines in every kind and on 20 s and 60 s
-        # runs (hard ones with the clamp off)
+                 "heldback29", "heldback30",
+                 "heldback31"):  # both engines in every kind and on 20 s and 60 s runs (hard
+        # ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -262,8 +264,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback21", "heldback22", "heldback23", "heldback24",
                  "heldback25", "heldback26", "heldback27",
                  "heldback28", "heldback29",
-                 "heldback30"):  # friction on both engines, mu_s / mu_k drawn over [1, 1.15];
-        # an effect over 60 s runs
+                 "heldback30", "heldback31"):  # friction on both engines, mu_s / mu_k drawn
+        # over [1, 1.15]; an effect over 60 s runs
         friction = [c for c in new if "friction_coefficient" in c.effects]
         assert {c.engine for c in friction} == {"truth", "mujoco"}
         ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
@@ -291,7 +293,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     # load transfer, motor lag and floor slope (all four absent from heldback27); heldback29's
     # caster drag, driver voltage drop, axle Coulomb friction and actuation delay (all four absent
     # from heldback28); heldback30's wheel radius, motor gain asymmetry and load transfer (all
-    # three absent from heldback29)
+    # three absent from heldback29); heldback31's track width, motor lag and deadband (all three
+    # absent from heldback30)
     own_kinds = {"heldback14": ("payload", "motor_back_emf", "deadband"),
                  "heldback15": ("axle_coulomb", "motor_gain_asymmetry", "actuation_delay"),
                  "heldback16": ("motor_back_emf", "motor_lag", "track_width"),
@@ -311,7 +314,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback28": ("motor_back_emf", "load_transfer", "motor_lag", "floor_slope"),
                  "heldback29": ("caster_drag", "driver_voltage_drop", "axle_coulomb",
                                 "actuation_delay"),
-                 "heldback30": ("wheel_radius", "motor_gain_asymmetry", "load_transfer")}
+                 "heldback30": ("wheel_radius", "motor_gain_asymmetry", "load_transfer"),
+                 "heldback31": ("track_width", "motor_lag", "deadband")}
     if which in own_kinds:
         for kind in own_kinds[which]:
             sizes = [c.effects[kind][cases.MAIN_PARAM[kind]] for c in new if kind in c.effects]
@@ -428,6 +432,7 @@ FROZEN_SETS = {
     "heldback28": "7b71d4ed7baed5b6d1bf6865be56ff6b74058ff41c62ade55588def62eca005c",
     "heldback29": "ee736c9377b499b33d5a00e96fbe00467f7a30239938b4c30b858e322002a4d8",
     "heldback30": "0e1cb3225cac733ee566115092e531e9f2007688f4a63c2d8bffa974d9d95769",
+    "heldback31": "24a44fadb7e3ce29fa84e2b12dea8d92ddb6595dddb4e70352f72353255c6f48",
 }
 
 
