@@ -15,7 +15,7 @@ from host_tools.analyzer.prepare.timing import (_feasible_arc, _fill_unreported,
                                                 at_rest_until, board_rate_phase,
                                                 compute_latency_s, experiment_start_s,
                                                 reconstruct_input_times, tick_phase,
-                                                unreported_ticks)
+                                                unreported_ticks, TIMING_FROM_START)
 
 # the tick phase of a loop faster than the telemetry, from a cubic through the counts: within
 # 2 ms on the tuning cases recorded with a 10 ms loop
@@ -141,7 +141,7 @@ def prepare_timed(run: Run) -> PreparedRun:
         # (a slow run's phase came out 4.7 ms off, and a current sample taken at a tick was
         # compared as if settled)
         phase = float(t0 % period)
-        timing = "ticks from the experiment's start"
+        timing = TIMING_FROM_START
     if phase is None and fast:
         # a loop faster than the telemetry whose phase the recording does not pin down: a
         # frame reports the latest tick before it, on average half a period earlier

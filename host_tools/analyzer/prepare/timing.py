@@ -10,6 +10,11 @@ import numpy as np
 from host_tools.control import SCHED_TICK_S as RAMP_STEP_S  # the duty ramp's step
 from host_tools.runfmt import Run
 
+#: PreparedRun.timing of a loop faster than the telemetry whose ticks are put at the run's
+#: experiment start plus whole periods (:func:`experiment_start_s`): no phase is estimated, and
+#: the closed-loop replay starts its controller at the same time
+TIMING_FROM_START = "ticks from the experiment's start"
+
 
 def reconstruct_input_times(t: np.ndarray, values: list[np.ndarray], period: float,
                             arc_position: float = 0.5, phase: float | None = None) -> np.ndarray:

@@ -11,6 +11,7 @@ import numpy as np
 
 from host_tools.analyzer.prepare.command_lag import Z_ESTIMATE
 from host_tools.analyzer.prepare.run import PreparedRun
+from host_tools.analyzer.prepare.timing import TIMING_FROM_START
 from host_tools.analyzer.replay.channels import channels
 from host_tools.analyzer.replay.closedloop import CTL_KEYS, REPLAYABLE_CONTROLLERS, VELOCITY_LOOPS
 from host_tools.analyzer.signals import robust_std
@@ -31,7 +32,8 @@ def _replay_tick_shift(prep: PreparedRun, cl_sim: Mapping[str, np.ndarray], k: n
     shift (-1, 0 or 1): the one under which the replay's duties bend where the reported ones
     do (least squares of their departures from the line through the neighbouring reported
     ticks).  A recording's tick phase a millisecond off its true value can put the replay's
-    staircase and steps a whole tick early or late."""
+    staircase and steps a whole tick early or late.  Tried only where the phase was estimated
+    (:func:`fill_unseen_from_controller`)."""
     n = np.asarray(cl_sim["t_s"]).size
     # the reported ticks that every trial shift keeps inside the replay
     i = np.flatnonzero(seen & (k >= 1) & (k < n - 1))
@@ -73,7 +75,14 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
     (``cl_sim``, per tick) has the staircase: its unreported ticks' offset from its own line
     through the reported ticks, averaged over the UNSEEN_PATTERN_HALF unreported ticks on
     either side (tick-level differences come from single encoder counts, which no replay
-    reproduces), is added to the fill.  The reported ticks stay as recorded.  Returns (the
+    reproduces), is added to the fill.  Where the recording's tick phase was estimated, the
+    replay's ticks are matched to the recording's a tick early or late when its bends say so
+    (:func:`_replay_tick_shift`); where the ticks run from the experiment's start
+    (``TIMING_FROM_START``: the closed-loop replay starts its controller at the same board
+    time), the replay's tick k is the recording's tick k and no shift is tried: there is no
+    phase to correct, and a shift the bends ask for there comes from bends whose height the
+    nominal plant gets wrong (a clamp's release), which puts the staircase on the other ticks
+    and the fill the wrong way on each of them.  The reported ticks stay as recorded.  Returns (the
     prepared run with the refined commands, a new value: ``prep`` is left as it is; the
     number of ticks changed, 0: ``prep`` itself)."""
     seen = prep.seen_ticks
@@ -85,7 +94,8 @@ def fill_unseen_from_controller(prep: PreparedRun, cl_sim: Mapping[str, np.ndarr
     if T <= 0 or abs(T - period) > 1e-6 * max(period, 1e-9):
         return prep, 0
     k = np.round((prep.t_in - ts[0]) / T).astype(np.int64)
-    k = k + _replay_tick_shift(prep, cl_sim, k, np.asarray(seen, bool))
+    if prep.timing != TIMING_FROM_START:
+        k = k + _replay_tick_shift(prep, cl_sim, k, np.asarray(seen, bool))
     inside = (k >= 0) & (k < ts.size)
     k_seen = k[seen & inside]
     unseen = np.flatnonzero(~seen & inside)
