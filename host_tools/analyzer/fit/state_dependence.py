@@ -25,9 +25,12 @@ against its standard error, scaled up by the runs' scatter beyond their errors (
 as the invariance check pairs its halves): an inexact model (another engine) lets the
 coefficient move with each run's regime, differently from run to run, while a sagging supply
 moves every run alike.  |z| is significant at STATE_ALPHA per analysis, two-sided,
-Bonferroni over the coefficients tested.  As every update, the state-dependent model must also
-change the outputs by at least STATE_MIN_OUTPUT noise floors (the pooled regression's
-b, c terms, RMS per fit channel, the largest).
+Bonferroni over the coefficients tested.  Each run is regressed on the coordinates its own
+data resolve (:func:`resolved`, the fit's identification rule) and a coordinate's slopes are
+paired over the runs that resolve it; two coordinates the outputs do not tell apart would
+otherwise leave their difference to the noise (:func:`regress`).  As every update, the
+state-dependent model must also change the outputs by at least STATE_MIN_OUTPUT noise floors
+(the pooled regression's b, c terms, RMS per fit channel, the largest).
 
 Only the recorded currents say how hard the supply is loaded: without ``current_r_a`` and
 ``current_l_a`` in every run the check is not made (None)."""
@@ -43,6 +46,7 @@ from scipy import stats
 from host_tools.analyzer.fit.invariance import INVARIANCE_ALPHA, INVARIANCE_MIN_OUTPUT
 from host_tools.analyzer.fit.invariance import _weighted as weighted
 from host_tools.analyzer.fit.params import effects_dict, params_for
+from host_tools.analyzer.fit.solver import NULL_SHARE, UNIDENTIFIED, effective_n
 from host_tools.analyzer.signals import round_sig
 
 if TYPE_CHECKING:
@@ -110,12 +114,12 @@ def _series(problem: Problem, effects: Any, runs: Sequence[int]
     return out
 
 
-def newey_west(X: np.ndarray, e: np.ndarray, groups: np.ndarray, lags: dict[int, int]
-               ) -> np.ndarray:
+def newey_west(X: np.ndarray, e: np.ndarray, groups: np.ndarray, lags: dict[int, int],
+               bread: np.ndarray) -> np.ndarray:
     """Covariance of the OLS coefficients of ``X`` with residual ``e``: Newey-West (Bartlett
     weights) within each group (a channel's series) up to ``lags[group]`` samples, groups
-    independent."""
-    bread = np.linalg.pinv(X.T @ X)
+    independent.  ``bread``: the (X'X)^+ of the solve, at the solve's own rank
+    (:func:`ols_same_rank`)."""
     meat = np.zeros((X.shape[1], X.shape[1]))
     for g in np.unique(groups):
         s = X[groups == g] * e[groups == g][:, None]
@@ -124,7 +128,141 @@ def newey_west(X: np.ndarray, e: np.ndarray, groups: np.ndarray, lags: dict[int,
         for lag in range(1, L + 1):
             G = s[lag:].T @ s[:-lag]
             meat += (1.0 - lag / (L + 1.0)) * (G + G.T)
-    return bread @ meat @ bread
+    return np.asarray(bread @ meat @ bread)
+
+
+def resolved(J: np.ndarray, r: np.ndarray) -> list[int]:
+    """The columns (fit coordinates) of the sensitivity ``J`` that the residual ``r`` resolves
+    one by one: each one's 1-sigma uncertainty (the fit's own, :func:`solver.param_std`: the
+    residual's variance over its degrees of freedom, inflated for its autocorrelation, through
+    (J'J)^+ of the columns kept) at most UNIDENTIFIED of its range (1 in a fit coordinate), as
+    the fit calls a coordinate identified.  Backwards: the least resolved column is dropped and
+    the rest judged again, until every one kept is resolved.  Two coordinates that move the
+    outputs alike (mu_k/mu_s and Stribeck's mu_k0 both setting the kinetic level; a coordinate
+    whose replay does not move at all under the step, on a stick/slip staircase) are not
+    resolved apart: one of them stands for their common direction."""
+    keep = list(range(J.shape[1]))
+    n = r.size
+    infl = n / max(effective_n(r), 1.0)
+    while keep:
+        _, S, Vt = np.linalg.svd(J[:, keep], full_matrices=False)
+        s2 = float(r @ r) / max(n - len(keep), 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = np.where(S > 0, 1.0 / np.where(S > 0, S, 1.0) ** 2, math.inf)
+            var = np.array([float(np.sum(np.where(Vt[:, j] != 0, Vt[:, j] ** 2 * inv, 0.0)))
+                            for j in range(len(keep))])
+        std = np.sqrt(var * s2 * infl)
+        worst = int(np.argmax(std))
+        if std[worst] <= UNIDENTIFIED:
+            break
+        keep.pop(worst)
+    return keep
+
+
+def ols_same_rank(X: np.ndarray, y: np.ndarray, groups: np.ndarray, lags: dict[int, int]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(coefficients, Newey-West standard errors) of ``y`` on ``X``, the solve and the bread of
+    the covariance from one SVD of X at one rank (numpy lstsq's cut: singular values above
+    eps max(n, p) of the largest).  A coefficient with more than NULL_SHARE of its unit vector
+    in a direction below the cut has no estimate (inf): the data do not see it."""
+    U, S, Vt = np.linalg.svd(X, full_matrices=False)
+    ok = S > (S[0] if S.size else 0.0) * np.finfo(float).eps * max(X.shape)
+    Vk = Vt[ok].T
+    beta = Vk @ ((U[:, ok].T @ y) / S[ok])
+    V = newey_west(X, y - X @ beta, groups, lags, bread=(Vk / S[ok] ** 2) @ Vk.T)
+    se = np.sqrt(np.maximum(np.diag(V), 0.0))
+    if not np.all(ok):
+        se[np.abs(Vt[~ok]).max(axis=0) > NULL_SHARE] = math.inf
+    return beta, se
+
+
+def regress(base: Sequence[tuple[int, str, np.ndarray, np.ndarray]],
+            sens: Sequence[Sequence[np.ndarray]], cov: Sequence[np.ndarray | None],
+            names: Sequence[tuple[str, str]], spans: Sequence[float]
+            ) -> tuple[list[dict[str, Any]], float]:
+    """The regressions of the module docstring: (one entry per coordinate and covariate with a
+    run that resolves it, the pooled regression's load and charge terms' output change, RMS
+    per fit channel, the largest).  ``base``: (run, channel, t, normalized residual) per fit
+    series; ``sens[k][g]``: series g's sensitivity to coordinate k; ``cov[run]``: (t, load,
+    charge); ``names``/``spans``: each coordinate's (effect, parameter) and parameter range.
+
+    Each run is regressed on the coordinates its own data resolve (:func:`resolved`), the
+    others held at the whole fit's values; a coordinate's load and charge slopes are then
+    pooled over the runs that resolve it.  Where two coordinates are not resolved apart the
+    kept one's slope is their common direction's: regressed on both, the solve finds the
+    difference of two columns equal up to a 1e-8 of their size, which noise sets at will, and
+    a covariance with another rank (X'X pseudo-inverted at 1e-15 of its largest eigenvalue
+    drops the direction lstsq keeps) gave it a tiny error (hb25_mj_friction_coefficient: Birge
+    ratios up to 5e10, |z| to 1.2e4)."""
+    nk, nz = len(names), len(COVARIATES)
+    rows: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, str, int]]] = {}
+    for gi, (i, c, t, r) in enumerate(base):
+        cv = cov[i]
+        assert cv is not None
+        z = np.column_stack([np.interp(t, cv[0], cv[1]), np.interp(t, cv[0], cv[2])])
+        J = np.column_stack([s[gi] for s in sens])
+        ok = np.isfinite(r) & np.all(np.isfinite(J), axis=1)
+        if ok.sum() >= 3:
+            rows.setdefault(i, []).append((r[ok], J[ok], z[ok], c, gi))
+    est: list[tuple[dict[int, float], dict[int, float]]] = []
+    pooled_y, pooled_j, pooled_z, pooled_c, pooled_g = [], [], [], [], []
+    lags: dict[int, int] = {}
+    for i, parts in rows.items():
+        y = np.concatenate([p[0] for p in parts])
+        J = np.vstack([p[1] for p in parts])
+        z = np.vstack([p[2] for p in parts])
+        z = z - z.mean(axis=0)
+        groups = np.concatenate([np.full(p[0].size, p[4]) for p in parts])
+        lags.update({p[4]: int(round(HAC_S / max(float(np.median(np.diff(base[p[4]][2]))), 1e-6)))
+                     for p in parts})
+        pooled_y.append(y)
+        pooled_j.append(J)
+        pooled_z.append(z)
+        pooled_g.append(groups)
+        pooled_c.append(np.concatenate([np.full(p[0].size, p[3]) for p in parts]))
+        keep = resolved(J, y)
+        X = _design(J[:, keep], z)
+        if not keep or y.size <= 2 * X.shape[1]:
+            continue
+        beta, se = ols_same_rank(X, y, groups, lags)
+        m = len(keep)
+        b_run: dict[int, float] = {}
+        s_run: dict[int, float] = {}
+        for j in range(nz):
+            for q, k in enumerate(keep):
+                col = m * (1 + j) + q
+                if math.isfinite(se[col]) and se[col] > 0:
+                    b_run[j * nk + k], s_run[j * nk + k] = float(beta[col]), float(se[col])
+        est.append((b_run, s_run))
+    coefs: list[dict[str, Any]] = []
+    for jk in range(nz * nk):
+        have = [(b[jk], s[jk]) for b, s in est if jk in b]
+        if not have:
+            continue
+        mean, se_m, birge = weighted([b for b, _ in have], [s for _, s in have])
+        effect, name = names[jk % nk]
+        span = spans[jk % nk]   # coordinate -> parameter
+        coefs.append({"effect": effect, "param": name, "covariate": COVARIATES[jk // nk],
+                      "runs": len(have), "unresolved_runs": len(rows) - len(have),
+                      "slope": round_sig(mean * span, 4),
+                      "slope_std": round_sig(se_m * birge * span, 3),
+                      "birge_ratio": round(birge, 3), "z": round(mean / (se_m * birge), 3)})
+    if not coefs:
+        return coefs, 0.0
+    # the output change: the pooled regression's load and charge terms, per channel, on the
+    # coordinates the pooled data resolve
+    y, J, ch = np.concatenate(pooled_y), np.vstack(pooled_j), np.concatenate(pooled_c)
+    keep = resolved(J, y)
+    X = _design(J[:, keep], np.vstack(pooled_z))
+    beta, _ = ols_same_rank(X, y, np.concatenate(pooled_g), lags)
+    part = X[:, len(keep):] @ beta[len(keep):]
+    size = max(float(np.sqrt(np.mean(part[ch == c] ** 2))) for c in np.unique(ch))
+    return coefs, size
+
+
+def _design(J: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """[J, J z_load, J z_charge]."""
+    return np.column_stack([J] + [J * z[:, j:j + 1] for j in range(z.shape[1])])
 
 
 def state_dependence_check(problem: Problem, chosen: Candidate) -> StateDependence | None:
@@ -150,55 +288,10 @@ def state_dependence_check(problem: Problem, chosen: Candidate) -> StateDependen
         moved = _series(problem, effects_dict(params, [p.from_x(v) for p, v in zip(params, x)],
                                               fit.fixed), runs)
         sens.append([(m[3] - b[3]) / (x[k] - x0[k]) for b, m in zip(base, moved)])
-    # per run: the stacked rows of all its channel series
-    rows: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, str, int]]] = {}
-    for gi, (i, c, t, r) in enumerate(base):
-        cv = cov[i]
-        assert cv is not None
-        z = np.column_stack([np.interp(t, cv[0], cv[1]), np.interp(t, cv[0], cv[2])])
-        J = np.column_stack([s[gi] for s in sens])
-        ok = np.isfinite(r) & np.all(np.isfinite(J), axis=1)
-        if ok.sum() >= 3:
-            rows.setdefault(i, []).append((r[ok], J[ok], z[ok], c, gi))
-    nk, nz = len(free), len(COVARIATES)
-    est: list[tuple[np.ndarray, np.ndarray]] = []
-    pooled_y, pooled_x, pooled_c = [], [], []
-    for i, parts in rows.items():
-        y = np.concatenate([p[0] for p in parts])
-        J = np.vstack([p[1] for p in parts])
-        z = np.vstack([p[2] for p in parts])
-        z = z - z.mean(axis=0)
-        X = np.column_stack([J] + [J * z[:, j:j + 1] for j in range(nz)])
-        if y.size <= 2 * X.shape[1]:
-            continue
-        groups = np.concatenate([np.full(p[0].size, p[4]) for p in parts])
-        lags = {p[4]: int(round(HAC_S / max(float(np.median(np.diff(base[p[4]][2]))), 1e-6)))
-                for p in parts}
-        beta, *_ = np.linalg.lstsq(X, y, rcond=None)
-        V = newey_west(X, y - X @ beta, groups, lags)
-        se = np.sqrt(np.maximum(np.diag(V), 0.0))
-        if np.all(se[nk:] > 0):
-            est.append((beta[nk:], se[nk:]))
-        pooled_y.append(y)
-        pooled_x.append(X)
-        pooled_c.append(np.concatenate([np.full(p[0].size, p[3]) for p in parts]))
-
-    if not est:
+    coefs, size = regress(base, sens, cov, [fit.coords[k] for k in free],
+                          [params[k].hi - params[k].lo for k in free])
+    if not coefs:
         return None
-    coefs: list[dict[str, Any]] = []
-    for j in range(nz * nk):
-        mean, se_m, birge = weighted([float(b[j]) for b, _ in est], [float(e[j]) for _, e in est])
-        effect, name = fit.coords[free[j % nk]]
-        span = params[free[j % nk]].hi - params[free[j % nk]].lo   # coordinate -> parameter
-        coefs.append({"effect": effect, "param": name, "covariate": COVARIATES[j // nk],
-                      "runs": len(est), "slope": round_sig(mean * span, 4),
-                      "slope_std": round_sig(se_m * birge * span, 3),
-                      "birge_ratio": round(birge, 3), "z": round(mean / (se_m * birge), 3)})
-    # the output change: the pooled regression's load and charge terms, per channel
-    y, X, ch = np.concatenate(pooled_y), np.vstack(pooled_x), np.concatenate(pooled_c)
-    beta, *_ = np.linalg.lstsq(X, y, rcond=None)
-    part = X[:, nk:] @ beta[nk:]
-    size = max(float(np.sqrt(np.mean(part[ch == c] ** 2))) for c in np.unique(ch))
     zt = float(stats.norm.ppf(1.0 - STATE_ALPHA / (2 * len(coefs))))
     found = any(abs(c["z"]) > zt for c in coefs) and size >= STATE_MIN_OUTPUT
     return StateDependence(coefs, zt, size, found)

@@ -231,3 +231,68 @@ def test_a_half_refits_the_whole_fits_model_without_pinning():
     assert mu["runs"] == 2
     assert abs(mu["z"]) < inv.z_threshold, mu
     assert not inv.drift
+
+
+def _collinear_pair(seed, dependence):
+    """Three runs of two fit channels whose sensitivities to two coordinates (the back-EMF
+    ratio and the caster's drag: any two) are one column up to 1e-9 of its size, as
+    mu_k/mu_s and Stribeck's mu_k0 both set the kinetic friction level; the residual is unit
+    white noise plus ``dependence`` times the first column times the centred total current."""
+    from host_tools.analyzer.fit.params import effects_dict, params_for
+    names = ["motor_back_emf", "caster_drag"]
+    params = params_for(names, {}, {})
+    x0 = [0.4, 0.3]
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 6.0, 0.02)
+    runs = []
+    for i in range(3):
+        load = 1.0 + 0.8 * np.abs(np.sin(1.3 * t + i))
+        chans = {}
+        for c, phase in (("a", 0.0), ("b", 0.5)):
+            f = 4.0 * np.cos(0.9 * t + phase)
+            g = f * (1.0 + 1e-9 * np.sin(2.1 * t + i))
+            noise = rng.normal(0.0, 1.0, t.size) + dependence * f * (load - load.mean())
+            chans[c] = (f, g, noise)
+        runs.append((load, chans))
+
+    def sim_channels(effects, which, fit_only=True):
+        x = [p.to_x(effects[p.effect][p.name]) for p in params]
+        out = []
+        for i in which:
+            _, chans = runs[i]
+            out.append({c: SimpleNamespace(
+                t=t, deflated=lambda floor, f=f, g=g, e=e: e + f * (x[0] - x0[0]) + g * (x[1] - x0[1]))
+                for c, (f, g, e) in chans.items()})
+        return out
+    problem = SimpleNamespace(
+        preps=[SimpleNamespace(run=SimpleNamespace(telemetry={
+            "t_s": t, "current_r_a": 0.5 * load, "current_l_a": -0.5 * load}))
+            for load, _ in runs],
+        meta={}, vocab={}, fit_channels=["a", "b"], floors={"a": 1.0, "b": 1.0},
+        sim_channels=sim_channels)
+    fit = SimpleNamespace(x=x0, fixed={}, coords=[(p.effect, p.name) for p in params],
+                          params=effects_dict(params, [p.from_x(v) for p, v in zip(params, x0)]))
+    return problem, SimpleNamespace(effects=names, fit=fit)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+@pytest.mark.parametrize("dependence, found", [(0.0, False), (1.0, True)])
+def test_coordinates_not_resolved_apart_are_tested_along_their_common_direction(
+        seed, dependence, found):
+    """Two coordinates the outputs cannot tell apart: regressed on both, each run's solve set
+    their difference at will (lstsq kept a direction at 1e-9 of the largest singular value that
+    the covariance's pseudo-inverse of X'X dropped), Birge ratios of 1e9 made every z
+    meaningless, and a true dependence on the load was lost in them.  Regressed on the
+    coordinates each run resolves, the null is quiet and the dependence is found."""
+    from host_tools.analyzer.fit.state_dependence import STATE_MIN_OUTPUT, state_dependence_check
+    state = state_dependence_check(*_collinear_pair(seed, dependence))
+    assert state is not None, "a run resolves one of the two"
+    assert state.found is found, state.report()
+    assert all(math.isfinite(c["z"]) and c["birge_ratio"] < 3.0 for c in state.coefs), \
+        state.report()
+    if found:
+        assert state.output_floors >= STATE_MIN_OUTPUT
+        assert max(abs(c["z"]) for c in state.coefs if c["covariate"] == "load_a") \
+            > state.z_threshold
+    else:
+        assert max(abs(c["z"]) for c in state.coefs) < state.z_threshold
