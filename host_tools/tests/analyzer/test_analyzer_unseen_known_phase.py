@@ -19,13 +19,9 @@ from _native_skip import needs_native
 
 pytestmark = needs_native(truth=True)
 
-from host_tools import truth  # noqa: E402
-from host_tools.analyzer.prepare import inputs as PI  # noqa: E402
 from host_tools.analyzer.prepare import timing as PT  # noqa: E402
-from host_tools.analyzer.replay import closedloop as CL  # noqa: E402
 from host_tools.analyzer.replay import unseen as UN  # noqa: E402
-from host_tools.runfmt import load_run  # noqa: E402
-from test_analyzer_unseen_phase import given_commands  # noqa: E402
+from _unseen_replay import line_seen_slowly  # noqa: E402
 
 LINE = {"kind": "line", "accel": 1.0, "cruise": 0.6}
 INNER_S = 0.06
@@ -34,16 +30,8 @@ TEL_S = 0.135
 
 @pytest.fixture(scope="module")
 def clamped_line(tmp_path_factory):
-    """(prepared run, the commands the controller gave at its ticks, the closed-loop replay):
-    the same run recorded with a frame at every tick gives the unreported ticks' commands."""
-    d = tmp_path_factory.mktemp("known_phase")
-    rec = {"inner_s": INNER_S, "tel_s": TEL_S}
-    run = load_run(truth.simulate_run(d / "run", LINE, None, clamp=True, duration_s=2.0,
-                                      seed=1, recorder=rec))
-    full = load_run(truth.simulate_run(d / "full", LINE, None, clamp=True, duration_s=2.0,
-                                       seed=1, recorder=dict(rec, tel_s=INNER_S)))
-    prep = PI.prepare_timed(run)
-    return prep, given_commands(prep, full, INNER_S), CL.ClosedLoopReplay().simulate(prep, {})
+    """(prepared run, the commands the controller gave at its ticks, the closed-loop replay)."""
+    return line_seen_slowly(tmp_path_factory.mktemp("known_phase"), LINE, 1, INNER_S, TEL_S)
 
 
 def test_no_tick_shift_when_the_ticks_run_from_the_experiments_start(clamped_line):

@@ -19,12 +19,8 @@ from _native_skip import needs_native
 
 pytestmark = needs_native(truth=True)
 
-from host_tools import truth  # noqa: E402
-from host_tools.analyzer.prepare import inputs as PI  # noqa: E402
-from host_tools.analyzer.replay import closedloop as CL  # noqa: E402
 from host_tools.analyzer.replay import unseen as UN  # noqa: E402
-from host_tools.runfmt import load_run  # noqa: E402
-from test_analyzer_unseen_phase import given_commands  # noqa: E402
+from _unseen_replay import line_seen_slowly  # noqa: E402
 
 LINE = {"kind": "line", "accel": 0.6, "cruise": 0.5}   # the ramp ends at 0.83 s
 INNER_S = 0.04
@@ -33,18 +29,10 @@ TEL_S = 0.085
 
 @pytest.fixture(scope="module")
 def slow_frames(tmp_path_factory):
-    """(prepared run, the commands the controller gave at its ticks, the closed-loop replay):
-    the same run recorded with a frame at every tick gives the unreported ticks' commands
-    (the truth simulator's controller and physics do not depend on the telemetry period)."""
-    d = tmp_path_factory.mktemp("place")
-    rec = {"inner_s": INNER_S, "tel_s": TEL_S}
-    run = load_run(truth.simulate_run(d / "run", LINE, None, clamp=True, duration_s=2.0,
-                                      seed=22, recorder=rec))
-    full = load_run(truth.simulate_run(d / "full", LINE, None, clamp=True, duration_s=2.0,
-                                       seed=22, recorder=dict(rec, tel_s=INNER_S)))
-    prep = PI.prepare_timed(run)
-    assert UN.outer_ticks(prep) == 2
-    return prep, given_commands(prep, full, INNER_S), CL.ClosedLoopReplay().simulate(prep, {})
+    """(prepared run, the commands the controller gave at its ticks, the closed-loop replay)."""
+    out = line_seen_slowly(tmp_path_factory.mktemp("place"), LINE, 22, INNER_S, TEL_S)
+    assert UN.outer_ticks(out[0]) == 2
+    return out
 
 
 def test_the_pattern_is_averaged_within_one_place_of_the_staircase(slow_frames, monkeypatch):
