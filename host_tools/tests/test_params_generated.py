@@ -236,6 +236,8 @@ _NOT_COPIES = {
     ("host_tools/suite/sets.json", "0.095"): "a load_transfer effect size (h = 95 mm), not tau_max",
     ("host_tools/suite/sets.json", "0.105"): "a recorder's telemetry period (tel_s = 105 ms), not b",
     ("host_tools/suite/sets.json", "0.064"): "a recorder's telemetry period (tel_s = 64 ms), not m_w",
+    ("host_tools/suite/sets.json", "0.0216"):
+        "a floor_slope effect size (rad = 0.0216, heldback33's, drawn), not h",
 }
 #: The same for the tests, which take the table's values from host_tools.params (Python) and
 #: slip::table / SLIP_*_PARAMS / slip::table_ii2() (C++): (path, value) -> (how many, why).

@@ -177,7 +177,8 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback29", 28, 12),
                                                     ("heldback30", 28, 12),
                                                     ("heldback31", 28, 12),
-                                                    ("heldback32", 28, 12)])
+                                                    ("heldback32", 28, 12),
+                                                    ("heldback33", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
@@ -186,7 +187,7 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
              "heldback17", "heldback18", "heldback19", "heldback20", "heldback21",
              "heldback22", "heldback23", "heldback24", "heldback25", "heldback26",
              "heldback27", "heldback28", "heldback29", "heldback30", "heldback31",
-             "heldback32"]
+             "heldback32", "heldback33"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -238,8 +239,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback24", "heldback25", "heldback26",
                  "heldback27", "heldback28",
                  "heldback29", "heldback30",
-                 "heldback31", "heldback32"):  # both engines in every kind and on 20 s and 60 s
-        # runs (hard ones with the clamp off)
+                 "heldback31", "heldback32",
+                 "heldback33"):  # both engines in every kind and on 20 s and 60 s runs (hard
+        # ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -267,8 +269,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback25", "heldback26", "heldback27",
                  "heldback28", "heldback29",
                  "heldback30", "heldback31",
-                 "heldback32"):  # friction on both engines, mu_s / mu_k drawn over [1, 1.15];
-        # an effect over 60 s runs
+                 "heldback32", "heldback33"):  # friction on both engines, mu_s / mu_k drawn over
+        # [1, 1.15]; an effect over 60 s runs
         friction = [c for c in new if "friction_coefficient" in c.effects]
         assert {c.engine for c in friction} == {"truth", "mujoco"}
         ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
@@ -298,7 +300,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     # from heldback28); heldback30's wheel radius, motor gain asymmetry and load transfer (all
     # three absent from heldback29); heldback31's track width, motor lag and deadband (all three
     # absent from heldback30); heldback32's wheel radius and axle Coulomb friction (both absent
-    # from heldback31)
+    # from heldback31); heldback33's deadband, motor gain asymmetry and back-EMF (all three absent
+    # from heldback32)
     own_kinds = {"heldback14": ("payload", "motor_back_emf", "deadband"),
                  "heldback15": ("axle_coulomb", "motor_gain_asymmetry", "actuation_delay"),
                  "heldback16": ("motor_back_emf", "motor_lag", "track_width"),
@@ -320,7 +323,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                                 "actuation_delay"),
                  "heldback30": ("wheel_radius", "motor_gain_asymmetry", "load_transfer"),
                  "heldback31": ("track_width", "motor_lag", "deadband"),
-                 "heldback32": ("wheel_radius", "axle_coulomb")}
+                 "heldback32": ("wheel_radius", "axle_coulomb"),
+                 "heldback33": ("deadband", "motor_gain_asymmetry", "motor_back_emf")}
     if which in own_kinds:
         for kind in own_kinds[which]:
             sizes = [c.effects[kind][cases.MAIN_PARAM[kind]] for c in new if kind in c.effects]
@@ -439,6 +443,7 @@ FROZEN_SETS = {
     "heldback30": "0e1cb3225cac733ee566115092e531e9f2007688f4a63c2d8bffa974d9d95769",
     "heldback31": "24a44fadb7e3ce29fa84e2b12dea8d92ddb6595dddb4e70352f72353255c6f48",
     "heldback32": "a0b3d11762288dfbac30e10e618440c4fba4273a4f0e2eaf6092b06807df11f4",
+    "heldback33": "2b1894202a871275a94b301706540087197a319a2c74ca6d002eceb8e22cba7f",
 }
 
 
