@@ -11,7 +11,7 @@ from scipy.stats import chi2
 
 from host_tools.analyzer.fit.params import (FitResult, Param, ProfileInterval, effects_dict,
                                             params_for)
-from host_tools.analyzer.fit.solver import (PROFILE_LEVEL, UNIDENTIFIED, effective_n,
+from host_tools.analyzer.fit.solver import (PROFILE_LEVEL, UNIDENTIFIED, residual_variance,
                                             flat_minimum, given_line, given_neutral, grid_start, param_std,
                                             profile_interval, profile_scan, profile_steps,
                                             profile_walk, solve, unidentified_given)
@@ -532,9 +532,8 @@ class Problem:
             return None, xf, 0
         at, cost, lo, hi, v0, v_nom = g
         coarse, fine = profile_steps(params[i].tol, lo, hi)
-        n = r.size
         c0 = float(np.sum(r ** 2))
-        scale = c0 / max(n - len(free), 1) * n / max(effective_n(r), 1.0)
+        scale = residual_variance(r, len(free))
         pts = profile_walk(cost, v0, c0, lo, hi, coarse, float(chi2.ppf(PROFILE_LEVEL, 1)) * scale)
         n0 = len(pts) - 1
         e_lo, e_hi, kind, sigma = profile_interval(cost, pts, lo, hi, fine, scale)

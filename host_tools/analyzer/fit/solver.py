@@ -29,6 +29,14 @@ def effective_n(r: np.ndarray) -> float:
     return max(r.size * (1 - rho) / (1 + rho), 2.0)
 
 
+
+def residual_variance(r: np.ndarray, k: int) -> float:
+    """The scale of a least-squares covariance, (J'J)^+ times this: the residual's mean square
+    over its n - k degrees of freedom (k fitted coordinates), inflated by n / n_eff for its
+    correlation (:func:`effective_n`)."""
+    r = np.asarray(r, float)
+    return float(np.sum(r ** 2)) / max(r.size - k, 1) * (r.size / max(effective_n(r), 1.0))
+
 def given_line(params: Sequence[Param], free: Sequence[int], i: int, values: Sequence[float],
                meta: Mapping[str, Any]
                ) -> tuple[int, float, float, float, Callable[[float], tuple[float, float]]] | None:
@@ -119,9 +127,7 @@ def unidentified_given(params: Sequence[Param], free: Sequence[int], x: np.ndarr
             continue
         d = (fun(x2[list(free)]) - r) / (v2 - v_i)
         dd = float(d @ d)
-        s2 = float(np.sum(r ** 2)) / max(r.size - len(free), 1)
-        infl = r.size / max(effective_n(r), 1.0)
-        std = math.sqrt(s2 * infl / dd) if dd > 0 else math.inf
+        std = math.sqrt(residual_variance(r, len(free)) / dd) if dd > 0 else math.inf
         if std > UNIDENTIFIED * width:
             a, b = (allowed or {}).get(i, (lo, hi))
             pin = min(max(given_neutral(params, i, j, held_v, lo, hi), a), b)
@@ -346,11 +352,9 @@ def param_std(J: np.ndarray | None, r: np.ndarray, params: Sequence[Param], free
     for i in free:
         std[i] = math.inf
     if J is not None and r.size > k:
-        n_eff = effective_n(r)
-        s2 = float(np.sum(r ** 2)) / max(r.size - k, 1)
         try:
             jtj = J.T @ J
-            cov = np.linalg.pinv(jtj) * s2 * (r.size / max(n_eff, 1.0))
+            cov = np.linalg.pinv(jtj) * residual_variance(r, k)
             # the pseudo-inverse gives a direction the data do not see (a coordinate whose
             # replay does not change at all, e.g. a delay below the replay's time step) zero
             # variance; the data say nothing there: not estimated (inf), as without J

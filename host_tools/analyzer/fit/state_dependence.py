@@ -46,7 +46,7 @@ from scipy import stats
 from host_tools.analyzer.fit.invariance import INVARIANCE_ALPHA, INVARIANCE_MIN_OUTPUT
 from host_tools.analyzer.fit.invariance import _weighted as weighted
 from host_tools.analyzer.fit.params import effects_dict, params_for
-from host_tools.analyzer.fit.solver import NULL_SHARE, UNIDENTIFIED, effective_n
+from host_tools.analyzer.fit.solver import NULL_SHARE, UNIDENTIFIED, residual_variance
 from host_tools.analyzer.signals import round_sig
 
 if TYPE_CHECKING:
@@ -142,16 +142,13 @@ def resolved(J: np.ndarray, r: np.ndarray) -> list[int]:
     whose replay does not move at all under the step, on a stick/slip staircase) are not
     resolved apart: one of them stands for their common direction."""
     keep = list(range(J.shape[1]))
-    n = r.size
-    infl = n / max(effective_n(r), 1.0)
     while keep:
         _, S, Vt = np.linalg.svd(J[:, keep], full_matrices=False)
-        s2 = float(r @ r) / max(n - len(keep), 1)
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = np.where(S > 0, 1.0 / np.where(S > 0, S, 1.0) ** 2, math.inf)
             var = np.array([float(np.sum(np.where(Vt[:, j] != 0, Vt[:, j] ** 2 * inv, 0.0)))
                             for j in range(len(keep))])
-        std = np.sqrt(var * s2 * infl)
+        std = np.sqrt(var * residual_variance(r, len(keep)))
         worst = int(np.argmax(std))
         if std[worst] <= UNIDENTIFIED:
             break
