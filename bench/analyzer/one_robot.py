@@ -17,16 +17,18 @@ of 1 is the whole tolerance; the columns in the same units):
   com_h   the centre of mass at 0          spin  the spin share at the low end of its range
 
 Each run's rows are scaled by sqrt(n_eff / n) (``solver.effective_n`` per channel of that run's
-own fit residual: the analyzer's correction for correlation), directions are kept to numerical rank
-(a singular value of 1e-6 in that unit), and the likelihood-ratio (Wald) statistic of "the coefficient vectors equal across runs" is
+own fit residual: the analyzer's correction for correlation), directions are kept to
+numerical rank (a singular value of 1e-6 in that unit), and the likelihood-ratio (Wald)
+statistic of "the coefficient vectors equal across runs" is
 
   X = RSS(one c for all runs) - sum_r RSS(c_r),   dof = sum_r rank_r - rank(joint),
 
 chi-square with dof under noise alone.  Also the F form (X / dof over the per-run fits'
 residual mean square: robust to a residual the tolerance does not span), and the share of the
-nominal residual's sum of squares the common c and the per-run c_r explain.
+nominal residual's sum of squares the common c and the per-run c_r explain; and B, the common
+fit held inside the tolerance box against the unbounded one (``_box_test``).
 
-Sub-commands (nice them; one process; about 10-60 s per case):
+Sub-commands (nice them; one process; about 1-10 s per case, 120 cases in 6 min):
 
   measure OUT.jsonl SET:CASE ... [--evidence] [--basis corner] [--root DIR]
                                       one JSON line per case (appended; SET heldbackN, runs
@@ -43,8 +45,8 @@ Sub-commands (nice them; one process; about 10-60 s per case):
 Example:
 
   B=bench/analyzer/one_robot.py
-  nice -n 10 .venv/bin/python $B measure /tmp/or.jsonl heldback32:hb32_mj_stribeck \\
-      heldback32:hb32_mj_null_std
+  PYTHONPATH=. nice -n 10 .venv/bin/python $B measure /tmp/or.jsonl --evidence \\
+      heldback32:hb32_mj_stribeck heldback32:hb32_mj_null_slip        # (and --basis corner)
   .venv/bin/python $B summary /tmp/or.jsonl --hidden hb32_mj_stribeck
 """
 from __future__ import annotations
