@@ -74,6 +74,10 @@ def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
     gt = prep.run.groundtruth
     if gt is None:
         return None
+    if _after_gap(prep.run.telemetry["t_s"], at) and slip_containing(prep, at) is not None:
+        # a window started after a gap inside a slip (:func:`window_start`)
+        cam = camera_state(prep, at)
+        return None if cam is None else {c: cam[c] for c in ("x_m", "y_m", "phi_rad")}
     tel = prep.run.telemetry
     t = tel["t_s"]
     tg = gt["t_s"]
@@ -133,6 +137,48 @@ def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
     return out
 
 
+def _after_gap(t: np.ndarray, at: float) -> bool:
+    """Whether board time ``at`` is a frame that follows a telemetry gap (longer than GAP_S)."""
+    i = int(np.searchsorted(t, at))
+    return 0 < i < t.size and float(t[i]) == at and float(t[i] - t[i - 1]) > GAP_S
+
+
+def slip_containing(prep: PreparedRun, at: float) -> tuple[float, float] | None:
+    """The slip episode (onset, end) of ``prep`` that board time ``at`` falls inside, or None."""
+    for a, b in prep.slip_episodes:
+        if a < at < b:
+            return (a, b)
+    return None
+
+
+def camera_state(prep: PreparedRun, at: float) -> dict[str, float] | None:
+    """The body's pose and velocity at board time ``at`` from the camera alone: a parabola in
+    time through the camera samples within ROLL_BLOCK_S either side (the span over which
+    :func:`rolling_test_of` takes the camera's rates as straight lines), its value and slope
+    at ``at``; the velocity as forward (``v``) and sideways (``w``) speed along the fitted
+    heading and the heading rate (``omega``).  Used where ``at`` falls inside a slip episode:
+    there the odometry does not follow the body, so neither the camera-minus-odometry offset
+    (:func:`_gt_anchor_of`) nor the wheels' rolling say where the body is or how it moves,
+    and the camera does.  None with fewer than ROLL_MIN_FRAMES camera samples there."""
+    gt = prep.run.groundtruth
+    if gt is None or gt.get("phi_rad") is None:
+        return None
+    tg = np.asarray(gt["t_s"], float)
+    x, y, ph = (np.asarray(gt[c], float) for c in ("x_m", "y_m", "phi_rad"))
+    m = ((tg >= at - ROLL_BLOCK_S) & (tg <= at + ROLL_BLOCK_S)
+         & np.isfinite(x) & np.isfinite(y) & np.isfinite(ph))
+    if m.sum() < ROLL_MIN_FRAMES or np.ptp(tg[m]) <= 0:
+        return None
+    tt = tg[m] - at
+    fit = {c: np.polyfit(tt, v, 2) for c, v in (("x_m", x[m]), ("y_m", y[m]),
+                                                  ("phi_rad", np.unwrap(ph[m])))}
+    phi = float(fit["phi_rad"][2])
+    vx, vy = float(fit["x_m"][1]), float(fit["y_m"][1])
+    c, s = math.cos(phi), math.sin(phi)
+    return {"x_m": float(fit["x_m"][2]), "y_m": float(fit["y_m"][2]), "phi_rad": phi,
+            "v": c * vx + s * vy, "w": -s * vx + c * vy, "omega": float(fit["phi_rad"][1])}
+
+
 def _slope_at(t: np.ndarray, v: np.ndarray, at: float) -> float:
     """Slope at ``at`` of the parabola fitted to (t, v) (three or more samples)."""
     return float(np.polyfit(np.asarray(t, float) - at, v, 2)[1])
@@ -180,6 +226,15 @@ def window_start(prep: PreparedRun, w: int,
     geo = folded_robot(prep.robot, effects or {})
     r, b = float(geo["r"]), float(geo["b"])
     vel = (r * (w_r + w_l) / 2, 0.0, r * (w_r - w_l) / (2 * b), w_r, w_l)
+    cam = None
+    if _after_gap(t, float(t[first])) and slip_containing(prep, float(t[first])) is not None:
+        # started after a gap inside a slip episode (the edge rules move every other window
+        # start out of one, ``edges.edges_outside_slip``; a gap's cannot be moved): the body
+        # does not roll with its wheels there and the odometry does not follow it, so it
+        # starts as the camera shows it, turning and sliding, its wheels as the counts say
+        cam = camera_state(prep, float(t[first]))
+    if cam is not None:
+        vel = (cam["v"], cam["w"], cam["omega"], w_r, w_l)
     pose = (float(tel["x_odo_m"][first]), float(tel["y_odo_m"][first]),
             float(tel["phi_odo_rad"][first]))
     an = _gt_anchor(prep, float(t[first]))
