@@ -11,7 +11,8 @@ report given (a suite ``--out`` directory's ``reports/<case>/report.json``; the 
 ``runs/<case>/run-0/meta.json`` gives the nominal robot) it prints, per judged parameter (μs and
 μk = (μk/μs)·μs of the friction fit, μk0 of Stribeck, h of the load transfer):
 
-  dev          fitted value - nominal value
+  dev          fitted value - nominal value (also of the fitted coordinate mu_k/mu_s, whose
+               tolerance is propagated from both and which has no left-out range)
   parts        the allowance's parts (``effects.left_out_ranges``: the wheels' mass, the centre
                of mass's height, the spin share), each (lo, hi)
   [lo, hi]     their sum (the allowance)
@@ -25,7 +26,7 @@ report given (a suite ``--out`` directory's ``reports/<case>/report.json``; the 
                combined in quadrature (measured, not adopted: it drops the premise that any
                robot inside the allowance is no evidence -- the planar corner, all parts at
                their low ends, would count at z 2.5)
-  limit / limit_old   the smallest downward deviation a precise fit counts from, in % of the
+  limit / limit_old   the smallest downward deviation that counts at the fit's sigma, in % of the
                nominal value
 
 and, for the candidate, whether every other acceptance check passed (``others``), its output
@@ -89,6 +90,9 @@ def judged(cand: Mapping[str, Any], meta: Mapping[str, Any]) -> dict[str, dict[s
         out["mu_s"] = figures(p["mu_s"] - r["mu_s"], st.get("mu_s"), tol_mu,
                               fx.left_out_ranges(e, "mu_s", meta))
         sr = st.get("mu_k_over_mu_s")
+        # the fitted coordinate mu_k/mu_s: its tolerance propagated, no left-out range
+        out["mu_k_over_mu_s"] = figures(p["mu_k"] / p["mu_s"] - r["mu_k"] / r["mu_s"], sr,
+                                        fx._ratio_tol(meta), ())
         # mu_k = ratio * mu_s: its sigma the ratio's times mu_s (judged_sets' slope)
         out["mu_k"] = figures(p["mu_k"] - r["mu_k"], None if sr is None else p["mu_s"] * sr,
                               tol_muk, fx._friction_left_out("mu_k")(meta))
@@ -156,7 +160,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                       f" held-out {c['heldout_rmse_before']} -> {c['heldout_rmse_after']}")
                 for name, j in J.items():
                     nom = (meta["robot"]["mu_s"] if name == "mu_s" else
-                           meta["robot"]["h"] if name == "h" else meta["robot"]["mu_k"])
+                           meta["robot"]["h"] if name == "h" else
+                           meta["robot"]["mu_k"] / meta["robot"]["mu_s"]
+                           if name == "mu_k_over_mu_s" else meta["robot"]["mu_k"])
                     names = PART_NAMES[1:] if name == "h" else PART_NAMES
                     parts = ", ".join(f"{n} [{lo:+.5f}, {hi:+.5f}]"
                                       for n, (lo, hi) in zip(names, j["parts"]))
@@ -164,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                           f"allowance [{j['lo']:+.5f}, {j['hi']:+.5f}] = {parts}; "
                           f"sd {j['sd']:.5f} tol {j['tol']}; beyond {j['beyond']:.5f} against "
                           f"{j['thr']:.5f} (before {j['thr_old']:.5f}, z {j['z_now']:.2f}); "
-                          f"z_gum {j['z_gum']:.2f}; a precise fit counts below "
+                          f"z_gum {j['z_gum']:.2f}; at this sigma it counts below "
                           f"{j['limit']:+.5f} ({100 * j['limit'] / nom:+.1f} %; before "
                           f"{100 * j['limit_old'] / nom:+.1f} %)")
                 tp = S.get("param") or {}
