@@ -143,8 +143,8 @@ def _fit_pairs(problem: Problem, cands: list[Candidate], best_single: Candidate 
         pc.checks["partners_significant"] = not weak
         for e, zs in weak:
             pc.reasons.append(f"{e} insignificant in the pair (its parameter {zs:.2f} sigma from "
-                              f"nominal, within {HELDOUT_Z} sigma of what the nominal model "
-                              f"allows with its tolerance): dropped")
+                              f"nominal, not beyond what the nominal model allows by the "
+                              f"one-sided 1 % point of its error and its tolerance): dropped")
     pair_cands.sort(key=lambda c: c.delta_bic)
     return pair_cands
 
@@ -161,9 +161,9 @@ def _heldout_beats(pair: Candidate, single: Candidate) -> bool:
 def _insignificant_partners(pair: Candidate, problem: Problem) -> list[tuple[str, float]]:
     """Effects of a pair none of whose fitted parameters is significantly off nominal: the
     size test a single effect passes (``judge.significant_deviation``: beyond the range the
-    nominal model's left-out physics of the normal forces moves it by, by more than HELDOUT_Z,
-    one-sided 1 %, the rate of the other tests, of the combined uncertainty of the fit and of
-    the nominal parameter's tolerance).  Such a partner only bends the fit -- a deviation the
+    nominal model's left-out physics of the normal forces moves it by, by more than the
+    one-sided 1 % point, HELDOUT_Z's rate, of the fit's error plus the nominal parameter's
+    tolerance, ``judge.size_threshold``).  Such a partner only bends the fit -- a deviation the
     nominal model's own tolerance allows is no evidence of the effect, alone or in a pair --
     and the pair is refused so its other effect stands alone.  Shape parameters and
     unidentified coordinates do not count."""

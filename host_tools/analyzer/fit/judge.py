@@ -193,11 +193,16 @@ HELDOUT_RULE = (f"a channel that measures physics is worse after the update when
 BIC_MARGIN = -10.0
 
 # A fitted parameter is off its neutral value (SIZE_RULE) when the deviation lies beyond what the
-# nominal model allows by more than SIZE_Z times the combined standard uncertainty of the fit (its
-# 1-sigma, autocorrelation-corrected) and of the nominal parameter: params.json's ``tol`` of the
-# neutral value (ParamSpec.tol) is a half-width, the true value lies within value +- tol,
-# uniformly as the replay's tolerance ensemble draws it, so its standard uncertainty is tol /
-# sqrt(3).  What the nominal model allows is the neutral value itself, widened by the ranges
+# nominal model allows by more than the one-sided 1 % point (the rate of SIZE_Z under a normal)
+# of the combined error of the fit (its 1-sigma, autocorrelation-corrected, normal) and of the
+# nominal parameter: params.json's ``tol`` of the neutral value (ParamSpec.tol) is a half-width,
+# the true value lies within value +- tol, uniformly as the replay's tolerance ensemble draws it
+# (standard uncertainty tol / sqrt(3)).  The point is that of the normal convolved with that
+# uniform (``size_threshold``), not SIZE_Z times their combined standard uncertainty: where the
+# tolerance dominates, SIZE_Z x tol / sqrt(3) = 1.35 tol lies beyond anything the uniform can
+# give (its 1 % point is 0.98 tol), so a precise fit 1.2 tol beyond the allowance, which no robot
+# within the tolerance replays, was refused; where the fit's sigma dominates it is SIZE_Z sigma,
+# as before, and without a tolerance exactly that.  What the nominal model allows is the neutral value itself, widened by the ranges
 # [lo, hi] by which the parts of the normal forces' physics that the nominal model carries only at
 # a guess move the fitted value (ParamSpec.left_out, replay/tolerance.py: where the wheels' mass
 # sits, the centre of mass's height, the share of the wheels' spin-up; the nominal model lies
@@ -210,25 +215,60 @@ BIC_MARGIN = -10.0
 # deviation must be significant against the fit's uncertainty, and the output change
 # (``min_output``) decides.
 SIZE_Z = HELDOUT_Z
-SIZE_RULE = (f"value - nominal outside [sum lo, sum hi] by more than {SIZE_Z} x sqrt(sigma_fit^2 "
-             f"+ tol^2 / 3), tol the nominal parameter's params.json tolerance (0 where it has "
-             f"none), [lo, hi] each range by which a part of the nominal model's left-out physics "
-             f"of the normal forces moves it (none where it does not)")
+SIZE_RULE = (f"value - nominal outside [sum lo, sum hi] by more than the one-sided 1 % point "
+             f"(z {SIZE_Z}) of the fit's normal error (sigma_fit) plus the nominal parameter's "
+             f"uniform one (+- tol, tol its params.json tolerance, 0 where it has none; without "
+             f"it {SIZE_Z} x sigma_fit), [lo, hi] each range by which a part of the nominal "
+             f"model's left-out physics of the normal forces moves it (none where it does not)")
+
+
+def _normal_tail(x: float) -> float:
+    """P(X > x) for a standard normal X."""
+    return 0.5 * math.erfc(x / math.sqrt(2.0))
+
+
+def size_threshold(sigma_fit: float, tol: float, z: float = SIZE_Z) -> float:
+    """The point that the sum of a normal error (1-sigma ``sigma_fit``) and a uniform one on
+    [-tol, tol] exceeds with the probability a normal exceeds ``z`` sigma (one-sided): z x
+    sigma_fit without a tolerance, (1 - 2 p) tol without a fit error, between them the
+    convolution's own quantile (its tail in closed form, solved by bisection)."""
+    s = max(float(sigma_fit), 0.0) if math.isfinite(sigma_fit) else 0.0
+    a = max(float(tol), 0.0)
+    if a == 0.0:
+        return z * s
+    p = _normal_tail(z)
+    if s == 0.0:
+        return (1.0 - 2.0 * p) * a
+
+    def antider(v: float) -> float:   # d/dv = P(normal error > v)
+        return v * _normal_tail(v / s) - s * math.exp(-0.5 * (v / s) ** 2) / math.sqrt(2 * math.pi)
+
+    def tail(t: float) -> float:      # P(normal + uniform > t)
+        return (antider(t + a) - antider(t - a)) / (2.0 * a)
+
+    lo, hi = 0.0, z * s + a
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        if tail(mid) > p:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
 
 
 def significant_deviation(dev: float, sigma_fit: float, tol: float, z: float = SIZE_Z,
                           left_out: Sequence[tuple[float, float]] = ()) -> bool:
     """Is a fitted deviation ``dev`` from the neutral value outside the range the nominal
     model's left-out physics allows (``left_out``: the ranges (lo, hi) of its parts, summed;
-    none: the neutral value alone) by more than ``z`` times the combined standard uncertainty
-    of the fit (``sigma_fit``; a non-finite one counts as 0: a coordinate whose uncertainty is
-    unknown is judged on the tolerance and the output change) and the nominal parameter
-    (``tol``, the half-width of a uniform range: tol / sqrt(3))?"""
+    none: the neutral value alone) by more than the one-sided point, at the rate of ``z``, of
+    the fit's normal error (``sigma_fit``; a non-finite one counts as 0: a coordinate whose
+    uncertainty is unknown is judged on the tolerance and the output change) plus the nominal
+    parameter's uniform one (``tol``, the half-width of the range), :func:`size_threshold`?"""
     sd = sigma_fit if math.isfinite(sigma_fit) else 0.0
     lo = sum(min(float(a), float(b)) for a, b in left_out)
     hi = sum(max(float(a), float(b)) for a, b in left_out)
     beyond = dev - hi if dev > hi else (lo - dev if dev < lo else 0.0)
-    return beyond > z * math.hypot(sd, tol / math.sqrt(3.0)) and dev != 0.0
+    return beyond > size_threshold(sd, tol, z) and dev != 0.0
 
 # Adoption asks the held-out data whether the update predicts them better: a paired test of the
 # held-out errors, sample by sample over the fit channels in noise floors (mean of

@@ -276,11 +276,11 @@ def test_a_friction_shift_within_the_normal_force_range_is_no_evidence_either_wa
     as another friction coefficient, more or less: the planar robot (wheels' mass at c, no
     transfer, no spin-up) as ``mu (1 + sum lo)``, the highest centre of mass with the whole
     spin-up as ``mu (1 + sum hi)``; neither is evidence (the planar one was, with the old
-    one-sided allowance), and beyond either end a deviation counts from SIZE_Z times the
-    tolerance's standard uncertainty (the vocabulary's friction and Stribeck cases, 15 % off,
+    one-sided allowance), and beyond either end a deviation counts from the uniform tolerance's
+    one-sided 1 % point, 0.98 tol (the vocabulary's friction and Stribeck cases, 15 % off,
     far beyond)."""
     from host_tools.analyzer import effects as fx
-    from host_tools.analyzer.fit.judge import SIZE_Z, significant_deviation
+    from host_tools.analyzer.fit.judge import significant_deviation, size_threshold
     from host_tools.analyzer.replay.tolerance import left_out_normal_forces
     from host_tools.runfmt import validate_meta
     meta = validate_meta({})
@@ -295,7 +295,7 @@ def test_a_friction_shift_within_the_normal_force_range_is_no_evidence_either_wa
     # and with a one-sided allowance (the nominal model at the range's low end, "up to the
     # excess above, never below"): the planar robot counted
     assert significant_deviation(low, 1e-4, tol, left_out=[(0.0, mu * b) for _, b in lo.mu_ranges])
-    u = SIZE_Z * tol / math.sqrt(3.0)
+    u = size_threshold(0.0, tol)     # the uniform tolerance's one-sided 1 % point
     for end, sign in ((low, -1.0), (high, 1.0)):
         assert not significant_deviation(end, 0.0, tol, left_out=ranges)
         assert not significant_deviation(end + sign * 0.95 * u, 0.0, tol, left_out=ranges)

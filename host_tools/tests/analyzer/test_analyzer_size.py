@@ -1,6 +1,6 @@
 """The size test of a fitted effect (judge.SIZE_RULE): a deviation from nominal counts when it
-exceeds SIZE_Z x sqrt(sigma_fit^2 + tol^2 / 3), tol the nominal parameter's params.json tolerance
-(a half-width: the standard uncertainty of a uniform range is tol / sqrt(3))."""
+exceeds the one-sided 1 % point (z SIZE_Z) of the fit's normal error plus the nominal parameter's
+uniform one on +- tol, tol its params.json tolerance (a half-width; judge.size_threshold)."""
 import math
 from typing import Any
 
@@ -51,10 +51,13 @@ def test_radius_within_the_tolerance_is_refused_however_precise_the_fit() -> Non
     c = _judge_radius(R0 + 0.8 * tol, 1e-7)
     assert not c.checks["size"]
     assert any("tol" in r for r in c.reasons), c.reasons
-    # just beyond SIZE_Z x tol / sqrt(3) it counts, just within it not
-    from host_tools.analyzer.fit.judge import SIZE_Z
-    assert _judge_radius(R0 + 1.05 * SIZE_Z * tol / math.sqrt(3), 1e-7).checks["size"]
-    assert not _judge_radius(R0 + 0.95 * SIZE_Z * tol / math.sqrt(3), 1e-7).checks["size"]
+    # just beyond the uniform's own 1 % point (0.98 tol on a precise fit) it counts, just
+    # within it not
+    from host_tools.analyzer.fit.judge import size_threshold
+    q = size_threshold(1e-7, tol)
+    assert math.isclose(q, 0.98 * tol, rel_tol=1e-3)
+    assert _judge_radius(R0 + 1.05 * q, 1e-7).checks["size"]
+    assert not _judge_radius(R0 + 0.95 * q, 1e-7).checks["size"]
 
 
 def test_significant_deviation_combines_fit_uncertainty_and_tolerance() -> None:
@@ -62,14 +65,42 @@ def test_significant_deviation_combines_fit_uncertainty_and_tolerance() -> None:
     assert SIZE_Z == 2.33
     assert significant_deviation(3.0, 1.0, 0.0)
     assert not significant_deviation(2.0, 1.0, 0.0)
-    # sqrt(1 + 3 / 3) * 2.33 = 3.30
+    # a normal sigma 1 plus a uniform on +- sqrt(3) (variance 1 too): its 1 % point is 3.16,
+    # below 2.33 x sqrt(2) = 3.30, which took the sum for a normal
     t = math.sqrt(3.0)
-    assert not significant_deviation(3.2, 1.0, t)
-    assert significant_deviation(3.4, 1.0, t)
-    assert not significant_deviation(-3.2, 1.0, t) and significant_deviation(-3.4, 1.0, t)
-    # unknown fit uncertainty: judged on the tolerance alone (2.33 / sqrt(3) = 1.345 tol)
-    assert significant_deviation(1.4, math.nan, 1.0) and not significant_deviation(1.3, math.inf, 1.0)
+    assert not significant_deviation(3.1, 1.0, t)
+    assert significant_deviation(3.22, 1.0, t)
+    assert not significant_deviation(-3.1, 1.0, t) and significant_deviation(-3.22, 1.0, t)
+    # unknown fit uncertainty: judged on the tolerance alone, the uniform's 1 % point 0.98 tol
+    assert significant_deviation(1.0, math.nan, 1.0) and not significant_deviation(0.96, math.inf, 1.0)
     assert not significant_deviation(0.0, 0.0, 0.0)
+
+
+def test_size_threshold_is_the_one_sided_point_of_the_normal_plus_the_uniform() -> None:
+    """The size test's threshold is the point that the fit's normal error plus the nominal
+    parameter's uniform error on +- tol exceeds at the one-sided rate of SIZE_Z (1 %): SIZE_Z
+    sigma without a tolerance (to the bit), (1 - 2 p) tol = 0.98 tol without a fit error, the
+    normal's where it dominates, and in between the convolution's own point (sampled here).  The
+    former SIZE_Z x sqrt(sigma^2 + tol^2 / 3) put it at 1.35 tol on a precise fit, beyond
+    anything a robot within the tolerance gives: a precise fit 1.1 tol beyond the allowance
+    was refused."""
+    from host_tools.analyzer.fit.judge import SIZE_Z, significant_deviation, size_threshold
+    p = 0.5 * math.erfc(SIZE_Z / math.sqrt(2.0))
+    assert size_threshold(0.7, 0.0) == SIZE_Z * 0.7
+    assert math.isclose(size_threshold(0.0, 2.0), (1.0 - 2.0 * p) * 2.0)
+    assert math.isclose(size_threshold(1.0, 0.01), SIZE_Z, rel_tol=1e-3)
+    rng = np.random.default_rng(11)
+    for s, a in ((1.0, 1.0), (0.2, 1.0), (1.0, 0.3), (0.05, 1.0)):
+        q = size_threshold(s, a)
+        assert q <= SIZE_Z * math.hypot(s, a / math.sqrt(3.0)) + 1e-12
+        x = rng.normal(0.0, s, 1_000_000) + rng.uniform(-a, a, 1_000_000)
+        assert abs(float(np.mean(x > q)) - p) < 0.0006, (s, a)
+    # a precise friction fit 1.1 tol beyond the normal forces' allowance counts; 0.9 tol not
+    tol = P.TOLERANCES[("robot", "mu_s")]
+    allowance = [(-0.026, 0.0), (0.0, 0.008)]
+    assert significant_deviation(-0.026 - 1.1 * tol, 2e-4, tol, left_out=allowance)
+    assert not significant_deviation(-0.026 - 0.9 * tol, 2e-4, tol, left_out=allowance)
+    assert significant_deviation(0.008 + 1.1 * tol, 2e-4, tol, left_out=allowance)
 
 
 def test_tolerances_come_from_params_json() -> None:
