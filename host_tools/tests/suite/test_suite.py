@@ -178,7 +178,8 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback30", 28, 12),
                                                     ("heldback31", 28, 12),
                                                     ("heldback32", 28, 12),
-                                                    ("heldback33", 28, 12)])
+                                                    ("heldback33", 28, 12),
+                                                    ("heldback34", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
@@ -187,7 +188,7 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
              "heldback17", "heldback18", "heldback19", "heldback20", "heldback21",
              "heldback22", "heldback23", "heldback24", "heldback25", "heldback26",
              "heldback27", "heldback28", "heldback29", "heldback30", "heldback31",
-             "heldback32", "heldback33"]
+             "heldback32", "heldback33", "heldback34"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -240,8 +241,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback27", "heldback28",
                  "heldback29", "heldback30",
                  "heldback31", "heldback32",
-                 "heldback33"):  # both engines in every kind and on 20 s and 60 s runs (hard
-        # ones with the clamp off)
+                 "heldback33", "heldback34"):  # both engines in every kind and on 20 s and 60 s
+        # runs (hard ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -269,8 +270,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback25", "heldback26", "heldback27",
                  "heldback28", "heldback29",
                  "heldback30", "heldback31",
-                 "heldback32", "heldback33"):  # friction on both engines, mu_s / mu_k drawn over
-        # [1, 1.15]; an effect over 60 s runs
+                 "heldback32", "heldback33",
+                 "heldback34"):  # friction on both engines, mu_s / mu_k drawn over [1, 1.15];
+        # an effect over 60 s runs
         friction = [c for c in new if "friction_coefficient" in c.effects]
         assert {c.engine for c in friction} == {"truth", "mujoco"}
         ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
@@ -301,7 +303,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     # three absent from heldback29); heldback31's track width, motor lag and deadband (all three
     # absent from heldback30); heldback32's wheel radius and axle Coulomb friction (both absent
     # from heldback31); heldback33's deadband, motor gain asymmetry and back-EMF (all three absent
-    # from heldback32)
+    # from heldback32); heldback34's Stribeck friction, driver voltage drop and track width (all
+    # three absent from heldback33)
     own_kinds = {"heldback14": ("payload", "motor_back_emf", "deadband"),
                  "heldback15": ("axle_coulomb", "motor_gain_asymmetry", "actuation_delay"),
                  "heldback16": ("motor_back_emf", "motor_lag", "track_width"),
@@ -324,7 +327,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback30": ("wheel_radius", "motor_gain_asymmetry", "load_transfer"),
                  "heldback31": ("track_width", "motor_lag", "deadband"),
                  "heldback32": ("wheel_radius", "axle_coulomb"),
-                 "heldback33": ("deadband", "motor_gain_asymmetry", "motor_back_emf")}
+                 "heldback33": ("deadband", "motor_gain_asymmetry", "motor_back_emf"),
+                 "heldback34": ("stribeck", "driver_voltage_drop", "track_width")}
     if which in own_kinds:
         for kind in own_kinds[which]:
             sizes = [c.effects[kind][cases.MAIN_PARAM[kind]] for c in new if kind in c.effects]
@@ -444,6 +448,7 @@ FROZEN_SETS = {
     "heldback31": "24a44fadb7e3ce29fa84e2b12dea8d92ddb6595dddb4e70352f72353255c6f48",
     "heldback32": "a0b3d11762288dfbac30e10e618440c4fba4273a4f0e2eaf6092b06807df11f4",
     "heldback33": "2b1894202a871275a94b301706540087197a319a2c74ca6d002eceb8e22cba7f",
+    "heldback34": "782d782c8dd089f244dcf57e1740bd8d3f7212a87cf1e7bd0e6d0ea405142267",
 }
 
 
