@@ -182,7 +182,8 @@ def test_a_pair_partner_whose_parameter_is_insignificant_is_dropped():
 def test_a_pair_partner_within_its_nominal_tolerance_is_dropped():
     """Wheel radius far off with a track width 1.3 mm off at 0.27 mm: 4.8 sigma by the fit
     alone, but inside what the table's half width and its tolerance allow (the size test a
-    single track width fails: 2.33 x sqrt(sigma^2 + tol^2/3)), so the pair is refused and the
+    single track width fails: the one-sided 1 % point of the fit's normal error plus the
+    uniform on +- tol), so the pair is refused and the
     radius stands alone; 2.5 tolerances off, the track width stays."""
     from host_tools import params as PP
     from host_tools.analyzer.fit.judge import Candidate
