@@ -200,9 +200,10 @@ BIC_MARGIN = -10.0
 # (standard uncertainty tol / sqrt(3)).  The point is that of the normal convolved with that
 # uniform (``size_threshold``), not SIZE_Z times their combined standard uncertainty: where the
 # tolerance dominates, SIZE_Z x tol / sqrt(3) = 1.35 tol lies beyond anything the uniform can
-# give (its 1 % point is 0.98 tol), so a precise fit 1.2 tol beyond the allowance, which no robot
-# within the tolerance replays, was refused; where the fit's sigma dominates it is SIZE_Z sigma,
-# as before, and without a tolerance exactly that.  What the nominal model allows is the neutral value itself, widened by the ranges
+# give (its 1 % point is 0.98 tol) and would refuse a precise fit 1.2 tol beyond the allowance,
+# which no robot within the tolerance replays; where the fit's sigma dominates the point is
+# SIZE_Z sigma, and without a tolerance exactly that.  What the nominal model allows is the
+# neutral value itself, widened by the ranges
 # [lo, hi] by which the parts of the normal forces' physics that the nominal model carries only at
 # a guess move the fitted value (ParamSpec.left_out, replay/tolerance.py: where the wheels' mass
 # sits, the centre of mass's height, the share of the wheels' spin-up; the nominal model lies

@@ -80,10 +80,10 @@ def test_size_threshold_is_the_one_sided_point_of_the_normal_plus_the_uniform() 
     """The size test's threshold is the point that the fit's normal error plus the nominal
     parameter's uniform error on +- tol exceeds at the one-sided rate of SIZE_Z (1 %): SIZE_Z
     sigma without a tolerance (to the bit), (1 - 2 p) tol = 0.98 tol without a fit error, the
-    normal's where it dominates, and in between the convolution's own point (sampled here).  The
-    former SIZE_Z x sqrt(sigma^2 + tol^2 / 3) put it at 1.35 tol on a precise fit, beyond
-    anything a robot within the tolerance gives: a precise fit 1.1 tol beyond the allowance
-    was refused."""
+    normal's where it dominates, and in between the convolution's own point (sampled here).
+    Taking the sum for a normal, SIZE_Z x sqrt(sigma^2 + tol^2 / 3), would put it at 1.35 tol on
+    a precise fit, beyond anything a robot within the tolerance gives, and refuse a precise fit
+    1.1 tol beyond the allowance."""
     from host_tools.analyzer.fit.judge import SIZE_Z, significant_deviation, size_threshold
     p = 0.5 * math.erfc(SIZE_Z / math.sqrt(2.0))
     assert size_threshold(0.7, 0.0) == SIZE_Z * 0.7
