@@ -11,7 +11,7 @@ import numpy as np
 from host_tools.analyzer import effects as fx
 from host_tools.analyzer.fit.params import FitResult, params_for
 from host_tools.analyzer.fit.problem import Problem
-from host_tools.analyzer.fit.solver import effective_n
+from host_tools.analyzer.fit.solver import effective_n, lag1_correlation
 from host_tools.analyzer.replay.channels import DERIVED
 
 
@@ -45,6 +45,9 @@ class Candidate:
     # all fit channels pooled, in noise floors: held-out residuals before and after, sample by
     # sample (the paired adoption test); None when not kept
     heldout_pooled: tuple[np.ndarray, np.ndarray] | None = None
+    # the pooled samples' segments (one fit channel, or one slip difference, of one held-out
+    # run), their lengths in order; None when the segments of before and after differ
+    heldout_segments: np.ndarray | None = None
     heldout_z: float = math.nan   # the paired test's z of the held-out improvement
 
     @property
@@ -110,14 +113,21 @@ def evaluate_candidate(problem: Problem, names: Sequence[str],
     fold_values = []
     pool_b: list[np.ndarray] = []
     pool_a: list[np.ndarray] = []
+    seg_len: list[int] | None = []
     res_b: dict[str, list[np.ndarray]] = {}
     res_a: dict[str, list[np.ndarray]] = {}
     res_u: dict[str, list[np.ndarray]] = {}
     for train, test, ptrain, ptest in folds:
         f = problem.fit(names, train, part=ptrain, x0=full.x, max_nfev=25, fixed=full.fixed)
         fold_values.append(f.values)
-        rb = problem.residual(ref_effects, test, ptest)
-        ra = problem.residual(f.params, test, ptest)
+        sb = problem.residual_segments(ref_effects, test, ptest)
+        sa = problem.residual_segments(f.params, test, ptest)
+        rb = np.concatenate(sb) if sb else np.zeros(0)
+        ra = np.concatenate(sa) if sa else np.zeros(0)
+        if seg_len is not None and [x.size for x in sb] == [x.size for x in sa]:
+            seg_len += [x.size for x in sb]
+        else:
+            seg_len = None
         sq_b += float(np.sum(rb ** 2))
         sq_a += float(np.sum(ra ** 2))
         cnt += rb.size
@@ -146,10 +156,12 @@ def evaluate_candidate(problem: Problem, names: Sequence[str],
     rms: Callable[[Any], float] = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
     pooled = ((np.concatenate(pool_b), np.concatenate(pool_a))
               if pool_b and len(pool_b) == len(folds) else None)
+    segs = (np.asarray(seg_len, dtype=np.int64) if pooled is not None and seg_len is not None
+            else None)
     return Candidate(list(names), full, dbic, hb, ha,
                      {c: rms(v) for c, v in ch_b.items()}, {c: rms(v) for c, v in ch_a.items()},
                      fold_values, size, heldout_pairs=pairs, heldout_spread=spreads,
-                     heldout_pooled=pooled)
+                     heldout_pooled=pooled, heldout_segments=segs)
 
 
 # The per-channel held-out rule (docs/analyzer.md, "The held-out rule"): an update is adopted
@@ -272,23 +284,54 @@ def significant_deviation(dev: float, sigma_fit: float, tol: float, z: float = S
     return beyond > size_threshold(sd, tol, z) and dev != 0.0
 
 # Adoption asks the held-out data whether the update predicts them better: a paired test of the
-# held-out errors, sample by sample over the fit channels in noise floors (mean of
-# after^2 - before^2 below zero by more than HELDOUT_Z standard errors, one-sided 1 %, the sample
-# count corrected for the autocorrelation of the residual left after the update), the rate of
-# the per-channel veto.  A pair must beat each of its singles by the same test on the same
-# held-out samples.
+# held-out errors, sample by sample over the fit channels in noise floors, d = after^2 - before^2,
+# whose mean must lie below zero by more than HELDOUT_Z (one-sided 1 %, the rate of the
+# per-channel veto) of its standard error under the test's own null.  Each fold's update is
+# fitted on the other runs, so its change D = after - before on the held-out run is fixed with
+# respect to that run's noise e: with before = s + e (s the nominal model's systematic misfit),
+# d = 2 D s + D^2 + 2 D e, and only 2 D e is random.  Its variance, 4 sum_ij D_i D_j cov(e_i, e_j)
+# / n^2, is taken per segment (one channel, or one slip difference, of one held-out run) as
+# sigma^2 sum D_i^2 (1 + rho) / (1 - rho): sigma^2 the segment's mean after^2 (what the update
+# leaves, a misfit included, counted as noise: at least the noise's variance of 1 floor^2 where
+# the update explains the segment, more where it does not), rho the lag-1 correlation of the
+# segment's after residual (0 to 0.995).  The sample spread of d instead holds the effect's own
+# variation along the run (a gain that grows with the distance driven): its mean and spread
+# grow together and z stays bounded however large the effect (docs/analyzer.md, "The adoption
+# test's error").  A pair must beat each of its singles on the same held-out samples; that
+# comparison keeps the sample spread of d, the sample count corrected for the autocorrelation of
+# the pair's residual: there the reference is the single's fit, not a nominal model fixed
+# before the data, and a fixed-design error counting the single's misfit as noise was the
+# stricter where it was measured (docs/analyzer.md).
 
 
-def paired_better(before: np.ndarray, after: np.ndarray, z: float = HELDOUT_Z
-                  ) -> tuple[bool, float]:
+def paired_better(before: np.ndarray, after: np.ndarray, z: float = HELDOUT_Z,
+                  segments: Sequence[int] | np.ndarray | None = None) -> tuple[bool, float]:
     """(better, z statistic): are the held-out residuals ``after`` (in noise floors) smaller
-    than ``before``, sample by sample, beyond what the noise does to them?"""
+    than ``before``, sample by sample, beyond what the noise does to them?  With ``segments``
+    (the lengths, in order, of the pooled segments: one channel of one held-out run) the
+    error is the fixed-design one under the test's null; without, the sample spread of the
+    differences."""
     b, a = np.asarray(before, float), np.asarray(after, float)
     if b.size < 3 or a.size != b.size:
         return False, 0.0
     d = a ** 2 - b ** 2
-    sd = float(np.std(d, ddof=1))
     mean = float(np.mean(d))
+    if segments is not None and int(np.sum(segments)) == b.size:
+        var = 0.0
+        start = 0
+        for m in (int(x) for x in segments):
+            if m:
+                seg_a = a[start:start + m]
+                ch = seg_a - b[start:start + m]
+                rho = lag1_correlation(seg_a)
+                var += (float(np.mean(seg_a ** 2)) * float(np.sum(ch ** 2))
+                        * (1.0 + rho) / (1.0 - rho))
+            start += m
+        if var == 0:
+            return mean < 0, (math.inf if mean < 0 else 0.0)
+        zstat = -mean / (2.0 * math.sqrt(var) / b.size)
+        return bool(zstat > z), zstat
+    sd = float(np.std(d, ddof=1))
     if sd == 0:
         return mean < 0, (math.inf if mean < 0 else 0.0)
     # the samples count as independent as the residual left after the update (its noise and
@@ -376,7 +419,8 @@ def judge(problem: Problem, cand: Candidate, ref_effects: Mapping[str, Mapping[s
         cand.reasons.append(f"BIC does not improve enough ({cand.delta_bic:.1f} >= {bic_margin})")
     # pooled over the fit channels (normalized): the update must predict held-out data better
     if cand.heldout_pooled is not None:
-        c["heldout"], cand.heldout_z = paired_better(*cand.heldout_pooled)
+        c["heldout"], cand.heldout_z = paired_better(*cand.heldout_pooled,
+                                                     segments=cand.heldout_segments)
     else:
         c["heldout"] = cand.heldout_after < cand.heldout_before
     if not c["heldout"]:

@@ -162,6 +162,13 @@ class Problem:
                  part: str = "all", full: bool = False) -> np.ndarray:
         """Stacked normalized residual of the fit channels.  ``part``: "all", "early" (before
         the time split) or "late" (after it)."""
+        parts = self.residual_segments(effects, runs, part, full)
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def residual_segments(self, effects: Mapping[str, Mapping[str, float]], runs: Sequence[int],
+                          part: str = "all", full: bool = False) -> list[np.ndarray]:
+        """:meth:`residual` in its segments (one fit channel, or one wheel pair's slip
+        difference, of one run), in its order; non-finite samples as there."""
         parts = []
         for i, chans in zip(runs, self.sim_channels(effects, runs, full, fit_only=True)):
             ts = self._split_t(self.preps[i])
@@ -177,10 +184,7 @@ class Problem:
                 parts.append(r)
             for d, t in self.slip_differences(chans):
                 parts.append(d if part == "all" else d[t <= ts] if part == "early" else d[t > ts])
-        if not parts:
-            return np.zeros(0)
-        r = np.concatenate(parts)
-        return np.where(np.isfinite(r), r, 1e6)
+        return [np.where(np.isfinite(r), r, 1e6) for r in parts]
 
     def output_change(self, before: Mapping[str, Mapping[str, float]],
                       after: Mapping[str, Mapping[str, float]], runs: Sequence[int]) -> float:

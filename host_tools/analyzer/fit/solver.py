@@ -17,15 +17,23 @@ from host_tools.analyzer.fit.params import Param
 UNIDENTIFIED = 0.5
 
 
+def lag1_correlation(r: np.ndarray) -> float:
+    """Lag-1 correlation of ``r`` about its mean, clipped to [0, 0.995] (0 below 3 samples)."""
+    r = np.asarray(r, float)
+    if r.size < 3:
+        return 0.0
+    a, b = r[:-1] - r.mean(), r[1:] - r.mean()
+    den = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    rho = 0.0 if den == 0 else float(np.sum(a * b) / den)
+    return min(max(rho, 0.0), 0.995)
+
+
 def effective_n(r: np.ndarray) -> float:
     """Number of independent samples in a residual with AR(1)-like correlation."""
     r = np.asarray(r, float)
     if r.size < 3:
         return float(r.size)
-    a, b = r[:-1] - r.mean(), r[1:] - r.mean()
-    den = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
-    rho = 0.0 if den == 0 else float(np.sum(a * b) / den)
-    rho = min(max(rho, 0.0), 0.995)
+    rho = lag1_correlation(r)
     return max(r.size * (1 - rho) / (1 + rho), 2.0)
 
 

@@ -178,8 +178,11 @@ class _FoldProblem:
     def _runs(self, effects, runs, f):
         return np.concatenate([f(i, bool(effects)) for i in runs])
 
+    def residual_segments(self, effects, runs, part="all", full=False):
+        return [self.noise[i] / 1e-3 * (0.5 if effects else 2.0) for i in runs]
+
     def residual(self, effects, runs, part="all", full=False):
-        return self._runs(effects, runs, lambda i, upd: self.noise[i] / 1e-3 * (0.5 if upd else 2.0))
+        return np.concatenate(self.residual_segments(effects, runs, part, full))
 
     def channel_resids(self, effects, runs, part="all", full=False, spread=False):
         if spread:
@@ -198,6 +201,9 @@ def test_evaluate_candidate_keeps_the_reference_replays_spread_with_the_held_out
     b, a = cand.heldout_pairs["x_m"]
     u = cand.heldout_spread["x_m"]
     assert u.shape == b.shape == a.shape == (900,)
+    # the pooled samples' segments, one per held-out run here (one channel each)
+    assert list(cand.heldout_segments) == [300, 300, 300]
+    assert cand.heldout_pooled[0].size == 900
     assert np.all(u[600:] == 2.5e-3) and np.all(u[:600] == 1e-5)
     judge(p, cand)
     chk = cand.heldout_per_channel["x_m"]

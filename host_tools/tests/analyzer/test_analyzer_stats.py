@@ -130,6 +130,58 @@ def test_paired_test_adopts_a_small_but_consistent_held_out_gain():
     assert wins <= 5
 
 
+def _ar1(rng, n, rho):
+    e = np.empty(n)
+    e[0] = rng.standard_normal()
+    for i in range(1, n):
+        e[i] = rho * e[i - 1] + np.sqrt(1 - rho ** 2) * rng.standard_normal()
+    return e
+
+
+def test_fixed_design_error_holds_its_rate_under_the_tests_own_null():
+    """The held-out test's null: the update changes the replay by a fixed D (fitted on other
+    runs) and predicts the held-out run no better, mean(2 D s + D^2) = 0 (here the nominal
+    misfit s = -D / 2), only the held-out noise random, correlated along each of four segments
+    (lag-1 0.9).  With the segments' AR(1) factor the rate stays near the one-sided 1 %; counted
+    as independent samples the same statistic passes about a third of the draws."""
+    from host_tools.analyzer.fit.judge import paired_better
+    rng = np.random.default_rng(11)
+    n, k = 400, 4
+    t = np.linspace(0.0, 1.0, n)
+    D = np.concatenate([(j + 1) * 0.6 * np.sin(6 * t + j) for j in range(k)])
+    s = -D / 2
+    wins = wins_iid = 0
+    for _ in range(300):
+        e = np.concatenate([_ar1(rng, n, 0.9) for _ in range(k)])
+        before, after = s + e, s + e + D
+        wins += paired_better(before, after, segments=[n] * k)[0]
+        wins_iid += paired_better(before, after, segments=[1] * (n * k))[0]
+    assert wins <= 9            # 1 % of 300 is 3; 9 is beyond its binomial 99.9 % point
+    assert wins_iid >= 60
+
+
+def test_fixed_design_z_grows_with_an_effect_the_sample_spread_does_not():
+    """A gain that grows along each run (a wheel radius off: the pose error grows with the
+    distance driven), removed by the update, on 45 camera samples in each of three runs: the
+    sample spread of after^2 - before^2 grows with the effect as its mean does, so that z stays
+    bounded; the fixed-design error (only the noise random) gives a z that grows with it."""
+    from host_tools.analyzer.fit.judge import paired_better
+    rng = np.random.default_rng(12)
+    n, k = 45, 3
+    ramp = np.tile(np.linspace(0.0, 1.0, n) ** 2, k)
+    e = np.concatenate([_ar1(rng, n, 0.8) for _ in range(k)])
+    z_spread, z_fixed = [], []
+    for g in (8.0, 32.0, 128.0):
+        before, after = e + g * ramp, e
+        z_spread.append(paired_better(before, after)[1])
+        z_fixed.append(paired_better(before, after, segments=[n] * k)[1])
+    # four times the effect each step: the sample spread's z is at its bound (2.9 here)
+    assert z_spread[2] < 1.02 * z_spread[1] < 1.1 * z_spread[0] < 3.3
+    assert z_fixed[2] > 3.5 * z_fixed[1] and z_fixed[1] > 3.5 * z_fixed[0] > 3.5 * 2.33
+    # no segments (or segments that do not cover the samples): the sample spread's z
+    assert paired_better(before, after, segments=[n] * (k - 1))[1] == z_spread[2]
+
+
 def test_judge_uses_the_paired_test():
     from host_tools.analyzer.fit.judge import Candidate, judge
     from host_tools.analyzer.fit.params import FitResult
