@@ -238,6 +238,8 @@ _NOT_COPIES = {
     ("host_tools/suite/sets.json", "0.064"): "a recorder's telemetry period (tel_s = 64 ms), not m_w",
     ("host_tools/suite/sets.json", "0.0216"):
         "a floor_slope effect size (rad = 0.0216, heldback33's, drawn), not h",
+    ("host_tools/suite/sets.json", "0.0365"):
+        "an eccentric_wheel effect size (eps = 0.0365, heldback35's, drawn), not r",
 }
 #: The same for the tests, which take the table's values from host_tools.params (Python) and
 #: slip::table / SLIP_*_PARAMS / slip::table_ii2() (C++): (path, value) -> (how many, why).
