@@ -292,8 +292,9 @@ def significant_deviation(dev: float, sigma_fit: float, tol: float, z: float = S
 # d = 2 D s + D^2 + 2 D e, and only 2 D e is random.  Its variance, 4 sum_ij D_i D_j cov(e_i, e_j)
 # / n^2, is taken per segment (one channel, or one slip difference, of one held-out run) as
 # sigma^2 sum D_i^2 (1 + rho) / (1 - rho): sigma^2 the segment's mean after^2 (what the update
-# leaves, a misfit included, counted as noise: at least the noise's variance of 1 floor^2 where
-# the update explains the segment, more where it does not), rho the lag-1 correlation of the
+# leaves, a misfit included, counted as noise: the noise's variance where the update explains
+# the segment, 1 floor^2 or less where the replay's uncertainty deflates the residual, more
+# where the update leaves a misfit), rho the lag-1 correlation of the
 # segment's after residual (0 to 0.995).  The sample spread of d instead holds the effect's own
 # variation along the run (a gain that grows with the distance driven): its mean and spread
 # grow together and z stays bounded however large the effect (docs/analyzer.md, "The adoption
