@@ -175,7 +175,8 @@ def judged_sets(params: Sequence[Any], values: Sequence[float], std: Sequence[fl
             continue
         if j >= len(std) or not math.isfinite(std[j]):
             continue   # pinned (unidentified) or not seen by the data: the set value is no estimate
-        idx = [i for i, q in enumerate(params) if q.effect == p.effect]
+        # the effect's vocabulary coordinates (a nuisance, e.g. the friction's creep, sets none)
+        idx = [i for i, q in enumerate(params) if q.effect == p.effect and q.nuisance is None]
         name, fn = spec.sets
 
         def at(vals: Sequence[float], dx: float = 0.0) -> float:
@@ -338,14 +339,39 @@ def folded_robot(robot: Mapping[str, float],
     return out
 
 
+#: The friction fit's nuisance key (``fit.params.creep_param``): the slip speed over which a
+#: sliding wheel's coefficient falls from mu_s to mu_k.  The plant carries it as its Stribeck law
+#: tied to mu_s (:func:`creep_form`); the nominal model's Coulomb switch is its limit v -> 0.
+CREEP_KEY = "v_creep"
+
+
+def creep_form(effects: Mapping[str, Mapping[str, float]]) -> dict[str, dict[str, float]]:
+    """``effects`` with a ``friction_coefficient`` that carries the creep speed
+    (:data:`CREEP_KEY`) in the plant's own form: the friction's two coefficients and the
+    plant's ``stribeck`` law tied to its mu_s, mu(|s|) = mu_k + (mu_s - mu_k) exp(-(|s|/v)^2)
+    (lib/slipmodel's Stribeck law with mu_k0 = mu_s): a wheel that breaks away at mu_s N keeps
+    about mu_s while it creeps at slip speeds well under v and slides at mu_k well above it.
+    Other effects as given; an effect set without the key unchanged."""
+    fc = effects.get("friction_coefficient", {})
+    if CREEP_KEY not in fc:
+        return {e: dict(p) for e, p in effects.items()}
+    out = {e: dict(p) for e, p in effects.items()}
+    fric = {k: float(v) for k, v in fc.items() if k != CREEP_KEY}
+    out["friction_coefficient"] = fric
+    out["stribeck"] = {"mu_k0": float(fric["mu_s"]), "v_s": float(fc[CREEP_KEY])}
+    return out
+
+
 def plant_setup(robot: Mapping[str, float], effects: Mapping[str, Mapping[str, float]]
                 ) -> tuple[dict[str, float], dict[str, dict[str, float]]]:
     """(robot parameters, plant effects) of ``effects`` on the robot ``robot``: the effects the
     plant does not have (:data:`ADDED_PARAMETER_EFFECTS`) as changed parameters, the others as
-    its effects.  The nominal model's normal-force physics comes on top
+    its effects, a friction's creep speed as the plant's Stribeck law tied to its mu_s
+    (:func:`creep_form`).  The nominal model's normal-force physics comes on top
     (``replay.normal_forces.plant_config``, which every replay's plant is built with)."""
     added = {n: p for n, p in effects.items() if n in ADDED_PARAMETER_EFFECTS}
-    rest = {n: dict(p) for n, p in effects.items() if n not in ADDED_PARAMETER_EFFECTS}
+    rest = {n: dict(p) for n, p in creep_form(effects).items()
+            if n not in ADDED_PARAMETER_EFFECTS}
     r = dict(robot)
     for name, params in added.items():
         for p, (key, _) in ADDED_PARAMETER_EFFECTS[name].items():

@@ -95,6 +95,15 @@ def select_effects(det: Detection, cands: list[Candidate], jobs: int, pairs_top:
     return Selection(chosen, final_effects, cands, pair_cands)
 
 
+
+def _pair_start(problem: Problem, a: Candidate, b: Candidate) -> np.ndarray:
+    """A pair's start: each single's fitted coordinates, for the coordinates the pair's fit
+    has (a single's nuisance that a pair does not carry, the friction single's creep, left
+    out)."""
+    at = {**dict(zip(a.fit.coords, a.fit.x)), **dict(zip(b.fit.coords, b.fit.x))}
+    ps = params_for([*a.effects, *b.effects], problem.meta, problem.vocab)
+    return np.array([float(at[(p.effect, p.name)]) for p in ps])
+
 def _fit_pairs(problem: Problem, cands: list[Candidate], best_single: Candidate | None,
                rss0: float, jobs: int, pairs_top: int, log: Callable[[str], None]
                ) -> list[Candidate]:
@@ -121,8 +130,8 @@ def _fit_pairs(problem: Problem, cands: list[Candidate], best_single: Candidate 
             if e != lead and (lead, e) not in combos and (e, lead) not in combos:
                 combos.append((lead, e))
     single = {c.effects[0]: c for c in cands}
-    pair_tasks: list[FitTask] = [([a, b], np.concatenate([single[a].fit.x, single[b].fit.x]), {})
-                  for a, b in combos]
+    pair_tasks: list[FitTask] = [([a, b], _pair_start(problem, single[a], single[b]), {})
+                                 for a, b in combos]
     if not pair_tasks:
         return []
     log(f"one effect leaves a mismatch: fitting {len(pair_tasks)} pair(s)")

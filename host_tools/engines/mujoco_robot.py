@@ -24,7 +24,8 @@ The model is built at run time from the parameter table (:mod:`host_tools.params
   cone in force during the step); the drop to ``mu_k`` comes once the slip speed passes
   :data:`SLIP_ON_M_S` — a few steps where the demand rises well past the cone, but a contact
   held just above it creeps at ``mu_s`` under the threshold for tens of ms or for good, a
-  pre-sliding creep lib/slipmodel's plant does not have (docs/suite.md) —, and the
+  pre-sliding creep the nominal model does not carry (docs/suite.md; the analyzer's friction
+  single fits it as a creep speed) —, and the
   return to ``mu_s`` needs the slip speed to fall under the lower threshold, so a wheel at the
   limit does not chatter between the two coefficients. The soft cone lets a sticking contact
   creep at well under :data:`SLIP_ON_M_S` (measured: docs/suite.md).

@@ -9,8 +9,9 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from scipy.stats import chi2
 
-from host_tools.analyzer.fit.params import (FitResult, Param, ProfileInterval, effects_dict,
-                                            params_for)
+from host_tools.analyzer.fit.params import (CREEP_GRID_M_S, CREEP_LEVEL, CREEP_PASSES,
+                                            FitResult, Param,
+                                            ProfileInterval, effects_dict, params_for)
 from host_tools.analyzer.fit.solver import (PROFILE_LEVEL, UNIDENTIFIED, residual_variance,
                                             flat_minimum, given_line, given_neutral, grid_start, param_std,
                                             profile_interval, profile_scan, profile_steps,
@@ -301,7 +302,8 @@ class Problem:
     def fit(self, names: Sequence[str], runs: Sequence[int], part: str = "all",
             x0: np.ndarray | None = None, max_nfev: int = 60, grid: int = 7,
             fixed: Mapping[int, float] | None = None, pin_unidentified: bool = True,
-            decide_nuisance: bool = True) -> FitResult:
+            decide_nuisance: bool = True, hold: Mapping[int, float] | None = None,
+            rescan: bool = False) -> FitResult:
         """Fit the coordinates of ``names`` (bounded, after a coarse grid).  ``fixed`` pins
         coordinates (index -> value in [0, 1]).  Without ``fixed``, a coordinate that the data
         do not identify (1-sigma uncertainty above UNIDENTIFIED of its search range in its fit coordinate) while
@@ -317,7 +319,10 @@ class Problem:
         solution (:meth:`_profile_set`) gives its 1-sigma and ``FitResult.intervals``; the
         held-out folds' and halves' refits, which start from such a fit, hold it at its
         start (its uncertainty is the set) and refit the rest; a kept nuisance coordinate
-        (:meth:`_fit_nuisance`) is held alike."""
+        (:meth:`_fit_nuisance`) is held alike.  ``hold`` holds coordinates (index -> value in
+        [0, 1]) that the fit carries but does not move (a nuisance at a grid value);
+        ``rescan`` scans the profiled coordinates' profiles from the given start ``x0`` as from
+        a grid start (a start whose other coordinates hold, at a changed nuisance)."""
         params = params_for(names, self.meta, self.vocab)
         k_all = len(params)
         fixed = dict(fixed or {})
@@ -338,6 +343,7 @@ class Problem:
             xa = np.asarray(x0, float)
             if xa.size == k_all:
                 held = {i: float(np.clip(xa[i], 0, 1)) for i in [*profiled, *nuisance]}
+        held.update({i: float(v) for i, v in (hold or {}).items() if i not in fixed})
         free = [i for i in range(k_all) if i not in fixed and i not in held]
         full0 = np.array([np.clip(p.to_x(p.neutral), 0, 1) for p in params])
         for i, v in {**fixed, **held}.items():
@@ -358,6 +364,9 @@ class Problem:
         if x0 is not None:
             x0 = np.asarray(x0, float)
             x0 = x0[free] if x0.size == k_all else x0
+            for i in profiled if rescan else ():
+                x0, n_p = self._profile_start(params, free, i, x0, expand, fun)
+                nfev += n_p
         else:
             # the grid start keeps its levels of mu_s (at mu_k ~ mu_s: the only start with
             # mu_k above the nominal mu_s); the profile then scans mu_s at its mu_k
@@ -430,7 +439,8 @@ class Problem:
                         pins[i] = pin
             if unid and len(unid) < k_voc:
                 re = self.fit(names, runs, part, x0=None, max_nfev=max_nfev, grid=grid,
-                              fixed={**fixed, **pins})
+                              fixed={**fixed, **pins}, decide_nuisance=decide_nuisance,
+                              hold=hold)
                 re.nfev += out.nfev
                 re.intervals = {**out.intervals, **re.intervals}
                 return re
@@ -454,17 +464,107 @@ class Problem:
                         fixed={**fixed, **pins}, pin_unidentified=pin_unidentified)
         if not base.ok:
             return base
-        start = np.asarray(base.x, float).copy()
-        for i in nuisance:
-            start[i] = pins[i]
-        free = self.fit(names, runs, part, x0=start, max_nfev=max_nfev, grid=grid,
-                        fixed={**fixed, **{i: v for i, v in base.fixed.items()
-                                           if i not in pins}},
-                        pin_unidentified=False, decide_nuisance=False)
-        free.nfev += base.nfev
-        kept = (free.ok and free.rss <= base.rss
-                and all(free.std[i] < float(params[i].nuisance or 0.0) for i in nuisance))
-        return free if kept else base
+        by_sigma = [i for i in nuisance if params[i].keep == "sigma"]
+        by_ratio = [i for i in nuisance if params[i].keep == "ratio"]
+        out = base
+        if by_sigma:
+            start = np.asarray(base.x, float).copy()
+            for i in nuisance:
+                start[i] = pins[i]
+            free = self.fit(names, runs, part, x0=start, max_nfev=max_nfev, grid=grid,
+                            fixed={**fixed, **{i: v for i, v in base.fixed.items()
+                                               if i not in pins or i in by_ratio}},
+                            pin_unidentified=False, decide_nuisance=False)
+            free.nfev += base.nfev
+            kept = (free.ok and free.rss <= base.rss
+                    and all(free.std[i] < float(params[i].nuisance or 0.0) for i in by_sigma))
+            out = free if kept else base
+        for i in by_ratio:
+            out = self._fit_creep(names, runs, part, max_nfev, grid, fixed, pin_unidentified,
+                                  params, i, out, pins)
+        return out
+
+    def _fit_creep(self, names: Sequence[str], runs: Sequence[int], part: str, max_nfev: int,
+                   grid: int, fixed: Mapping[int, float], pin_unidentified: bool,
+                   params: Sequence[Param], i: int, base: FitResult, pins: Mapping[int, float]
+                   ) -> FitResult:
+        """The friction fit with its creep speed (``fit.params.creep_param``, coordinate ``i``):
+        refitted from scratch (grid start, mu_s's profile) with the creep held at each value of
+        ``CREEP_GRID_M_S`` (its cost is a staircase in it as in mu_s: a gradient does not see
+        it), the other nuisance coordinates as in ``base`` (kept: held there; else pinned); the
+        lowest of them is kept only where the fit without creep costs more by the
+        ``CREEP_LEVEL`` point of chi-square with one degree of freedom on its residual scale
+        s^2 n/n_eff (``solver.residual_variance``) — the fit without creep being the lower of
+        ``base`` and the same fit started from the best creep fit's point (mu_s's profile
+        scanned again there), so that the two are compared from the same start —; else
+        ``base`` as it is.
+        A kept creep counts in the fit's free parameters (BIC), is held at its value in the
+        held-out folds and invariance halves (as a kept spin share), and carries its set over
+        the grid (the values within the two-sided 95 % point of the lowest cost) in
+        ``FitResult.nuisance_sets``."""
+        others = {j: float(base.x[j]) for j in pins if j != i and j not in base.fixed}
+        pinned = {j: v for j, v in pins.items() if j != i and j in base.fixed}
+        fits = []
+        nfev = base.nfev
+        if any(iv.kind == "unbounded" for k, iv in base.intervals.items()
+               if k.startswith(params[i].effect + ".")):
+            # the creep shapes a breakaway; where mu_s's profile set has no edge (every wheel
+            # slides from the first tick), the data hold no breakaway to shape, and a creep there
+            # would stand in for whatever else differs at the start of a slide
+            return base
+        r_base = self.residual(base.params, runs, part)
+        # the creep acts only while a wheel slides: where the fit without it slides nowhere, the
+        # widest creep leaves every residual as it is and the data say nothing of it
+        probe = {e: dict(p) for e, p in base.params.items()}
+        probe.setdefault(params[i].effect, {})[params[i].name] = CREEP_GRID_M_S[-1]
+        nfev += 2
+        if np.array_equal(self.residual(probe, runs, part), r_base):
+            base.nfev = nfev
+            return base
+        unit = residual_variance(r_base, base.n_free)
+        for v in CREEP_GRID_M_S:
+            x0 = np.asarray(base.x, float).copy()
+            x0[i] = float(np.clip(params[i].to_x(v), 0, 1))
+            f = None
+            for k in range(CREEP_PASSES):
+                # the first pass scans mu_s's profile afresh; the later ones walk it from the
+                # last point (Problem._profile_set, at the end of every fit of all runs)
+                g = self.fit(names, runs, part, x0=x0, max_nfev=max_nfev, grid=grid,
+                             fixed={**fixed, **pinned}, pin_unidentified=pin_unidentified,
+                             decide_nuisance=False, rescan=k == 0,
+                             hold={i: x0[i], **others})
+                nfev += g.nfev
+                if not g.ok or (f is not None and g.rss >= f.rss):
+                    break
+                gain = math.inf if f is None else f.rss - g.rss
+                f, x0 = g, np.asarray(g.x, float).copy()
+                if gain < 0.5 * unit:   # under half a unit of chi-square: settled
+                    break
+            if f is not None:
+                fits.append((v, f))
+        if not fits:
+            return base
+        best = min(fits, key=lambda t: t[1].rss)[1]
+        # the fit without creep gets the same start: from the best creep fit's point, mu_s's
+        # profile scanned again (mu_s's and mu_k's staircases leave a fit where it started)
+        x0 = np.asarray(best.x, float).copy()
+        x0[i] = pins[i]
+        again = self.fit(names, runs, part, x0=x0, max_nfev=max_nfev, grid=grid,
+                         fixed={**fixed, **pinned, i: pins[i]}, pin_unidentified=pin_unidentified,
+                         decide_nuisance=False, rescan=True, hold=others)
+        nfev += again.nfev
+        null = again if again.ok and again.rss < base.rss else base
+        scale = residual_variance(self.residual(null.params, runs, part), null.n_free)
+        if null.rss - best.rss <= float(chi2.ppf(CREEP_LEVEL, 1)) * scale:
+            # not kept: the fit as it was (the refit from the creep's start is the test's
+            # reference only; where mu_s's cost is flat it moves mu_s along the flat)
+            base.nfev = nfev
+            return base
+        within = [v for v, f in fits
+                  if f.rss - best.rss <= float(chi2.ppf(PROFILE_LEVEL, 1)) * scale]
+        best.nuisance_sets = {params[i].name: (min(within), max(within))}
+        best.nfev = nfev
+        return best
 
     def _line_neutral(self, params: Sequence[Param], free: Sequence[int], i: int,
                       values: Sequence[float]) -> float:

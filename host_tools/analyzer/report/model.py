@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping, Sequence
 
-from host_tools.analyzer.effects import folded_robot, plant_setup
+from host_tools.analyzer.effects import creep_form, folded_robot, plant_setup
 from host_tools.model import FORMAT as MODEL_FORMAT
 
 
@@ -14,8 +14,9 @@ def updated_model(meta: Mapping[str, Any], effects: Mapping[str, Mapping[str, fl
     from host_tools.analyzer.replay.normal_forces import rolling_form
     robot = dict(meta["robot"])
     # the model is replayed in the nominal model's form (plant_config): a kept spin share is
-    # folded into the load transfer's height there, and no nuisance parameter is the model's
-    effects = rolling_form(robot, effects)
+    # folded into the load transfer's height there, and no nuisance parameter is the model's;
+    # a kept creep is the plant's own Stribeck law tied to mu_s (effects.creep_form)
+    effects = creep_form(rolling_form(robot, effects))
     motor = dict(meta["motor"])
     plant_robot, plant_effects = plant_setup(robot, effects)
     plant = _native.Plant.from_meta({**meta, "robot": plant_robot})

@@ -9,7 +9,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from host_tools.analyzer.fit.params import fitted_nuisance, vocabulary_only
+from host_tools.analyzer.fit.params import fitted_nuisance, is_nuisance, vocabulary_only
 from host_tools.analyzer.report import outputs
 from host_tools.analyzer.report.sections import REPORT_FORMAT, Analysis
 from host_tools.analyzer.report.series import BAND_K, Series
@@ -254,9 +254,8 @@ def _chosen_std(an: Analysis) -> dict[tuple[str, str], float]:
 
 
 def _is_nuisance(effect: str, name: str) -> bool:
-    """A fit coordinate that is no vocabulary parameter (the load transfer's spin share)."""
-    from host_tools.analyzer.replay.normal_forces import SPIN_KEY
-    return effect == "load_transfer" and name == SPIN_KEY
+    """A fit coordinate that is no vocabulary parameter (``fit.params.is_nuisance``)."""
+    return is_nuisance(effect, name)
 
 
 def _pm(v: float, sd: float | None) -> str:
@@ -298,6 +297,9 @@ def summary_lines(an: Analysis) -> list[str]:
             for k, v in (s.get("nuisance") or {}).items():
                 ps += (f"; fitted beside it (not a vocabulary parameter): {k} = "
                        f"{_pm(v['value'], v.get('std'))}")
+                if "lo" in v and "hi" in v:
+                    ps += (f" (of the values tried, {humanize.number(v['lo'])} to "
+                           f"{humanize.number(v['hi'])} fit within 95 %)")
             ivs = {k: interval_entry(iv) for (e, k), iv in _chosen_intervals(an).items()
                    if e == s["effect"]}
             if ivs:

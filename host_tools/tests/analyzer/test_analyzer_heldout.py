@@ -137,7 +137,11 @@ def test_judge_rejects_an_update_that_makes_a_physics_channel_worse_beyond_noise
 def test_friction_is_fitted_with_mu_k_at_most_mu_s():
     p = _Problem()
     params = params_for(["friction_coefficient"], p.meta, p.vocab)
-    assert [q.name for q in params] == ["mu_s", "mu_k_over_mu_s"]
+    # the single carries its creep speed as a nuisance beside its two coordinates; a pair not
+    assert [q.name for q in params] == ["mu_s", "mu_k_over_mu_s", "v_creep"]
+    assert [q.nuisance is not None for q in params] == [False, False, True]
+    assert [q.name for q in params_for(["friction_coefficient", "wheel_radius"], p.meta,
+                                       p.vocab)] == ["mu_s", "mu_k_over_mu_s", "r_eff"]
     for xs in np.linspace(0, 1, 6):
         for xk in np.linspace(0, 1, 6):
             d = effects_dict(params, [q.from_x(x) for q, x in zip(params, (xs, xk))])
