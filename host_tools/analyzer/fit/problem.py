@@ -489,9 +489,13 @@ class Problem:
                    params: Sequence[Param], i: int, base: FitResult, pins: Mapping[int, float]
                    ) -> FitResult:
         """The friction fit with its creep speed (``fit.params.creep_param``, coordinate ``i``):
-        refitted from scratch (grid start, mu_s's profile) with the creep held at each value of
-        ``CREEP_GRID_M_S`` (its cost is a staircase in it as in mu_s: a gradient does not see
-        it), the other nuisance coordinates as in ``base`` (kept: held there; else pinned); the
+        refitted from ``base``'s point with the creep held at each value of ``CREEP_GRID_M_S``
+        (its cost is a staircase in it as in mu_s: a gradient does not see it) — mu_s's profile
+        scanned afresh at the held mu_k and mu_k solved at the held mu_s, then further passes
+        from the last point, mu_s's profile walked, while a pass lowers the cost by half a unit
+        of s^2 n/n_eff (at most ``CREEP_PASSES``) —, the other nuisance coordinates as in
+        ``base`` (kept: held there; else pinned); not tried where mu_s's profile set in ``base``
+        is unbounded or the widest creep changes no residual (no wheel slides); the
         lowest of them is kept only where the fit without creep costs more by the
         ``CREEP_LEVEL`` point of chi-square with one degree of freedom on its residual scale
         s^2 n/n_eff (``solver.residual_variance``) — the fit without creep being the lower of
