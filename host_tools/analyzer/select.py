@@ -95,7 +95,6 @@ def select_effects(det: Detection, cands: list[Candidate], jobs: int, pairs_top:
     return Selection(chosen, final_effects, cands, pair_cands)
 
 
-
 def _pair_start(problem: Problem, a: Candidate, b: Candidate) -> np.ndarray:
     """A pair's start: each single's fitted coordinates, for the coordinates the pair's fit
     has (a single's nuisance that a pair does not carry, the friction single's creep, left

@@ -94,10 +94,9 @@ def creep_param() -> Param:
     mu_s (docs/analyzer.md).  The friction single's only (a pair's fit carries none: five
     refits per grid value for each pair would multiply the pairs' cost; a pair is judged
     against the single as it is).  Fitted over :data:`CREEP_GRID_M_S` with mu_s profiled at
-    each and
-    kept only where the likelihood ratio against the fit without it passes (``keep`` "ratio",
-    ``Problem._fit_creep``): otherwise the friction fit is the nominal model's form.  A shape
-    coordinate: no size or stability test of its own (it is no effect's evidence)."""
+    each and kept only where the likelihood ratio against the fit without it passes (``keep``
+    "ratio", ``Problem._fit_creep``): otherwise the friction fit is the nominal model's form.
+    A shape coordinate: no size or stability test of its own (it is no effect's evidence)."""
     return Param("friction_coefficient", fx.CREEP_KEY, CREEP_GRID_M_S[0], CREEP_GRID_M_S[0],
                  CREEP_GRID_M_S[-1], 0.0, shape=True, log=True, nuisance=0.0, keep="ratio")
 

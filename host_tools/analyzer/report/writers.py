@@ -54,7 +54,7 @@ def report_dict(an: Analysis) -> dict[str, Any]:
         # 1-sigma uncertainty of each fitted coordinate (e.g. mu_k_over_mu_s for friction)
         nuis = {e: fitted_nuisance(c.fit, e) for e in c.effects}
         for (e, k), sd in zip(c.fit.coords, c.fit.std):
-            if _is_nuisance(e, k):
+            if is_nuisance(e, k):
                 continue
             key = k if len(c.effects) == 1 else f"{e}.{k}"
             entry["param_std"][key] = round_sig(sd)
@@ -249,13 +249,8 @@ def _chosen_std(an: Analysis) -> dict[tuple[str, str], float]:
     for c in an.candidates:
         if set(c.effects) == want:
             return {(e, k): sd for (e, k), sd in zip(c.fit.coords, c.fit.std)
-                    if not _is_nuisance(e, k)}
+                    if not is_nuisance(e, k)}
     return {}
-
-
-def _is_nuisance(effect: str, name: str) -> bool:
-    """A fit coordinate that is no vocabulary parameter (``fit.params.is_nuisance``)."""
-    return is_nuisance(effect, name)
 
 
 def _pm(v: float, sd: float | None) -> str:
