@@ -38,6 +38,22 @@ def quantization_std(step: float) -> float:
     return cast(float, float(step) / np.sqrt(6.0))
 
 
+def clipped_reading_mean(m: np.ndarray, sigma: float) -> np.ndarray:
+    """The mean reading of a sense that reads the magnitude ``m`` >= 0 with Gaussian noise of
+    std ``sigma`` and no negative values (an ADC clips at 0 counts): E[max(0, m + n)] =
+    m Phi(m / sigma) + sigma phi(m / sigma).  At m = 0 it reads sigma / sqrt(2 pi) (0.40 sigma)
+    on average, within 1 % of sigma of m from m = 2 sigma on.  The ADC's rounding to counts
+    changes it by under 0.02 sigma for sigma of a count or more (the sum over the counts is the
+    integral's midpoint rule; at half a count 0.08 sigma at nil).  ``sigma`` <= 0: ``m``
+    itself."""
+    m = np.asarray(m, float)
+    if not sigma > 0:
+        return m
+    from scipy.special import ndtr
+    u = m / sigma
+    return cast(np.ndarray, m * ndtr(u) + sigma * np.exp(-0.5 * u * u) / math.sqrt(2 * math.pi))
+
+
 def count_rate_band(dt: np.ndarray, dt_ref: float, count: float) -> np.ndarray:
     """Per sample of a rate from two cumulative counts ``dt`` apart (a wheel speed from the
     encoder counts of two frames, ``count`` its unit per count): how much its quantization

@@ -44,6 +44,10 @@ class PreparedRun:
     phase_uncertainty_s: float = 0.0
     recorder_odometry: dict[str, Any] | None = None
     odo_schedule: str | None = None        # "ticks" or "frames"
+    # the motor-current sense's noise (A, right and left; locate.mismatch): a current channel
+    # replays the sense's mean reading, its noise clipped at nil (signals.clipped_reading_mean);
+    # None: |I| itself
+    sense_noise_a: tuple[float, float] | None = None
     # replay: the nominal replay's slip episodes (board times; replay.anchors) and the replay's
     # uncertainty from unreported commands (channel -> (t, std); replay.unseen)
     slip_episodes: list[tuple[float, float]] = field(default_factory=list)

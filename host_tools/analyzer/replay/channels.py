@@ -283,8 +283,12 @@ def _current_channels(win: _Window) -> dict[str, Channel]:
             if keep.sum() < max(3, keep.size // 4):
                 continue   # the frames coincide with the loop's ticks: no settled sample
             tk = t[keep]
+            mag = np.abs(win.at(f"i_{side}_a", tk))
+            if prep.sense_noise_a is not None:
+                # what the sense reads on average, its noise clipped at nil (locate.mismatch)
+                mag = sg.clipped_reading_mean(mag, prep.sense_noise_a[side == "l"])
             out[col] = Channel(col, tk, np.asarray(tel[col][win.i_a:win.i_b], float)[keep],
-                               np.abs(win.at(f"i_{side}_a", tk)), "A",
+                               mag, "A",
                                None if w is None else win.seg(int(keep.sum())),
                                band=_sampling_band(win, side, tk))
     return out
