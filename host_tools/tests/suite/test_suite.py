@@ -183,7 +183,8 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback35", 28, 12),
                                                     ("heldback36", 28, 12),
                                                     ("heldback37", 28, 12),
-                                                    ("heldback38", 28, 12)])
+                                                    ("heldback38", 28, 12),
+                                                    ("heldback39", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
@@ -193,7 +194,7 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
              "heldback22", "heldback23", "heldback24", "heldback25", "heldback26",
              "heldback27", "heldback28", "heldback29", "heldback30", "heldback31",
              "heldback32", "heldback33", "heldback34", "heldback35", "heldback36",
-             "heldback37", "heldback38"]
+             "heldback37", "heldback38", "heldback39"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -248,8 +249,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback31", "heldback32",
                  "heldback33", "heldback34",
                  "heldback35", "heldback36",
-                 "heldback37", "heldback38"):  # both engines in every kind and on 20 s and 60 s
-        # runs (hard ones with the clamp off)
+                 "heldback37", "heldback38",
+                 "heldback39"):  # both engines in every kind and on 20 s and 60 s runs (hard
+        # ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -280,8 +282,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback32", "heldback33",
                  "heldback34", "heldback35",
                  "heldback36", "heldback37",
-                 "heldback38"):  # friction on both engines, mu_s / mu_k drawn over [1, 1.15]; an
-        # effect over 60 s runs
+                 "heldback38", "heldback39"):  # friction on both engines, mu_s / mu_k drawn
+        # over [1, 1.15]; an effect over 60 s runs
         friction = [c for c in new if "friction_coefficient" in c.effects]
         assert {c.engine for c in friction} == {"truth", "mujoco"}
         ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
@@ -317,7 +319,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     # caster drag, payload, axle Coulomb friction and axle viscous friction (all four absent from
     # heldback35); heldback37's track width, load transfer, motor lag and driver voltage drop (all
     # four absent from heldback36); heldback38's actuation delay, back-EMF, deadband and Stribeck
-    # friction (all four absent from heldback37)
+    # friction (all four absent from heldback37); heldback39's axle viscous friction, load
+    # transfer, driver voltage drop and floor slope (all four absent from heldback38)
     own_kinds = {"heldback14": ("payload", "motor_back_emf", "deadband"),
                  "heldback15": ("axle_coulomb", "motor_gain_asymmetry", "actuation_delay"),
                  "heldback16": ("motor_back_emf", "motor_lag", "track_width"),
@@ -345,7 +348,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback35": ("deadband",),
                  "heldback36": ("caster_drag", "payload", "axle_coulomb", "axle_viscous"),
                  "heldback37": ("track_width", "load_transfer", "motor_lag", "driver_voltage_drop"),
-                 "heldback38": ("actuation_delay", "motor_back_emf", "deadband", "stribeck")}
+                 "heldback38": ("actuation_delay", "motor_back_emf", "deadband", "stribeck"),
+                 "heldback39": ("axle_viscous", "load_transfer", "driver_voltage_drop",
+                                "floor_slope")}
     if which in own_kinds:
         for kind in own_kinds[which]:
             sizes = [c.effects[kind][cases.MAIN_PARAM[kind]] for c in new if kind in c.effects]
@@ -470,6 +475,7 @@ FROZEN_SETS = {
     "heldback36": "c34c04ce842df0e48f72989c7a761a151c7e51c32d9e94178079cf149e81eb27",
     "heldback37": "7f2694714b9f9effaa4e7ef6cf4c477879e8ccd7ce4307b6f353fa27042bd959",
     "heldback38": "0a83a28c84d081663c91b2d3b0bc889e5f88fdad21b30f6b74207439801dcb6f",
+    "heldback39": "18ffeded135d89e8ee91a40e980b843f44c89f812990f21d59bb440da32b46b1",
 }
 
 
