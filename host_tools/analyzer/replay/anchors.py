@@ -88,32 +88,54 @@ def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
             lo = max(lo, b)
         elif a >= at:
             hi = min(hi, a)
-    m = (tg >= lo) & (tg <= hi) & (tg >= t[0]) & (tg <= t[-1])
-    # nor across lost frames: between two frames further apart than a missing frame's gap, the
-    # odometry is a straight line in time while the robot accelerates (a camera sample in the
-    # middle of a 0.65 s gap at 2 m/s^2 is 0.1 m off it), and the offset fitted through those
-    # samples moves the anchor by centimetres
-    if t.size > 2:
-        j = np.clip(np.searchsorted(t, tg, side="right"), 1, t.size - 1)
-        m &= (t[j] - t[j - 1]) <= missing_sample_gap_s(t)
-    if m.sum() < 3:
-        return None
-    tm = tg[m]
     po = np.unwrap(tel["phi_odo_rad"])
     # the recorded pose at the time it was computed (a tick or the frame)
     to, keep = np.unique(odometry_times(prep), return_index=True)
     xo_, yo_, po_ = tel["x_odo_m"][keep], tel["y_odo_m"][keep], po[keep]
-    odo = {"x_m": np.interp(tm, to, xo_), "y_m": np.interp(tm, to, yo_),
-           "phi_rad": np.interp(tm, to, po_)}
     here = {"x_m": float(np.interp(at, to, xo_)), "y_m": float(np.interp(at, to, yo_)),
             "phi_rad": float(np.interp(at, to, po_))}
+    # the two are compared at the samples of the sparser series, the denser one interpolated
+    # there (the error of a straight line between two samples grows with the square of their
+    # interval) between two of its samples that miss none: a camera sample between two frames
+    # further apart than a missing frame's gap is not used, where the odometry would be a
+    # straight line in time while the robot accelerates (a camera sample in the middle of a
+    # 0.65 s gap at 2 m/s^2 is 0.1 m off it), nor a frame between two camera samples further
+    # apart than a missing one's
+    fin = np.isfinite(gt["x_m"]) & np.isfinite(gt["y_m"])
+    tgf = tg[fin]
+    ph_all = gt.get("phi_rad")
+    if to.size > 2 and tgf.size > 2 and np.median(np.diff(tgf)) < np.median(np.diff(to)):
+        jg = np.clip(np.searchsorted(tgf, to), 1, tgf.size - 1)
+        m = ((to >= lo) & (to <= hi) & (to >= tgf[0]) & (to <= tgf[-1])
+             & (tgf[jg] - tgf[jg - 1] <= missing_sample_gap_s(tgf)))
+        if m.sum() < 3:
+            return None
+        tm = to[m]
+        odo = {"x_m": xo_[m], "y_m": yo_[m], "phi_rad": po_[m]}
+        gx, gy = (np.interp(tm, tgf, np.asarray(gt[c], float)[fin]) for c in ("x_m", "y_m"))
+        ph = None
+        if ph_all is not None and (okp := np.isfinite(ph_all)).sum() >= 2:
+            tp = tg[okp]
+            jp = np.clip(np.searchsorted(tp, tm), 1, tp.size - 1)
+            ph = np.where(tp[jp] - tp[jp - 1] <= missing_sample_gap_s(tp),
+                          np.interp(tm, tp, np.unwrap(np.asarray(ph_all, float)[okp])), np.nan)
+    else:
+        m = (tg >= lo) & (tg <= hi) & (tg >= t[0]) & (tg <= t[-1])
+        if t.size > 2:
+            j = np.clip(np.searchsorted(t, tg, side="right"), 1, t.size - 1)
+            m &= (t[j] - t[j - 1]) <= missing_sample_gap_s(t)
+        if m.sum() < 3:
+            return None
+        tm = tg[m]
+        odo = {"x_m": np.interp(tm, to, xo_), "y_m": np.interp(tm, to, yo_),
+               "phi_rad": np.interp(tm, to, po_)}
+        gx, gy = gt["x_m"][m], gt["y_m"][m]
+        ph = None if ph_all is None else np.asarray(ph_all, float)[m]
+    ok = np.isfinite(ph) if ph is not None else np.zeros(tm.size, bool)
     # camera = R(delta) odometry + c over the span.  delta from the positions (2-D Procrustes)
     # when the robot travels far enough for the direction of travel to pin it down better than
     # the camera's headings do (1 mm over a 0.3 m spread: ~0.5 mrad), else from the headings
     # (a straight line in time); c a straight line in time
-    gx, gy = gt["x_m"][m], gt["y_m"][m]
-    ph = gt.get("phi_rad")
-    ok = np.isfinite(ph[m]) if ph is not None else np.zeros(tm.size, bool)
     ox, oy = odo["x_m"] - odo["x_m"].mean(), odo["y_m"] - odo["y_m"].mean()
     spread = float(np.sqrt(np.mean(ox ** 2 + oy ** 2)))
     if spread >= MIN_SPREAD_M or ok.sum() < 3 or ph is None:  # (ph None: ok is all False)
@@ -121,7 +143,7 @@ def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
         delta_at = float(np.arctan2(np.sum(ox * qy - oy * qx), np.sum(ox * qx + oy * qy)))
         delta = np.full(tm.size, delta_at)
     else:
-        d = ph[m][ok] - odo["phi_rad"][ok]
+        d = ph[ok] - odo["phi_rad"][ok]
         d0 = float(np.median(wrap_angle(d)))
         dl = d0 + wrap_angle(d - d0)
         A = np.column_stack([np.ones(ok.sum()), tm[ok] - at])
@@ -458,18 +480,30 @@ def with_recorded_slip(prep: PreparedRun, episodes: list[tuple[float, float]]
     slip episodes (edges out of slips, the cut after one, the anchors' slip-free spans, and
     ``locate.episodes.unpinned_episodes``; an episode inside one carried on is left as it is,
     the rules take the longer).  A slip only the recording shows, with no episode of the nominal
-    replay before it, is left as evidence (a lower friction shows there)."""
-    if not episodes:
-        return []
+    replay before it, is left as evidence (a lower friction shows there), unless it is where a
+    window starts after a telemetry gap (longer than GAP_S): no command is known in the gap and
+    the window before ends at it, so no replay saw that slip begin.  Where the first block that
+    starts after the gap's end fails the test (the block across the gap is not read: its counts
+    are a straight line there), the recording's own episode runs from the last frame before the
+    gap through the blocks that fail, and the window starts as the camera shows the body
+    (:func:`window_start`)."""
     rt = rolling_test(prep)
     if rt is None:
         return sorted(episodes)
-    out: list[tuple[float, float]] = []
-    for a, b in sorted(episodes):
-        i = int(np.searchsorted(rt.t0, b - 1e-9))
-        end = b
+
+    def carried(i: int, end: float) -> float:
         while i < rt.t0.size and rt.rolling(i) is False:
             end = float(rt.t1[i])
             i += 1
-        out.append((a, end))
-    return out
+        return end
+    out: list[tuple[float, float]] = []
+    for a, b in sorted(episodes):
+        out.append((a, carried(int(np.searchsorted(rt.t0, b - 1e-9)), b)))
+    t = prep.run.telemetry["t_s"]
+    for w, (i_a, _) in enumerate(prep.windows):
+        if w == 0 or i_a == 0 or not t[i_a] - t[i_a - 1] > GAP_S:
+            continue
+        i = int(np.searchsorted(rt.t0, float(t[i_a])))
+        if i < rt.t0.size and rt.rolling(i) is False:
+            out.append((float(t[i_a - 1]), carried(i, float(t[i_a]))))
+    return sorted(out)

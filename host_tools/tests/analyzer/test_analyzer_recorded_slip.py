@@ -2,6 +2,7 @@
 replay carried on while the recording goes on slipping after it (``replay.anchors``)."""
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
@@ -18,11 +19,13 @@ SPIN = (4.0, 6.5)   # the recorded body spins on its slipping wheels over this s
 
 
 def _recording(seed: int = 1, spin: tuple[float, float] | None = SPIN,
-               r_ratio: float = 1.0, b_ratio: float = 1.0):
+               r_ratio: float = 1.0, b_ratio: float = 1.0,
+               lost: tuple[float, float] | None = None):
     """A 16 s recording (50 Hz telemetry, 30 Hz camera with 1 mm and 0.01 rad of noise) of a
     robot that drives, turns and reverses, rolling with its wheels, except over ``spin``: its
     wheels turn backwards at 30 rad/s, and its body stands and spins at -6 rad/s.  Its wheel
-    radius and track width are ``r_ratio`` and ``b_ratio`` times the nominal ones."""
+    radius and track width are ``r_ratio`` and ``b_ratio`` times the nominal ones.  The frames
+    strictly inside ``lost`` are lost (a gap of the telemetry, which ends a window)."""
     rng = np.random.default_rng(seed)
     r, b = float(ROBOT["r"]), float(ROBOT["b"])
     t = np.round(np.arange(0.0, 16.0 + 1e-9, 0.02), 6)
@@ -47,12 +50,18 @@ def _recording(seed: int = 1, spin: tuple[float, float] | None = SPIN,
                                            + rng.normal(0, 0.01, tg.size))))}
     tel = {"t_s": t, "enc_r": enc_r, "enc_l": enc_l, "x_odo_m": np.asarray(xo),
            "y_odo_m": np.asarray(yo), "phi_odo_rad": np.asarray(po)}
+    if lost is not None:
+        keep = (t <= lost[0]) | (t >= lost[1])
+        tel = {k: v[keep] for k, v in tel.items()}
+        t = tel["t_s"]
     nothing = (np.zeros(0), np.zeros(0))
-    i4, i8, i12 = (int(np.searchsorted(t, s)) for s in (4.0, 8.0, 12.0))
+    edges = [int(np.searchsorted(t, s)) for s in (4.0, 8.0, 12.0)]
+    if lost is not None:
+        edges = sorted(edges + [int(np.searchsorted(t, lost[1]))])
+    bounds = [0] + edges + [t.size]
     return PR.PreparedRun(SimpleNamespace(telemetry=tel, groundtruth=gt, name="run-0"), t, t,
                           nothing, nothing, t, dict(ROBOT), {}, (0.0, 0.0, 0.0), PPR,
-                          windows=[(0, i4), (i4, i8), (i8, i12), (i12, t.size)],
-                          odo_schedule="frames")
+                          windows=list(zip(bounds[:-1], bounds[1:])), odo_schedule="frames")
 
 
 def test_a_rolling_recording_passes_the_rolling_test():
@@ -100,6 +109,24 @@ def test_a_replay_episode_is_carried_on_while_the_recording_slips():
     assert got[1][0] == 3.8 and SPIN[1] <= got[1][1] <= SPIN[1] + AN.ROLL_BLOCK_S
     assert AN.with_recorded_slip(prep, [(1.0, 1.2)]) == [(1.0, 1.2)]
     assert AN.with_recorded_slip(prep, []) == []
+
+
+def test_a_window_after_a_gap_that_starts_in_the_recordings_slip_starts_in_an_episode():
+    """Frames lost over 4.9-5.6 s (a gap: the window before ends at it, and no command is known
+    in it), inside the recording's spin: the window after the gap starts where the recording
+    does not roll, and no replay saw that slip begin, so it is the recording's episode, from the
+    last frame before the gap to where the recording rolls again; the window then starts as the
+    camera shows it (``window_start``).  A gap where the recording rolls adds none."""
+    prep = _recording(lost=(4.9, 5.6))
+    t = prep.run.telemetry["t_s"]
+    j = int(np.searchsorted(t, 5.6))
+    got = AN.with_recorded_slip(prep, [])
+    assert len(got) == 1 and got[0][0] == t[j - 1]
+    assert SPIN[1] <= got[0][1] <= SPIN[1] + AN.ROLL_BLOCK_S
+    assert AN.slip_containing(dataclasses.replace(prep, slip_episodes=got), float(t[j]))
+    # with the replay's own episode before it, the two are both kept (the rules take the longer)
+    assert AN.with_recorded_slip(prep, [(3.8, 4.4)])[1] == got[0]
+    assert AN.with_recorded_slip(_recording(lost=(9.9, 10.6)), []) == []
 
 
 def test_no_window_starts_in_the_recordings_slip_after_a_replay_episode():
