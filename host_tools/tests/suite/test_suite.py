@@ -185,7 +185,8 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback37", 28, 12),
                                                     ("heldback38", 28, 12),
                                                     ("heldback39", 28, 12),
-                                                    ("heldback40", 28, 12)])
+                                                    ("heldback40", 28, 12),
+                                                    ("heldback41", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
@@ -195,7 +196,7 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
              "heldback22", "heldback23", "heldback24", "heldback25", "heldback26",
              "heldback27", "heldback28", "heldback29", "heldback30", "heldback31",
              "heldback32", "heldback33", "heldback34", "heldback35", "heldback36",
-             "heldback37", "heldback38", "heldback39", "heldback40"]
+             "heldback37", "heldback38", "heldback39", "heldback40", "heldback41"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -251,8 +252,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback33", "heldback34",
                  "heldback35", "heldback36",
                  "heldback37", "heldback38",
-                 "heldback39", "heldback40"):  # both engines in every kind and on 20 s and 60 s
-        # runs (hard ones with the clamp off)
+                 "heldback39", "heldback40",
+                 "heldback41"):  # both engines in every kind and on 20 s and 60 s runs (hard
+        # ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -284,8 +286,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback34", "heldback35",
                  "heldback36", "heldback37",
                  "heldback38", "heldback39",
-                 "heldback40"):  # friction on both engines, mu_s / mu_k drawn over [1, 1.15]; an
-        # effect over 60 s runs
+                 "heldback40", "heldback41"):  # friction on both engines, mu_s / mu_k drawn over
+        # [1, 1.15]; an effect over 60 s runs
         friction = [c for c in new if "friction_coefficient" in c.effects]
         assert {c.engine for c in friction} == {"truth", "mujoco"}
         ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
@@ -324,7 +326,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     # friction (all four absent from heldback37); heldback39's axle viscous friction, load
     # transfer, driver voltage drop and floor slope (all four absent from heldback38);
     # heldback40's axle Coulomb friction, wheel radius and motor lag (all three absent from
-    # heldback39)
+    # heldback39); heldback41's axle viscous friction and caster drag (both absent from
+    # heldback40)
     own_kinds = {"heldback14": ("payload", "motor_back_emf", "deadband"),
                  "heldback15": ("axle_coulomb", "motor_gain_asymmetry", "actuation_delay"),
                  "heldback16": ("motor_back_emf", "motor_lag", "track_width"),
@@ -355,7 +358,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback38": ("actuation_delay", "motor_back_emf", "deadband", "stribeck"),
                  "heldback39": ("axle_viscous", "load_transfer", "driver_voltage_drop",
                                 "floor_slope"),
-                 "heldback40": ("axle_coulomb", "wheel_radius", "motor_lag")}
+                 "heldback40": ("axle_coulomb", "wheel_radius", "motor_lag"),
+                 "heldback41": ("axle_viscous", "caster_drag")}
     if which in own_kinds:
         for kind in own_kinds[which]:
             sizes = [c.effects[kind][cases.MAIN_PARAM[kind]] for c in new if kind in c.effects]
@@ -482,6 +486,7 @@ FROZEN_SETS = {
     "heldback38": "0a83a28c84d081663c91b2d3b0bc889e5f88fdad21b30f6b74207439801dcb6f",
     "heldback39": "18ffeded135d89e8ee91a40e980b843f44c89f812990f21d59bb440da32b46b1",
     "heldback40": "1eb46dc57cec726c1d70b200bfd0374684584ffdf401700ac931507b9d3939a7",
+    "heldback41": "e5062ad252572a1050073ba2adf002ed494e593424d215dc80c31fb98354a08b",
 }
 
 
