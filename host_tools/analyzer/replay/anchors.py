@@ -25,6 +25,27 @@ def _line_at(t: np.ndarray, v: np.ndarray, at: float) -> float:
     return float(np.linalg.lstsq(A, v, rcond=None)[0][0])
 
 
+def _line_se_at(t: np.ndarray, v: np.ndarray, at: float) -> float:
+    """The standard error of :func:`_line_at`'s value at ``at``: the residual's variance about
+    the line, s^2 (n - 2 degrees of freedom), times 1/n + (mean of t - at)^2 / Sxx, inflated by
+    the residual's lag-1 correlation r1 as an AR(1)'s (1 + r1) / (1 - r1) (r1 below nil taken as
+    nil, the factor at most n: a residual that bends smoothly within the span is one error, not
+    n).  0 with fewer than four samples."""
+    tt = np.asarray(t, float) - at
+    n = tt.size
+    if n < 4 or np.ptp(tt) <= 0:
+        return 0.0
+    A = np.column_stack([np.ones_like(tt), tt])
+    res = v - A @ np.linalg.lstsq(A, v, rcond=None)[0]
+    s2 = float(np.sum(res ** 2)) / (n - 2)
+    den = float(np.sum(res[:-1] ** 2))
+    r1 = min(max(float(np.sum(res[:-1] * res[1:])) / den, 0.0), 1.0) if den > 0 else 0.0
+    infl = min((1.0 + r1) / (1.0 - r1), float(n)) if r1 < 1.0 else float(n)
+    xbar = float(tt.mean())
+    sxx = float(np.sum((tt - xbar) ** 2))
+    return math.sqrt(s2 * (1.0 / n + xbar ** 2 / sxx) * infl)
+
+
 ANCHOR_HALF_S = 1.5
 MIN_SPREAD_M = 0.1
 
@@ -154,7 +175,9 @@ def _gt_anchor_of(prep: "PreparedRun", at: float, half: float = ANCHOR_HALF_S
     cy = gy - (np.sin(delta) * odo["x_m"] + np.cos(delta) * odo["y_m"])
     ca, sa = math.cos(delta_at), math.sin(delta_at)
     out = {"x_m": ca * here["x_m"] - sa * here["y_m"] + _line_at(tm, cx, at),
-           "y_m": sa * here["x_m"] + ca * here["y_m"] + _line_at(tm, cy, at)}
+           "y_m": sa * here["x_m"] + ca * here["y_m"] + _line_at(tm, cy, at),
+           # the anchor's own uncertainty in position (a window's camera channels carry it)
+           "sd_x_m": _line_se_at(tm, cx, at), "sd_y_m": _line_se_at(tm, cy, at)}
     out["phi_rad"] = here["phi_rad"] + delta_at
     return out
 

@@ -388,7 +388,12 @@ def _camera_channels(win: _Window) -> dict[str, Channel]:
         cr, sr = math.cos(rot), math.sin(rot)
         pos = {"x_m": cr * dx - sr * dy + ref["x_m"], "y_m": sr * dx + cr * dy + ref["y_m"]}
     for c in ("x_m", "y_m"):
-        out[c] = Channel(c, tg, gt[c][inside], pos[c], "m", seg(tg.size))
+        # a window re-anchored to the camera carries its anchor's standard error in position
+        # over its samples (constant: the whole window is placed by it), in quadrature with the
+        # replay's uncertainty; under a camera of micrometres it can be the largest term
+        sd = float(an.get(f"sd_{c}", 0.0)) if anchored and an is not None else 0.0
+        out[c] = Channel(c, tg, gt[c][inside], pos[c], "m", seg(tg.size),
+                         band=np.full(tg.size, sd) if sd > 0 else None)
     ph = gt["phi_rad"][inside]
     ok = np.isfinite(ph)
     if ok.sum() >= 3:

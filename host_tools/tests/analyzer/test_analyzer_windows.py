@@ -309,6 +309,28 @@ def test_the_camera_anchor_pairs_at_the_frames_when_the_camera_is_denser():
     assert worst < 0.01, worst
 
 
+def test_the_camera_anchors_standard_error_is_the_noises_or_the_bends():
+    """The anchor's camera-minus-odometry offset is a straight line fitted over +-1.5 s; its
+    value's standard error (carried by the window's camera channels) is, for a camera's white
+    noise (1 mm at 30 Hz), the noise over sqrt(n) (0.11 mm for 90 samples; mean over 20 seeds
+    within 10 %), and where the offset bends within the span under a quiet camera (1.5 um; a
+    parabola of +-1 mm: the odometry drifting other than linearly), the bend's own size, not
+    a thousandth of a millimetre (heldback40's truth 60 s null: a window started 0.97 mm off,
+    its anchor's offset 1.0 mm RMS about its line at lag-1 correlation 0.95)."""
+    tt = np.linspace(-1.5, 1.5, 90)
+    ratios = []
+    for seed in range(20):
+        v = np.random.default_rng(seed).normal(0.0, 1e-3, tt.size)
+        ratios.append(AN._line_se_at(tt, v, 0.0) / (1e-3 / np.sqrt(tt.size)))
+    assert 0.9 < float(np.mean(ratios)) < 1.1, ratios
+    bend = 1e-3 * (3 * (tt / 1.5) ** 2 - 1) / 2
+    v = bend + np.random.default_rng(1).normal(0.0, 1.5e-6, tt.size)
+    A = np.column_stack([np.ones_like(tt), tt])
+    rms = float(np.sqrt(np.mean((v - A @ np.linalg.lstsq(A, v, rcond=None)[0]) ** 2)))
+    se = AN._line_se_at(tt, v, 0.0)
+    assert 0.8 * rms < se < 1.5 * rms, (se, rms)
+
+
 def test_a_window_after_a_gap_starts_at_the_wheel_speed_of_its_first_frame():
     """A window that starts right after a gap of lost frames has counts on one side of its
     first frame only: their mean rate is the speed half their span later, off by the
@@ -359,6 +381,24 @@ def test_a_window_without_anchor_is_tied_to_its_first_camera_sample_at_that_time
         ref = max(abs(float(np.mean(base[c].resid[later & (base[c].seg == s)])))
                   for s in np.unique(ch.seg[later]))
         assert worst < ref + tol, (c, worst, ref)
+
+
+def test_a_re_anchored_windows_camera_positions_carry_the_anchors_standard_error(tmp_path):
+    """The camera positions of every window after the first carry their anchor's standard
+    error (``Channel.band``, constant over the window, joined to the replay's uncertainty in
+    quadrature); the first window, which starts from the run's start pose, carries none."""
+    path = synth.make_run(tmp_path / "long", "turn", duration_s=20.0, seed=4)
+    prep = PI.prepare_timed(load_run(path))
+    sims = OL.OpenLoopReplay("duty").simulate_windows(prep, {})
+    chans = CH.channels(prep, sims)
+    for c in ("x_m", "y_m"):
+        ch = chans[c]
+        assert ch.band is not None and ch.total_unc is not None
+        assert np.all(ch.band[ch.seg == 0] == 0.0)
+        for w in np.unique(ch.seg[ch.seg >= 1]):
+            b = ch.band[ch.seg == w]
+            an = AN._gt_anchor(prep, float(prep.run.telemetry["t_s"][prep.windows[int(w)][0]]))
+            assert an is not None and np.all(b == an[f"sd_{c}"]) and 0 < b[0] < 1e-3, (c, w, b[0])
 
 
 def test_a_window_after_a_gap_inside_a_slip_starts_as_the_camera_shows_it():
