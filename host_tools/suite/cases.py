@@ -9,7 +9,7 @@ The sets are data (``sets.json`` beside this file, :data:`SET_DATA`; docs/suite.
 each held-back set's record in docs/validation.md): each with what it is for, its provenance (the commit that defined it and the one
 since which its cases are unchanged, checked by host_tools/tests/suite/test_suite.py), its seeds, its
 engine, its recorders and its cases. ``tuning`` (:func:`all_cases`) and ``mujoco``: analyzer rules
-may be settled on them; ``heldback`` to ``heldback41``: other seeds, effect sizes and recorders
+may be settled on them; ``heldback`` to ``heldback42``: other seeds, effect sizes and recorders
 (the truth simulator's recorder variants), long runs; only scored.
 
 Concealment kinds:

@@ -186,7 +186,8 @@ def test_second_heldback_set_is_new_in_seeds_sizes_and_recorders():
                                                     ("heldback38", 28, 12),
                                                     ("heldback39", 28, 12),
                                                     ("heldback40", 28, 12),
-                                                    ("heldback41", 28, 12)])
+                                                    ("heldback41", 28, 12),
+                                                    ("heldback42", 28, 12)])
 def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls):
     """Each later held-back set uses seeds and recorder profiles that no earlier set does."""
     order = ["tuning", "heldback", "heldback2", "heldback3", "heldback4", "heldback5", "mujoco",
@@ -196,7 +197,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
              "heldback22", "heldback23", "heldback24", "heldback25", "heldback26",
              "heldback27", "heldback28", "heldback29", "heldback30", "heldback31",
              "heldback32", "heldback33", "heldback34", "heldback35", "heldback36",
-             "heldback37", "heldback38", "heldback39", "heldback40", "heldback41"]
+             "heldback37", "heldback38", "heldback39", "heldback40", "heldback41",
+             "heldback42"]
     earlier = [cases.get(which=w) for w in order[:order.index(which)]]
     new = cases.get(which=which)
     assert all(c.set == which for c in new) and len(new) == size
@@ -253,8 +255,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback35", "heldback36",
                  "heldback37", "heldback38",
                  "heldback39", "heldback40",
-                 "heldback41"):  # both engines in every kind and on 20 s and 60 s runs (hard
-        # ones with the clamp off)
+                 "heldback41", "heldback42"):  # both engines in every kind and on 20 s and 60 s
+        # runs (hard ones with the clamp off)
         for expect in ("no_mismatch", "explained", "unexplained"):
             assert {c.engine for c in new if c.expect == expect} == {"truth", "mujoco"}
         for length in ("20 s", "1 min"):
@@ -286,8 +288,9 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback34", "heldback35",
                  "heldback36", "heldback37",
                  "heldback38", "heldback39",
-                 "heldback40", "heldback41"):  # friction on both engines, mu_s / mu_k drawn over
-        # [1, 1.15]; an effect over 60 s runs
+                 "heldback40", "heldback41",
+                 "heldback42"):  # friction on both engines, mu_s / mu_k drawn over [1, 1.15]; an
+        # effect over 60 s runs
         friction = [c for c in new if "friction_coefficient" in c.effects]
         assert {c.engine for c in friction} == {"truth", "mujoco"}
         ratios = [c.effects["friction_coefficient"]["mu_s"] / c.effects["friction_coefficient"]["mu_k"]
@@ -327,7 +330,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
     # transfer, driver voltage drop and floor slope (all four absent from heldback38);
     # heldback40's axle Coulomb friction, wheel radius and motor lag (all three absent from
     # heldback39); heldback41's axle viscous friction and caster drag (both absent from
-    # heldback40)
+    # heldback40); heldback42's deadband, motor gain asymmetry and Stribeck friction (all three
+    # absent from heldback41)
     own_kinds = {"heldback14": ("payload", "motor_back_emf", "deadband"),
                  "heldback15": ("axle_coulomb", "motor_gain_asymmetry", "actuation_delay"),
                  "heldback16": ("motor_back_emf", "motor_lag", "track_width"),
@@ -359,7 +363,8 @@ def test_later_heldback_sets_are_new_in_seeds_and_recorders(which, size, n_nulls
                  "heldback39": ("axle_viscous", "load_transfer", "driver_voltage_drop",
                                 "floor_slope"),
                  "heldback40": ("axle_coulomb", "wheel_radius", "motor_lag"),
-                 "heldback41": ("axle_viscous", "caster_drag")}
+                 "heldback41": ("axle_viscous", "caster_drag"),
+                 "heldback42": ("deadband", "motor_gain_asymmetry", "stribeck")}
     if which in own_kinds:
         for kind in own_kinds[which]:
             sizes = [c.effects[kind][cases.MAIN_PARAM[kind]] for c in new if kind in c.effects]
@@ -487,6 +492,7 @@ FROZEN_SETS = {
     "heldback39": "18ffeded135d89e8ee91a40e980b843f44c89f812990f21d59bb440da32b46b1",
     "heldback40": "1eb46dc57cec726c1d70b200bfd0374684584ffdf401700ac931507b9d3939a7",
     "heldback41": "e5062ad252572a1050073ba2adf002ed494e593424d215dc80c31fb98354a08b",
+    "heldback42": "167542cb66f39f12936b9028459229034863216952e6c22a8ba63ab01b3f4240",
 }
 
 
