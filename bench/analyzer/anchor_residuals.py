@@ -5,8 +5,8 @@ The anchor of a replay window after the first is the recorder's odometry correct
 camera = R(delta) odometry + c, c a straight line in time fitted over +-1.5 s.  For each window
 of a run this prints, at its early start and at its first frame, and for x and y: the number of
 samples of the fit, the RMS of the offset's residual about its line, the residual's lag-1
-correlation r1 and the standard error of the line's value that an AR(1) residual gives
-(RMS / sqrt(n (1 - r1) / (1 + r1))).  A residual far above the camera's own noise with r1 near 1
+correlation r1 and the standard error of the line's value the analyzer gives the window's camera
+positions (``anchors._line_se_at``).  A residual far above the camera's own noise with r1 near 1
 is the offset bending within the span (the odometry drifting other than linearly), which the
 window's pose then carries from its start.
 
@@ -40,9 +40,8 @@ def main(argv: list[str] | None = None) -> int:
             A = np.column_stack([np.ones_like(x), x])
             res = v - A @ np.linalg.lstsq(A, v, rcond=None)[0]
             r1 = float(np.corrcoef(res[:-1], res[1:])[0, 1])
-            n_eff = max(res.size * (1 - r1) / (1 + r1), 1.0) if r1 < 1 else 1.0
             rms = float(np.sqrt(np.mean(res ** 2)))
-            rec.append((at, res.size, rms, r1, rms / np.sqrt(n_eff)))
+            rec.append((at, res.size, rms, r1, AN._line_se_at(tt, v, at)))
         return line_at(tt, v, at)
     AN._line_at = spy
     try:
